@@ -1,0 +1,1 @@
+"""actions stages and their libraries."""

@@ -1,0 +1,1 @@
+"""sensors stages and their libraries."""

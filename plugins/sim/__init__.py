@@ -1,0 +1,1 @@
+"""sim stages and their libraries."""

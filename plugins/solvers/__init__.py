@@ -1,0 +1,1 @@
+"""solvers stages and their libraries."""
