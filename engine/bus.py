@@ -1,0 +1,197 @@
+"""The zenoh bus of one process: one session, vgr's key layout, streams, services, liveliness.
+
+Key expressions (``<run>`` is the run id)::
+
+    vgr/<run>/<stage>/<port>          data stream of an output port (pub/sub)
+    vgr/<run>/<stage>/srv/<service>   request/reply service of a stage (queryable)
+    vgr/<run>/_ready/<stage>          liveliness: the stage is declared and listening
+    vgr/<run>/_active/<process>       liveliness: the process still has stages producing data
+    vgr/<run>/_control                run-wide control (stop), published by any process
+    vgr/<run>/_svc/<stage>/<client>   service exchanges as seen by the caller (for the recorder)
+
+The default session is the embedded set-up: peer mode, multicast scouting off, listening on
+loopback only (``tcp/127.0.0.1:0``). Streams are reliable with congestion control BLOCK: a slow
+consumer slows the producer down, nothing is dropped. Consumers read their inputs from bounded
+zenoh FIFO channels (no Python on zenoh's delivery path); a local STOP marker (delivered only
+inside this session) wakes a blocked reader when the run stops.
+"""
+
+from __future__ import annotations
+
+import atexit
+import contextlib
+import json
+import threading
+import weakref
+from collections.abc import Callable
+from typing import Any
+
+import zenoh
+
+from engine.codec import Envelope, Kind, encode_envelope
+from engine.recipe import ZenohSettings
+
+INPUT_QUEUE_DEPTH = 64
+
+_open_buses: weakref.WeakSet[Bus] = weakref.WeakSet()
+
+
+def data_key(run: str, stage: str, port: str) -> str:
+    return f"vgr/{run}/{stage}/{port}"
+
+
+def service_key(run: str, stage: str, service: str) -> str:
+    return f"vgr/{run}/{stage}/srv/{service}"
+
+
+def ready_key(run: str, stage: str) -> str:
+    return f"vgr/{run}/_ready/{stage}"
+
+
+def active_key(run: str, process: str) -> str:
+    return f"vgr/{run}/_active/{process}"
+
+
+def control_key(run: str) -> str:
+    return f"vgr/{run}/_control"
+
+
+def exchange_key(run: str, stage: str, client: str) -> str:
+    return f"vgr/{run}/_svc/{stage}/{client}"
+
+
+STOP_ENVELOPE = encode_envelope(Envelope(Kind.STOP, 0, 0, ""))
+
+
+def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps(settings.mode))
+    conf.insert_json5("scouting/multicast/enabled", json.dumps(settings.multicast_scouting))
+    conf.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
+    conf.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
+    return conf
+
+
+class BusError(RuntimeError):
+    """The zenoh session could not be opened or used."""
+
+
+class Bus:
+    """One zenoh session and the declarations made on it; ``close()`` undeclares and closes."""
+
+    def __init__(self, settings: ZenohSettings | None = None) -> None:
+        self.settings = settings or ZenohSettings()
+        try:
+            self.session = zenoh.open(zenoh_config(self.settings))
+        except Exception as exc:
+            raise BusError(
+                f"cannot open zenoh session ({self.settings.mode}, listen={self.settings.listen}, "
+                f"connect={self.settings.connect}): {exc}"
+            ) from exc
+        self._decls: list[Any] = []
+        self._lock = threading.Lock()
+        self.closed = False
+        _open_buses.add(self)
+
+    # -- declarations ----------------------------------------------------------------------
+    def _keep(self, decl: Any) -> Any:
+        with self._lock:
+            self._decls.append(decl)
+        return decl
+
+    def publisher(self, key: str) -> zenoh.Publisher:
+        return self._keep(
+            self.session.declare_publisher(
+                key, congestion_control=zenoh.CongestionControl.BLOCK, reliability=zenoh.Reliability.RELIABLE
+            )
+        )
+
+    def channel(self, key: str, depth: int = INPUT_QUEUE_DEPTH) -> zenoh.Subscriber:
+        """Subscriber whose samples queue in a bounded FIFO read with ``recv()``."""
+        return self._keep(self.session.declare_subscriber(key, zenoh.handlers.FifoChannel(depth)))
+
+    def subscribe(self, key: str, callback: Callable[[zenoh.Sample], None]) -> zenoh.Subscriber:
+        """Subscriber calling *callback* on zenoh's thread (keep it short: observers, control)."""
+        return self._keep(self.session.declare_subscriber(key, callback))
+
+    def queryable(self, key: str, depth: int = INPUT_QUEUE_DEPTH) -> zenoh.Queryable:
+        return self._keep(self.session.declare_queryable(key, zenoh.handlers.FifoChannel(depth)))
+
+    def token(self, key: str) -> zenoh.LivelinessToken:
+        return self._keep(self.session.liveliness().declare_token(key))
+
+    def alive(self, key_expr: str, timeout_s: float = 1.0) -> set[str]:
+        """Keys of the liveliness tokens currently matching *key_expr* (across all processes)."""
+        replies = self.session.liveliness().get(key_expr, timeout=timeout_s)
+        return {str(r.ok.key_expr) for r in replies if r.ok is not None}
+
+    # -- local wake-ups --------------------------------------------------------------------
+    def wake_channel(self, key: str) -> None:
+        """Deliver a STOP marker to this session's subscribers of *key* only."""
+        self.session.put(key, b"", attachment=STOP_ENVELOPE, allowed_destination=zenoh.Locality.SESSION_LOCAL)
+
+    def wake_queryable(self, key: str) -> None:
+        """Deliver a STOP query to this session's queryables of *key* only (no reply awaited)."""
+        self.session.get(
+            key,
+            payload=b"",
+            attachment=STOP_ENVELOPE,
+            timeout=0.5,
+            allowed_destination=zenoh.Locality.SESSION_LOCAL,
+        )
+
+    # -- request/reply ---------------------------------------------------------------------
+    def request(self, key: str, payload: bytes, attachment: bytes, timeout_s: float) -> tuple[bytes, bytes]:
+        """Send a query and return the first reply's (payload, attachment).
+
+        Raises TimeoutError when nothing answered in time, LookupError when no service exists,
+        RuntimeError with the provider's message when it replied with an error.
+        """
+        replies = self.session.get(
+            key,
+            payload=payload,
+            attachment=attachment,
+            timeout=timeout_s,
+            target=zenoh.QueryTarget.BEST_MATCHING,
+        )
+        for reply in replies:
+            if reply.ok is not None:
+                att = reply.ok.attachment
+                return reply.ok.payload.to_bytes(), att.to_bytes() if att is not None else b""
+            err = reply.err.payload.to_bytes().decode(errors="replace") if reply.err is not None else "?"
+            if err == "Timeout":
+                raise TimeoutError(f"no reply from {key} within {timeout_s:g} s")
+            raise RuntimeError(err)
+        raise LookupError(f"no service answers at {key} (is its stage running?)")
+
+    def put(self, key: str, payload: bytes, attachment: bytes | None = None) -> None:
+        self.session.put(
+            key, payload, attachment=attachment, congestion_control=zenoh.CongestionControl.BLOCK
+        )
+
+    # -- shutdown --------------------------------------------------------------------------
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        with self._lock:
+            decls, self._decls = self._decls, []
+        for d in reversed(decls):
+            # already undeclared, or a reader still holds it: the session close below frees it
+            with contextlib.suppress(Exception):
+                d.undeclare()
+        with contextlib.suppress(Exception):
+            self.session.close()
+
+    def __enter__(self) -> Bus:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+@atexit.register
+def _close_all() -> None:
+    """Zenoh sessions must be closed before interpreter exit; this is the last resort."""
+    for bus in list(_open_buses):
+        bus.close()
