@@ -14,11 +14,18 @@ loopback only (``tcp/127.0.0.1:0``). Streams are reliable with congestion contro
 consumer slows the producer down, nothing is dropped. Consumers read their inputs from bounded
 zenoh FIFO channels (no Python on zenoh's delivery path); a local STOP marker (delivered only
 inside this session) wakes a blocked reader when the run stops.
+
+A reader must never block zenoh's network receive thread: that thread also delivers service
+replies, so a full channel there would deadlock a stage that calls a service while its input
+backs up. Inputs from another process and all service queries therefore go through a callback
+into an unbounded :class:`Inbox` instead (the runtime warns when one grows large); inputs from
+this process keep the bounded FIFO, where a full channel blocks the local publisher (backpressure).
 """
 
 from __future__ import annotations
 
 import atexit
+import collections
 import contextlib
 import json
 import threading
@@ -72,6 +79,58 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
     return conf
 
 
+class _Attachment:
+    def __init__(self, raw: bytes) -> None:
+        self._raw = raw
+
+    def to_bytes(self) -> bytes:
+        return self._raw
+
+
+class _StopMarker:
+    """Looks like a zenoh Sample/Query carrying the STOP envelope."""
+
+    attachment = _Attachment(STOP_ENVELOPE)
+    payload = None
+
+    def __enter__(self) -> _StopMarker:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+
+class Inbox:
+    """Unbounded FIFO fed by a zenoh callback (never blocks zenoh's threads), read with ``recv()``."""
+
+    def __init__(self, key: str) -> None:
+        self.key_expr = key
+        self._items: collections.deque[Any] = collections.deque()
+        self._cv = threading.Condition(threading.Lock())
+        self.decl: Any = None
+
+    def __call__(self, item: Any) -> None:
+        with self._cv:
+            self._items.append(item)
+            self._cv.notify()
+
+    def recv(self) -> Any:
+        with self._cv:
+            while not self._items:
+                self._cv.wait()
+            return self._items.popleft()
+
+    def wake(self) -> None:
+        self(_StopMarker())
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def undeclare(self) -> None:
+        if self.decl is not None:
+            self.decl.undeclare()
+
+
 class BusError(RuntimeError):
     """The zenoh session could not be opened or used."""
 
@@ -107,15 +166,29 @@ class Bus:
         )
 
     def channel(self, key: str, depth: int = INPUT_QUEUE_DEPTH) -> zenoh.Subscriber:
-        """Subscriber whose samples queue in a bounded FIFO read with ``recv()``."""
-        return self._keep(self.session.declare_subscriber(key, zenoh.handlers.FifoChannel(depth)))
+        """Subscriber to publishers of *this* session; samples queue in a bounded FIFO (``recv()``)."""
+        return self._keep(
+            self.session.declare_subscriber(
+                key, zenoh.handlers.FifoChannel(depth), allowed_origin=zenoh.Locality.SESSION_LOCAL
+            )
+        )
+
+    def inbox(self, key: str, *, remote_only: bool = True) -> Inbox:
+        """Subscriber whose samples go to an unbounded :class:`Inbox` (for publishers elsewhere)."""
+        box = Inbox(key)
+        origin = zenoh.Locality.REMOTE if remote_only else zenoh.Locality.ANY
+        box.decl = self._keep(self.session.declare_subscriber(key, box, allowed_origin=origin))
+        return box
 
     def subscribe(self, key: str, callback: Callable[[zenoh.Sample], None]) -> zenoh.Subscriber:
         """Subscriber calling *callback* on zenoh's thread (keep it short: observers, control)."""
         return self._keep(self.session.declare_subscriber(key, callback))
 
-    def queryable(self, key: str, depth: int = INPUT_QUEUE_DEPTH) -> zenoh.Queryable:
-        return self._keep(self.session.declare_queryable(key, zenoh.handlers.FifoChannel(depth)))
+    def queryable(self, key: str) -> Inbox:
+        """Queryable whose queries go to an :class:`Inbox` (never blocks zenoh's threads)."""
+        box = Inbox(key)
+        box.decl = self._keep(self.session.declare_queryable(key, box))
+        return box
 
     def token(self, key: str) -> zenoh.LivelinessToken:
         return self._keep(self.session.liveliness().declare_token(key))
@@ -129,16 +202,6 @@ class Bus:
     def wake_channel(self, key: str) -> None:
         """Deliver a STOP marker to this session's subscribers of *key* only."""
         self.session.put(key, b"", attachment=STOP_ENVELOPE, allowed_destination=zenoh.Locality.SESSION_LOCAL)
-
-    def wake_queryable(self, key: str) -> None:
-        """Deliver a STOP query to this session's queryables of *key* only (no reply awaited)."""
-        self.session.get(
-            key,
-            payload=b"",
-            attachment=STOP_ENVELOPE,
-            timeout=0.5,
-            allowed_destination=zenoh.Locality.SESSION_LOCAL,
-        )
 
     # -- request/reply ---------------------------------------------------------------------
     def request(self, key: str, payload: bytes, attachment: bytes, timeout_s: float) -> tuple[bytes, bytes]:
@@ -165,9 +228,7 @@ class Bus:
         raise LookupError(f"no service answers at {key} (is its stage running?)")
 
     def put(self, key: str, payload: bytes, attachment: bytes | None = None) -> None:
-        self.session.put(
-            key, payload, attachment=attachment, congestion_control=zenoh.CongestionControl.BLOCK
-        )
+        self.session.put(key, payload, attachment=attachment, congestion_control=zenoh.CongestionControl.BLOCK)
 
     # -- shutdown --------------------------------------------------------------------------
     def close(self) -> None:

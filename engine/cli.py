@@ -58,9 +58,7 @@ def _stats_table(stats: Sequence[StageStats], title: str) -> Table:
 
 
 def print_summary(summary: RunSummary) -> None:
-    out.print(
-        _stats_table(summary.stages, f"run {summary.run_id} ({summary.process}) in {summary.wall_s:.2f} s")
-    )
+    out.print(_stats_table(summary.stages, f"run {summary.run_id} ({summary.process}) in {summary.wall_s:.2f} s"))
     for ev in summary.events:
         colour = "yellow" if ev.level == "warning" else "red"
         out.print(f"[{colour}]{ev.level}[/] {ev.stage}: [{ev.code}] {ev.message}")
@@ -153,12 +151,8 @@ def _summary_dict(s: RunSummary) -> dict[str, Any]:
         "stop_reason": s.stop_reason,
         "wall_s": s.wall_s,
         "artifacts": s.artifacts,
-        "stages": [
-            {**vars(st), "messages_in": st.messages_in, "messages_out": st.messages_out} for st in s.stages
-        ],
-        "events": [
-            {"level": e.level, "stage": e.stage, "code": e.code, "message": e.message} for e in s.events
-        ],
+        "stages": [{**vars(st), "messages_in": st.messages_in, "messages_out": st.messages_out} for st in s.stages],
+        "events": [{"level": e.level, "stage": e.stage, "code": e.code, "message": e.message} for e in s.events],
     }
 
 
@@ -180,9 +174,7 @@ def cmd_graph(args: argparse.Namespace) -> int:
 
 def cmd_plugins(args: argparse.Namespace) -> int:
     registry = load_registry(args.plugin or [])
-    described = [
-        registry.stages[n].describe() | {"plugin": registry.stage_origin[n]} for n in sorted(registry.stages)
-    ]
+    described = [registry.stages[n].describe() | {"plugin": registry.stage_origin[n]} for n in sorted(registry.stages)]
     if args.json:
         print(json.dumps(described, indent=2, default=str))
         return EXIT_OK
@@ -255,26 +247,18 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="run a recipe")
     _add_recipe_args(p)
-    p.add_argument(
-        "--process", default="main", help="which of the recipe's processes to run here (default main)"
-    )
-    p.add_argument(
-        "--run-id", help="run id shared by all processes of the run (default: recipe run_id or name)"
-    )
+    p.add_argument("--process", default="main", help="which of the recipe's processes to run here (default main)")
+    p.add_argument("--run-id", help="run id shared by all processes of the run (default: recipe run_id or name)")
     p.add_argument(
         "--listen", action="append", metavar="ENDPOINT", help="zenoh listen endpoint, e.g. tcp/127.0.0.1:7447"
     )
     p.add_argument("--connect", action="append", metavar="ENDPOINT", help="zenoh endpoint to connect to")
-    p.add_argument(
-        "--ready-timeout", type=float, default=15.0, help="seconds to wait for the other processes"
-    )
+    p.add_argument("--ready-timeout", type=float, default=15.0, help="seconds to wait for the other processes")
     p.add_argument("--no-progress", action="store_true", help="no live progress table")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser(
-        "validate", help="check a recipe (types, wiring, parameters, cycles) without running it"
-    )
+    p = sub.add_parser("validate", help="check a recipe (types, wiring, parameters, cycles) without running it")
     _add_recipe_args(p)
     p.set_defaults(func=cmd_validate)
 

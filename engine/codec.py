@@ -61,9 +61,7 @@ class CodecError(ValueError):
 
 
 def encode_envelope(env: Envelope) -> bytes:
-    return (
-        _ENV.pack(MAGIC, int(env.kind), env.schema_version, 0, env.seq, env.stamp_ns) + env.type_name.encode()
-    )
+    return _ENV.pack(MAGIC, int(env.kind), env.schema_version, 0, env.seq, env.stamp_ns) + env.type_name.encode()
 
 
 def decode_envelope(raw: bytes) -> Envelope:
@@ -91,9 +89,7 @@ class MessageRegistry:
     def add(self, cls: type[Message]) -> None:
         old = self._types.get(cls.TYPE)
         if old is not None and old is not cls:
-            raise ValueError(
-                f"message type {cls.TYPE!r} is defined twice ({old.__module__}, {cls.__module__})"
-            )
+            raise ValueError(f"message type {cls.TYPE!r} is defined twice ({old.__module__}, {cls.__module__})")
         proto_class(cls.SCHEMA)  # fails early if the schema is unknown
         self._types[cls.TYPE] = cls
 

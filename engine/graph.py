@@ -7,7 +7,8 @@
 * input wiring: every declared input port wired exactly once, to an existing ``stage.port``,
   whose message type is the input's type or a subclass of it,
 * service wiring (``uses``): the provider exists, offers the service, request/reply types fit,
-  and service calls do not form a cycle (which could deadlock),
+  and service calls together with data edges form no wait cycle (a deadlock risk: a publisher
+  waits for its consumers when their queue is full, a caller waits for its provider),
 * data cycles (the closed guidance loop lives inside one action stage, so the DAG stays acyclic).
 """
 
@@ -227,9 +228,7 @@ def build_graph(loaded: LoadedRecipe, registry: Registry) -> Graph:
                 continue
             prov, svc = parsed
             if prov not in recipe.stages:
-                problems.append(
-                    loaded.problem(path, f"no stage named {prov!r}", nearest(prov, recipe.stages))
-                )
+                problems.append(loaded.problem(path, f"no stage named {prov!r}", nearest(prov, recipe.stages)))
                 continue
             if prov not in classes:
                 continue
@@ -238,8 +237,7 @@ def build_graph(loaded: LoadedRecipe, registry: Registry) -> Graph:
                 problems.append(
                     loaded.problem(
                         path,
-                        f"stage {prov!r} offers no service {svc!r} "
-                        f"(services: {', '.join(offered) or 'none'})",
+                        f"stage {prov!r} offers no service {svc!r} (services: {', '.join(offered) or 'none'})",
                         nearest(svc, offered),
                     )
                 )
@@ -256,9 +254,7 @@ def build_graph(loaded: LoadedRecipe, registry: Registry) -> Graph:
                 )
                 continue
             if prov == name:
-                problems.append(
-                    loaded.problem(path, "a stage cannot call its own service (it would deadlock)")
-                )
+                problems.append(loaded.problem(path, "a stage cannot call its own service (it would deadlock)"))
                 continue
             service_edges.append(ServiceEdge(name, client, prov, svc))
 
@@ -295,17 +291,20 @@ def _check_cycles(
             )
         )
         return []
-    svc: graphlib.TopologicalSorter[str] = graphlib.TopologicalSorter({n: set() for n in nodes})
+    # wait-for graph: a publisher waits for its consumers (backpressure), a caller for its provider
+    wait: graphlib.TopologicalSorter[str] = graphlib.TopologicalSorter({n: set() for n in nodes})
+    for e in edges:
+        wait.add(e.dst, e.src)
     for s in service_edges:
-        svc.add(s.provider, s.client)
+        wait.add(s.provider, s.client)
     try:
-        list(svc.static_order())
+        list(wait.static_order())
     except graphlib.CycleError as exc:
         cycle = exc.args[1]
         problems.append(
             loaded.problem(
                 ("stages", cycle[0], "uses"),
-                "service calls form a cycle (deadlock risk): " + " -> ".join(cycle),
+                "service calls and data edges form a wait cycle (deadlock risk): " + " -> ".join(cycle),
             )
         )
         return []

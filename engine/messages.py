@@ -223,14 +223,10 @@ class Image(Message):
 
     def __post_init__(self) -> None:
         if self.encoding not in _IMAGE_ENCODINGS:
-            raise ValueError(
-                f"unsupported image encoding {self.encoding!r}; use one of {sorted(_IMAGE_ENCODINGS)}"
-            )
+            raise ValueError(f"unsupported image encoding {self.encoding!r}; use one of {sorted(_IMAGE_ENCODINGS)}")
         dt, ch = _IMAGE_ENCODINGS[self.encoding]
         self.data = np.asarray(self.data, dtype=dt)
-        if (ch == 1 and self.data.ndim != 2) or (
-            ch > 1 and (self.data.ndim != 3 or self.data.shape[2] != ch)
-        ):
+        if (ch == 1 and self.data.ndim != 2) or (ch > 1 and (self.data.ndim != 3 or self.data.shape[2] != ch)):
             raise ValueError(f"image data shape {self.data.shape} does not fit encoding {self.encoding}")
 
     def to_proto(self) -> tuple[ProtoMessage, Bulk]:
@@ -727,9 +723,7 @@ class Request(Message):
 
     @classmethod
     def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
-        return cls(
-            stamp_ns=_get_stamp(pb), command=pb.command, args=json.loads(pb.args_json) if pb.args_json else {}
-        )
+        return cls(stamp_ns=_get_stamp(pb), command=pb.command, args=json.loads(pb.args_json) if pb.args_json else {})
 
 
 BUILTIN_MESSAGE_TYPES: tuple[type[Message], ...] = (

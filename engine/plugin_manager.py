@@ -47,9 +47,7 @@ def _check_stage(cls: Any, origin: str) -> None:
     for kind, ports in (("input", cls.inputs), ("output", cls.outputs)):
         for port, mtype in ports.items():
             if not (isinstance(mtype, type) and issubclass(mtype, Message)):
-                raise PluginError(
-                    f"stage {cls.type_name}: {kind} port {port!r} type {mtype!r} is not a Message"
-                )
+                raise PluginError(f"stage {cls.type_name}: {kind} port {port!r} type {mtype!r} is not a Message")
 
 
 def load_registry(extra_modules: Iterable[str] = (), *, entry_points: bool = True) -> Registry:
@@ -81,8 +79,7 @@ def load_registry(extra_modules: Iterable[str] = (), *, entry_points: bool = Tru
             prev = reg.stage_origin.get(cls.type_name)
             if prev is not None and reg.stages[cls.type_name] is not cls:
                 raise PluginError(
-                    f"stage type {cls.type_name!r} is provided twice: "
-                    f"by plugin {prev} and by {impl.plugin_name}"
+                    f"stage type {cls.type_name!r} is provided twice: by plugin {prev} and by {impl.plugin_name}"
                 )
             reg.stages[cls.type_name] = cls
             reg.stage_origin[cls.type_name] = impl.plugin_name

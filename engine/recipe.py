@@ -119,9 +119,7 @@ class Recipe(_Strict):
             raise ValueError("a recipe needs at least one stage")
         for name in v:
             if not NAME_RE.match(name):
-                raise ValueError(
-                    f"stage name {name!r}: use letters, digits, '_' and '-', starting with a letter"
-                )
+                raise ValueError(f"stage name {name!r}: use letters, digits, '_' and '-', starting with a letter")
         return v
 
     def processes_used(self) -> list[str]:
@@ -203,9 +201,7 @@ def apply_overrides(data: dict[str, Any], overrides: list[str], file: str | None
             )
             continue
         if len(parts) < 2:
-            problems.append(
-                Problem("override must name a parameter: stage.param=value", where.key, where.file)
-            )
+            problems.append(Problem("override must name a parameter: stage.param=value", where.key, where.file))
             continue
         keys = parts[1:]
         if keys[0] == "params":
@@ -295,15 +291,15 @@ def pydantic_problems(
     """Turn a pydantic ValidationError into located problems with suggestions."""
     out: list[Problem] = []
     for err in exc.errors():
-        loc = tuple(x for x in err["loc"] if not (isinstance(x, str) and "[" in x))  # drop union tags
+        loc = tuple(err["loc"])
         path = (*prefix, *loc)
         line, col = locate(lr, path)
         key = ".".join(map(str, path))
         etype = err["type"]
-        if etype == "extra_forbidden":
-            sugg = nearest(str(loc[-1]), _fields_at(model, loc[:-1])) if loc else None
+        if etype == "extra_forbidden" and loc:
+            sugg = nearest(str(loc[-1]), _fields_at(model, loc[:-1]))
             out.append(Problem(f"unknown key {loc[-1]!r}", key, file, line, col, sugg))
-        elif etype == "missing":
+        elif etype == "missing" and loc:
             out.append(Problem(f"missing required key {loc[-1]!r}", key, file, line, col))
         else:
             msg = err["msg"].removeprefix("Value error, ")
@@ -316,9 +312,7 @@ def _short(v: Any) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
-def load_recipe(
-    source: str | Path, overrides: list[str] | None = None, *, text: str | None = None
-) -> LoadedRecipe:
+def load_recipe(source: str | Path, overrides: list[str] | None = None, *, text: str | None = None) -> LoadedRecipe:
     """Read, override, substitute and validate a recipe file (or *text*, named *source*).
 
     Raises RecipeError listing every problem with its location.

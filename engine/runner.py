@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any
 
-from engine.bus import Bus, active_key, control_key, ready_key
+from engine.bus import Bus, Inbox, active_key, control_key, ready_key
 from engine.clock import Clock, make_clock
 from engine.codec import Envelope
 from engine.graph import Graph, ServiceEdge
@@ -165,23 +165,31 @@ class Runner:
         self.stop_event.set()
         self._progress.set()
         log.warning("stopping run %s: %s", self.run_id, reason)
-        if self._bus is not None and not self._bus.closed:
-            if broadcast and self.multi_process:
-                try:
-                    self._bus.put(
-                        control_key(self.run_id),
-                        json.dumps({"stop": reason, "process": self.process}).encode(),
-                    )
-                except Exception:
-                    log.exception("could not broadcast the stop")
-            self._wake_all()
+        # stop() may run on a stage's own thread (a failure): it only flags; the main thread wakes
+        # the readers in _shutdown, so nothing here can block on a full channel.
+        if broadcast and self.multi_process and self._bus is not None and not self._bus.closed:
+            try:
+                self._bus.put(control_key(self.run_id), json.dumps({"stop": reason, "process": self.process}).encode())
+            except Exception:
+                log.exception("could not broadcast the stop")
 
-    def _wake_all(self) -> None:
-        for rt in self.runtimes.values():
-            for sub in rt.channels.values():
-                self.bus.wake_channel(str(sub.key_expr))
-            for q in rt.queryables.values():
-                self.bus.wake_queryable(str(q.key_expr))
+    def _wake_all(self) -> threading.Thread:
+        """Send the local STOP marker to every reader of this process, from a helper thread (a
+        reader stuck in a long handler must not block the shutdown beyond the grace period)."""
+
+        def wake() -> None:
+            for rt in self.runtimes.values():
+                for q in rt.queryables.values():
+                    q.wake()
+                for sub in rt.channels.values():
+                    if isinstance(sub, Inbox):
+                        sub.wake()
+                    else:
+                        self.bus.wake_channel(str(sub.key_expr))
+
+        th = threading.Thread(target=wake, name="vgr:wake", daemon=True)
+        th.start()
+        return th
 
     def _on_control(self, sample: Any) -> None:
         try:
@@ -271,9 +279,7 @@ class Runner:
             if self.stop_event.is_set():
                 raise RunError(f"run stopped while waiting for stages: {self.stop_reason}")
             if time.monotonic() > deadline:
-                where = ", ".join(
-                    f"{m} (process {self.graph.nodes[m].spec.process})" for m in sorted(missing)
-                )
+                where = ", ".join(f"{m} (process {self.graph.nodes[m].spec.process})" for m in sorted(missing))
                 raise RunError(
                     f"after {self.ready_timeout_s:g} s these stages are not running: {where}. "
                     f"Start `vgr run RECIPE --process NAME` for each process, with the same run id "
@@ -317,23 +323,19 @@ class Runner:
     def _shutdown(self) -> None:
         if self._bus is None:
             return
-        if not self.stop_event.is_set():
-            self.stop_event.set()  # end service pumps and any idle reader; not a failure
-            self._wake_all()
+        self.stop_event.set()  # ends service pumps and idle readers; a failure only if stop_reason is set
+        waker = self._wake_all()
         deadline = time.monotonic() + STOP_GRACE_S
         for rt in self.runtimes.values():
             for t in rt.threads:
                 t.join(max(0.0, deadline - time.monotonic()))
             stuck = [t.name for t in rt.threads if t.is_alive()]
             if stuck:
-                rt.stats.error = (
-                    rt.stats.error or f"did not stop within {STOP_GRACE_S:g} s: {', '.join(stuck)}"
-                )
-                self.note_event(
-                    Event(level="error", code="stage_stuck", stage=rt.name, message=rt.stats.error)
-                )
+                rt.stats.error = rt.stats.error or f"did not stop within {STOP_GRACE_S:g} s: {', '.join(stuck)}"
+                self.note_event(Event(level="error", code="stage_stuck", stage=rt.name, message=rt.stats.error))
             if rt.stats.state == "running":
                 rt.stats.state = "stopped" if self.stop_reason else "finished"
+        waker.join(max(0.0, deadline - time.monotonic()))
         for name in reversed(self.graph.stages_in(self.process)):
             self.runtimes[name].teardown()
         for tok in self._tokens.values():

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from engine import codec
-from engine.bus import data_key, service_key
+from engine.bus import Inbox, data_key, service_key
 from engine.codec import CodecError, Envelope, Kind
 from engine.graph import StageNode
 from engine.messages import Event, Message
@@ -32,6 +32,7 @@ if TYPE_CHECKING:
     from engine.runner import Runner
 
 log = logging.getLogger("vgr.runtime")
+INBOX_WARN = 1000  # first backlog (messages) of a cross-process input that raises a warning
 
 
 @dataclass
@@ -108,9 +109,7 @@ class StageRuntime(StageContext):
         if port not in outs:
             raise ValueError(f"stage {self.name!r} has no output port {port!r} (outputs: {', '.join(outs)})")
         if not isinstance(msg, outs[port]):
-            raise TypeError(
-                f"stage {self.name!r}: port {port!r} carries {outs[port].TYPE}, got {type(msg).__name__}"
-            )
+            raise TypeError(f"stage {self.name!r}: port {port!r} carries {outs[port].TYPE}, got {type(msg).__name__}")
         with self._pub_lock:
             if port in self._closed_ports:
                 raise RuntimeError(f"stage {self.name!r}: port {port!r} has already ended")
@@ -159,11 +158,7 @@ class StageRuntime(StageContext):
         tb = details.pop("traceback", "")
         ev = Event(level=level, code=code, stage=self.name, message=message, traceback=tb, details=details)
         self.runner.note_event(ev)
-        if (
-            self.node.cls.all_outputs()
-            and EVENTS_PORT in self._publishers
-            and EVENTS_PORT not in self._closed_ports
-        ):
+        if self.node.cls.all_outputs() and EVENTS_PORT in self._publishers and EVENTS_PORT not in self._closed_ports:
             self.publish(EVENTS_PORT, ev)
 
     # -- wiring ------------------------------------------------------------------------------
@@ -172,7 +167,9 @@ class StageRuntime(StageContext):
         for port in self.node.cls.all_outputs():
             self._publishers[port] = bus.publisher(data_key(self.run_id, self.name, port))
         for edge in self.runner.graph.inputs_of(self.name):
-            self.channels[edge.dst_port] = bus.channel(data_key(self.run_id, edge.src, edge.src_port))
+            key = data_key(self.run_id, edge.src, edge.src_port)
+            local = self.runner.graph.nodes[edge.src].spec.process == self.node.spec.process
+            self.channels[edge.dst_port] = bus.channel(key) if local else bus.inbox(key)
         for svc in self.node.cls.services:
             self.queryables[svc] = bus.queryable(service_key(self.run_id, self.name, svc))
 
@@ -206,24 +203,35 @@ class StageRuntime(StageContext):
             self._mark_data_done()
 
     def _input_pump(self, port: str, sub: Any) -> None:
+        """Read one input port until end of stream; once the run stops, drain without delivering
+        (so producers never block on a full channel) until the local STOP marker arrives."""
         stop = self.runner.stop_event
+        backlog_warned = INBOX_WARN
         while True:
             sample = sub.recv()
-            if stop.is_set():
-                return
+            if isinstance(sub, Inbox) and len(sub) >= backlog_warned:
+                self.event(
+                    "warning",
+                    "input_backlog",
+                    f"input {port!r} has {len(sub)} messages waiting: this stage "
+                    "is slower than its producer in another process",
+                    backlog=len(sub),
+                )
+                backlog_warned *= 4
             att = sample.attachment
             try:
                 env = codec.decode_envelope(att.to_bytes() if att is not None else b"")
             except CodecError as exc:
-                self.event("warning", "foreign_message", f"ignored a message on input {port!r}: {exc}")
+                if not stop.is_set():
+                    self.event("warning", "foreign_message", f"ignored a message on input {port!r}: {exc}")
                 continue
             if env.kind == Kind.STOP:
                 return
+            if stop.is_set() or self.failed:
+                continue
             if env.kind == Kind.EOS:
                 self.input_ended(port)
                 return
-            if self.failed:
-                continue  # keep draining so the producer is never blocked by a dead consumer
             self._check_seq(port, env)
             try:
                 msg = codec.decode(sample.payload.to_bytes(), env)
@@ -276,9 +284,7 @@ class StageRuntime(StageContext):
                     payload = query.payload.to_bytes() if query.payload is not None else b""
                     request = codec.decode(payload, env)
                     if not isinstance(request, spec.request):
-                        raise CodecError(
-                            f"service {svc!r} takes {spec.request.TYPE}, got {type(request).__name__}"
-                        )
+                        raise CodecError(f"service {svc!r} takes {spec.request.TYPE}, got {type(request).__name__}")
                 except CodecError as exc:
                     query.reply_err(f"bad request to {self.name}.{svc}: {exc}")
                     continue
@@ -290,18 +296,14 @@ class StageRuntime(StageContext):
                         assert self.stage is not None
                         reply = self.stage.on_request(svc, request)
                         if not isinstance(reply, spec.reply):
-                            raise TypeError(
-                                f"service {svc!r} must reply {spec.reply.TYPE}, got {type(reply).__name__}"
-                            )
+                            raise TypeError(f"service {svc!r} must reply {spec.reply.TYPE}, got {type(reply).__name__}")
                         if not reply.stamp_ns:
                             reply.stamp_ns = self.clock.now_ns()
                         reply_bytes = codec.encode(reply)
                     except Exception as exc:  # the caller gets the error; the stage keeps serving
                         error = f"{type(exc).__name__}: {exc}"
                         self.stats.errors += 1
-                        self.event(
-                            "error", "service_exception", f"{svc}: {error}", traceback=traceback.format_exc()
-                        )
+                        self.event("error", "service_exception", f"{svc}: {error}", traceback=traceback.format_exc())
                     finally:
                         self.stats.busy_s += time.perf_counter() - t0
                         self.stats.requests_served += 1

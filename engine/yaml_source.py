@@ -2,7 +2,8 @@
 
 ``load_with_locations(text)`` returns the plain data (dicts, lists, scalars, as yaml.safe_load
 would) and a map from key paths (tuples of str keys / int indices) to 1-based (line, column).
-Duplicate keys, which PyYAML silently overwrites, are reported as errors.
+Duplicate keys, which PyYAML silently overwrites, are reported as errors. Aliases are expanded
+into plain copies, with a budget of :data:`MAX_NODES` so that an alias "bomb" is an error, not a hang.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import yaml
 from engine.errors import Problem, RecipeError
 
 Path = tuple[str | int, ...]
+MAX_NODES = 100_000
 Locations = dict[Path, tuple[int, int]]
 
 
@@ -27,12 +29,22 @@ class _Builder:
         self.file = file
         self.locations: Locations = {}
         self.problems: list[Problem] = []
+        self.count = 0
 
     def build(self, node: yaml.Node, path: Path, depth: int = 0) -> Any:
-        if depth > 100:
+        self.count += 1
+        if self.count > MAX_NODES:
             raise RecipeError(
-                [Problem("nesting deeper than 100 levels", file=self.file, line=_mark(node)[0])]
+                [
+                    Problem(
+                        f"the recipe expands to more than {MAX_NODES} values (YAML aliases?)",
+                        file=self.file,
+                        line=_mark(node)[0],
+                    )
+                ]
             )
+        if depth > 100:
+            raise RecipeError([Problem("nesting deeper than 100 levels", file=self.file, line=_mark(node)[0])])
         if isinstance(node, yaml.MappingNode):
             self.loader.flatten_mapping(node)
             out: dict[Any, Any] = {}

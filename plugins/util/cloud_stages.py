@@ -40,9 +40,7 @@ class SyntheticCloud(Stage):
     class Params(StageParams):
         n_points: int = Field(2000, ge=1, le=10_000_000, description="points per frame")
         frames: int = Field(10, ge=0, description="number of frames, then end of stream")
-        rate_hz: float = Field(
-            0.0, ge=0.0, description="frame rate on the run's clock; 0 = as fast as possible"
-        )
+        rate_hz: float = Field(0.0, ge=0.0, description="frame rate on the run's clock; 0 = as fast as possible")
         shape: Literal["box", "sphere"] = "box"
         size_m: float = Field(0.1, gt=0.0)
         noise_m: float = Field(0.0005, ge=0.0, description="isotropic Gaussian noise sigma")
@@ -72,9 +70,7 @@ class TransformCloud(Stage):
 
     class Params(StageParams):
         translation_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-        rotation_deg: tuple[float, float, float] = Field(
-            (0.0, 0.0, 0.0), description="rotation vector, degrees"
-        )
+        rotation_deg: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="rotation vector, degrees")
         frame_id: str | None = Field(None, description="frame of the output (default: the input's)")
 
     def setup(self) -> None:
