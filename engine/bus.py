@@ -7,19 +7,15 @@ Key expressions (``<run>`` is the run id)::
     vgr/<run>/_ready/<stage>          liveliness: the stage is declared and listening
     vgr/<run>/_active/<process>       liveliness: the process still has stages producing data
     vgr/<run>/_control                run-wide control (stop), published by any process
-    vgr/<run>/_svc/<stage>/<client>   service exchanges as seen by the caller (for the recorder)
 
 The default session is the embedded set-up: peer mode, multicast scouting off, listening on
-loopback only (``tcp/127.0.0.1:0``). Streams are reliable with congestion control BLOCK: a slow
-consumer slows the producer down, nothing is dropped. Consumers read their inputs from bounded
-zenoh FIFO channels (no Python on zenoh's delivery path); a local STOP marker (delivered only
-inside this session) wakes a blocked reader when the run stops.
+loopback only (``tcp/127.0.0.1:0``). Stages of one process exchange message objects in-process
+(engine.inbox); a stream goes through zenoh, encoded, when another process or an external
+subscriber listens. Streams are reliable with congestion control BLOCK: nothing is dropped.
 
-A reader must never block zenoh's network receive thread: that thread also delivers service
-replies, so a full channel there would deadlock a stage that calls a service while its input
-backs up. Inputs from another process and all service queries therefore go through a callback
-into an unbounded :class:`Inbox` instead (the runtime warns when one grows large); inputs from
-this process keep the bounded FIFO, where a full channel blocks the local publisher (backpressure).
+Nothing may block zenoh's receive thread: it also delivers service replies, so a reader blocked
+there would deadlock a stage waiting for a reply. Remote inputs and service queries are therefore
+taken by callbacks that only append to unbounded queues; the runtime warns when one grows large.
 """
 
 from __future__ import annotations
@@ -37,8 +33,6 @@ import zenoh
 
 from engine.codec import Envelope, Kind, encode_envelope
 from engine.recipe import ZenohSettings
-
-INPUT_QUEUE_DEPTH = 64
 
 _open_buses: weakref.WeakSet[Bus] = weakref.WeakSet()
 
@@ -158,27 +152,22 @@ class Bus:
             self._decls.append(decl)
         return decl
 
-    def publisher(self, key: str) -> zenoh.Publisher:
+    def remote_publisher(self, key: str) -> zenoh.Publisher:
+        """Publisher to other sessions only (stages here get messages in-process, see engine.inbox):
+        reliable, congestion control BLOCK, so nothing is dropped."""
         return self._keep(
             self.session.declare_publisher(
-                key, congestion_control=zenoh.CongestionControl.BLOCK, reliability=zenoh.Reliability.RELIABLE
+                key,
+                congestion_control=zenoh.CongestionControl.BLOCK,
+                reliability=zenoh.Reliability.RELIABLE,
+                allowed_destination=zenoh.Locality.REMOTE,
             )
         )
 
-    def channel(self, key: str, depth: int = INPUT_QUEUE_DEPTH) -> zenoh.Subscriber:
-        """Subscriber to publishers of *this* session; samples queue in a bounded FIFO (``recv()``)."""
-        return self._keep(
-            self.session.declare_subscriber(
-                key, zenoh.handlers.FifoChannel(depth), allowed_origin=zenoh.Locality.SESSION_LOCAL
-            )
-        )
-
-    def inbox(self, key: str, *, remote_only: bool = True) -> Inbox:
-        """Subscriber whose samples go to an unbounded :class:`Inbox` (for publishers elsewhere)."""
-        box = Inbox(key)
-        origin = zenoh.Locality.REMOTE if remote_only else zenoh.Locality.ANY
-        box.decl = self._keep(self.session.declare_subscriber(key, box, allowed_origin=origin))
-        return box
+    def subscribe_remote(self, key: str, callback: Callable[[zenoh.Sample], None]) -> zenoh.Subscriber:
+        """Subscriber to other sessions' publications; *callback* runs on zenoh's receive thread
+        and must never block (engine.inbox.PortInbox only appends)."""
+        return self._keep(self.session.declare_subscriber(key, callback, allowed_origin=zenoh.Locality.REMOTE))
 
     def subscribe(self, key: str, callback: Callable[[zenoh.Sample], None]) -> zenoh.Subscriber:
         """Subscriber calling *callback* on zenoh's thread (keep it short: observers, control)."""
@@ -197,11 +186,6 @@ class Bus:
         """Keys of the liveliness tokens currently matching *key_expr* (across all processes)."""
         replies = self.session.liveliness().get(key_expr, timeout=timeout_s)
         return {str(r.ok.key_expr) for r in replies if r.ok is not None}
-
-    # -- local wake-ups --------------------------------------------------------------------
-    def wake_channel(self, key: str) -> None:
-        """Deliver a STOP marker to this session's subscribers of *key* only."""
-        self.session.put(key, b"", attachment=STOP_ENVELOPE, allowed_destination=zenoh.Locality.SESSION_LOCAL)
 
     # -- request/reply ---------------------------------------------------------------------
     def request(self, key: str, payload: bytes, attachment: bytes, timeout_s: float) -> tuple[bytes, bytes]:

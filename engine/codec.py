@@ -20,8 +20,8 @@ docs/messages.md.
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass
 from enum import IntEnum
+from typing import NamedTuple
 
 from engine.messages import BUILTIN_MESSAGE_TYPES, Message
 from engine.schemas import SCHEMA_VERSION, proto_class
@@ -47,8 +47,7 @@ class Kind(IntEnum):
     STOP = 2
 
 
-@dataclass(frozen=True)
-class Envelope:
+class Envelope(NamedTuple):
     kind: Kind
     seq: int
     stamp_ns: int

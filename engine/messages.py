@@ -99,6 +99,24 @@ class Message:
         return pb_cls()
 
 
+def freeze(msg: Message) -> Message:
+    """Make *msg* safe to hand to several consumers: its numpy arrays become read-only.
+
+    A message that was already published (``seq`` set, e.g. a received message passed on) is
+    shallow-copied first, so re-publishing never changes what another consumer holds. Arrays are
+    frozen in place: a producer that writes into an array after publishing it gets an error
+    instead of silently corrupting a consumer.
+    """
+    if msg.seq:
+        new = object.__new__(type(msg))
+        new.__dict__.update(msg.__dict__)
+        msg = new
+    for v in msg.__dict__.values():
+        if isinstance(v, np.ndarray) and v.flags.writeable:
+            v.flags.writeable = False
+    return msg
+
+
 # --------------------------------------------------------------------------- geometry (Foxglove)
 
 

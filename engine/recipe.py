@@ -63,6 +63,7 @@ class StageSpec(_Strict):
     inputs: dict[str, str] = Field(default_factory=dict)
     uses: dict[str, str] = Field(default_factory=dict)
     process: str = "main"
+    dispatch: Literal["auto", "thread"] = "auto"  # auto: run handlers inline on a local producer's thread when idle
     description: str = ""
 
     @field_validator("process")

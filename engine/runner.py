@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any
 
-from engine.bus import Bus, Inbox, active_key, control_key, ready_key
+from engine.bus import Bus, active_key, control_key, ready_key
 from engine.clock import Clock, make_clock
 from engine.codec import Envelope
 from engine.graph import Graph, ServiceEdge
@@ -173,23 +173,10 @@ class Runner:
             except Exception:
                 log.exception("could not broadcast the stop")
 
-    def _wake_all(self) -> threading.Thread:
-        """Send the local STOP marker to every reader of this process, from a helper thread (a
-        reader stuck in a long handler must not block the shutdown beyond the grace period)."""
-
-        def wake() -> None:
-            for rt in self.runtimes.values():
-                for q in rt.queryables.values():
-                    q.wake()
-                for sub in rt.channels.values():
-                    if isinstance(sub, Inbox):
-                        sub.wake()
-                    else:
-                        self.bus.wake_channel(str(sub.key_expr))
-
-        th = threading.Thread(target=wake, name="vgr:wake", daemon=True)
-        th.start()
-        return th
+    def _wake_all(self) -> None:
+        """Unblock every pump thread of this process (non-blocking)."""
+        for rt in self.runtimes.values():
+            rt.wake()
 
     def _on_control(self, sample: Any) -> None:
         try:
@@ -243,7 +230,9 @@ class Runner:
                 raise RunError(
                     f"stage {name!r} ({node.cls.type_name}) could not be created: {type(exc).__name__}: {exc}"
                 ) from exc
-            rt.declare()
+            rt.declare_outputs()
+        for rt in self.runtimes.values():
+            rt.declare_inputs()
         if self.multi_process:
             self.bus.subscribe(control_key(self.run_id), self._on_control)
             if any(rt.driven for rt in self.runtimes.values()):
@@ -324,7 +313,7 @@ class Runner:
         if self._bus is None:
             return
         self.stop_event.set()  # ends service pumps and idle readers; a failure only if stop_reason is set
-        waker = self._wake_all()
+        self._wake_all()
         deadline = time.monotonic() + STOP_GRACE_S
         for rt in self.runtimes.values():
             for t in rt.threads:
@@ -335,7 +324,6 @@ class Runner:
                 self.note_event(Event(level="error", code="stage_stuck", stage=rt.name, message=rt.stats.error))
             if rt.stats.state == "running":
                 rt.stats.state = "stopped" if self.stop_reason else "finished"
-        waker.join(max(0.0, deadline - time.monotonic()))
         for name in reversed(self.graph.stages_in(self.process)):
             self.runtimes[name].teardown()
         for tok in self._tokens.values():

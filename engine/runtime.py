@@ -1,10 +1,19 @@
 """One stage at run time: its context (publish, call, events), its locks and counters, its threads.
 
-The runner (engine.runner) creates a :class:`StageRuntime` per stage of this process. Each input
-port and each service gets a pump thread that blocks on the port's zenoh FIFO channel and hands
-messages to the stage under the stage's lock, so the stage's handlers never run concurrently and
-each port's messages arrive in publication order. A failure inside a handler becomes an ``error``
-Event with the traceback, never a silent death.
+The runner (engine.runner) creates a :class:`StageRuntime` per stage of this process.
+
+Data path of ``publish(port, msg)``:
+
+* consumers in this process get the message object itself, its arrays frozen read-only through their
+  :class:`~engine.inbox.PortInbox` (handled inline on the publisher's thread when the consumer is
+  idle, else by the consumer's pump thread; see engine.inbox);
+* when anything outside the process may listen — a stage of another process, an external zenoh
+  subscriber (a robot controller, a viewer), or a run observer such as the recorder — the message is
+  encoded once (engine.codec) and put on ``vgr/<run>/<stage>/<port>``.
+
+Handlers of one stage never run concurrently (one re-entrant lock per stage) and each input port's
+messages arrive in publication order. A failure inside a handler becomes an ``error`` Event with
+its traceback, never a silent death.
 """
 
 from __future__ import annotations
@@ -20,19 +29,19 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from engine import codec
-from engine.bus import Inbox, data_key, service_key
+from engine.bus import data_key, service_key
 from engine.codec import CodecError, Envelope, Kind
 from engine.graph import StageNode
-from engine.messages import Event, Message
+from engine.inbox import LOCAL, REMOTE, STOP, PortInbox
+from engine.messages import Event, Message, freeze
 from engine.stage import EVENTS_PORT, ServiceError, ServiceTimeoutError, Stage, StageContext
 
 if TYPE_CHECKING:
-    import zenoh
-
     from engine.runner import Runner
 
 log = logging.getLogger("vgr.runtime")
-INBOX_WARN = 1000  # first backlog (messages) of a cross-process input that raises a warning
+LOCAL_QUEUE_DEPTH = 64  # messages a local producer may run ahead of its consumer
+BACKLOG_WARN = 1000  # first backlog of a cross-process input that raises a warning
 
 
 @dataclass
@@ -61,6 +70,32 @@ class StageStats:
         return sum(v for k, v in self.published.items() if k != EVENTS_PORT)
 
 
+class _Output:
+    """One output port: its zenoh publisher, local consumers, sequence counter and lock."""
+
+    def __init__(self, runtime: StageRuntime, port: str) -> None:
+        rt = runtime
+        self.port = port
+        self.type = rt.node.cls.all_outputs()[port]
+        self.lock = threading.Lock()  # seq order == delivery order == wire order
+        self.seq = 0
+        self.closed = False
+        self.local: list[tuple[StageRuntime, str]] = []  # (consumer, its input port)
+        graph = rt.runner.graph
+        self.remote_consumers = any(
+            graph.nodes[e.dst].spec.process != rt.node.spec.process for e in graph.consumers_of(rt.name, port)
+        )
+        self.publisher = rt.runner.bus.remote_publisher(data_key(rt.run_id, rt.name, port))
+        self.external = bool(self.publisher.matching_status.matching)
+        self._listener = self.publisher.declare_matching_listener(self._on_matching)
+
+    def _on_matching(self, status: Any) -> None:
+        self.external = bool(status.matching)
+
+    def needs_bytes(self, observers: list[Any]) -> bool:
+        return self.remote_consumers or self.external or bool(observers)
+
+
 class StageRuntime(StageContext):
     """The engine side of one stage in this process (implements StageContext)."""
 
@@ -74,7 +109,7 @@ class StageRuntime(StageContext):
         self.clock = runner.clock
         self.log = logging.getLogger(f"vgr.stage.{node.name}")
         self.lock = threading.RLock()  # serialises the stage's handlers
-        self._pub_lock = threading.Lock()  # keeps seq order == wire order per port
+        self.inline = node.spec.dispatch == "auto"
         self.stats = StageStats(
             node.name,
             node.cls.type_name,
@@ -83,17 +118,15 @@ class StageRuntime(StageContext):
             received={p: 0 for p in node.cls.inputs},
             published={p: 0 for p in node.cls.all_outputs()},
         )
-        self._publishers: dict[str, zenoh.Publisher] = {}
-        self._seq: dict[str, int] = {p: 0 for p in node.cls.all_outputs()}
-        self._closed_ports: set[str] = set()
+        self.outputs: dict[str, _Output] = {}
+        self.inboxes: dict[str, PortInbox] = {}
+        self.queryables: dict[str, Any] = {}  # service -> bus.Inbox
         self._last_in_seq: dict[str, int] = {}
         self.pending_inputs: set[str] = set(node.cls.inputs)
         self.failed = False
         self.data_done = threading.Event()
         self.threads: list[threading.Thread] = []
         self.stage: Stage | None = None
-        self.channels: dict[str, Any] = {}  # input port -> subscriber
-        self.queryables: dict[str, Any] = {}  # service -> queryable
         self.clients = {e.client_name: e for e in runner.graph.service_edges if e.client == node.name}
 
     # -- StageContext ------------------------------------------------------------------------
@@ -105,23 +138,31 @@ class StageRuntime(StageContext):
         return self.clock.sleep(seconds, self.runner.stop_event)
 
     def publish(self, port: str, msg: Message) -> None:
-        outs = self.node.cls.all_outputs()
-        if port not in outs:
-            raise ValueError(f"stage {self.name!r} has no output port {port!r} (outputs: {', '.join(outs)})")
-        if not isinstance(msg, outs[port]):
-            raise TypeError(f"stage {self.name!r}: port {port!r} carries {outs[port].TYPE}, got {type(msg).__name__}")
-        with self._pub_lock:
-            if port in self._closed_ports:
+        out = self.outputs.get(port)
+        if out is None:
+            outs = ", ".join(self.node.cls.all_outputs())
+            raise ValueError(f"stage {self.name!r} has no output port {port!r} (outputs: {outs})")
+        if not isinstance(msg, out.type):
+            raise TypeError(f"stage {self.name!r}: port {port!r} carries {out.type.TYPE}, got {type(msg).__name__}")
+        msg = freeze(msg)
+        observers = self.runner.observers
+        with out.lock:
+            if out.closed:
                 raise RuntimeError(f"stage {self.name!r}: port {port!r} has already ended")
-            self._seq[port] += 1
-            msg.seq = self._seq[port]
+            out.seq += 1
+            msg.seq = out.seq
             if not msg.stamp_ns:
                 msg.stamp_ns = self.clock.now_ns()
-            payload, att = codec.encode(msg)
-            self._publishers[port].put(payload, attachment=att)
+            env = Envelope(Kind.DATA, msg.seq, msg.stamp_ns, msg.TYPE)
+            if out.needs_bytes(observers):
+                payload, att = codec.encode_payload(msg), codec.encode_envelope(env)
+                for obs in observers:
+                    obs.on_publish(self.name, port, payload, att, msg)
+                if out.remote_consumers or out.external:
+                    out.publisher.put(payload, attachment=att)
             self.stats.published[port] += 1
-        for obs in self.runner.observers:
-            obs.on_publish(self.name, port, payload, att, msg)
+            for consumer, cport in out.local:
+                consumer.offer(cport, env, msg)
 
     def call(self, client: str, request: Message, timeout_s: float = 10.0) -> Message:
         edge = self.clients.get(client)
@@ -158,28 +199,36 @@ class StageRuntime(StageContext):
         tb = details.pop("traceback", "")
         ev = Event(level=level, code=code, stage=self.name, message=message, traceback=tb, details=details)
         self.runner.note_event(ev)
-        if self.node.cls.all_outputs() and EVENTS_PORT in self._publishers and EVENTS_PORT not in self._closed_ports:
+        out = self.outputs.get(EVENTS_PORT)
+        if out is not None and not out.closed:
             self.publish(EVENTS_PORT, ev)
 
     # -- wiring ------------------------------------------------------------------------------
-    def declare(self) -> None:
-        bus = self.runner.bus
+    def declare_outputs(self) -> None:
         for port in self.node.cls.all_outputs():
-            self._publishers[port] = bus.publisher(data_key(self.run_id, self.name, port))
-        for edge in self.runner.graph.inputs_of(self.name):
-            key = data_key(self.run_id, edge.src, edge.src_port)
-            local = self.runner.graph.nodes[edge.src].spec.process == self.node.spec.process
-            self.channels[edge.dst_port] = bus.channel(key) if local else bus.inbox(key)
+            self.outputs[port] = _Output(self, port)
         for svc in self.node.cls.services:
-            self.queryables[svc] = bus.queryable(service_key(self.run_id, self.name, svc))
+            self.queryables[svc] = self.runner.bus.queryable(service_key(self.run_id, self.name, svc))
+
+    def declare_inputs(self) -> None:
+        """Create the input queues; local producers are linked to them, remote ones subscribed."""
+        for edge in self.runner.graph.inputs_of(self.name):
+            producer = self.runner.runtimes.get(edge.src)
+            if producer is not None:  # same process
+                box = PortInbox(edge.dst_port, LOCAL_QUEUE_DEPTH)
+                producer.outputs[edge.src_port].local.append((self, edge.dst_port))
+            else:
+                box = PortInbox(edge.dst_port, None)
+                self.runner.bus.subscribe_remote(data_key(self.run_id, edge.src, edge.src_port), box)
+            self.inboxes[edge.dst_port] = box
 
     @property
     def driven(self) -> bool:
         return self.name in self.runner.driven
 
     def start_threads(self) -> None:
-        for port, sub in self.channels.items():
-            self._spawn(f"{self.name}.{port}", self._input_pump, port, sub)
+        for port, box in self.inboxes.items():
+            self._spawn(f"{self.name}.{port}", self._input_pump, port, box)
         for svc, q in self.queryables.items():
             self._spawn(f"{self.name}.srv.{svc}", self._service_pump, svc, q)
         if self.node.cls.is_source():
@@ -190,57 +239,72 @@ class StageRuntime(StageContext):
         self.threads.append(t)
         t.start()
 
-    # -- threads -----------------------------------------------------------------------------
-    def _source_main(self) -> None:
-        assert self.stage is not None
-        try:
-            self.stage.run()
-        except Exception as exc:
-            self.fail(exc, "run")
-        finally:
-            if not self.stopping:
-                self.close_outputs()
-            self._mark_data_done()
+    # -- delivery ----------------------------------------------------------------------------
+    def offer(self, port: str, env: Envelope, msg: Message | None) -> None:
+        """A local producer hands over a message (or an end of stream, msg None)."""
+        box = self.inboxes[port]
+        if self.inline and box.claim_idle():
+            if self.lock.acquire(blocking=False):
+                try:
+                    self._handle(port, env, msg)
+                finally:
+                    self.lock.release()
+                    box.release()
+                return
+            box.release()
+        box.put((LOCAL, env, msg))
 
-    def _input_pump(self, port: str, sub: Any) -> None:
-        """Read one input port until end of stream; once the run stops, drain without delivering
-        (so producers never block on a full channel) until the local STOP marker arrives."""
-        stop = self.runner.stop_event
-        backlog_warned = INBOX_WARN
+    def _input_pump(self, port: str, box: PortInbox) -> None:
+        backlog_warn = BACKLOG_WARN
         while True:
-            sample = sub.recv()
-            if isinstance(sub, Inbox) and len(sub) >= backlog_warned:
-                self.event(
-                    "warning",
-                    "input_backlog",
-                    f"input {port!r} has {len(sub)} messages waiting: this stage "
-                    "is slower than its producer in another process",
-                    backlog=len(sub),
-                )
-                backlog_warned *= 4
-            att = sample.attachment
+            kind, a, b = box.get()
             try:
-                env = codec.decode_envelope(att.to_bytes() if att is not None else b"")
-            except CodecError as exc:
-                if not stop.is_set():
-                    self.event("warning", "foreign_message", f"ignored a message on input {port!r}: {exc}")
-                continue
-            if env.kind == Kind.STOP:
-                return
-            if stop.is_set() or self.failed:
-                continue
-            if env.kind == Kind.EOS:
-                self.input_ended(port)
-                return
-            self._check_seq(port, env)
-            try:
-                msg = codec.decode(sample.payload.to_bytes(), env)
-            except CodecError as exc:
-                self.fail(exc, f"decode {port}")
-                continue
-            self.deliver(port, msg, env)
+                if kind == STOP:
+                    return
+                if kind == REMOTE:
+                    if box.depth is None and len(box) >= backlog_warn:
+                        self.event(
+                            "warning",
+                            "input_backlog",
+                            f"input {port!r} has {len(box)} messages waiting: this stage is slower than "
+                            "its producer in another process",
+                            backlog=len(box),
+                        )
+                        backlog_warn *= 4
+                    env, msg = self._decode_remote(port, a)
+                    if env is None:
+                        continue
+                else:
+                    env, msg = a, b
+                with self.lock:
+                    self._handle(port, env, msg)
+                if env.kind == Kind.EOS:
+                    return
+            finally:
+                box.release()
 
-    def _check_seq(self, port: str, env: Envelope) -> None:
+    def _decode_remote(self, port: str, sample: Any) -> tuple[Envelope | None, Message | None]:
+        att = sample.attachment
+        try:
+            env = codec.decode_envelope(att.to_bytes() if att is not None else b"")
+            if env.kind != Kind.DATA:
+                return env, None
+            return env, codec.decode(sample.payload.to_bytes(), env)
+        except CodecError as exc:
+            if not self.stopping:
+                self.event("warning", "undecodable_message", f"ignored a message on input {port!r}: {exc}")
+            return None, None
+
+    def _handle(self, port: str, env: Envelope, msg: Message | None) -> None:
+        """Deliver one message or end of stream; the caller holds the stage lock."""
+        if self.stopping or self.failed:
+            return
+        if env.kind == Kind.EOS:
+            self._input_ended(port)
+            return
+        if env.kind != Kind.DATA or msg is None:
+            return
+        assert self.stage is not None
         last = self._last_in_seq.get(port, 0)
         if env.seq != last + 1:
             self.event(
@@ -251,22 +315,41 @@ class StageRuntime(StageContext):
                 got=env.seq,
             )
         self._last_in_seq[port] = env.seq
+        self.stats.received[port] += 1
+        for obs in self.runner.observers:
+            obs.on_deliver(self.name, port, env)
+        t0 = time.perf_counter()
+        try:
+            self.stage.on_message(port, msg)
+        except Exception as exc:
+            self.fail(exc, f"on_message({port!r})")
+        finally:
+            self.stats.busy_s += time.perf_counter() - t0
 
-    def deliver(self, port: str, msg: Message, env: Envelope) -> None:
-        assert self.stage is not None
-        with self.lock:
-            if self.failed:
-                return
-            self.stats.received[port] += 1
-            for obs in self.runner.observers:
-                obs.on_deliver(self.name, port, env)
-            t0 = time.perf_counter()
+    def _input_ended(self, port: str) -> None:
+        self.pending_inputs.discard(port)
+        self.inboxes[port].close()  # its pump exits (the end may have been handled inline)
+        if self.pending_inputs or self.data_done.is_set():
+            return
+        if not self.failed and self.stage is not None:
             try:
-                self.stage.on_message(port, msg)
+                self.stage.finish()
             except Exception as exc:
-                self.fail(exc, f"on_message({port!r})")
-            finally:
-                self.stats.busy_s += time.perf_counter() - t0
+                self.fail(exc, "finish")
+        self.close_outputs()
+        self._mark_data_done()
+
+    # -- sources and services ------------------------------------------------------------------
+    def _source_main(self) -> None:
+        assert self.stage is not None
+        try:
+            self.stage.run()
+        except Exception as exc:
+            self.fail(exc, "run")
+        finally:
+            if not self.stopping:
+                self.close_outputs()
+            self._mark_data_done()
 
     def _service_pump(self, svc: str, queryable: Any) -> None:
         stop = self.runner.stop_event
@@ -288,44 +371,33 @@ class StageRuntime(StageContext):
                 except CodecError as exc:
                     query.reply_err(f"bad request to {self.name}.{svc}: {exc}")
                     continue
-                reply_bytes: tuple[bytes, bytes] | None = None
-                error = ""
-                with self.lock:
-                    t0 = time.perf_counter()
-                    try:
-                        assert self.stage is not None
-                        reply = self.stage.on_request(svc, request)
-                        if not isinstance(reply, spec.reply):
-                            raise TypeError(f"service {svc!r} must reply {spec.reply.TYPE}, got {type(reply).__name__}")
-                        if not reply.stamp_ns:
-                            reply.stamp_ns = self.clock.now_ns()
-                        reply_bytes = codec.encode(reply)
-                    except Exception as exc:  # the caller gets the error; the stage keeps serving
-                        error = f"{type(exc).__name__}: {exc}"
-                        self.stats.errors += 1
-                        self.event("error", "service_exception", f"{svc}: {error}", traceback=traceback.format_exc())
-                    finally:
-                        self.stats.busy_s += time.perf_counter() - t0
-                        self.stats.requests_served += 1
+                reply_bytes, error = self._serve(svc, spec.reply, request)
                 if reply_bytes is not None:
                     query.reply(query.key_expr, reply_bytes[0], attachment=reply_bytes[1])
                 else:
                     query.reply_err(f"{self.name}.{svc} failed: {error}")
 
-    # -- state changes -----------------------------------------------------------------------
-    def input_ended(self, port: str) -> None:
+    def _serve(self, svc: str, reply_type: type[Message], request: Message) -> tuple[tuple[bytes, bytes] | None, str]:
         with self.lock:
-            self.pending_inputs.discard(port)
-            if self.pending_inputs or self.data_done.is_set():
-                return
-            if not self.failed and self.stage is not None:
-                try:
-                    self.stage.finish()
-                except Exception as exc:
-                    self.fail(exc, "finish")
-        self.close_outputs()
-        self._mark_data_done()
+            t0 = time.perf_counter()
+            try:
+                assert self.stage is not None
+                reply = self.stage.on_request(svc, request)
+                if not isinstance(reply, reply_type):
+                    raise TypeError(f"service {svc!r} must reply {reply_type.TYPE}, got {type(reply).__name__}")
+                if not reply.stamp_ns:
+                    reply.stamp_ns = self.clock.now_ns()
+                return codec.encode(reply), ""
+            except Exception as exc:  # the caller gets the error; the stage keeps serving
+                error = f"{type(exc).__name__}: {exc}"
+                self.stats.errors += 1
+                self.event("error", "service_exception", f"{svc}: {error}", traceback=traceback.format_exc())
+                return None, error
+            finally:
+                self.stats.busy_s += time.perf_counter() - t0
+                self.stats.requests_served += 1
 
+    # -- state changes -----------------------------------------------------------------------
     def _mark_data_done(self) -> None:
         if self.stats.state == "running":
             self.stats.state = "finished"
@@ -338,12 +410,18 @@ class StageRuntime(StageContext):
             self._close_port(port)
 
     def _close_port(self, port: str) -> None:
-        with self._pub_lock:
-            if port in self._closed_ports or port not in self._publishers:
+        out = self.outputs.get(port)
+        if out is None:
+            return
+        with out.lock:
+            if out.closed:
                 return
-            self._closed_ports.add(port)
-            env = codec.encode_envelope(Envelope(Kind.EOS, self._seq[port] + 1, self.clock.now_ns(), ""))
-            self._publishers[port].put(b"", attachment=env)
+            out.closed = True
+            env = Envelope(Kind.EOS, out.seq + 1, self.clock.now_ns(), "")
+            if out.remote_consumers or out.external:
+                out.publisher.put(b"", attachment=codec.encode_envelope(env))
+            for consumer, cport in out.local:
+                consumer.offer(cport, env, None)
 
     def fail(self, exc: BaseException, where: str) -> None:
         """Record a stage failure as an error Event with traceback and tell the runner."""
@@ -358,6 +436,13 @@ class StageRuntime(StageContext):
         except Exception:  # publishing the event must not hide the original failure
             log.exception("could not publish the error event of %s", self.name)
         self.runner.stage_failed(self)
+
+    def wake(self) -> None:
+        """Unblock every pump thread of this stage (the run is stopping)."""
+        for box in self.inboxes.values():
+            box.close()
+        for q in self.queryables.values():
+            q.wake()
 
     def teardown(self) -> None:
         if self.stage is not None:

@@ -140,9 +140,14 @@ class Stage:
 
     @classmethod
     def all_outputs(cls) -> dict[str, type[Message]]:
-        from engine.messages import Event
+        """Declared outputs plus the implicit ``events`` port (computed once per class)."""
+        cached = cls.__dict__.get("_all_outputs_cache")
+        if cached is None:
+            from engine.messages import Event
 
-        return {**cls.outputs, EVENTS_PORT: Event}
+            cached = {**cls.outputs, EVENTS_PORT: Event}
+            cls._all_outputs_cache = cached  # type: ignore[attr-defined]
+        return cached
 
     @classmethod
     def describe(cls) -> dict[str, Any]:

@@ -6,6 +6,7 @@ import itertools
 import threading
 import time
 
+import numpy as np
 import pytest
 from recipe_helpers import graph_from
 from stage_fixtures import COLLECTED
@@ -168,3 +169,39 @@ def test_unknown_process_is_refused():
 
     with pytest.raises(RunError, match="no stage in process 'elsewhere'"):
         Runner(graph_from(CHAIN.format(rid="x", n=1, fail=-1)), process="elsewhere")
+
+
+def test_published_arrays_are_frozen_and_republishing_does_not_mutate_inputs():
+    from engine.messages import PointCloud, freeze
+
+    pc = PointCloud(points=np.zeros((3, 3)))
+    out = freeze(pc)
+    assert out is pc and not pc.points.flags.writeable
+    with pytest.raises(ValueError):
+        pc.points[0, 0] = 1.0  # a producer writing after publish is caught, not silently shared
+    out.seq = 4
+    again = freeze(out)
+    assert again is not out and again.points is out.points  # passed-on messages are copied, arrays shared
+
+
+def test_inline_and_threaded_dispatch_give_identical_results():
+    rows = {}
+    for mode in ("auto", "thread"):
+        text = f"""
+        name: d
+        plugins: [stage_fixtures]
+        run_id: disp_{mode}
+        stages:
+          a: {{type: t_counter, params: {{n: 300}}}}
+          b: {{type: t_counter, params: {{n: 200}}}}
+          m: {{type: t_merge, inputs: {{a: a.out, b: b.out}}, dispatch: {mode}}}
+          r: {{type: t_relay, inputs: {{in: m.out}}, dispatch: {mode}}}
+          sink: {{type: t_collector, inputs: {{in: r.out}}, dispatch: {mode}}}
+        """
+        _, s = run(text)
+        assert s.ok
+        got = COLLECTED[f"disp_{mode}"]["sink"]
+        rows[mode] = sorted((r["command"], r["args"]["i"]) for r in got)
+        for port, n in (("a", 300), ("b", 200)):
+            assert [r["args"]["i"] for r in got if r["command"] == port] == list(range(n))
+    assert rows["auto"] == rows["thread"]
