@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | sha1sum | cut -c1-12)
 
-.PHONY: install sysdeps demo test lint bench clean
+.PHONY: install sysdeps demo test lint bench golden clean
 
 install: $(STAMP)
 
@@ -35,6 +35,10 @@ test: install
 
 lint: install
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .
+
+# Regenerate the golden recordings that CI replays (after an intended change of outputs).
+golden: install
+	$(BIN)/vgr run recipes/demo.yaml -p source.n_points=400 -p source.frames=10 --record recordings/demo.mcap --no-progress
 
 bench: install
 	$(BIN)/python benchmarks/engine_overhead.py

@@ -17,17 +17,21 @@ from typing import Any
 
 from rich.console import Console
 from rich.live import Live
+from rich.markup import escape
 from rich.table import Table
 
+from engine import cli_recording
 from engine.errors import RecipeError
 from engine.graph import Graph, build_graph
 from engine.plugin_manager import PluginError, Registry, load_registry
 from engine.recipe import load_recipe
+from engine.recording import RecordingError
+from engine.replay import ReplayError
 from engine.runner import RunError, Runner, RunSummary
 from engine.runtime import StageStats
 
 console = Console(stderr=True)
-out = Console()
+out = Console(width=None if sys.stdout.isatty() else 160)
 
 EXIT_OK, EXIT_FAILED, EXIT_INVALID, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -61,15 +65,15 @@ def print_summary(summary: RunSummary) -> None:
     out.print(_stats_table(summary.stages, f"run {summary.run_id} ({summary.process}) in {summary.wall_s:.2f} s"))
     for ev in summary.events:
         colour = "yellow" if ev.level == "warning" else "red"
-        out.print(f"[{colour}]{ev.level}[/] {ev.stage}: [{ev.code}] {ev.message}")
+        out.print(f"[{colour}]{ev.level}[/] {ev.stage}: {escape(f'[{ev.code}] {ev.message}')}", soft_wrap=True)
         if ev.traceback and ev.level in ("error", "alarm"):
             out.print(ev.traceback, markup=False, highlight=False)
     for name, path in summary.artifacts.items():
-        out.print(f"{name}: {path}")
+        out.print(f"{name}: {escape(path)}", highlight=False, soft_wrap=True)
     if summary.ok:
         out.print("[green]run finished[/]")
     else:
-        out.print(f"[red]run failed[/]: {summary.stop_reason or 'a stage failed'}")
+        out.print(f"[red]run failed[/]: {escape(summary.stop_reason or 'a stage failed')}", soft_wrap=True)
 
 
 def run_with_progress(runner: Runner, show: bool) -> RunSummary:
@@ -111,7 +115,7 @@ def run_with_progress(runner: Runner, show: bool) -> RunSummary:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    graph, _ = _load_graph(args)
+    graph, registry = _load_graph(args)
     recipe = graph.recipe
     from engine.recipe import ProcessSettings
 
@@ -120,11 +124,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         recipe.processes[args.process] = ProcessSettings(
             listen=args.listen or over.listen, connect=args.connect or over.connect
         )
-    observers = []
-    for factory in EXTRA_OBSERVERS:
-        obs = factory(args, graph)
-        if obs is not None:
-            observers.append(obs)
+    from engine.cli_recording import make_recorder
+
+    recorder = make_recorder(args, graph, registry)
+    observers = [recorder] if recorder is not None else []
     runner = Runner(
         graph,
         process=args.process,
@@ -224,9 +227,8 @@ def cmd_schemas(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------- parser
 
-# Later modules (recorder, replay, calibration, ...) add verbs and run observers here.
+# Modules of later capabilities add their verbs here (each: add(subparsers)).
 EXTRA_VERBS: list[Callable[[argparse._SubParsersAction], None]] = []  # type: ignore[type-arg]
-EXTRA_OBSERVERS: list[Callable[[argparse.Namespace, Graph], Any]] = []
 
 
 def _add_recipe_args(p: argparse.ArgumentParser) -> None:
@@ -256,6 +258,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ready-timeout", type=float, default=15.0, help="seconds to wait for the other processes")
     p.add_argument("--no-progress", action="store_true", help="no live progress table")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    cli_recording.add_run_options(p)
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("validate", help="check a recipe (types, wiring, parameters, cycles) without running it")
@@ -275,6 +278,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("schemas", help="print the protobuf schema of every message type")
     p.set_defaults(func=cmd_schemas)
 
+    cli_recording.add_verbs(sub)
     for add in EXTRA_VERBS:
         add(sub)
     return parser
@@ -293,8 +297,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         for p in exc.problems:
             console.print(f"  {p}", markup=False, highlight=False, soft_wrap=True)
         return EXIT_INVALID
-    except (PluginError, RunError, FileNotFoundError, ValueError) as exc:
-        console.print(f"[red]error[/]: {exc}", highlight=False)
+    except (PluginError, RunError, FileNotFoundError, ValueError, RecordingError, ReplayError) as exc:
+        console.print(f"[red]error[/]: {escape(str(exc))}", highlight=False, soft_wrap=True)
         return EXIT_INVALID
     except KeyboardInterrupt:
         console.print("[yellow]interrupted[/]")

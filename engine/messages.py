@@ -53,7 +53,8 @@ def _get_stamp(pb: Any) -> int:
 
 
 def _set_pose(pose_pb: Any, T: np.ndarray) -> None:
-    p, q = tf.pose7_from_T(T)
+    T = np.asarray(T, dtype=float)
+    p, q = T[:3, 3], tf.quat_xyzw_from_R(T[:3, :3])
     pose_pb.position.x, pose_pb.position.y, pose_pb.position.z = (float(v) for v in p)
     o = pose_pb.orientation
     o.x, o.y, o.z, o.w = (float(v) for v in q)
@@ -349,7 +350,8 @@ class Transform(Message):
 def _fill_frame_transform(pb: Any, t: Transform) -> None:
     _set_stamp(pb, t.stamp_ns)
     pb.parent_frame_id, pb.child_frame_id = t.frame_id, t.child_frame_id
-    p, q = tf.pose7_from_T(t.T)
+    T = np.asarray(t.T, dtype=float)
+    p, q = T[:3, 3], tf.quat_xyzw_from_R(T[:3, :3])
     pb.translation.x, pb.translation.y, pb.translation.z = (float(v) for v in p)
     pb.rotation.x, pb.rotation.y, pb.rotation.z, pb.rotation.w = (float(v) for v in q)
 

@@ -41,13 +41,25 @@ class RunError(RuntimeError):
 
 
 class Observer:
-    """Sees every publication, delivery and service exchange of this process (recorder, replay)."""
+    """Sees everything a process's stages do, in the order they do it (recorder, tests).
 
-    def on_start(self, runner: Runner) -> None: ...
+    Calls come from stage threads; an observer must be quick and thread-safe.
+    """
 
-    def on_publish(self, stage: str, port: str, payload: bytes, envelope: bytes, msg: Message) -> None: ...
+    def on_start(self, runner: Runner) -> None:
+        """The stages exist and are declared; nothing has run yet."""
 
-    def on_deliver(self, stage: str, port: str, env: Envelope) -> None: ...
+    def on_publish(self, stage: str, port: str, payload: bytes, envelope: bytes, msg: Message) -> None:
+        """*stage* published *msg* on *port* (encoded: payload + envelope)."""
+
+    def on_receive(self, src_stage: str, src_port: str, payload: bytes, envelope: bytes) -> None:
+        """A message of a stage in another process arrived here (before it is delivered)."""
+
+    def on_deliver(self, stage: str, port: str, env: Envelope) -> None:
+        """*stage* is about to handle message ``env.seq`` of its input *port*."""
+
+    def on_stage_finish(self, stage: str) -> None:
+        """All inputs of *stage* have ended; its ``finish()`` is about to run."""
 
     def on_service(
         self,
@@ -59,9 +71,11 @@ class Observer:
         reply_payload: bytes,
         reply_env: bytes,
         error: str,
-    ) -> None: ...
+    ) -> None:
+        """*stage* called ``edge.provider.edge.service`` through *client*; the exchange is complete."""
 
-    def on_finish(self, runner: Runner, summary: RunSummary) -> None: ...
+    def on_finish(self, runner: Runner, summary: RunSummary) -> None:
+        """The run is over (sessions closed); *summary* may be annotated (artifacts)."""
 
 
 @dataclass

@@ -22,11 +22,8 @@ import logging
 import threading
 import time
 import traceback
-import zlib
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
-
-import numpy as np
 
 from engine import codec
 from engine.bus import data_key, service_key
@@ -34,7 +31,7 @@ from engine.codec import CodecError, Envelope, Kind
 from engine.graph import StageNode
 from engine.inbox import LOCAL, REMOTE, STOP, PortInbox
 from engine.messages import Event, Message, freeze
-from engine.stage import EVENTS_PORT, ServiceError, ServiceTimeoutError, Stage, StageContext
+from engine.stage import EVENTS_PORT, ServiceError, ServiceTimeoutError, Stage, StageContext, stage_rng
 
 if TYPE_CHECKING:
     from engine.runner import Runner
@@ -105,7 +102,7 @@ class StageRuntime(StageContext):
         self.name = node.name
         self.run_id = runner.run_id
         self.seed = runner.seed
-        self.rng = np.random.default_rng([runner.seed & 0xFFFFFFFF, zlib.crc32(node.name.encode())])
+        self.rng = stage_rng(runner.seed, node.name)
         self.clock = runner.clock
         self.log = logging.getLogger(f"vgr.stage.{node.name}")
         self.lock = threading.RLock()  # serialises the stage's handlers
@@ -128,6 +125,8 @@ class StageRuntime(StageContext):
         self.threads: list[threading.Thread] = []
         self.stage: Stage | None = None
         self.clients = {e.client_name: e for e in runner.graph.service_edges if e.client == node.name}
+        self._causal = threading.local()  # stamp of the input being handled on this thread
+        self._call_seq: dict[str, int] = {}  # requests sent per service client
 
     # -- StageContext ------------------------------------------------------------------------
     @property
@@ -152,7 +151,7 @@ class StageRuntime(StageContext):
             out.seq += 1
             msg.seq = out.seq
             if not msg.stamp_ns:
-                msg.stamp_ns = self.clock.now_ns()
+                msg.stamp_ns = getattr(self._causal, "stamp", 0) or self.clock.now_ns()
             env = Envelope(Kind.DATA, msg.seq, msg.stamp_ns, msg.TYPE)
             if out.needs_bytes(observers):
                 payload, att = codec.encode_payload(msg), codec.encode_envelope(env)
@@ -172,7 +171,8 @@ class StageRuntime(StageContext):
         if not isinstance(request, spec.request):
             raise TypeError(f"client {client!r} sends {spec.request.TYPE}, got {type(request).__name__}")
         if not request.stamp_ns:
-            request.stamp_ns = self.clock.now_ns()
+            request.stamp_ns = getattr(self._causal, "stamp", 0) or self.clock.now_ns()
+        self._call_seq[client] = request.seq = self._call_seq.get(client, 0) + 1
         payload, att = codec.encode(request)
         key = service_key(self.run_id, edge.provider, edge.service)
         self.stats.calls_made += 1
@@ -286,10 +286,16 @@ class StageRuntime(StageContext):
     def _decode_remote(self, port: str, sample: Any) -> tuple[Envelope | None, Message | None]:
         att = sample.attachment
         try:
-            env = codec.decode_envelope(att.to_bytes() if att is not None else b"")
+            raw_env = att.to_bytes() if att is not None else b""
+            env = codec.decode_envelope(raw_env)
             if env.kind != Kind.DATA:
                 return env, None
-            return env, codec.decode(sample.payload.to_bytes(), env)
+            payload = sample.payload.to_bytes()
+            if self.runner.observers:
+                edge = next(e for e in self.runner.graph.inputs_of(self.name) if e.dst_port == port)
+                for obs in self.runner.observers:
+                    obs.on_receive(edge.src, edge.src_port, payload, raw_env)
+            return env, codec.decode(payload, env)
         except CodecError as exc:
             if not self.stopping:
                 self.event("warning", "undecodable_message", f"ignored a message on input {port!r}: {exc}")
@@ -319,11 +325,13 @@ class StageRuntime(StageContext):
         for obs in self.runner.observers:
             obs.on_deliver(self.name, port, env)
         t0 = time.perf_counter()
+        self._causal.stamp = msg.stamp_ns
         try:
             self.stage.on_message(port, msg)
         except Exception as exc:
             self.fail(exc, f"on_message({port!r})")
         finally:
+            self._causal.stamp = 0
             self.stats.busy_s += time.perf_counter() - t0
 
     def _input_ended(self, port: str) -> None:
@@ -332,6 +340,8 @@ class StageRuntime(StageContext):
         if self.pending_inputs or self.data_done.is_set():
             return
         if not self.failed and self.stage is not None:
+            for obs in self.runner.observers:
+                obs.on_stage_finish(self.name)
             try:
                 self.stage.finish()
             except Exception as exc:
@@ -380,13 +390,14 @@ class StageRuntime(StageContext):
     def _serve(self, svc: str, reply_type: type[Message], request: Message) -> tuple[tuple[bytes, bytes] | None, str]:
         with self.lock:
             t0 = time.perf_counter()
+            self._causal.stamp = request.stamp_ns
             try:
                 assert self.stage is not None
                 reply = self.stage.on_request(svc, request)
                 if not isinstance(reply, reply_type):
                     raise TypeError(f"service {svc!r} must reply {reply_type.TYPE}, got {type(reply).__name__}")
                 if not reply.stamp_ns:
-                    reply.stamp_ns = self.clock.now_ns()
+                    reply.stamp_ns = request.stamp_ns or self.clock.now_ns()
                 return codec.encode(reply), ""
             except Exception as exc:  # the caller gets the error; the stage keeps serving
                 error = f"{type(exc).__name__}: {exc}"
@@ -394,6 +405,7 @@ class StageRuntime(StageContext):
                 self.event("error", "service_exception", f"{svc}: {error}", traceback=traceback.format_exc())
                 return None, error
             finally:
+                self._causal.stamp = 0
                 self.stats.busy_s += time.perf_counter() - t0
                 self.stats.requests_served += 1
 

@@ -234,3 +234,35 @@ message Request {                    // a generic service request (capture now, 
 }
 """,
 )
+
+
+# --------------------------------------------------------------------------- vgr.v1 recording records
+# Written by engine.recorder next to the data channels; they let engine.replay reproduce a run.
+
+VGR_V1_RECORDING = define_proto(
+    "vgr/v1/recording.proto",
+    "vgr.v1",
+    """
+message ServiceExchange {            // one service call as seen by the caller, with its reply
+  string caller = 1;                 // calling stage
+  string client = 2;                 // its client name (recipe `uses`)
+  string provider = 3;
+  string service = 4;
+  string request_type = 5;
+  bytes request = 6;                 // protobuf payload of the request
+  uint64 request_seq = 7;
+  string reply_type = 8;
+  bytes reply = 9;                   // protobuf payload of the reply (empty on error)
+  string error = 10;
+}
+message Delivery {                   // a stage is about to handle message `seq` of input `port`
+  string stage = 1;
+  string port = 2;
+  string source_topic = 3;           // /<stage>/<port> that produced it
+  uint64 seq = 4;
+}
+message StageFinish {                // all inputs of `stage` ended; its finish() runs now
+  string stage = 1;
+}
+""",
+)

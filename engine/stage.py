@@ -7,11 +7,14 @@ A stage type is a subclass of :class:`Stage` that declares
 * ``services``  services it answers (name -> :class:`ServiceSpec`), and ``uses``: services of
   other stages it calls, wired in the recipe like inputs (``uses: {robot: sim_robot.move}``),
 * ``Params``  a pydantic model of its parameters (unknown keys are errors),
-* ``role``  sensor | solver | action | source | transform | sink — replay re-runs solvers and
-  actions and feeds sensors from the recording.
+* ``role``  source | sensor | device | solver | action | transform | sink — replay re-runs every
+  stage except sources, sensors and devices (robots), which it feeds from the recording.
 
 The engine guarantees: ``on_message`` and ``on_request`` of one stage are never called
-concurrently, and messages of one input port arrive in publication order. ``run`` (sources only)
+concurrently, and messages of one input port arrive in publication order. A message published
+without ``stamp_ns`` gets the stamp of the input being handled (causal time), or the clock's time
+when published from ``run()``; so outputs do not depend on when a handler happened to run, and a
+replay reproduces them bit for bit. Stages read time only through ``ctx.clock``. ``run`` (sources only)
 runs on the stage's own thread; it must return when the input ends or ``ctx.stopping`` is set.
 Every stage has an implicit ``events`` output carrying :class:`~engine.messages.Event`.
 """
@@ -31,8 +34,16 @@ from engine.messages import Message
 if TYPE_CHECKING:
     from engine.clock import Clock
 
-Role = Literal["source", "sensor", "solver", "action", "transform", "sink"]
+Role = Literal["source", "sensor", "device", "solver", "action", "transform", "sink"]
+PLAYBACK_ROLES: frozenset[str] = frozenset({"source", "sensor", "device"})  # replay feeds these from the file
 EVENTS_PORT = "events"
+
+
+def stage_rng(seed: int, stage: str) -> np.random.Generator:
+    """The random generator of *stage* in a run with *seed* (the same in a run and its replay)."""
+    import zlib
+
+    return np.random.default_rng([seed & 0xFFFFFFFF, zlib.crc32(stage.encode())])
 
 
 class StageParams(BaseModel):

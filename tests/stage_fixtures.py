@@ -9,13 +9,15 @@ from __future__ import annotations
 import json
 import threading
 from collections import defaultdict
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, ClassVar
 
+import numpy as np
 from pydantic import Field
 
 from engine.hookspecs import hookimpl
-from engine.messages import Blob, Request
+from engine.messages import Blob, PointCloud, PoseStamped, Request
 from engine.stage import ServiceSpec, Stage, StageParams
 
 COLLECTED: dict[str, dict[str, list[dict[str, Any]]]] = defaultdict(lambda: defaultdict(list))
@@ -169,4 +171,56 @@ class BlobSink(Stage):
 
 @hookimpl
 def vgr_stage_types() -> list[type]:
-    return [Counter, Relay, Merge, Collector, EchoService, Caller, BlobSink, NeedsParam, RelayWithService]
+    return [
+        Counter,
+        Relay,
+        Merge,
+        Collector,
+        EchoService,
+        Caller,
+        BlobSink,
+        NeedsParam,
+        RelayWithService,
+        NoisyCloud,
+        ThreadedCentroid,
+    ]
+
+
+class NoisyCloud(Stage):
+    """For each Request, a PointCloud of args.i + n points drawn from the stage's seeded generator."""
+
+    type_name = "t_noisy_cloud"
+    role = "solver"
+    inputs: ClassVar = {"in": Request}
+    outputs: ClassVar = {"cloud": PointCloud}
+
+    class Params(StageParams):
+        n: int = 50
+        scale: float = 1.0
+
+    def on_message(self, port: str, msg: Request) -> None:  # type: ignore[override]
+        k = self.params.n + int(msg.args.get("i", 0))  # type: ignore[attr-defined]
+        pts = self.ctx.rng.normal(scale=self.params.scale, size=(k, 3))  # type: ignore[attr-defined]
+        self.ctx.publish("cloud", PointCloud(points=pts, frame_id="noise"))
+
+
+class ThreadedCentroid(Stage):
+    """Centroid of each cloud computed by 4 worker threads over chunks, combined in chunk order."""
+
+    type_name = "t_threaded_centroid"
+    role = "solver"
+    inputs: ClassVar = {"cloud": PointCloud}
+    outputs: ClassVar = {"centroid": PoseStamped}
+
+    def setup(self) -> None:
+        self.pool = ThreadPoolExecutor(max_workers=4)
+
+    def on_message(self, port: str, msg: PointCloud) -> None:  # type: ignore[override]
+        chunks = np.array_split(np.asarray(msg.points, dtype=float), 4)
+        sums = list(self.pool.map(lambda c: c.sum(axis=0), chunks))  # results come back in chunk order
+        T = np.eye(4)
+        T[:3, 3] = np.sum(sums, axis=0) / max(1, len(msg.points))
+        self.ctx.publish("centroid", PoseStamped(T=T, frame_id=msg.frame_id))
+
+    def teardown(self) -> None:
+        self.pool.shutdown()
