@@ -52,6 +52,7 @@ __all__ = [
     "PinholeIntrinsics",
     "RenderTruth",
     "default_intrinsics",
+    "look_at",
 ]
 
 
@@ -97,6 +98,23 @@ def default_intrinsics() -> PinholeIntrinsics:
     width, height = 640, 480
     f = (width / 2.0) / math.tan(math.radians(60.0) / 2.0)
     return PinholeIntrinsics(width, height, f, f, (width - 1) / 2.0, (height - 1) / 2.0)
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
+    """T_world_cam of an OpenCV camera at ``eye`` looking at ``target`` (image "up" towards ``up``)."""
+    eye = np.asarray(eye, dtype=float).reshape(3)
+    z = np.asarray(target, dtype=float).reshape(3) - eye
+    if not np.all(np.isfinite(z)) or np.linalg.norm(z) < 1e-12:
+        raise ValueError("look_at needs finite, distinct eye and target points")
+    z /= np.linalg.norm(z)
+    x = np.cross(z, np.asarray(up, dtype=float).reshape(3))
+    if np.linalg.norm(x) < 1e-9:
+        raise ValueError("look_at: the viewing direction is parallel to 'up'; pass another up vector")
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, :3] = np.column_stack((x, np.cross(z, x), z))
+    T[:3, 3] = eye
+    return T
 
 
 @dataclass(frozen=True)
