@@ -337,13 +337,11 @@ class DepthCameraModel:
                 a[ki] for a in (sub, dx, dy, cos_inc, z_true, sigma, z_meas)
             )
         idx = sub if cand is None else cand[sub]
-        n = nrm[sub].astype(float)
-        part_of_geometry = np.full(max(geometry_ids) + 1, -1, dtype=np.int64)
-        part_of_geometry[geometry_ids] = np.arange(len(geometry_ids))
-        part_index = part_of_geometry[hits["geometry_ids"].numpy()[sub].astype(np.int64)]
-        d = np.column_stack((dx, dy, np.ones_like(dx)))
-        points = d * z_meas[:, None]
-        n = n.astype(float)
+        n = np.take(nrm, sub, axis=0).astype(float)
+        points = np.empty((len(sub), 3))
+        np.multiply(dx, z_meas, out=points[:, 0])
+        np.multiply(dy, z_meas, out=points[:, 1])
+        points[:, 2] = z_meas
 
         k = self.intrinsics
         depth = np.full(k.width * k.height, np.nan, dtype=np.float32)
@@ -362,8 +360,11 @@ class DepthCameraModel:
         )
         if not want_truth:
             return capture, None
+        part_of_geometry = np.full(max(geometry_ids) + 1, -1, dtype=np.int64)
+        part_of_geometry[geometry_ids] = np.arange(len(geometry_ids))
+        part_index = part_of_geometry[hits["geometry_ids"].numpy()[sub].astype(np.int64)]
         truth = RenderTruth(
-            points_true=d * z_true[:, None],
+            points_true=np.column_stack((dx, dy, np.ones_like(dx))) * z_true[:, None],
             part_index=part_index,
             T_cam_parts=T_cam_parts,
             sigma_m=sigma,
