@@ -232,6 +232,8 @@ class DepthCameraModel:
         ):
             raise ValueError(f"need 0 <= min_range_m < max_range_m, got {min_range_m}, {max_range_m}")
         self.intrinsics = intrinsics
+        if noise is not None and not isinstance(noise, DepthNoiseModel):
+            raise TypeError("noise must be a DepthNoiseModel")
         self.noise = noise if noise is not None else DepthNoiseModel()
         self.min_range_m = float(min_range_m)
         self.max_range_m = float(max_range_m)
@@ -294,6 +296,8 @@ class DepthCameraModel:
             V, F = _mesh_arrays(part)
             if len(F) == 0:
                 raise ValueError(f"part {i} has an empty mesh")
+            if not np.all(np.isfinite(V)):
+                raise ValueError(f"part {i} has NaN or infinite vertices")
             V_cam = (V @ T_cam_part[:3, :3].T + T_cam_part[:3, 3]).astype(np.float32)
             geometry_ids.append(int(scene.add_triangles(o3d.core.Tensor(V_cam), o3d.core.Tensor(F))))
             T_cam_parts.append(T_cam_part)

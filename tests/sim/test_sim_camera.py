@@ -276,6 +276,11 @@ def test_empty_scene_and_bad_parts_fail_clearly(feature_part):
         cam.render([feature_part], np.eye(4), rng)
     with pytest.raises(TypeError, match="Generator"):
         cam.render([(feature_part, np.eye(4))], np.eye(4), 42)
+    broken = o3d.geometry.TriangleMesh(feature_part.mesh)
+    vertices = np.asarray(broken.vertices)
+    vertices[3] = np.nan
+    with pytest.raises(ValueError, match="NaN or infinite vertices"):
+        cam.render([(broken, np.eye(4))], np.eye(4), rng)
 
 
 def test_camera_inside_a_part_fails_clearly(feature_part):
