@@ -290,6 +290,30 @@ def test_camera_inside_a_part_fails_clearly(feature_part):
         cam.render([(feature_part, np.eye(4))], inside, np.random.default_rng(0))
 
 
+def test_inward_facing_mesh_is_refused_and_a_few_back_faces_are_dropped():
+    cam = DepthCameraModel(SMALL, DepthNoiseModel.noiseless())
+    rng = np.random.default_rng(0)
+    inverted = wall()
+    inverted.triangles = o3d.utility.Vector3iVector(np.asarray(inverted.triangles)[:, ::-1].copy())
+    # the occupancy test sees no inside (parity of crossings), the back faces give it away
+    with pytest.raises(ValueError, match="inward-facing"):
+        cam.render([(inverted, wall_pose(1.0))], np.eye(4), rng)
+    # one flipped triangle among many: only its pixels are lost
+    tiles = o3d.geometry.TriangleMesh.create_box(2.0, 2.0, 0.02).subdivide_midpoint(4)
+    tiles.translate((-1.0, -1.0, 0.0))
+    F = np.asarray(tiles.triangles).copy()
+    centres = np.asarray(tiles.vertices)[F].mean(axis=1)
+    front = np.flatnonzero(centres[:, 2] < 1e-9)
+    flip = front[np.argmin(np.linalg.norm(centres[front, :2], axis=1))]  # the front tile on the axis
+    F[flip] = F[flip, ::-1]
+    tiles.triangles = o3d.utility.Vector3iVector(F)
+    cap = cam.render([(tiles, wall_pose(1.0))], np.eye(4), rng)
+    lost = SMALL.width * SMALL.height - len(cap.points)
+    assert 0 < lost < 0.05 * SMALL.width * SMALL.height
+    u, v = np.rint(SMALL.project(centres[flip] + [0.0, 0.0, 1.0])[0]).astype(int)
+    assert not cap.valid_mask[v, u]  # the flipped triangle's centre pixel is among the lost ones
+
+
 def _scaled(T: np.ndarray, s: float) -> np.ndarray:
     T = T.copy()
     T[:3, :3] *= s
