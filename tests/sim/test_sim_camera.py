@@ -384,3 +384,24 @@ def test_a_huge_negative_bias_drops_points_instead_of_flipping_them():
     cam = DepthCameraModel(SMALL, DepthNoiseModel(sigma_const_m=0.0, depth_bias_m=-2.0), max_range_m=3.0)
     cap = cam.render([(wall(), wall_pose(1.0))], np.eye(4), np.random.default_rng(0))
     assert len(cap.points) == 0 and np.all(np.isnan(cap.depth))
+
+
+@settings(max_examples=15, deadline=None)
+@given(
+    st.tuples(*[st.floats(-math.pi, math.pi)] * 3),
+    st.tuples(st.floats(-0.1, 0.1), st.floats(-0.1, 0.1), st.floats(0.3, 1.5)),
+    st.sampled_from(["feature_part", "planar_plate", "base_plate"]),
+)
+def test_any_pose_renders_finite_points_on_the_surface_within_range(rotvec, position, name):
+    """Property: for any part pose in front of the camera, the noiseless cloud is finite, in range,
+    on the part (< 1 um), and every point reprojects onto its own pixel."""
+    wp = make_workpiece(name)
+    cam = DepthCameraModel(SMALL, DepthNoiseModel.noiseless(), min_range_m=0.2, max_range_m=2.0)
+    T_cam_part = T_from_rotvec(rotvec, position)
+    cap = cam.render([(wp, T_cam_part)], np.eye(4), np.random.default_rng(0))
+    assert np.all(np.isfinite(cap.points)) and np.all(np.isfinite(cap.normals))
+    if len(cap.points) == 0:
+        return
+    assert cap.points[:, 2].min() >= 0.2 and cap.points[:, 2].max() <= 2.0
+    assert on_surface_distance(wp, cap.points, T_cam_part).max() < 1e-6
+    np.testing.assert_allclose(SMALL.project(cap.points), cap.pixels, atol=1e-3)
