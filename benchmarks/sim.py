@@ -38,12 +38,13 @@ REPEATS = 40
 FK_SIZES = (1, 100, 10_000)
 
 
-def _stats(t: list[float]) -> dict[str, float]:
-    a = np.array(t)
+def _stats(wall: list[float], cpu: list[float]) -> dict[str, float]:
+    a, c = np.array(wall), np.array(cpu)
     return {
         "median_ms": float(np.median(a)),
         "p10_ms": float(np.percentile(a, 10)),
         "p90_ms": float(np.percentile(a, 90)),
+        "cpu_median_ms": float(np.median(c)),  # process CPU time, all threads: steadier under load
     }
 
 
@@ -52,13 +53,15 @@ def _interleaved_ms(fns: dict, repeats: int) -> dict[str, dict[str, float]]:
     for fn in fns.values():
         fn()
         fn()  # warm up (first BVH build, allocator)
-    times: dict[str, list[float]] = {k: [] for k in fns}
+    wall: dict[str, list[float]] = {k: [] for k in fns}
+    cpu: dict[str, list[float]] = {k: [] for k in fns}
     for _ in range(repeats):
         for key, fn in fns.items():
-            t0 = time.perf_counter()
+            c0, t0 = time.process_time(), time.perf_counter()
             fn()
-            times[key].append((time.perf_counter() - t0) * 1e3)
-    return {k: _stats(v) for k, v in times.items()}
+            wall[key].append((time.perf_counter() - t0) * 1e3)
+            cpu[key].append((time.process_time() - c0) * 1e3)
+    return {k: _stats(wall[k], cpu[k]) for k in fns}
 
 
 def _scenes() -> dict[str, tuple[list, np.ndarray]]:
@@ -176,7 +179,9 @@ def main() -> None:
         print(
             f"{name}: vgr render {r['vgr_render']['median_ms']:.1f} ms "
             f"(p90 {r['vgr_render']['p90_ms']:.1f}), "
-            f"open3d cast only {r['open3d_cast_only']['median_ms']:.1f} ms, {r['valid_points']} points"
+            f"open3d cast only {r['open3d_cast_only']['median_ms']:.1f} ms; CPU time "
+            f"{r['vgr_render']['cpu_median_ms']:.1f} vs {r['open3d_cast_only']['cpu_median_ms']:.1f} ms; "
+            f"{r['valid_points']} points"
         )
     if "error" in kinematics:
         print("kinematics:", kinematics["error"])
