@@ -243,13 +243,12 @@ class DepthCameraModel:
         k = intrinsics
         u, v = np.meshgrid(np.arange(k.width, dtype=float), np.arange(k.height, dtype=float))
         # ray directions with unit z: the ray parameter of a hit is its depth
-        self._dirs = np.stack(((u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u)), axis=-1).reshape(-1, 3)
-        self._dx = self._dirs[:, 0].astype(np.float32)
-        self._dy = self._dirs[:, 1].astype(np.float32)
-        self._dir_norm = np.linalg.norm(self._dirs, axis=1).astype(np.float32)
-        rays = np.concatenate((np.zeros_like(self._dirs), self._dirs), axis=1).astype(np.float32)
-        self._rays_np = rays
-        self._rays = o3d.core.Tensor(rays)
+        dirs = np.stack(((u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u)), axis=-1).reshape(-1, 3)
+        self._dx = dirs[:, 0].astype(np.float32)
+        self._dy = dirs[:, 1].astype(np.float32)
+        self._dir_norm = np.linalg.norm(dirs, axis=1).astype(np.float32)
+        self._rays_np = np.concatenate((np.zeros_like(dirs), dirs), axis=1).astype(np.float32)
+        self._rays = o3d.core.Tensor(self._rays_np)
 
     def render(
         self,
