@@ -133,6 +133,7 @@ class KinematicChain:
             for k, op in enumerate(self.ops)
             if op.joint == j
         )
+        self._compiled: tuple[bytes, list[F64], list[tuple[int, int, str]]] | None = None
         self._param_is_rotation = np.array([op.is_rotation for op in self.ops if op.kind != "fixed"])
         self.groups: tuple[str, ...] = tuple(dict.fromkeys(op.group for op in self.ops))
 
@@ -189,6 +190,8 @@ class KinematicChain:
         """
         n = q.shape[0]
         per_sample = values is not None and values.ndim == 2
+        if not (per_sample or record_ops or record_groups):
+            return ChainEvaluation(T=self._evaluate_compiled(q, self.values if values is None else values)[0])
         vals = self.values if values is None else values
         cols = [np.zeros((3, n)) for _ in range(4)]
         cols[0][0] = 1.0
@@ -231,6 +234,61 @@ class KinematicChain:
             ev.group_frames = groups
         return ev
 
+    def _compile(self, v: F64) -> tuple[list[F64], list[tuple[int, int, str]]]:
+        """Fold every run of non-joint operations into one constant 4x4 (cached per value vector).
+
+        Returns the constant segments ``C_0 .. C_n`` and, per joint operation in chain order,
+        ``(joint index, parameter index of its offset, kind)``: ``T = C_0 R_1(q) C_1 ... R_n(q) C_n``.
+        """
+        key = v.tobytes()
+        if self._compiled is not None and self._compiled[0] == key:
+            return self._compiled[1], self._compiled[2]
+        segments: list[F64] = []
+        joints: list[tuple[int, int, str]] = []
+        M = np.eye(4)
+        for k, op in enumerate(self.ops):
+            if op.kind == "fixed":
+                M = M @ op.matrix
+            elif op.joint is not None:
+                segments.append(M)
+                joints.append((op.joint, self._scalar_index[k], op.kind))
+                M = np.eye(4)
+            else:
+                M = M @ _elementary(op.kind, float(v[self._scalar_index[k]]))
+        segments.append(M)
+        segments = [segments[0]] + [None if _is_identity(C) else C for C in segments[1:]]
+        self._compiled = (key, segments, joints)
+        return segments, joints
+
+    def _evaluate_compiled(
+        self, q: F64, v: F64, record_joints: bool = False
+    ) -> tuple[F64, F64 | None, F64 | None]:
+        """Fast FK for parameters shared by all samples; optionally the joint axes and origins.
+
+        The running frame is a ``(4, 3, N)`` stack of its columns (x, y, z axes and origin), so a
+        constant segment is one ``C^T @ X`` product and a joint rotation updates two columns.
+        """
+        segments, joints = self._compile(v)
+        n = q.shape[0]
+        X = np.repeat(segments[0][:3, :].T[:, :, None], n, axis=2)  # rows: columns of C_0
+        axes = np.empty((n, self.n_joints, 3)) if record_joints else None
+        origins = np.empty((n, self.n_joints, 3)) if record_joints else None
+        for (j, i, kind), C in zip(joints, segments[1:], strict=True):
+            _, a, b = _ROT_COLUMNS[kind]
+            ang = v[i] + q[:, j]
+            c, s = np.cos(ang), np.sin(ang)
+            Xa, Xb = X[a], X[b]
+            X[a], X[b] = c * Xa + s * Xb, c * Xb - s * Xa
+            if record_joints:
+                axes[:, j] = X[_AXIS_INDEX[kind[1]]].T
+                origins[:, j] = X[3].T
+            if C is not None:
+                X = (C.T @ X.reshape(4, -1)).reshape(4, 3, n)
+        T = np.zeros((n, 4, 4))
+        T[:, :3, :] = X.transpose(2, 1, 0)
+        T[:, 3, 3] = 1.0
+        return T, axes, origins
+
     # ----------------------------------------------------------------------------- Jacobians
 
     def screw_jacobian(
@@ -249,11 +307,15 @@ class KinematicChain:
         order). ``point_tcp`` (3,) moves the reference point of ``frame="base"`` from the TCP origin
         to that point of the TCP frame (used for position-only measurements of a tool point).
         """
-        ev = self.evaluate(q, values, record_ops=True)
-        T = ev.T
-        idx = list(self.joint_param_index) if columns == "joints" else slice(None)
-        axis = ev.op_axis[:, idx]  # (N, m, 3)
-        origin = ev.op_origin[:, idx]
+        if columns == "joints" and (values is None or values.ndim == 1):
+            T, axis, origin = self._evaluate_compiled(q, self.values if values is None else values, True)
+            idx = list(self.joint_param_index)
+        else:
+            ev = self.evaluate(q, values, record_ops=True)
+            T = ev.T
+            idx = list(self.joint_param_index) if columns == "joints" else slice(None)
+            axis = ev.op_axis[:, idx]  # (N, m, 3)
+            origin = ev.op_origin[:, idx]
         rot = self._param_is_rotation[idx][None, :, None]
         n, m = axis.shape[0], axis.shape[1]
         J = np.zeros((n, 6, m))
@@ -271,6 +333,25 @@ class KinematicChain:
             v_s = J[:, :3, :] + np.cross(w_s, T[:, :3, 3][:, :, None], axis=1)
             J = np.concatenate([R_T @ v_s, R_T @ w_s], axis=1)
         return T, J
+
+
+def _is_identity(C: F64) -> bool:
+    return bool(np.array_equal(C, _EYE4))
+
+
+_EYE4 = np.eye(4)
+
+
+def _elementary(kind: str, v: float) -> F64:
+    """4x4 of one elementary rotation or translation."""
+    E = np.eye(4)
+    if kind[0] == "t":
+        E[_AXIS_INDEX[kind[1]], 3] = v
+        return E
+    _, a, b = _ROT_COLUMNS[kind]
+    c, s = np.cos(v), np.sin(v)
+    E[a, a], E[b, a], E[a, b], E[b, b] = c, s, -s, c
+    return E
 
 
 def _assemble(cols: list[F64]) -> F64:
