@@ -230,9 +230,7 @@ class DepthCameraModel:
     ) -> None:
         if not isinstance(intrinsics, PinholeIntrinsics):
             raise TypeError("intrinsics must be a PinholeIntrinsics")
-        if not (math.isfinite(min_range_m) and math.isfinite(max_range_m)) or not (
-            0.0 <= min_range_m < max_range_m
-        ):
+        if not (math.isfinite(min_range_m) and math.isfinite(max_range_m)) or not (0.0 <= min_range_m < max_range_m):
             raise ValueError(f"need 0 <= min_range_m < max_range_m, got {min_range_m}, {max_range_m}")
         self.intrinsics = intrinsics
         if noise is not None and not isinstance(noise, DepthNoiseModel):
@@ -304,9 +302,7 @@ class DepthCameraModel:
             geometry_ids.append(int(scene.add_triangles(o3d.core.Tensor(V_cam), o3d.core.Tensor(F))))
             T_cam_parts.append(T_cam_part)
             lo, hi = V.min(axis=0), V.max(axis=0)
-            corners = np.array(
-                [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
-            )
+            corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
             boxes.append(corners @ T_cam_part[:3, :3].T + T_cam_part[:3, 3])
 
         origin = o3d.core.Tensor(np.zeros((1, 3), dtype=np.float32))
@@ -345,9 +341,7 @@ class DepthCameraModel:
         z_meas = range_meas / d_norm
         if np.any(z_meas <= 0.0):  # a huge negative bias pushed points behind the camera: drop them
             ki = np.flatnonzero(z_meas > 0.0)
-            sub, dx, dy, cos_inc, z_true, sigma, z_meas = (
-                a[ki] for a in (sub, dx, dy, cos_inc, z_true, sigma, z_meas)
-            )
+            sub, dx, dy, cos_inc, z_true, sigma, z_meas = (a[ki] for a in (sub, dx, dy, cos_inc, z_true, sigma, z_meas))
         idx = sub if cand is None else cand[sub]
         n = np.take(nrm, sub, axis=0).astype(float)
         points = np.empty((len(sub), 3))

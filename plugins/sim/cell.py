@@ -146,9 +146,7 @@ class SimCell:
         unknown = set(self.effects.placement) - set(names)
         if unknown:
             raise ValueError(f"placement offsets for unknown parts {sorted(unknown)}; parts: {names}")
-        self.T_world_base = as_transform(
-            np.eye(4) if T_world_base is None else T_world_base, name="T_world_base"
-        )
+        self.T_world_base = as_transform(np.eye(4) if T_world_base is None else T_world_base, name="T_world_base")
         self.tracker_mount = tracker
         noise = self.effects.camera.apply_to_noise(camera.noise)
         self._true_camera = DepthCameraModel(camera.intrinsics, noise, camera.min_range_m, camera.max_range_m)

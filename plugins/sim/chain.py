@@ -128,10 +128,7 @@ class KinematicChain:
         self.values: F64 = v
         self.values.setflags(write=False)
         self.joint_param_index: tuple[int, ...] = tuple(
-            self._scalar_index[k]
-            for j in range(self.n_joints)
-            for k, op in enumerate(self.ops)
-            if op.joint == j
+            self._scalar_index[k] for j in range(self.n_joints) for k, op in enumerate(self.ops) if op.joint == j
         )
         self._compiled: tuple[bytes, list[F64], list[tuple[int, int, str]]] | None = None
         self._param_is_rotation = np.array([op.is_rotation for op in self.ops if op.kind != "fixed"])
@@ -260,9 +257,7 @@ class KinematicChain:
         self._compiled = (key, segments, joints)
         return segments, joints
 
-    def _evaluate_compiled(
-        self, q: F64, v: F64, record_joints: bool = False
-    ) -> tuple[F64, F64 | None, F64 | None]:
+    def _evaluate_compiled(self, q: F64, v: F64, record_joints: bool = False) -> tuple[F64, F64 | None, F64 | None]:
         """Fast FK for parameters shared by all samples; optionally the joint axes and origins.
 
         The running frame is a ``(4, 3, N)`` stack of its columns (x, y, z axes and origin), so a

@@ -349,9 +349,7 @@ class SimRobotController:
             T_s = T_wb @ _interp_pose(T0[:3, 3], T0[:3, :3], dp, phi, s)
             ik = solve_ik(self.nominal, T_s, qs[-1], n_random_seeds=0, classify_failures=False)
             if not ik.success:
-                where = (
-                    f"{s * L * 1e3:.1f} mm along the path" if L > 0 else f"{s * 100:.0f} % of the rotation"
-                )
+                where = f"{s * L * 1e3:.1f} mm along the path" if L > 0 else f"{s * 100:.0f} % of the rotation"
                 return self._refuse(
                     command_id,
                     "movel",

@@ -64,9 +64,7 @@ class _Problem:
 
     def errors(self, q: F64) -> tuple[float, float]:
         T = self.model.fk(q, self.values)
-        return float(np.linalg.norm(T[:3, 3] - self.p_t)), float(
-            np.linalg.norm(log_so3(T[:3, :3] @ self.R_t.T))
-        )
+        return float(np.linalg.norm(T[:3, 3] - self.p_t)), float(np.linalg.norm(log_so3(T[:3, :3] @ self.R_t.T)))
 
     def residual_and_jacobian(self, q: F64) -> tuple[F64, F64]:
         T, J = self.model.fk_and_jacobian(q, self.values, frame="base")

@@ -341,8 +341,7 @@ class RobotModel:
     def _with_fixed(self, group: str, T: ArrayLike, name: str) -> RobotModel:
         M = as_transform(T, name=name)
         ops = [
-            replace(op, matrix=M.copy()) if op.kind == "fixed" and op.group == group else op
-            for op in self.chain.ops
+            replace(op, matrix=M.copy()) if op.kind == "fixed" and op.group == group else op for op in self.chain.ops
         ]
         return self._replace_chain(KinematicChain(ops, self.param_values, self.dof))
 
@@ -375,9 +374,7 @@ class RobotModel:
 
     def _group_errors(self, group: str) -> dict[str, float]:
         return {
-            n: float(v)
-            for n, v in zip(self.param_names, self.param_values, strict=True)
-            if n.startswith(group + ".")
+            n: float(v) for n, v in zip(self.param_names, self.param_values, strict=True) if n.startswith(group + ".")
         }
 
     def _converted(self, convention: str, joints, **chain_kw) -> RobotModel:

@@ -70,9 +70,7 @@ class PoseOffset:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "translation_m", _vec3(self.translation_m, "translation_m"))
-        object.__setattr__(
-            self, "rotation_rotvec_rad", _vec3(self.rotation_rotvec_rad, "rotation_rotvec_rad")
-        )
+        object.__setattr__(self, "rotation_rotvec_rad", _vec3(self.rotation_rotvec_rad, "rotation_rotvec_rad"))
 
     @property
     def is_identity(self) -> bool:

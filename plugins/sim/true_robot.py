@@ -92,9 +92,7 @@ class RobotWithEffects:
         T = self.nominal.fk(qa, va, frame=frame)  # type: ignore[arg-type]
         return T[0] if single else T
 
-    def tool_points(
-        self, q: ArrayLike, ctx: SampleContext | None = None, point_tcp: ArrayLike = (0, 0, 0)
-    ) -> F64:
+    def tool_points(self, q: ArrayLike, ctx: SampleContext | None = None, point_tcp: ArrayLike = (0, 0, 0)) -> F64:
         """True world position of a point of the TCP frame: ``(3,)`` or ``(N, 3)``."""
         T = self.fk(q, ctx)
         p = np.asarray(point_tcp, dtype=float).reshape(3)

@@ -73,10 +73,7 @@ def test_movel_follows_a_straight_line_and_slerps_orientation():
     assert np.abs(d - np.outer(d @ u, u)).max() < 1e-9  # on the line
     s = d @ u / np.linalg.norm(T1[:3, 3] - T0[:3, 3])
     for T, si in zip(poses, s, strict=True):  # orientation at the same path fraction
-        assert (
-            np.linalg.norm(log_so3(T[:3, :3].T @ (T0[:3, :3] @ exp_se3([0, 0, 0, 0, 0, 0.4 * si])[:3, :3])))
-            < 1e-6
-        )
+        assert np.linalg.norm(log_so3(T[:3, :3].T @ (T0[:3, :3] @ exp_se3([0, 0, 0, 0, 0, 0.4 * si])[:3, :3]))) < 1e-6
     clock.advance_to(res.end_s)
     assert np.abs(ctl.state().T_base_tcp - T1).max() < 1e-9
 

@@ -75,9 +75,7 @@ def test_duplicate_command_id_never_moves_twice():
     back = ctl.move_j("cmd-2", q0)
     clock.advance_to(back.end_s)
     again = ctl.move_j("cmd-1", q0 + 0.2)
-    assert (
-        again.duplicate and again.accepted and again.start_s == first.start_s and again.end_s == first.end_s
-    )
+    assert again.duplicate and again.accepted and again.start_s == first.start_s and again.end_s == first.end_s
     assert_still(clock, ctl, q0)
     # a duplicate id with a different target is not executed either
     other = ctl.move_j("cmd-2", q0 - 0.3)

@@ -71,10 +71,7 @@ def test_point_jacobian_matches_finite_differences(model):
     pt = np.array([0.03, -0.02, 0.05])
     Jq = model.jacobian(q, frame="base", point_tcp=pt)[:, :3]
     num = np.stack(
-        [
-            (model.tool_points(q + H * e, pt) - model.tool_points(q - H * e, pt)) / (2 * H)
-            for e in np.eye(model.dof)
-        ],
+        [(model.tool_points(q + H * e, pt) - model.tool_points(q - H * e, pt)) / (2 * H) for e in np.eye(model.dof)],
         axis=2,
     )
     assert np.abs(Jq - num).max() < 1e-6

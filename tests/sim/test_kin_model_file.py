@@ -39,9 +39,7 @@ def test_load_by_path(tmp_path):
     assert load_robot_model(str(path)).dof == 2
 
 
-@pytest.mark.parametrize(
-    ("typo", "suggestion"), [("ur5", "ur5e"), ("UR5E", "ur5e"), ("abb_irb12", "abb_irb120")]
-)
+@pytest.mark.parametrize(("typo", "suggestion"), [("ur5", "ur5e"), ("UR5E", "ur5e"), ("abb_irb12", "abb_irb120")])
 def test_unknown_name_suggests_the_nearest(typo, suggestion):
     with pytest.raises(ValueError, match=f"did you mean '{suggestion}'"):
         load_robot_model(typo)
@@ -96,9 +94,7 @@ def test_poe_needs_flange_pose_and_unit_axes():
     poe = {
         "name": "p",
         "convention": "poe",
-        "joints": [
-            {"axis": [0, 0, 1], "point": [0, 0, 0], "lower": -1, "upper": 1, "max_speed": 1, "max_accel": 1}
-        ],
+        "joints": [{"axis": [0, 0, 1], "point": [0, 0, 0], "lower": -1, "upper": 1, "max_speed": 1, "max_accel": 1}],
     }
     with pytest.raises(ValueError, match="flange_at_zero"):
         robot_model_from_dict(poe)
@@ -125,9 +121,7 @@ def test_parse_angle():
 finite = st.floats(-10, 10, allow_nan=False)
 
 
-@given(
-    st.lists(finite, min_size=6, max_size=6), st.integers(0, 5), st.sampled_from([np.nan, np.inf, -np.inf])
-)
+@given(st.lists(finite, min_size=6, max_size=6), st.integers(0, 5), st.sampled_from([np.nan, np.inf, -np.inf]))
 @settings(max_examples=50, deadline=None)
 def test_nan_or_inf_joints_are_rejected(q, k, bad):
     q = np.array(q)

@@ -93,9 +93,7 @@ def test_depth_noise_follows_the_sigma_model():
 
 def test_grazing_dropout_keeps_exactly_the_rays_below_the_limit():
     """On a tilted plane, a pixel is valid iff its ray meets the plane at incidence <= the limit."""
-    cam = DepthCameraModel(
-        SMALL, DepthNoiseModel(sigma_const_m=0.0, grazing_dropout_deg=70.0), max_range_m=50.0
-    )
+    cam = DepthCameraModel(SMALL, DepthNoiseModel(sigma_const_m=0.0, grazing_dropout_deg=70.0), max_range_m=50.0)
     k = SMALL
     u, v = np.meshgrid(np.arange(k.width), np.arange(k.height))
     rays = np.stack(((u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones(u.shape)), axis=-1)
@@ -185,9 +183,7 @@ def _fit_case(feature_part, seed: int, intrinsics: PinholeIntrinsics):
     cam = DepthCameraModel(intrinsics, DepthNoiseModel(sigma_const_m=0.0003))
     T_world_cam = look_at([0.3, 0.25, 0.55], [0.0, 0.0, 0.03])
     T_world_part = T_from_rotvec([0.05, -0.03, 0.4], [0.01, -0.02, 0.0])
-    cap, truth = cam.render_with_truth(
-        [(feature_part, T_world_part)], T_world_cam, np.random.default_rng(seed)
-    )
+    cap, truth = cam.render_with_truth([(feature_part, T_world_part)], T_world_cam, np.random.default_rng(seed))
     T_true = truth.T_cam_parts[0]
     T_init = T_from_rotvec([0.02, -0.01, 0.03], [0.003, -0.002, 0.002]) @ T_true  # ~2 deg, ~4 mm off
     T_est = fit_part_pose(cap.points, feature_part, T_init)

@@ -63,9 +63,7 @@ def test_frames_form_a_tree_that_composes_to_the_cell_poses():
     np.testing.assert_allclose(poses["base"], T_WORLD_BASE, atol=1e-12)
     np.testing.assert_allclose(poses["tcp"], T_WORLD_TCP, atol=1e-12)
     np.testing.assert_allclose(poses["camera"], T_WORLD_TCP @ T_TCP_CAM, atol=1e-12)
-    np.testing.assert_allclose(
-        poses["plate"], cell.part_pose(cell.parts[1], T_WORLD_TCP, truth=False), atol=1e-12
-    )
+    np.testing.assert_allclose(poses["plate"], cell.part_pose(cell.parts[1], T_WORLD_TCP, truth=False), atol=1e-12)
     np.testing.assert_allclose(poses["tracker"], T_WORLD_TCP @ T_TCP_TRACKER, atol=1e-12)
     np.testing.assert_allclose(poses["lighthouse"], T_WORLD_LH, atol=1e-12)
 
@@ -73,9 +71,7 @@ def test_frames_form_a_tree_that_composes_to_the_cell_poses():
 def test_truth_frames_carry_the_injected_errors_and_nominal_ones_do_not():
     E_cam = PoseOffset((0.001, 0.0, 0.0), (0.0, 0.01, 0.0))
     E_plate = PoseOffset((0.0, 0.002, 0.0), (0.0, 0.0, 0.02))
-    cell = seed_004_cell(
-        SensorEffects(camera=CameraEffects(hand_eye_error=E_cam), placement={"plate": E_plate})
-    )
+    cell = seed_004_cell(SensorEffects(camera=CameraEffects(hand_eye_error=E_cam), placement={"plate": E_plate}))
     nominal = _world_poses(cell.frames(T_WORLD_TCP))
     true = _world_poses(cell.frames(T_WORLD_TCP, truth=True))
     np.testing.assert_allclose(nominal["camera"], T_WORLD_TCP @ T_TCP_CAM, atol=1e-12)
@@ -95,16 +91,12 @@ def test_frames_follow_a_moving_robot_and_skip_what_needs_a_tcp():
 
 
 def test_capture_sees_the_gripped_plate_and_labels_the_parts():
-    cell = seed_004_cell(
-        mount=CameraMount.eye_to_hand(look_at([0.5, 0.0, 0.9], [0.5, 0.0, 0.0], up=(0, 1, 0)))
-    )
+    cell = seed_004_cell(mount=CameraMount.eye_to_hand(look_at([0.5, 0.0, 0.9], [0.5, 0.0, 0.0], up=(0, 1, 0))))
     T_world_tcp = T_from_rotvec([math.pi, 0, 0], [0.5, 0.0, 0.5])  # tool down, plate 0.2 m below
     cap, truth = cell.capture(T_world_tcp, np.random.default_rng(0))
     assert truth.part_names == ["base_plate", "plate"]
     assert set(np.unique(truth.render.part_index)) == {0, 1}
-    np.testing.assert_allclose(
-        truth.T_cam_parts["plate"], inv(truth.T_world_cam) @ truth.T_world_parts["plate"]
-    )
+    np.testing.assert_allclose(truth.T_cam_parts["plate"], inv(truth.T_world_cam) @ truth.T_world_parts["plate"])
     assert cap.stamp_ns == 0 and truth.T_world_tcp is not None
 
 
@@ -129,9 +121,7 @@ def test_tracker_follows_the_tcp_with_the_cell_effects():
     expected = inv(T_WORLD_LH) @ traj(0.99) @ T_TCP_TRACKER
     np.testing.assert_allclose(sample.T_lighthouse_tracker, expected, atol=1e-12)
     ideal, _ = cell.tracker(traj, with_effects=False).sample(1.0, np.random.default_rng(0))
-    np.testing.assert_allclose(
-        ideal.T_lighthouse_tracker, inv(T_WORLD_LH) @ traj(1.0) @ T_TCP_TRACKER, atol=1e-12
-    )
+    np.testing.assert_allclose(ideal.T_lighthouse_tracker, inv(T_WORLD_LH) @ traj(1.0) @ T_TCP_TRACKER, atol=1e-12)
 
 
 def test_bad_cell_input_is_refused():

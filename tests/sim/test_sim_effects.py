@@ -49,10 +49,7 @@ def _on_pose(part, points, T_cam_part) -> float:
 def _off(part, points, T_cam_part) -> float:
     """Largest distance (m) of the points from the part at T_cam_part: how visibly they miss it."""
     return float(
-        surface_scene(part, T_cam_part)
-        .compute_distance(o3d.core.Tensor(points.astype(np.float32)))
-        .numpy()
-        .max()
+        surface_scene(part, T_cam_part).compute_distance(o3d.core.Tensor(points.astype(np.float32))).numpy().max()
     )
 
 
@@ -102,9 +99,7 @@ def test_hand_eye_error_of_a_fixed_camera(part):
 def test_placement_offset_moves_the_part_by_exactly_the_injected_offset(part):
     cell = _cell(part, SensorEffects(placement={"part": PLACEMENT_ERROR}))
     cap, truth = cell.capture(T_WORLD_TCP, np.random.default_rng(0))
-    np.testing.assert_allclose(
-        truth.T_world_parts["part"], T_WORLD_PART @ PLACEMENT_ERROR.matrix(), atol=1e-15
-    )
+    np.testing.assert_allclose(truth.T_world_parts["part"], T_WORLD_PART @ PLACEMENT_ERROR.matrix(), atol=1e-15)
     T_cam_part_nominal = inv(T_WORLD_TCP @ T_TCP_CAM) @ T_WORLD_PART
     assert _on_pose(part, cap.points, T_cam_part_nominal @ PLACEMENT_ERROR.matrix()) < 1e-6
     assert _off(part, cap.points, T_cam_part_nominal) > 1.0 * MM
@@ -194,9 +189,7 @@ def test_effects_default_off_and_recipe_mapping():
     np.testing.assert_allclose(effects.camera.hand_eye_error.matrix()[:3, 3], [0.001, 0, 0])
     assert effects.placement_of("plate").translation_m == (0.0, 0.002, 0.0)
     assert effects.tracker.latency_s == 0.01
-    np.testing.assert_allclose(
-        PoseOffset.from_matrix(HAND_EYE_ERROR.matrix()).matrix(), HAND_EYE_ERROR.matrix()
-    )
+    np.testing.assert_allclose(PoseOffset.from_matrix(HAND_EYE_ERROR.matrix()).matrix(), HAND_EYE_ERROR.matrix())
 
 
 @pytest.mark.parametrize(

@@ -78,9 +78,7 @@ def test_latency_lag_is_velocity_times_latency(speed):
     for sample, truth in tracker.stream(1.0, 0.2, np.random.default_rng(0)):
         lag = truth.T_lighthouse_tracker_at_stamp[:3, 3] - sample.T_lighthouse_tracker[:3, 3]
         np.testing.assert_allclose(lag, v * latency, atol=1e-12)  # |lag| = 2.5 mm at 0.1 m/s, 12.5 at 0.5
-        angle_lag = log_so3(
-            sample.T_lighthouse_tracker[:3, :3].T @ truth.T_lighthouse_tracker_at_stamp[:3, :3]
-        )
+        angle_lag = log_so3(sample.T_lighthouse_tracker[:3, :3].T @ truth.T_lighthouse_tracker_at_stamp[:3, :3])
         np.testing.assert_allclose(angle_lag, w * latency, atol=1e-12)
         assert truth.measured_at_s == pytest.approx(sample.stamp_ns * 1e-9 - latency)
 

@@ -146,21 +146,16 @@ class _FrameError(RobotEffect):
 
     def __post_init__(self) -> None:
         if len(self.components) != len(self.offsets):
-            raise ValueError(
-                f"{self.catalog_name}: {len(self.components)} components, {len(self.offsets)} offsets"
-            )
+            raise ValueError(f"{self.catalog_name}: {len(self.components)} components, {len(self.offsets)} offsets")
         bad = [c for c in self.components if c not in FRAME_COMPONENTS]
         if bad or len(set(self.components)) != len(self.components):
-            raise ValueError(
-                f"{self.catalog_name}: components must be unique among {FRAME_COMPONENTS}, got {bad}"
-            )
+            raise ValueError(f"{self.catalog_name}: components must be unique among {FRAME_COMPONENTS}, got {bad}")
         if not all(np.isfinite(v) for v in self.offsets):
             raise ValueError(f"{self.catalog_name}: offsets contain NaN or infinity")
 
     def param_specs(self) -> tuple[ParamSpec, ...]:
         return tuple(
-            ParamSpec(f"{self.prefix}.{c}", "m" if c.startswith("t") else "rad", self.prefix)
-            for c in self.components
+            ParamSpec(f"{self.prefix}.{c}", "m" if c.startswith("t") else "rad", self.prefix) for c in self.components
         )
 
     def param_offsets(self, model, q: F64, ctx: SampleContext) -> F64 | None:

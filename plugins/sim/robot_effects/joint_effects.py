@@ -36,9 +36,7 @@ class JointCompliance(RobotEffect):
 
     def param_specs(self) -> tuple[ParamSpec, ...]:
         return tuple(
-            ParamSpec(
-                f"compliance_joint{j}", "rad/(N m)", f"joint{j}", "deflection per N m of gravity torque"
-            )
+            ParamSpec(f"compliance_joint{j}", "rad/(N m)", f"joint{j}", "deflection per N m of gravity torque")
             for j in self.joints
         )
 

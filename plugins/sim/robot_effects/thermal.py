@@ -69,8 +69,7 @@ class ThermalDrift(RobotEffect):
 
     def param_specs(self) -> tuple[ParamSpec, ...]:
         specs = [
-            ParamSpec(f"drift_{n}", unit_of(n), n.split(".", 1)[0], "offset at thermal equilibrium")
-            for n in self.names
+            ParamSpec(f"drift_{n}", unit_of(n), n.split(".", 1)[0], "offset at thermal equilibrium") for n in self.names
         ]
         where = ",".join(dict.fromkeys(n.split(".", 1)[0] for n in self.names)) or "robot"
         specs.append(ParamSpec("time_constant", "s", where, "first-order warm-up time constant"))
