@@ -9,7 +9,8 @@
 * service wiring (``uses``): the provider exists, offers the service, request/reply types fit,
   and service calls together with data edges form no wait cycle (a deadlock risk: a publisher
   waits for its consumers when their queue is full, a caller waits for its provider),
-* data cycles (the closed guidance loop lives inside one action stage, so the DAG stays acyclic).
+* data cycles (the closed guidance loop lives inside one action stage, so the DAG stays acyclic),
+* ground truth (``truth/...`` ports of simulated stages) wired into a solver or action stage.
 """
 
 from __future__ import annotations
@@ -24,6 +25,9 @@ from engine.messages import Message
 from engine.plugin_manager import Registry
 from engine.recipe import LoadedRecipe, StageSpec, pydantic_problems
 from engine.stage import Stage, StageParams
+
+TRUTH_PREFIX = "truth/"  # ports carrying simulation ground truth
+TRUTH_READERS = frozenset({"sensor", "device", "sink"})
 
 
 @dataclass(frozen=True)
@@ -199,6 +203,15 @@ def build_graph(loaded: LoadedRecipe, registry: Registry) -> Graph:
                 continue
             if src == name:
                 problems.append(loaded.problem(path, "a stage cannot consume its own output"))
+                continue
+            if src_port.startswith(TRUTH_PREFIX) and cls.role not in TRUTH_READERS:
+                problems.append(
+                    loaded.problem(
+                        path,
+                        f"{src}.{src_port} is simulation ground truth: only sensor, "
+                        f"device and sink stages may read it, not a {cls.role} stage",
+                    )
+                )
                 continue
             edges.append(Edge(src, src_port, name, port, out_type))
         for client in spec.uses:
