@@ -142,6 +142,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         print_summary(summary)
     if summary.stop_reason and "interrupted" in summary.stop_reason:
         return EXIT_INTERRUPTED
+    if "recording_error" in summary.artifacts:
+        console.print(f"[red]the recording is incomplete[/]: {escape(summary.artifacts['recording_error'])}")
+        return EXIT_FAILED
     return summary.exit_code
 
 

@@ -27,6 +27,7 @@ from engine.recipe import LoadedRecipe, StageSpec, pydantic_problems
 from engine.stage import Stage, StageParams
 
 TRUTH_PREFIX = "truth/"  # ports carrying simulation ground truth
+TRUTH_SERVICE = "truth"  # services whose name starts with this give ground truth
 TRUTH_READERS = frozenset({"sensor", "device", "sink"})
 
 
@@ -226,6 +227,8 @@ def build_graph(loaded: LoadedRecipe, registry: Registry) -> Graph:
         for client, need in cls.uses.items():
             path = ("stages", name, "uses", client)
             ref = spec.uses.get(client)
+            if ref is None and need.optional:
+                continue
             if ref is None:
                 problems.append(
                     loaded.problem(
@@ -268,6 +271,15 @@ def build_graph(loaded: LoadedRecipe, registry: Registry) -> Graph:
                 continue
             if prov == name:
                 problems.append(loaded.problem(path, "a stage cannot call its own service (it would deadlock)"))
+                continue
+            if svc.startswith(TRUTH_SERVICE) and cls.role not in TRUTH_READERS:
+                problems.append(
+                    loaded.problem(
+                        path,
+                        f"{prov}.{svc} gives simulation ground truth: only sensor, "
+                        f"device and sink stages may call it, not a {cls.role} stage",
+                    )
+                )
                 continue
             service_edges.append(ServiceEdge(name, client, prov, svc))
 

@@ -429,6 +429,52 @@ class JointState(Message):
         )
 
 
+@dataclass
+class Mesh:
+    """A triangle mesh attached to a frame, for the 3D view (``vertices`` (N, 3) m, ``triangles`` (M, 3))."""
+
+    id: str
+    frame_id: str
+    vertices: np.ndarray
+    triangles: np.ndarray
+    color: tuple[float, float, float, float] = (0.6, 0.6, 0.65, 1.0)
+
+
+@dataclass(kw_only=True, eq=False)
+class SceneMeshes(Message):
+    """Meshes of the cell (workpieces, fixtures) for Foxglove's 3D view. Schema foxglove.SceneUpdate."""
+
+    TYPE: ClassVar[str] = "SceneMeshes"
+    SCHEMA: ClassVar[str] = "foxglove.SceneUpdate"
+
+    meshes: list[Mesh] = field(default_factory=list)
+
+    def to_proto(self) -> tuple[ProtoMessage, Bulk]:
+        pb = self.proto()
+        for m in self.meshes:
+            ent = pb.entities.add(frame_id=m.frame_id, id=m.id, frame_locked=True)
+            ent.timestamp.seconds, ent.timestamp.nanos = divmod(int(self.stamp_ns), 1_000_000_000)
+            tri = ent.triangles.add()
+            tri.pose.orientation.w = 1.0
+            v = np.asarray(m.vertices, dtype=float)[np.asarray(m.triangles, dtype=np.int64).reshape(-1)]
+            for x, y, z in v.tolist():
+                tri.points.add(x=x, y=y, z=z)
+            tri.color.r, tri.color.g, tri.color.b, tri.color.a = m.color
+        return pb, None
+
+    @classmethod
+    def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
+        meshes = []
+        stamp = 0
+        for ent in pb.entities:
+            stamp = stamp or int(ent.timestamp.seconds) * 1_000_000_000 + int(ent.timestamp.nanos)
+            for tri in ent.triangles:
+                pts = np.array([(p.x, p.y, p.z) for p in tri.points], dtype=float).reshape(-1, 3)
+                c = tri.color
+                meshes.append(Mesh(ent.id, ent.frame_id, pts, np.arange(len(pts)).reshape(-1, 3), (c.r, c.g, c.b, c.a)))
+        return cls(stamp_ns=stamp, meshes=meshes)
+
+
 # --------------------------------------------------------------------------- vgr.v1
 
 
@@ -762,4 +808,5 @@ BUILTIN_MESSAGE_TYPES: tuple[type[Message], ...] = (
     RobotReply,
     Correction,
     Request,
+    SceneMeshes,
 )

@@ -142,10 +142,8 @@ def _is_repeated(f: Any) -> bool:
 
 
 def _scalar_name(t: int) -> str:
-    for k, v in _SCALARS.items():
-        if v == t:
-            return k
-    return str(t)
+    names = {v: k.removeprefix("TYPE_").lower() for k, v in descriptor_pb2.FieldDescriptorProto.Type.items()}
+    return names.get(t, str(t))
 
 
 # --------------------------------------------------------------------------- vgr.v1

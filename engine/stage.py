@@ -54,11 +54,15 @@ class StageParams(BaseModel):
 
 @dataclass(frozen=True)
 class ServiceSpec:
-    """A request/reply service: request and reply message classes and a one-line description."""
+    """A request/reply service: request and reply message classes and a one-line description.
+
+    In a stage's ``uses``, ``optional=True`` means the recipe may leave the client unwired.
+    """
 
     request: type[Message]
     reply: type[Message]
     doc: str = ""
+    optional: bool = False
 
 
 class ServiceError(RuntimeError):

@@ -8,6 +8,11 @@ from engine.hookspecs import hookimpl
 
 @hookimpl
 def vgr_stage_types() -> list[type]:
+    from plugins.actions.capture import CaptureAtPose
+    from plugins.sim.stages.camera import SimCamera
+    from plugins.sim.stages.robot import SimRobot
+    from plugins.sim.stages.tracker import SimTracker
     from plugins.util.cloud_stages import CloudStats, SyntheticCloud, TransformCloud
+    from plugins.util.trigger import Trigger
 
-    return [SyntheticCloud, TransformCloud, CloudStats]
+    return [SyntheticCloud, TransformCloud, CloudStats, Trigger, SimRobot, SimCamera, SimTracker, CaptureAtPose]

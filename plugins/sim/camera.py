@@ -48,6 +48,9 @@ from engine.transforms import as_transform, inv
 
 from .workpieces import Workpiece
 
+# Open3D prints allocator statistics at exit at its default verbosity; vgr's output stays clean.
+o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
+
 __all__ = [
     "DepthCameraModel",
     "DepthCapture",

@@ -1,0 +1,174 @@
+"""``sim_camera``: the simulated depth camera as a sensor stage (camera contract + ground truth).
+
+Wraps :class:`plugins.sim.cell.SimCell`. On ``capture`` it asks the simulated robot (client
+``robot``, wired to ``sim_robot.truth``) where the TCP truly is when the camera is on the flange or
+a part is in the gripper, renders the scene with the noise model and the sensor effects (depth
+scale/bias, latency, hand-eye error, placement offsets), and replies with the cloud in the camera
+frame. It also publishes the depth image, the intrinsics, the nominal frame tree, the workpiece
+meshes (once) and, on ``truth/part_poses``, where the parts and the camera truly were.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from engine.messages import (
+    CameraInfo,
+    FrameTransforms,
+    Image,
+    Mesh,
+    PointCloud,
+    Request,
+    RobotReply,
+    SceneMeshes,
+    Transform,
+)
+from engine.stage import ServiceSpec, Stage, StageParams
+from plugins.interfaces import CAMERA_OUTPUTS, CAMERA_SERVICES
+from plugins.sim.camera import DepthCameraModel, DepthNoiseModel, PinholeIntrinsics, default_intrinsics
+from plugins.sim.cell import CameraMount, PartPlacement, SimCell
+from plugins.sim.sensor_effects import SensorEffects
+from plugins.sim.stages.params import PoseSpec
+from plugins.sim.workpieces import make_workpiece
+
+NOISE_PRESETS = ("noiseless", "industrial_structured_light", "realsense_d415", "kinect_v1")
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class IntrinsicsSpec(_Strict):
+    width: int = Field(640, ge=8, le=8192)
+    height: int = Field(480, ge=8, le=8192)
+    fx: float = Field(0.0, ge=0.0, description="0 = the default ~60 deg horizontal field of view")
+    fy: float = Field(0.0, ge=0.0)
+    cx: float | None = None
+    cy: float | None = None
+
+
+class NoiseSpec(_Strict):
+    preset: Literal["custom", "noiseless", "industrial_structured_light", "realsense_d415", "kinect_v1"] = "custom"
+    sigma_const_m: float = Field(0.0001, ge=0.0, description="depth sigma = const + quad * z^2 (custom)")
+    sigma_quad_per_m: float = Field(0.0, ge=0.0)
+    grazing_dropout_deg: float = Field(80.0, gt=0.0, le=90.0)
+    dropout_prob: float = Field(0.0, ge=0.0, lt=1.0)
+
+
+class MountSpec(_Strict):
+    kind: Literal["eye_in_hand", "eye_to_hand"] = "eye_in_hand"
+    pose: PoseSpec = Field(default_factory=PoseSpec, description="nominal T_tcp_cam (in hand) or T_world_cam")
+
+
+class PartSpec(_Strict):
+    name: str
+    workpiece: str = Field(description="feature_part | planar_plate | symmetric_plate | base_plate")
+    pose: PoseSpec = Field(default_factory=PoseSpec, description="nominal pose in its parent frame")
+    parent: Literal["world", "tcp"] = "world"
+
+
+class SimCamera(Stage):
+    """Simulated depth camera: renders the workpieces with noise, dropouts and injectable effects."""
+
+    type_name = "sim_camera"
+    role = "sensor"
+    services: ClassVar = CAMERA_SERVICES
+    outputs: ClassVar = {
+        **CAMERA_OUTPUTS,
+        "frames": FrameTransforms,
+        "scene": SceneMeshes,
+        "truth/part_poses": FrameTransforms,
+    }
+    uses: ClassVar = {
+        "robot": ServiceSpec(Request, RobotReply, "sim_robot.truth: where the TCP truly is", optional=True)
+    }
+
+    class Params(StageParams):
+        intrinsics: IntrinsicsSpec = Field(default_factory=IntrinsicsSpec)
+        noise: NoiseSpec = Field(default_factory=NoiseSpec)
+        min_range_m: float = Field(0.2, gt=0.0)
+        max_range_m: float = Field(2.0, gt=0.0)
+        mount: MountSpec = Field(default_factory=MountSpec)
+        parts: tuple[PartSpec, ...] = Field(default=(), description="workpieces in the scene")
+        effects: dict[str, Any] = Field(default_factory=dict, description="sensor effects (camera/placement)")
+        publish_cloud: bool = Field(True, description="also publish each capture on the cloud port")
+        publish_depth: bool = Field(True, description="publish the depth image of each capture")
+        decimate: int = Field(1, ge=1, le=16, description="keep every n-th valid point (smaller clouds)")
+
+    def setup(self) -> None:
+        p: SimCamera.Params = self.params  # type: ignore[assignment]
+        intr = self._intrinsics(p.intrinsics)
+        if p.noise.preset in NOISE_PRESETS:
+            noise = getattr(DepthNoiseModel, p.noise.preset)()
+        else:
+            noise = DepthNoiseModel(
+                p.noise.sigma_const_m, p.noise.sigma_quad_per_m, p.noise.grazing_dropout_deg, p.noise.dropout_prob
+            )
+        model = DepthCameraModel(intr, noise, p.min_range_m, p.max_range_m)
+        parts = [PartPlacement(ps.name, make_workpiece(ps.workpiece), ps.pose.T(), ps.parent) for ps in p.parts]
+        mount = CameraMount(p.mount.kind, p.mount.pose.T())
+        self.cell = SimCell(model, mount, parts, SensorEffects.from_dict(p.effects))
+        self.intrinsics = intr
+        self.ctx.publish(
+            "scene",
+            SceneMeshes(
+                meshes=[Mesh(pp.name, pp.name, pp.workpiece.vertices(), pp.workpiece.triangles()) for pp in parts]
+            ),
+        )
+
+    @staticmethod
+    def _intrinsics(s: IntrinsicsSpec) -> PinholeIntrinsics:
+        d = default_intrinsics()
+        sx, sy = s.width / d.width, s.height / d.height
+        fx = s.fx or d.fx * sx
+        fy = s.fy or d.fy * sy
+        return PinholeIntrinsics(
+            s.width,
+            s.height,
+            fx,
+            fy,
+            s.cx if s.cx is not None else (s.width - 1) / 2.0,
+            s.cy if s.cy is not None else (s.height - 1) / 2.0,
+        )
+
+    def _tcp_truth(self) -> np.ndarray | None:
+        if not self.cell._needs_tcp():
+            return None
+        reply = self.ctx.call("robot", Request(command="truth"))
+        if not reply.ok or reply.T is None:
+            raise RuntimeError(f"the simulated robot did not give its TCP pose: {reply.error}")
+        return reply.T
+
+    def on_request(self, service: str, request: Any) -> PointCloud:
+        p: SimCamera.Params = self.params  # type: ignore[assignment]
+        T_world_tcp = self._tcp_truth()
+        t = self.ctx.clock.now_s()
+        cap, truth = self.cell.capture(T_world_tcp, self.ctx.rng, t)
+        pts = cap.points[:: p.decimate].astype(np.float32)
+        cloud = PointCloud(points=pts, frame_id="camera")
+        if p.publish_depth:
+            self.ctx.publish("depth", Image(data=cap.depth, encoding="32FC1", frame_id="camera"))
+            K = self.intrinsics.K()
+            self.ctx.publish(
+                "camera_info",
+                CameraInfo(width=self.intrinsics.width, height=self.intrinsics.height, K=K, frame_id="camera"),
+            )
+        if p.publish_cloud:
+            self.ctx.publish("cloud", cloud)
+        self.ctx.publish(
+            "frames",
+            FrameTransforms(
+                transforms=[
+                    Transform(frame_id=f.parent, child_frame_id=f.child, T=f.T_parent_child)
+                    for f in self.cell.frames(T_world_tcp, t)
+                    if f.child != "base" and f.child != "tcp"
+                ]
+            ),
+        )
+        truth_tf = [Transform(frame_id="world", child_frame_id=name, T=T) for name, T in truth.T_world_parts.items()]
+        truth_tf.append(Transform(frame_id="world", child_frame_id="camera", T=truth.T_world_cam))
+        self.ctx.publish("truth/part_poses", FrameTransforms(transforms=truth_tf))
+        return cloud

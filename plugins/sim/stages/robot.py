@@ -1,0 +1,151 @@
+"""``sim_robot``: the simulated robot controller as a device stage (robot contract + ground truth).
+
+Wraps :class:`plugins.sim.controller.SimRobotController`. Moves take simulated time (the run's
+clock sleeps through them: instantly on the ``sim`` clock, really on the ``wall`` clock). The
+reported pose is the nominal model's, as a real controller reports from its encoders; where the
+TCP truly is (robot effects: DH errors, compliance, backlash, eccentricity, thermal drift, TCP
+offset) is given only by the ``truth`` service and the ``truth/tcp_pose`` port.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+from pydantic import Field
+
+from engine.messages import FrameTransforms, JointState, PoseStamped, Request, RobotCommand, RobotReply, Transform
+from engine.stage import ServiceSpec, Stage, StageParams
+from plugins.interfaces import ROBOT_OUTPUTS, ROBOT_SERVICES
+from plugins.sim import controller as ctl
+from plugins.sim.model_file import load_robot_model
+from plugins.sim.robot_effects import effect_from_config
+from plugins.sim.stages.params import PoseSpec
+from plugins.sim.true_robot import RobotWithEffects
+
+
+class SimRobot(Stage):
+    """Simulated robot controller: move/state services, joint state and TCP pose, ground truth."""
+
+    type_name = "sim_robot"
+    role = "device"
+    services: ClassVar = {
+        **ROBOT_SERVICES,
+        "truth": ServiceSpec(Request, RobotReply, "TRUE T_world_tcp and joints (simulation ground truth)"),
+    }
+    outputs: ClassVar = {**ROBOT_OUTPUTS, "truth/tcp_pose": PoseStamped}
+
+    class Params(StageParams):
+        model: str = Field("ur5e", description="shipped model name (ur5e, abb_irb120) or a model file path")
+        q_initial_deg: tuple[float, ...] | None = Field(None, description="initial joints, degrees (default: home)")
+        T_world_base: PoseSpec = Field(default_factory=PoseSpec, description="robot base in the world frame")
+        T_flange_tcp: PoseSpec | None = Field(None, description="tool (TCP) on the flange; default: the model's")
+        effects: dict[str, dict[str, Any]] = Field(
+            default_factory=dict, description="robot effects by catalog name (all off by default)"
+        )
+        payload_kg: float = Field(0.0, ge=0.0)
+        move_l_speed_m_s: float = Field(ctl.MOVEL_SPEED, gt=0.0, le=2.0)
+        move_l_accel_m_s2: float = Field(ctl.MOVEL_ACCEL, gt=0.0, le=20.0)
+        move_j_speed_rad_s: float = Field(ctl.MOVEJ_SPEED, gt=0.0, le=6.0)
+        move_j_accel_rad_s2: float = Field(ctl.MOVEJ_ACCEL, gt=0.0, le=40.0)
+
+    def setup(self) -> None:
+        p: SimRobot.Params = self.params  # type: ignore[assignment]
+        nominal = load_robot_model(p.model).with_base(p.T_world_base.T())
+        if p.T_flange_tcp is not None:
+            nominal = nominal.with_tool(p.T_flange_tcp.T())
+        effects = [effect_from_config(name, cfg) for name, cfg in p.effects.items()]
+        self.true_robot = RobotWithEffects(nominal, effects)
+        q0 = None if p.q_initial_deg is None else np.radians(p.q_initial_deg)
+        self.ctl = ctl.SimRobotController(
+            nominal, clock=self.ctx.clock.now_s, true_robot=self.true_robot, q_initial=q0, payload_kg=p.payload_kg
+        )
+        self.nominal = nominal
+        self._publish_state()
+
+    # -- services ------------------------------------------------------------------------------
+    def on_request(self, service: str, request: Any) -> RobotReply:
+        if service == "move":
+            return self._move(request)
+        state = self.ctl.state()
+        if service == "truth":
+            return RobotReply(
+                command_id="truth", ok=True, frame_id="world", T=state.T_world_tcp_actual, joints=state.q_actual
+            )
+        return RobotReply(
+            command_id=str(getattr(request, "command", "")),
+            ok=True,
+            frame_id="base",
+            T=state.T_base_tcp,
+            joints=state.q,
+        )
+
+    def _move(self, cmd: RobotCommand) -> RobotReply:
+        p: SimRobot.Params = self.params  # type: ignore[assignment]
+        if cmd.kind == "stop" or cmd.kind == "state":
+            state = self.ctl.state()
+            return RobotReply(command_id=cmd.command_id, ok=True, frame_id="base", T=state.T_base_tcp, joints=state.q)
+        if cmd.kind == "move_l":
+            if cmd.T is None:
+                return self._refused(cmd, "move_l needs a target pose T (T_base_tcp)")
+            res = self.ctl.move_l(
+                cmd.command_id,
+                cmd.T,
+                speed=cmd.speed or p.move_l_speed_m_s,
+                accel=cmd.acceleration or p.move_l_accel_m_s2,
+            )
+        elif cmd.joints is not None:
+            res = self.ctl.move_j(
+                cmd.command_id,
+                cmd.joints,
+                speed=cmd.speed or p.move_j_speed_rad_s,
+                accel=cmd.acceleration or p.move_j_accel_rad_s2,
+            )
+        elif cmd.T is not None:
+            res = self.ctl.move_j_pose(
+                cmd.command_id,
+                cmd.T,
+                speed=cmd.speed or p.move_j_speed_rad_s,
+                accel=cmd.acceleration or p.move_j_accel_rad_s2,
+            )
+        else:
+            return self._refused(cmd, "move_j needs joints or a target pose T")
+        if res.accepted and not res.duplicate:
+            self.ctx.sleep(max(0.0, res.end_s - self.ctx.clock.now_s()))  # the motion takes (simulated) time
+        state = self.ctl.state()
+        if res.accepted and not res.duplicate:
+            self._publish_state()
+        return RobotReply(
+            command_id=cmd.command_id,
+            ok=res.accepted,
+            error="" if res.accepted else res.reason,
+            frame_id="base",
+            T=state.T_base_tcp,
+            joints=state.q,
+            duration_s=res.duration_s,
+            duplicate=res.duplicate,
+        )
+
+    def _refused(self, cmd: RobotCommand, reason: str) -> RobotReply:
+        state = self.ctl.state()
+        return RobotReply(
+            command_id=cmd.command_id, ok=False, error=reason, frame_id="base", T=state.T_base_tcp, joints=state.q
+        )
+
+    # -- streams -------------------------------------------------------------------------------
+    def _publish_state(self) -> None:
+        s = self.ctl.state()
+        names = [f"joint{i + 1}" for i in range(len(s.q))]
+        self.ctx.publish("joint_state", JointState(names=names, positions=s.q, velocities=s.qd))
+        self.ctx.publish("tcp_pose", PoseStamped(T=s.T_base_tcp, frame_id="base"))
+        T_world_base = self.nominal.T_world_base
+        self.ctx.publish(
+            "frames",
+            FrameTransforms(
+                transforms=[
+                    Transform(frame_id="world", child_frame_id="base", T=T_world_base),
+                    Transform(frame_id="base", child_frame_id="tcp", T=s.T_base_tcp),
+                ]
+            ),
+        )
+        self.ctx.publish("truth/tcp_pose", PoseStamped(T=s.T_world_tcp_actual, frame_id="world"))

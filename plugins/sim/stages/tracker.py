@@ -1,0 +1,105 @@
+"""``sim_tracker``: the simulated Vive tracker as a sensor stage (tracker contract + ground truth).
+
+The tracker sits on the TCP (``T_tcp_tracker``) and is seen by a base station at
+``T_world_lighthouse``. Where the TCP truly is comes from the simulated robot (client ``robot`` ->
+``sim_robot.truth``), or from ``T_world_tcp`` when no robot is wired (a tracker held in a fixture).
+``sample`` answers with one reading; with ``stream_hz > 0`` the stage also publishes readings at
+that rate for ``duration_s`` (on the ``sim`` clock, do not combine streaming with other stages that
+move time, e.g. a moving sim_robot: both would advance the one simulated clock).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from typing import Any, ClassVar
+
+import numpy as np
+from pydantic import Field
+
+from engine.messages import PoseStamped, Request, RobotReply, TrackerPose
+from engine.stage import ServiceSpec, Stage, StageParams
+from engine.transforms import inv
+from plugins.interfaces import TRACKER_OUTPUTS, TRACKER_SERVICES
+from plugins.sim.sensor_effects import TrackerEffects
+from plugins.sim.stages.params import PoseSpec
+from plugins.sim.tracker import SimulatedViveTracker, ViveTrackerModel
+
+
+class SimTracker(Stage):
+    """Simulated Vive tracker on the TCP: jitter, latency, dropouts; truth on truth/pose."""
+
+    type_name = "sim_tracker"
+    role = "sensor"
+    services: ClassVar = TRACKER_SERVICES
+    outputs: ClassVar = {**TRACKER_OUTPUTS, "truth/pose": PoseStamped}
+    uses: ClassVar = {"robot": ServiceSpec(Request, RobotReply, "sim_robot.truth", optional=True)}
+
+    class Params(StageParams):
+        serial: str = "LHR-SIM00001"
+        T_world_lighthouse: PoseSpec = Field(default_factory=lambda: PoseSpec(xyz_m=(1.5, 0.0, 2.0)))
+        T_tcp_tracker: PoseSpec = Field(default_factory=PoseSpec)
+        T_world_tcp: PoseSpec | None = Field(None, description="fixed TCP pose when no robot is wired")
+        position_sigma_m: float = Field(0.0003, ge=0.0)
+        rotation_sigma_deg: float = Field(0.02, ge=0.0)
+        effects: dict[str, Any] = Field(default_factory=dict, description="tracker effects (latency_s, ...)")
+        stream_hz: float = Field(0.0, ge=0.0, le=1000.0, description="0 = readings on request only")
+        duration_s: float = Field(1.0, gt=0.0)
+
+    def setup(self) -> None:
+        p: SimTracker.Params = self.params  # type: ignore[assignment]
+        self._lock = threading.Lock()
+        self._tcp_now: np.ndarray | None = None
+        self.T_lh_world = inv(p.T_world_lighthouse.T())
+        self.T_tcp_tracker = p.T_tcp_tracker.T()
+        model = ViveTrackerModel(
+            rate_hz=max(p.stream_hz, 1.0),
+            position_sigma_m=p.position_sigma_m,
+            rotation_sigma_rad=math.radians(p.rotation_sigma_deg),
+        )
+        self.tracker = SimulatedViveTracker(self._true_lighthouse_tracker, model, TrackerEffects.from_dict(p.effects))
+
+    def _tcp(self) -> np.ndarray | None:
+        p: SimTracker.Params = self.params  # type: ignore[assignment]
+        if p.T_world_tcp is not None:
+            return p.T_world_tcp.T()
+        reply = self.ctx.call("robot", Request(command="truth"))
+        return reply.T if reply.ok else None
+
+    def _true_lighthouse_tracker(self, t: float) -> np.ndarray | None:
+        T = self._tcp_now
+        return None if T is None else self.T_lh_world @ T @ self.T_tcp_tracker
+
+    def _reading(self) -> tuple[TrackerPose, np.ndarray | None]:
+        """One reading and the true pose at its stamp (the run loop and the service share the
+        tracker's sequence and random stream, hence the lock)."""
+        p: SimTracker.Params = self.params  # type: ignore[assignment]
+        with self._lock:
+            self._tcp_now = self._tcp()
+            sample, truth = self.tracker.sample(self.ctx.clock.now_s(), self.ctx.rng)
+        T = sample.T_lighthouse_tracker
+        reading = TrackerPose(
+            serial=p.serial,
+            frame_id="lighthouse",
+            T=T if T is not None else np.eye(4),
+            valid=sample.valid,
+            tracking_result="Running_OK" if sample.valid else "Running_OutOfRange",
+        )
+        return reading, truth.T_lighthouse_tracker_at_stamp
+
+    def on_request(self, service: str, request: Any) -> TrackerPose:
+        return self._reading()[0]
+
+    def run(self) -> None:
+        p: SimTracker.Params = self.params  # type: ignore[assignment]
+        if p.stream_hz <= 0:
+            return
+        for _ in range(max(1, round(p.duration_s * p.stream_hz))):
+            if self.ctx.stopping:
+                return
+            reading, truth = self._reading()
+            self.ctx.publish("pose", reading)
+            if truth is not None:
+                self.ctx.publish("truth/pose", PoseStamped(T=truth, frame_id="lighthouse", stamp_ns=reading.stamp_ns))
+            if not self.ctx.sleep(1.0 / p.stream_hz):
+                return
