@@ -130,16 +130,20 @@ class _Problem:
 
 
 def candidate_parameters(model: RobotModel, full_pose: bool, cfg: KinematicCalibrationConfig) -> list[str]:
-    """Parameters to estimate, in identifiability priority order (base, joints outwards, tool)."""
+    """Parameters to estimate, in identifiability priority order: base, tool, joints outwards.
+
+    The measurement frame and the tool come first, so that joint parameters equivalent to them (joint
+    1's zero and height, the last joint's offsets) are the ones fixed at their nominal values: the
+    estimated joint parameters then mean the same thing whatever the data's frames were.
+    """
     names: list[str] = []
     if cfg.estimate_base:
         names += [f"base.{k}" for k in ("tx", "ty", "tz", "rx", "ry", "rz")]
+    if cfg.estimate_tool:
+        tool = ("tx", "ty", "tz", "rx", "ry", "rz") if full_pose else ("tx", "ty", "tz")
+        names += [f"tool.{k}" for k in tool]
     for j in range(1, model.dof + 1):
         names += [f"joint{j}.{k}" for k in _JOINT_PARAMS[model.convention]]
-    if cfg.estimate_tool:
-        names += [
-            f"tool.{k}" for k in (("tx", "ty", "tz", "rx", "ry", "rz") if full_pose else ("tx", "ty", "tz"))
-        ]
     return names
 
 

@@ -1,7 +1,7 @@
 """Identifiability analysis of a calibration Jacobian: which parameters the data can determine.
 
 Columns are first scaled to unit norm (metres and radians become comparable). A Gram-Schmidt QR
-*in the candidate order* (base, joints from the base outwards, tool; no pivoting, so the choice
+*in the candidate order* (base, tool, joints from the base outwards; no pivoting, so the choice
 among equivalent parameters is predictable) then keeps a parameter when its column has a
 component of relative size ``> tol`` outside the span of the parameters kept before it (the
 ``|R_jj|`` of the QR); the others are not identifiable and are fixed at their current values. For each dropped

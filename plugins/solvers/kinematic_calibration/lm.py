@@ -8,7 +8,11 @@ iteration history the calibration report shows, so this small loop is kept here.
   Jacobian column norms (MINPACK's scaling), lambda updated by Nielsen's gain-ratio rule;
 * step limiting, as seed 003 asks: a step may not change the predictions by more than
   ``max(max_step, |r|)`` (``|J dx|``, in the units of the residuals) in one iteration;
-* convergence when the relative cost decrease is below ``ftol`` or the scaled step below ``xtol``.
+* convergence when the full Gauss-Newton step would lower the cost by less than ``gn_tol`` (absolute;
+  with whitened residuals the cost is half a chi-square, so 1e-9 is far below any statistical
+  meaning). A relative-decrease test is not used: heavily damped steps along weakly identifiable
+  directions decrease the cost very little while still far from the minimum, and stopping there
+  leaves the estimate biased towards the start.
 """
 
 from __future__ import annotations
@@ -38,8 +42,7 @@ def levenberg_marquardt(
     *,
     max_iterations: int = 50,
     max_step: float = 1.0,
-    ftol: float = 1e-10,
-    xtol: float = 1e-10,
+    gn_tol: float = 1e-9,
     lambda0: float = 1e-4,
 ) -> LMResult:
     """Minimise ``0.5 |r|^2`` where ``fun(x) -> (r, J)``. See the module docstring."""
@@ -53,6 +56,9 @@ def levenberg_marquardt(
     for it in range(1, max_iterations + 1):
         g = J.T @ r
         A = J.T @ J
+        dx_gn, *_ = np.linalg.lstsq(J, -r, rcond=None)
+        if 0.5 * float(np.sum((J @ dx_gn) ** 2)) <= gn_tol:
+            return LMResult(x, cost, it - 1, True, "converged", history)
         D = np.maximum(D, np.linalg.norm(J, axis=0))
         accepted = False
         for _ in range(30):
@@ -74,20 +80,15 @@ def levenberg_marquardt(
             if rho > 0 and np.isfinite(cost_new):
                 accepted = True
                 break
-            if predicted <= 1e-14 * max(cost, 1e-300):  # at the minimum to rounding: nothing left to gain
-                return LMResult(x, cost, it - 1, True, "converged (no further decrease possible)", history)
             lam *= nu
             nu *= 2
         if not accepted:
             return LMResult(
                 x, cost, it, False, "no step reduces the cost (lambda grew without success)", history
             )
-        decrease = cost - cost_new
         x = x + dx
         r, J, cost = r_new, J_new, cost_new
         lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
         nu = 2.0
         history.append({"iteration": it, "cost": cost, "step_norm": step, "lambda": lam})
-        if decrease <= ftol * max(cost, 1e-300) or step <= xtol * (xtol + float(np.linalg.norm(D * x))):
-            return LMResult(x, cost, it, True, "converged", history)
     return LMResult(x, cost, max_iterations, False, f"no convergence in {max_iterations} iterations", history)
