@@ -65,6 +65,8 @@ class KinematicCalibrationConfig:
     trust_noise: bool = False  # covariance from the given noise instead of the residual variance
     identifiability_tol: float = 1e-6
     max_iterations: int = 30
+    plausible_offset_m: float = 0.01  # joint parameters moving further than this are reported
+    plausible_offset_rad: float = np.radians(2.0)
     max_step_m: float = 0.05  # LM step limit: change of the predictions per iteration
     holdout_fraction: float = 0.25  # used when no held-out samples are given
     rng_seed: int = 0
@@ -345,7 +347,27 @@ def calibrate_kinematics(
         reasons.append(
             f"residual RMS {rms_cal_mm:.1f} mm after calibration: wrong model, joint order or units"
         )
-    if verdict == "ok" and (np.any(outliers) or not consistent):
+    implausible = []
+    for n in kept:
+        if not n.startswith("joint"):
+            continue
+        i = work.chain.index(n)
+        d = float(calibrated.param_values[i] - initial.param_values[i])
+        limit = cfg.plausible_offset_m if work.chain.param_kind(n) == "length" else cfg.plausible_offset_rad
+        if abs(d) > limit:
+            implausible.append(
+                f"{n} {d * 1e3:+.1f} mm"
+                if work.chain.param_kind(n) == "length"
+                else f"{n} {np.degrees(d):+.2f} deg"
+            )
+    if implausible:
+        reasons.append(
+            "joint parameters moved far beyond manufacturing tolerances: "
+            + ", ".join(implausible)
+            + " (wrong robot model, joint order or joint sign?)"
+        )
+        advice.append("check that the model and the joint angle convention match the robot that was measured")
+    if verdict == "ok" and (np.any(outliers) or not consistent or implausible):
         verdict = "warning"
     if np.any(outliers):
         reasons.append(
