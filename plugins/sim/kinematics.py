@@ -400,6 +400,20 @@ class RobotModel:
             out = out.with_links(links)
         return out
 
+    def poe_screws_at_zero(self) -> tuple[list[PoeJoint], F64]:
+        """Joint axes/points and the flange pose at q = 0 in the base frame (errors included)."""
+        zero = np.zeros((1, self.dof))
+        ev = self.chain.evaluate(zero, record_ops=True, record_groups=True)
+        idx = list(self.chain.joint_param_index)
+        axes, points = ev.op_axis[0, idx], ev.op_origin[0, idx]
+        T_bw = inv(ev.group_frames["base"][0])
+        flange = ev.group_frames.get("flange", ev.group_frames[f"joint{self.dof}"])[0]
+        joints = [
+            PoeJoint(tuple((T_bw[:3, :3] @ a).tolist()), tuple((T_bw[:3, :3] @ p + T_bw[:3, 3]).tolist()))
+            for a, p in zip(axes, points, strict=True)
+        ]
+        return joints, T_bw @ flange
+
     def to_convention(self, convention: str) -> RobotModel:
         """The same robot (same FK for every q) in another parameterisation.
 
@@ -409,17 +423,7 @@ class RobotModel:
         if convention == self.convention:
             return self
         if convention == "poe":
-            zero = np.zeros((1, self.dof))
-            ev = self.chain.evaluate(zero, record_ops=True, record_groups=True)
-            idx = list(self.chain.joint_param_index)
-            axes, points = ev.op_axis[0, idx], ev.op_origin[0, idx]
-            T_wb = ev.group_frames["base"][0]
-            flange = ev.group_frames.get("flange", ev.group_frames[f"joint{self.dof}"])[0]
-            M = inv(T_wb) @ flange
-            joints = [
-                PoeJoint(tuple((inv(T_wb)[:3, :3] @ a).tolist()), tuple((inv(T_wb) @ np.append(p, 1))[:3]))
-                for a, p in zip(axes, points, strict=True)
-            ]
+            joints, M = self.poe_screws_at_zero()
             return self._converted("poe", joints, T_world_base=self._fixed_matrix("base"), M_flange_at_zero=M)
         if self.convention == "dh" and convention == "mdh":
             rows, T_extra = dh_to_mdh(self.dh_rows())

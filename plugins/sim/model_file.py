@@ -292,3 +292,49 @@ def load_robot_model(name_or_path: str | Path) -> RobotModel:
     except yaml.YAMLError as e:
         raise ValueError(f"robot model file {path} is not valid YAML: {e}") from None
     return robot_model_from_dict(data, source=str(path))
+
+
+def _transform_entry(T: np.ndarray) -> dict[str, Any]:
+    return {"matrix": [[float(v) for v in row] for row in np.asarray(T)]}
+
+
+def model_to_dict(model: RobotModel) -> dict[str, Any]:
+    """A model-file mapping that :func:`robot_model_from_dict` turns back into the same robot.
+
+    Errors on the base and tool are folded into their transforms; a POE model's joint errors into its
+    screws. Floats are written in full precision (``repr``), so the round trip is exact to rounding.
+    """
+    joints: list[dict[str, Any]] = []
+    limits = [
+        {k: getattr(j, k) for k in ("name", "lower", "upper", "max_speed", "max_accel")} for j in model.joints
+    ]
+    out: dict[str, Any] = {
+        "name": model.name,
+        "description": model.description,
+        "sources": list(model.sources),
+        "convention": model.convention,
+    }
+    if model.convention == "poe":
+        screws, M = model.poe_screws_at_zero()
+        for lim, sc in zip(limits, screws, strict=True):
+            joints.append({"axis": list(sc.axis), "point": list(sc.point)} | lim)
+        out["flange_at_zero"] = _transform_entry(M)
+    else:
+        for lim, row in zip(limits, model.dh_rows(), strict=True):
+            joints.append({k: getattr(row, k) for k in ("a", "alpha", "d", "theta", "beta")} | lim)
+        out["last_to_flange"] = _transform_entry(model._fixed_matrix("flange"))
+    out["joints"] = joints
+    out["base"] = _transform_entry(model.T_world_base)
+    out["tool"] = _transform_entry(model.T_flange_tcp)
+    if model.links is not None:
+        out["links"] = [{"mass": link.mass_kg, "com_link": list(link.com_link)} for link in model.links]
+    out["gravity"] = [float(g) for g in model.gravity_world]
+    out["home"] = [float(v) for v in model.home]
+    return out
+
+
+def save_robot_model(model: RobotModel, path: str | Path) -> Path:
+    """Write ``model`` as a model file (YAML) that :func:`load_robot_model` reads back."""
+    path = Path(path)
+    path.write_text(yaml.safe_dump(model_to_dict(model), sort_keys=False), encoding="utf-8")
+    return path

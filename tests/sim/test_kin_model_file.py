@@ -186,3 +186,22 @@ def test_parameter_override_shapes_and_names():
         UR5E.with_param_offsets({"joint2.aa": 1e-3})
     with pytest.raises(ValueError, match="not finite"):
         UR5E.with_param_offsets({"joint2.a": np.nan})
+
+
+@pytest.mark.parametrize("conv", ["dh", "mdh", "poe"])
+def test_save_and_load_round_trip(tmp_path, conv):
+    """A perturbed model written as a model file reads back with the same FK and gravity torque."""
+    from engine.transforms import exp_se3
+    from plugins.sim.model_file import save_robot_model
+
+    rng = np.random.default_rng(0)
+    m = UR5E.with_tool(exp_se3([0.01, 0.0, 0.1, 0.1, 0.0, 0.0])).with_base(
+        exp_se3([0.1, 0.2, 0.3, 0.1, 0.2, 0.3])
+    )
+    m = m.with_param_offsets({n: 1e-3 * rng.normal() for n in m.param_names}).to_convention(conv)
+    back = load_robot_model(save_robot_model(m, tmp_path / "m.yaml"))
+    q = rng.uniform(-3, 3, (50, 6))
+    assert back.convention == conv
+    assert np.abs(back.fk(q) - m.fk(q)).max() < 1e-12
+    assert np.abs(back.gravity_torque(q) - m.gravity_torque(q)).max() < 1e-9
+    assert np.allclose(back.upper, m.upper) and np.allclose(back.home, m.home)

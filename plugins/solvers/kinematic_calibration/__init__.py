@@ -1,0 +1,31 @@
+"""Kinematic (DH / MDH / POE) calibration of serial robots from external tool measurements (issue 6).
+
+Entry point: :func:`calibrate_kinematics` (see :mod:`.calibrate`); data: :class:`KinematicSamples`,
+:func:`read_csv` / :func:`write_csv` (the plain CSV format shared with the model-gap workflow).
+"""
+
+from .calibrate import (
+    KinematicCalibration,
+    KinematicCalibrationConfig,
+    calibrate_kinematics,
+    candidate_parameters,
+    initial_measurement_frame,
+)
+from .data import KinematicSamples, read_csv, write_csv
+from .identifiability import Identifiability, analyse
+from .report import format_table, plot_convergence
+
+__all__ = [
+    "Identifiability",
+    "KinematicCalibration",
+    "KinematicCalibrationConfig",
+    "KinematicSamples",
+    "analyse",
+    "calibrate_kinematics",
+    "candidate_parameters",
+    "format_table",
+    "initial_measurement_frame",
+    "plot_convergence",
+    "read_csv",
+    "write_csv",
+]
