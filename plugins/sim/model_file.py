@@ -305,9 +305,7 @@ def model_to_dict(model: RobotModel) -> dict[str, Any]:
     screws. Floats are written in full precision (``repr``), so the round trip is exact to rounding.
     """
     joints: list[dict[str, Any]] = []
-    limits = [
-        {k: getattr(j, k) for k in ("name", "lower", "upper", "max_speed", "max_accel")} for j in model.joints
-    ]
+    limits = [{k: getattr(j, k) for k in ("name", "lower", "upper", "max_speed", "max_accel")} for j in model.joints]
     out: dict[str, Any] = {
         "name": model.name,
         "description": model.description,

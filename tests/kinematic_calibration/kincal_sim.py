@@ -27,9 +27,7 @@ def dh_errors(model, seed: int, length_m: float = 2e-4, angle_rad: float = 2e-4)
 
 def true_robot(name: str = "ur5e", seed: int = 1, **kw) -> RobotWithEffects:
     nominal = load_robot_model(name)
-    return RobotWithEffects(
-        nominal.with_base(T_MEAS_WORLD).with_tool(TOOL_TRUE), [dh_errors(nominal, seed, **kw)]
-    )
+    return RobotWithEffects(nominal.with_base(T_MEAS_WORLD).with_tool(TOOL_TRUE), [dh_errors(nominal, seed, **kw)])
 
 
 def random_poses(model, n: int, seed: int) -> np.ndarray:
@@ -52,8 +50,7 @@ def measure(
     R = None
     if rot_noise_rad is not None:
         R = (
-            Rotation.from_rotvec(rng.normal(0, rot_noise_rad, (len(q), 3)))
-            * Rotation.from_matrix(T[:, :3, :3])
+            Rotation.from_rotvec(rng.normal(0, rot_noise_rad, (len(q), 3))) * Rotation.from_matrix(T[:, :3, :3])
         ).as_matrix()
     return KinematicSamples(q, p, R)
 

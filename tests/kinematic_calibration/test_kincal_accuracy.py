@@ -59,9 +59,7 @@ def test_parameterisations_agree(ur5e_data):
     _, model, cal, hold = ur5e_data
     preds = []
     for conv in ("dh", "mdh", "poe"):
-        out = calibrate_kinematics(
-            model, cal, holdout=hold, config=KinematicCalibrationConfig(parameterisation=conv)
-        )
+        out = calibrate_kinematics(model, cal, holdout=hold, config=KinematicCalibrationConfig(parameterisation=conv))
         preds.append(out.model.fk(hold.q)[:, :3, 3])
     assert np.abs(preds[0] - preds[1]).max() < 1e-6
     assert np.abs(preds[0] - preds[2]).max() < 1e-6

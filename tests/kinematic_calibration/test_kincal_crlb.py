@@ -55,15 +55,11 @@ def test_identifiable_parameters_reach_the_crlb_and_covariance_is_calibrated():
     p = len(names)
     mahal_crlb = np.mean([e @ np.linalg.solve(crlb, e) for e in E]) / p
     ratio = np.sqrt(np.mean(E**2, axis=0)) / np.sqrt(np.diag(crlb))
-    print(
-        f"\nCRLB check over {TRIALS} trials, {p} parameters: mean normalised squared error {mahal_crlb:.3f}"
-    )
+    print(f"\nCRLB check over {TRIALS} trials, {p} parameters: mean normalised squared error {mahal_crlb:.3f}")
     print(f"RMS error / CRLB sigma per parameter: median {np.median(ratio):.3f}, max {ratio.max():.3f}")
     print(f"reported covariance: mean e^T C^-1 e / p = {np.mean(mahal_reported):.3f}")
     assert mahal_crlb <= 1.1**2  # efficient: within 1.1x the CRLB (in the aggregate, RMS sense)
     assert np.median(ratio) <= 1.1
     assert ratio.max() <= 1.6  # 30 trials: single-parameter RMS estimates scatter by ~13 %
-    assert (
-        0.75 <= np.mean(mahal_reported) <= 1.3
-    )  # the reported covariance is neither over- nor underconfident
+    assert 0.75 <= np.mean(mahal_reported) <= 1.3  # the reported covariance is neither over- nor underconfident
     assert np.sqrt(np.diag(crlb)).max() < 1e-3  # every identified parameter is determined to < 1 mm / 1 mrad

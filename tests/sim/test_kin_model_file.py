@@ -195,9 +195,7 @@ def test_save_and_load_round_trip(tmp_path, conv):
     from plugins.sim.model_file import save_robot_model
 
     rng = np.random.default_rng(0)
-    m = UR5E.with_tool(exp_se3([0.01, 0.0, 0.1, 0.1, 0.0, 0.0])).with_base(
-        exp_se3([0.1, 0.2, 0.3, 0.1, 0.2, 0.3])
-    )
+    m = UR5E.with_tool(exp_se3([0.01, 0.0, 0.1, 0.1, 0.0, 0.0])).with_base(exp_se3([0.1, 0.2, 0.3, 0.1, 0.2, 0.3]))
     m = m.with_param_offsets({n: 1e-3 * rng.normal() for n in m.param_names}).to_convention(conv)
     back = load_robot_model(save_robot_model(m, tmp_path / "m.yaml"))
     q = rng.uniform(-3, 3, (50, 6))

@@ -177,9 +177,7 @@ def _with_tool_point(model: RobotModel, p_flange: F64) -> RobotModel:
     return model.with_values(v)
 
 
-def initial_frames(
-    model: RobotModel, samples: KinematicSamples, base: bool, tool: bool, rounds: int = 5
-) -> RobotModel:
+def initial_frames(model: RobotModel, samples: KinematicSamples, base: bool, tool: bool, rounds: int = 5) -> RobotModel:
     """Initial measurement frame (rigid fit) and tool point (linear least squares), alternated."""
     for _ in range(rounds if base and tool else 1):
         if base:
@@ -304,9 +302,7 @@ def calibrate_kinematics(
     q_rich = _random_configs(at, cfg.structural_poses, cfg.rng_seed + 1)
     T_rich = at.fk(q_rich)
     rich = KinematicSamples(q_rich, T_rich[:, :3, 3], T_rich[:, :3, :3] if samples.full_pose else None)
-    structural = analyse(
-        _Problem(at, rich, names, cfg)(np.zeros(len(names)))[1], names, cfg.identifiability_tol
-    )
+    structural = analyse(_Problem(at, rich, names, cfg)(np.zeros(len(names)))[1], names, cfg.identifiability_tol)
     kept_problem = _Problem(work, samples, kept, cfg)
     r, J = kept_problem(np.zeros(len(kept)))
     verdict = "ok"
@@ -344,9 +340,7 @@ def calibrate_kinematics(
     rms_cal_mm = float(np.sqrt(np.mean(np.sum(rp**2, axis=1)))) * 1e3
     if rms_cal_mm > 100.0:
         verdict = "failed"
-        reasons.append(
-            f"residual RMS {rms_cal_mm:.1f} mm after calibration: wrong model, joint order or units"
-        )
+        reasons.append(f"residual RMS {rms_cal_mm:.1f} mm after calibration: wrong model, joint order or units")
     implausible = []
     for n in kept:
         if not n.startswith("joint"):
@@ -356,9 +350,7 @@ def calibrate_kinematics(
         limit = cfg.plausible_offset_m if work.chain.param_kind(n) == "length" else cfg.plausible_offset_rad
         if abs(d) > limit:
             implausible.append(
-                f"{n} {d * 1e3:+.1f} mm"
-                if work.chain.param_kind(n) == "length"
-                else f"{n} {np.degrees(d):+.2f} deg"
+                f"{n} {d * 1e3:+.1f} mm" if work.chain.param_kind(n) == "length" else f"{n} {np.degrees(d):+.2f} deg"
             )
     if implausible:
         reasons.append(
@@ -370,9 +362,7 @@ def calibrate_kinematics(
     if verdict == "ok" and (np.any(outliers) or not consistent or implausible):
         verdict = "warning"
     if np.any(outliers):
-        reasons.append(
-            f"{int(outliers.sum())} outlier samples (residual beyond the 99.99 % chi-square bound)"
-        )
+        reasons.append(f"{int(outliers.sum())} outlier samples (residual beyond the 99.99 % chi-square bound)")
     if not consistent:
         reasons.append(
             f"residuals ({np.sqrt(chi2_stat / r.size) * cfg.noise_position_m * 1e3:.3f} mm per axis) "
@@ -403,9 +393,7 @@ def calibrate_kinematics(
     estimate = {
         "T_meas_base": calibrated.T_world_base,
         "T_flange_tcp": calibrated.T_flange_tcp,
-        "offsets": {
-            n: float(values[work.chain.index(n)] - initial.param_values[work.chain.index(n)]) for n in kept
-        },
+        "offsets": {n: float(values[work.chain.index(n)] - initial.param_values[work.chain.index(n)]) for n in kept},
         "model_file": model_to_dict(calibrated),
     }
     result = CalibrationResult(

@@ -54,9 +54,7 @@ class KinematicSamples:
         for name in ("q", "positions"):
             bad = ~np.all(np.isfinite(getattr(self, name).reshape(n, -1)), axis=1)
             if np.any(bad):
-                raise ValueError(
-                    f"{name} contains NaN or infinity in samples {np.flatnonzero(bad)[:5].tolist()}"
-                )
+                raise ValueError(f"{name} contains NaN or infinity in samples {np.flatnonzero(bad)[:5].tolist()}")
         if self.rotations is not None:
             R = np.asarray(self.rotations, dtype=float)
             if R.shape != (n, 3, 3):
@@ -169,9 +167,7 @@ def read_csv(path: str | Path) -> KinematicSamples:
     direction = None
     if dir_cols:
         if [i for i, _ in dir_cols] != list(range(1, len(q_cols) + 1)):
-            raise ValueError(
-                f"{path}: need dir1 .. dir{len(q_cols)} together, got {[c for _, c in dir_cols]}"
-            )
+            raise ValueError(f"{path}: need dir1 .. dir{len(q_cols)} together, got {[c for _, c in dir_cols]}")
         direction = np.column_stack([col(c) for _, c in dir_cols])
     samples = KinematicSamples(
         np.radians(q_deg),

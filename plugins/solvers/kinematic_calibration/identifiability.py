@@ -90,9 +90,7 @@ def analyse(J: F64, names: list[str], tol: float = 1e-6) -> Identifiability:
             # in physical units: dropped column = sum_k c_k * kept column_k
             c_phys = coef * norms[j] / norms[kept_idx]
             big = np.argsort(-np.abs(coef))[:4]
-            confounded[names[j]] = [
-                (names[kept_idx[k]], float(c_phys[k])) for k in big if abs(coef[k]) > 0.05
-            ]
+            confounded[names[j]] = [(names[kept_idx[k]], float(c_phys[k])) for k in big if abs(coef[k]) > 0.05]
     return Identifiability(
         names=list(names),
         kept=[names[j] for j in kept_idx],

@@ -83,9 +83,7 @@ def levenberg_marquardt(
             lam *= nu
             nu *= 2
         if not accepted:
-            return LMResult(
-                x, cost, it, False, "no step reduces the cost (lambda grew without success)", history
-            )
+            return LMResult(x, cost, it, False, "no step reduces the cost (lambda grew without success)", history)
         x = x + dx
         r, J, cost = r_new, J_new, cost_new
         lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
