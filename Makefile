@@ -28,7 +28,7 @@ $(STAMP): pyproject.toml | sysdeps
 	@rm -f $(VENV)/.installed-* && touch $@
 
 demo: install
-	$(BIN)/vgr run recipes/demo.yaml
+	$(BIN)/vgr run recipes/sim_capture.yaml
 
 test: install
 	$(BIN)/python -m pytest
@@ -39,6 +39,8 @@ lint: install
 # Regenerate the golden recordings that CI replays (after an intended change of outputs).
 golden: install
 	$(BIN)/vgr run recipes/demo.yaml -p source.n_points=400 -p source.frames=10 --record recordings/demo.mcap --no-progress
+	$(BIN)/vgr run recipes/sim_capture.yaml -p camera.intrinsics.width=160 -p camera.intrinsics.height=120 \
+	  -p camera.publish_depth=false -p start.count=2 --record recordings/sim_capture.mcap --no-progress
 
 bench: install
 	$(BIN)/python benchmarks/engine_overhead.py

@@ -192,6 +192,15 @@ def build_graph(loaded: LoadedRecipe, registry: Registry) -> Graph:
                     )
                 )
                 continue
+            if src_port.startswith(TRUTH_PREFIX) and cls.role not in TRUTH_READERS:
+                problems.append(
+                    loaded.problem(
+                        path,
+                        f"{src}.{src_port} is simulation ground truth: only sensor, "
+                        f"device and sink stages may read it, not a {cls.role} stage",
+                    )
+                )
+                continue
             out_type = outs[src_port]
             if not issubclass(out_type, in_type):
                 problems.append(
@@ -204,15 +213,6 @@ def build_graph(loaded: LoadedRecipe, registry: Registry) -> Graph:
                 continue
             if src == name:
                 problems.append(loaded.problem(path, "a stage cannot consume its own output"))
-                continue
-            if src_port.startswith(TRUTH_PREFIX) and cls.role not in TRUTH_READERS:
-                problems.append(
-                    loaded.problem(
-                        path,
-                        f"{src}.{src_port} is simulation ground truth: only sensor, "
-                        f"device and sink stages may read it, not a {cls.role} stage",
-                    )
-                )
                 continue
             edges.append(Edge(src, src_port, name, port, out_type))
         for client in spec.uses:
@@ -258,6 +258,15 @@ def build_graph(loaded: LoadedRecipe, registry: Registry) -> Graph:
                     )
                 )
                 continue
+            if svc.startswith(TRUTH_SERVICE) and cls.role not in TRUTH_READERS:
+                problems.append(
+                    loaded.problem(
+                        path,
+                        f"{prov}.{svc} gives simulation ground truth: only sensor, "
+                        f"device and sink stages may call it, not a {cls.role} stage",
+                    )
+                )
+                continue
             have = offered[svc]
             if not (issubclass(need.request, have.request) and issubclass(have.reply, need.reply)):
                 problems.append(
@@ -271,15 +280,6 @@ def build_graph(loaded: LoadedRecipe, registry: Registry) -> Graph:
                 continue
             if prov == name:
                 problems.append(loaded.problem(path, "a stage cannot call its own service (it would deadlock)"))
-                continue
-            if svc.startswith(TRUTH_SERVICE) and cls.role not in TRUTH_READERS:
-                problems.append(
-                    loaded.problem(
-                        path,
-                        f"{prov}.{svc} gives simulation ground truth: only sensor, "
-                        f"device and sink stages may call it, not a {cls.role} stage",
-                    )
-                )
                 continue
             service_edges.append(ServiceEdge(name, client, prov, svc))
 

@@ -147,28 +147,25 @@ class SimCamera(Stage):
         T_world_tcp = self._tcp_truth()
         t = self.ctx.clock.now_s()
         cap, truth = self.cell.capture(T_world_tcp, self.ctx.rng, t)
-        pts = cap.points[:: p.decimate].astype(np.float32)
-        cloud = PointCloud(points=pts, frame_id="camera")
+        stamp = round(t * 1e9)  # the sensor's own time stamp of the frame
+        cloud = PointCloud(points=cap.points[:: p.decimate].astype(np.float32), frame_id="camera", stamp_ns=stamp)
         if p.publish_depth:
-            self.ctx.publish("depth", Image(data=cap.depth, encoding="32FC1", frame_id="camera"))
-            K = self.intrinsics.K()
-            self.ctx.publish(
-                "camera_info",
-                CameraInfo(width=self.intrinsics.width, height=self.intrinsics.height, K=K, frame_id="camera"),
-            )
+            self.ctx.publish("depth", Image(data=cap.depth, encoding="32FC1", frame_id="camera", stamp_ns=stamp))
+            intr = self.intrinsics
+            info = CameraInfo(width=intr.width, height=intr.height, K=intr.K(), frame_id="camera", stamp_ns=stamp)
+            self.ctx.publish("camera_info", info)
         if p.publish_cloud:
             self.ctx.publish("cloud", cloud)
-        self.ctx.publish(
-            "frames",
-            FrameTransforms(
-                transforms=[
-                    Transform(frame_id=f.parent, child_frame_id=f.child, T=f.T_parent_child)
-                    for f in self.cell.frames(T_world_tcp, t)
-                    if f.child != "base" and f.child != "tcp"
-                ]
-            ),
-        )
-        truth_tf = [Transform(frame_id="world", child_frame_id=name, T=T) for name, T in truth.T_world_parts.items()]
-        truth_tf.append(Transform(frame_id="world", child_frame_id="camera", T=truth.T_world_cam))
-        self.ctx.publish("truth/part_poses", FrameTransforms(transforms=truth_tf))
+        frames = [
+            Transform(frame_id=f.parent, child_frame_id=f.child, T=f.T_parent_child, stamp_ns=stamp)
+            for f in self.cell.frames(T_world_tcp, t)
+            if f.child not in ("base", "tcp")  # the robot publishes those
+        ]
+        self.ctx.publish("frames", FrameTransforms(stamp_ns=stamp, transforms=frames))
+        truth_tf = [
+            Transform(frame_id="world", child_frame_id=name, T=T, stamp_ns=stamp)
+            for name, T in truth.T_world_parts.items()
+        ]
+        truth_tf.append(Transform(frame_id="world", child_frame_id="camera", T=truth.T_world_cam, stamp_ns=stamp))
+        self.ctx.publish("truth/part_poses", FrameTransforms(stamp_ns=stamp, transforms=truth_tf))
         return cloud

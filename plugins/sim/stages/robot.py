@@ -124,6 +124,7 @@ class SimRobot(Stage):
             joints=state.q,
             duration_s=res.duration_s,
             duplicate=res.duplicate,
+            stamp_ns=self.ctx.clock.now_ns(),
         )
 
     def _refused(self, cmd: RobotCommand, reason: str) -> RobotReply:
@@ -134,18 +135,15 @@ class SimRobot(Stage):
 
     # -- streams -------------------------------------------------------------------------------
     def _publish_state(self) -> None:
+        """State streams, stamped with the time of the state (a device reports measurements)."""
         s = self.ctl.state()
+        now = self.ctx.clock.now_ns()
         names = [f"joint{i + 1}" for i in range(len(s.q))]
-        self.ctx.publish("joint_state", JointState(names=names, positions=s.q, velocities=s.qd))
-        self.ctx.publish("tcp_pose", PoseStamped(T=s.T_base_tcp, frame_id="base"))
-        T_world_base = self.nominal.T_world_base
-        self.ctx.publish(
-            "frames",
-            FrameTransforms(
-                transforms=[
-                    Transform(frame_id="world", child_frame_id="base", T=T_world_base),
-                    Transform(frame_id="base", child_frame_id="tcp", T=s.T_base_tcp),
-                ]
-            ),
-        )
-        self.ctx.publish("truth/tcp_pose", PoseStamped(T=s.T_world_tcp_actual, frame_id="world"))
+        self.ctx.publish("joint_state", JointState(names=names, positions=s.q, velocities=s.qd, stamp_ns=now))
+        self.ctx.publish("tcp_pose", PoseStamped(T=s.T_base_tcp, frame_id="base", stamp_ns=now))
+        tree = [
+            Transform(frame_id="world", child_frame_id="base", T=self.nominal.T_world_base, stamp_ns=now),
+            Transform(frame_id="base", child_frame_id="tcp", T=s.T_base_tcp, stamp_ns=now),
+        ]
+        self.ctx.publish("frames", FrameTransforms(stamp_ns=now, transforms=tree))
+        self.ctx.publish("truth/tcp_pose", PoseStamped(T=s.T_world_tcp_actual, frame_id="world", stamp_ns=now))
