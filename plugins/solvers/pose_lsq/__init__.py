@@ -21,6 +21,7 @@ from plugins.solvers.pose_lsq.stats import (
     analyse_identifiability,
     chi2_consistency,
     marginal_covariance,
+    robust_variance_factor,
     studentised_block_tests,
 )
 from plugins.solvers.pose_lsq.verdict import Issue, combine_verdict
@@ -35,6 +36,7 @@ __all__ = [
     "finite_array",
     "looks_like_millimetres",
     "marginal_covariance",
+    "robust_variance_factor",
     "so3_left_jacobian",
     "so3_left_jacobian_inv",
     "so3_right_jacobian",

@@ -133,3 +133,18 @@ def studentised_block_tests(
         stats[k] = float(np.sum(proj**2 / w[good]))
         pvals[k] = float(chi2.sf(stats[k], dofs[k]))
     return stats, dofs, pvals
+
+
+def robust_variance_factor(stats: ArrayLike, dofs: ArrayLike) -> float:
+    """Median-based estimate of how much larger the residual variance is than the noise model says.
+
+    ``median(stat_b) / median(chi2(dof_b))`` over testable blocks; insensitive to a minority of
+    outliers (unlike chi2/dof), so outlier tests stay meaningful when the noise model is too
+    optimistic. Returns 1.0 when nothing is testable.
+    """
+    st = np.asarray(stats, dtype=float)
+    df = np.asarray(dofs)
+    ok = df > 0
+    if not ok.any():
+        return 1.0
+    return float(np.median(st[ok]) / np.median(chi2.median(df[ok])))
