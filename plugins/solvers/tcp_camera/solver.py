@@ -190,6 +190,12 @@ def _null_space_issue(ident: Identifiability) -> Issue:
     return Issue("degenerate", "not identifiable: " + "; ".join(msgs), " and ".join(dict.fromkeys(advice)))
 
 
+def cramer_rao_bound(data: TcpCameraData, T_cam_base: F64, p_flange_tcp: F64) -> tuple[F64, int]:
+    """(9x9 Cramér–Rao bound of (T_cam_base, p_flange_tcp) at the given truth, information rank)."""
+    problem = _Problem(data, np.asarray(T_cam_base, float), np.asarray(p_flange_tcp, float))
+    return marginal_covariance(problem.residual_and_jacobian(np.zeros(9))[1])
+
+
 def calibrate_tcp_camera(
     data: TcpCameraData,
     *,

@@ -38,6 +38,8 @@ PARAM_NAMES = [
     for c in ("vx", "vy", "vz", "wx", "wy", "wz")
 ]
 N_MAIN = 12
+#: weight of the gauge rows that pin unidentifiable directions (1 um or 1 urad -> residual 100)
+GAUGE_WEIGHT = 1e8
 
 
 @dataclass
@@ -49,6 +51,7 @@ class DeskProblem:
     T_KC0: F64
     R_fix_ref: F64  # (N, 3, 3) nominal fixture orientation (free samples: an initial guess)
     prior: TrackerTcpPrior | None = None
+    gauge: F64 | None = None  # (k, 12) unit directions pinned at x = 0 (not identifiable by design)
 
     def __post_init__(self) -> None:
         nz = self.data.noise
@@ -87,14 +90,17 @@ class DeskProblem:
         T_BD, T_KC = self.poses(x)
         x_new = x.copy()
         x_new[:N_MAIN] = 0.0
-        return DeskProblem(self.data, T_BD, T_KC, self.R_fix_ref, self.prior), x_new
+        return DeskProblem(self.data, T_BD, T_KC, self.R_fix_ref, self.prior, self.gauge), x_new
 
     # ------------------------------------------------------------------ residuals
 
     @property
     def n_residuals(self) -> int:
-        n_prior = 0 if self.prior is None else 3 + (3 if self.prior.sigma_rotation_rad else 0)
-        return 6 * self.data.n + 3 * int(self.has_prior_rows.sum()) + n_prior
+        return 6 * self.data.n + 3 * int(self.has_prior_rows.sum()) + self._n_tcp_prior_rows() + self.n_gauge
+
+    @property
+    def n_gauge(self) -> int:
+        return 0 if self.gauge is None else int(self.gauge.shape[0])
 
     def residual_and_jacobian(self, x: F64, *, structural: bool = False) -> tuple[F64, F64]:
         """Whitened residual vector and its Jacobian at *x*.
@@ -153,6 +159,11 @@ class DeskProblem:
                 r[row : row + 3] = e / pr.sigma_rotation_rad
                 J[row : row + 3, 9:12] = so3_left_jacobian_inv(e) @ Jl_KC / pr.sigma_rotation_rad
                 row += 3
+        if self.gauge is not None:
+            k = self.gauge.shape[0]
+            r[row : row + k] = GAUGE_WEIGHT * (self.gauge @ x[:N_MAIN])
+            J[row : row + k, :N_MAIN] = GAUGE_WEIGHT * self.gauge
+            row += k
         if structural:
             r[:] = 0.0
         return r, J

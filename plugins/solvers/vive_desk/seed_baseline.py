@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 from scipy.optimize import minimize
 from scipy.spatial.transform import Rotation
 
-from engine.transforms import T_from_rotvec, T_from_Rt, log_so3
+from engine.transforms import T_from_rotvec
 from plugins.solvers.vive_desk.data import ViveDeskData
 from plugins.solvers.vive_desk.initial import seed_step1_T_base_desktop
 
@@ -39,17 +39,16 @@ def _params(T: F64) -> F64:
 
 
 def seed_residuals(x: F64, data: ViveDeskData, weight_position: float, weight_rotation: float) -> F64:
-    """Seed 001 step 2 weighted residual vector (6 per contact)."""
-    T_BD = T_from_rotvec(x[0:3], x[3:6])
-    T_KC = T_from_rotvec(x[6:9], x[9:12])
-    out = np.empty((data.n, 6))
-    q = data.tcp_positions_desktop
-    for i in range(data.n):
-        T_exp = T_BD @ T_from_Rt(data.R_desktop_tcp[i], q[i])
-        T_mea = data.T_base_tracker[i] @ T_KC
-        out[i, :3] = (T_mea[:3, 3] - T_exp[:3, 3]) * weight_position
-        out[i, 3:] = log_so3(T_exp[:3, :3].T @ T_mea[:3, :3]) * weight_rotation
-    return out.ravel()
+    """Seed 001 step 2 weighted residual vector (6 per contact), vectorised over contacts."""
+    R_BD = Rotation.from_rotvec(x[0:3]).as_matrix()
+    R_KC = Rotation.from_rotvec(x[6:9]).as_matrix()
+    R_exp = R_BD @ data.R_desktop_tcp  # T_BD @ [R_fix, q]
+    p_exp = data.tcp_positions_desktop @ R_BD.T + x[3:6]
+    R_BK = data.T_base_tracker[:, :3, :3]
+    R_mea = R_BK @ R_KC  # T_BK @ T_KC
+    p_mea = R_BK @ x[9:12] + data.T_base_tracker[:, :3, 3]
+    rot = Rotation.from_matrix(np.transpose(R_exp, (0, 2, 1)) @ R_mea).as_rotvec()
+    return np.hstack([(p_mea - p_exp) * weight_position, rot * weight_rotation]).ravel()
 
 
 def seed_calibrate(

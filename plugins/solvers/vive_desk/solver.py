@@ -22,6 +22,7 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.linalg import null_space
 from scipy.optimize import least_squares
 from scipy.stats import chi2 as chi2_dist
 
@@ -91,6 +92,15 @@ def _solve(problem: DeskProblem, max_nfev: int) -> tuple[DeskProblem, F64, int, 
     return problem, x, nfev, ok, msg
 
 
+_SCALES = np.full(N_MAIN, 1e-3)  # 1 mm / 1 mrad: the units the identifiability analysis compares
+
+
+def _identifiability(problem: DeskProblem, x: F64) -> Identifiability:
+    """Structural identifiability of the design of *problem* at *x*."""
+    J_main, J_nuis = problem.design_jacobians(x)
+    return analyse_identifiability(J_main, PARAM_NAMES, _SCALES, J_nuisance=J_nuis)
+
+
 def _describe_null_space(ident: Identifiability, n_groups: int) -> Issue:
     """Degenerate-design issue in words, with advice on the measurements that fix it."""
     k = ident.n_params - ident.rank
@@ -132,16 +142,36 @@ def _describe_null_space(ident: Identifiability, n_groups: int) -> Issue:
     )
 
 
+def cramer_rao_bound(
+    data: ViveDeskData, T_base_desktop: F64, T_tracker_tcp: F64, prior: TrackerTcpPrior | None = None
+) -> tuple[F64, int]:
+    """(12x12 Cramér–Rao bound of the 12 unknowns at the given truth, rank of the information).
+
+    Evaluated with the data's design (points, fixture orientations, noise model) and noise-free
+    measurements; the fixture scatter is marginalised. A rank below 12 + nuisance means some
+    combinations have no finite bound (the pseudo-inverse then bounds the estimable ones only).
+    """
+    problem = DeskProblem(data, np.asarray(T_base_desktop, float), np.asarray(T_tracker_tcp, float),
+                          data.R_desktop_tcp, prior)  # fmt: skip
+    _, J = problem.residual_and_jacobian(np.zeros(problem.n_params), structural=True)
+    return marginal_covariance(J, N_MAIN)
+
+
 def calibrate_vive_desk(
     data: ViveDeskData,
     *,
     prior: TrackerTcpPrior | None = None,
     thresholds: ViveThresholds | None = None,
     init: Literal["exact", "seed"] = "exact",
+    lever_arm_prior_sigma_m: float | None = 0.1,
     max_nfev: int = 200,
 ) -> CalibrationResult:
     """Calibrate T_base_desktop and T_tracker_tcp; see the module docstring.
 
+    ``prior``: knowledge of T_tracker_tcp (CAD, caliper); it makes a single fixture orientation
+    usable. ``lever_arm_prior_sigma_m``: without ``prior``, a design that cannot determine the
+    lever arm is regularised by ``t_tracker_tcp ~ N(initial, sigma^2 I)`` (the verdict stays
+    ``degenerate``); ``None`` gauge-fixes those directions at the initial estimate instead.
     Raises ValueError for unusable input (NaN, non-rotations, < 3 distinct points, mm vs m,
     duplicated rows); quality problems come back in the verdict.
     """
@@ -167,14 +197,36 @@ def calibrate_vive_desk(
     for i in np.flatnonzero(~data.orientation_known):
         R_ref[i] = T_BD0[:3, :3].T @ data.T_base_tracker[i, :3, :3] @ T_KC0[:3, :3]
     problem = DeskProblem(data, T_BD0, T_KC0, R_ref, prior)
+    # A design that cannot determine the lever arm (one fixture orientation) gets a weak prior on
+    # it (the tracker sits within ~lever_arm_prior_sigma_m of the TCP): the fixture scatter then
+    # informs the lever arm as far as it can, instead of noise driving it metres away. Directions
+    # still undetermined are gauge-fixed: they stay at the initial estimate.
+    ident0 = _identifiability(problem, np.zeros(problem.n_params))
+    if not ident0.full_rank and prior is None and lever_arm_prior_sigma_m:
+        problem.prior = TrackerTcpPrior(T_KC0.copy(), lever_arm_prior_sigma_m)
+        ident0 = _identifiability(problem, np.zeros(problem.n_params))
+    if not ident0.full_rank:
+        problem.gauge = (
+            ident0.null_space * _SCALES / np.linalg.norm(ident0.null_space * _SCALES, axis=1)[:, None]
+        )
     problem, x, nfev, ok, msg = _solve(problem, max_nfev)
     T_BD, T_KC = problem.poses(x)
     r, J = problem.residual_and_jacobian(x)
     if not ok or not np.all(np.isfinite(r)):
         issues.append(Issue("failed", f"optimiser did not converge: {msg}", "check the input data"))
 
-    # covariance, residual consistency
-    cov, rank = marginal_covariance(J, N_MAIN)
+    # covariance (gauge-fixed designs: on the identifiable subspace only), residual consistency
+    if problem.gauge is None:
+        cov, rank = marginal_covariance(J, N_MAIN)
+    else:
+        k = problem.n_gauge
+        P = null_space(problem.gauge)  # (12, 12 - k) orthonormal identifiable directions
+        Pfull = np.zeros((problem.n_params, problem.n_params - k))
+        Pfull[:N_MAIN, : N_MAIN - k] = P
+        Pfull[N_MAIN:, N_MAIN - k :] = np.eye(problem.n_params - N_MAIN)
+        cov_p, rank = marginal_covariance(J[:-k] @ Pfull, N_MAIN - k)
+        cov = P @ cov_p @ P.T
+        rank += k
     dof = r.size - rank
     chi2_dof, p_chi2 = chi2_consistency(float(r @ r), dof)
     metrics.update({"chi2_per_dof": chi2_dof, "chi2_p_value": p_chi2, "dof": float(dof)})
@@ -190,9 +242,9 @@ def calibrate_vive_desk(
         )
 
     # structural identifiability of the design
-    J_main, J_nuis = problem.design_jacobians(x)
-    scales = np.array([1e-3] * 3 + [1e-3] * 3 + [1e-3] * 3 + [1e-3] * 3)
-    ident = analyse_identifiability(J_main, PARAM_NAMES, scales, J_nuisance=J_nuis)
+    ident = _identifiability(
+        DeskProblem(data, T_BD, T_KC, problem.R_fix_ref, prior), np.zeros(problem.n_params)
+    )
     metrics["design_rank"] = float(ident.rank)
     groups = orientation_groups(data)
     col = collinearity_issue(metrics["point_line_width_mm"] * 1e-3, not ident.full_rank, th)
