@@ -142,7 +142,7 @@ def test_cad_prior_makes_a_single_orientation_usable():
     res = calibrate_vive_desk(sim.data, prior=TrackerTcpPrior(T_cad, sigma_position_m=1e-3))
     assert res.metrics["design_rank"] == 12
     assert res.verdict in ("ok", "warning") and "lever arm" not in " ".join(res.reasons)
-    bd_mm, bd_deg, kc_mm, kc_deg = errors_mm_deg(res, sim)
+    bd_mm, bd_deg, kc_mm, _kc_deg = errors_mm_deg(res, sim)
     assert kc_mm < 2.0 and bd_mm < 4.0 and bd_deg < 1.0
 
 
@@ -228,7 +228,7 @@ def test_pose_consistency_bands_follow_the_seed(scatter_deg, level, word):
     T[2, :3, :3] = T[2, :3, :3] @ Rotation.from_rotvec([0, a / 2, 0]).as_matrix()
     data = ViveDeskData.from_contacts(sim.data.desk_points, T, noise=sim.data.noise)
     res = calibrate_vive_desk(data)
-    msg = [r for r in res.reasons if "pose consistency" in r][0]
+    msg = next(r for r in res.reasons if "pose consistency" in r)
     assert msg.startswith(f"[{level}]") and word in msg
     assert res.metrics["pose_consistency_max_deg"] == pytest.approx(scatter_deg, rel=0.2)
 
@@ -307,8 +307,9 @@ def test_result_round_trips_through_json_and_drives_the_converter():
     assert back.verdict == res.verdict and np.allclose(back.covariance, res.covariance)
     conv = DesktopTcpConverter.from_result(back)
     out = conv.convert(sim.data.T_base_tracker[0])
-    assert np.allclose(out.T_desktop_tcp, desktop_tcp(sim.data.T_base_tracker[0], res.estimate["T_base_desktop"],
-                                                      res.estimate["T_tracker_tcp"]))  # fmt: skip
+    est = res.estimate
+    expected = desktop_tcp(sim.data.T_base_tracker[0], est["T_base_desktop"], est["T_tracker_tcp"])
+    assert np.allclose(out.T_desktop_tcp, expected)
     assert out.position_std_m is not None and np.all(out.position_std_m < 2e-3)
 
 

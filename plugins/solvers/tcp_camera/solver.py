@@ -22,7 +22,7 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import least_squares
+from scipy.optimize import OptimizeResult, least_squares
 from scipy.spatial.distance import pdist
 from scipy.stats import chi2 as chi2_dist
 
@@ -106,7 +106,7 @@ def _check_input(data: TcpCameraData, groups: list[NDArray[np.int_]]) -> list[Is
         ratios += list(dc[ok] / dt[ok])
     if ratios:
         r = float(np.median(ratios))
-        if r > 20 or r < 0.05:
+        if r > 2.0 or r < 0.5:
             raise ValueError(
                 f"mixed units: pure translations moved the TCP {r:.3g}x as far in the camera as the "
                 "flange moved (a rigid motion gives 1); one side is probably in mm, the other in m"
@@ -164,6 +164,60 @@ class _Problem:
         T = self.data.T_base_flange
         b = np.einsum("nij,j->ni", T[:, :3, :3], p) + T[:, :3, 3]
         return self.data.p_cam - (b @ R_cb.T + t_cb)
+
+
+def _fit(data: TcpCameraData, T0: F64, p0: F64, loss: str) -> tuple[_Problem, F64, int, OptimizeResult]:
+    """ML fit from (T0, p0); two passes, the second with the whitening at the first optimum.
+    Returns the problem re-centred at the optimum (x = 0 there), x, evaluations, last fit."""
+    problem = _Problem(data, T0, p0)
+    x = np.zeros(9)
+    nfev = 0
+    fit = None
+    for _ in range(2):
+        fit = least_squares(
+            lambda z, pr=problem: pr.residual_and_jacobian(z)[0],
+            x,
+            jac=lambda z, pr=problem: pr.residual_and_jacobian(z)[1],
+            method="lm" if loss == "linear" else "trf",
+            loss=loss,
+            f_scale=3.0,
+            xtol=1e-12,
+            ftol=1e-12,
+            gtol=1e-12,
+            max_nfev=200,
+        )
+        nfev += int(fit.nfev)
+        R_cb, t_cb, p = problem.unpack(fit.x)
+        problem = _Problem(data, T_from_Rt(R_cb, t_cb), p)
+    assert fit is not None
+    return problem, x, nfev, fit
+
+
+def _flag_outliers(
+    data: TcpCameraData, problem: _Problem, th: TcpThresholds
+) -> tuple[NDArray[np.bool_], float]:
+    """Sequential studentised tests: flag the worst sample, refit without it, test the rest again
+    (one pass would also flag samples that the outlier's pull on the fit disturbs). Tests use a
+    robust residual scale when the noise model is clearly too optimistic. Returns (flags, scale)."""
+    flagged = np.zeros(data.n, dtype=bool)
+    factor = 1.0
+    for _ in range(max(1, data.n // 4)):
+        keep = np.flatnonzero(~flagged)
+        r, J = problem.residual_and_jacobian(np.zeros(9))
+        stats, dofs, pvals = studentised_block_tests(
+            J, r, [np.arange(3 * i, 3 * i + 3) for i in range(keep.size)]
+        )
+        if chi2_consistency(float(r @ r), r.size - 9)[1] < th.chi2_p_value:
+            factor = max(1.0, robust_variance_factor(stats, dofs))
+            pvals = np.where(dofs > 0, chi2_dist.sf(stats / factor, np.maximum(dofs, 1)), 1.0)
+        worst = int(np.argmin(pvals))
+        if pvals[worst] >= th.outlier_p_value or dofs[worst] == 0 or keep.size <= 5:
+            break
+        flagged[keep[worst]] = True
+        sub = TcpCameraData(data.T_base_flange[~flagged], data.p_cam[~flagged], data.noise)
+        R_cb, t_cb, p = problem.unpack(np.zeros(9))
+        problem = _fit(sub, T_from_Rt(R_cb, t_cb), p, "linear")[0]
+    return flagged, factor
 
 
 def _null_space_issue(ident: Identifiability) -> Issue:
@@ -234,29 +288,8 @@ def calibrate_tcp_camera(
         start = general_linear(data)
     metrics["init_method_is_seed002"] = float(start.method.startswith("seed"))
 
-    problem = _Problem(data, start.T_cam_base, start.p_flange_tcp)
-    x = np.zeros(9)
+    problem, x, nfev, fit = _fit(data, start.T_cam_base, start.p_flange_tcp, loss)
     method = "lm" if loss == "linear" else "trf"
-    nfev = 0
-    fit = None
-    for _ in range(2):  # second pass: whitening recomputed at the first optimum
-        fit = least_squares(
-            lambda z, pr=problem: pr.residual_and_jacobian(z)[0],
-            x,
-            jac=lambda z, pr=problem: pr.residual_and_jacobian(z)[1],
-            method=method,
-            loss=loss,
-            f_scale=3.0,
-            xtol=1e-12,
-            ftol=1e-12,
-            gtol=1e-12,
-            max_nfev=200,
-        )
-        nfev += int(fit.nfev)
-        R_cb, t_cb, p = problem.unpack(fit.x)
-        problem = _Problem(data, T_from_Rt(R_cb, t_cb), p)
-        x = np.zeros(9)
-    assert fit is not None
     if not fit.success:
         issues.append(Issue("failed", f"optimiser did not converge: {fit.message}", "check the input data"))
     r, J = problem.residual_and_jacobian(x)
@@ -296,13 +329,9 @@ def calibrate_tcp_camera(
                 "pure translations",
             )
         )
-    blocks = [np.arange(3 * i, 3 * i + 3) for i in range(data.n)]
-    stats, dofs, pvals = studentised_block_tests(J, r, blocks)
-    if p_chi2 < th.chi2_p_value:  # noise model too optimistic: test against the data's own scale
-        factor = max(1.0, robust_variance_factor(stats, dofs))
-        pvals = np.where(dofs > 0, chi2_dist.sf(stats / factor, np.maximum(dofs, 1)), 1.0)
+    outliers, factor = _flag_outliers(data, problem, th)
+    if factor > 1.0:
         metrics["robust_variance_factor"] = factor
-    outliers = (pvals < th.outlier_p_value) & (dofs > 0)
     if outliers.any():
         bad = [data.labels[i] for i in np.flatnonzero(outliers)]
         issues.append(
