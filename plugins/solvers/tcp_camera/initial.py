@@ -18,6 +18,7 @@
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,7 +68,9 @@ def _rotation_from_translations(data: TcpCameraData, groups: list[NDArray[np.int
     t = data.T_base_flange[:, :3, 3]
     a = np.vstack([data.p_cam[g] - data.p_cam[g].mean(axis=0) for g in groups])
     b = np.vstack([t[g] - t[g].mean(axis=0) for g in groups])
-    rot, _ = Rotation.align_vectors(a, b)
+    with warnings.catch_warnings():  # collinear input: reported by the solver's identifiability check
+        warnings.simplefilter("ignore", UserWarning)
+        rot, _ = Rotation.align_vectors(a, b)
     return rot.as_matrix()
 
 

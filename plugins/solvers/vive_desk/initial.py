@@ -18,6 +18,8 @@ translation of T_tracker_tcp is taken from the prior, or zero, along the missing
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
@@ -62,7 +64,9 @@ def initial_estimate(data: ViveDeskData, prior: TrackerTcpPrior | None = None) -
     t = data.T_base_tracker[:, :3, 3]
     a = t[g] - t[g].mean(axis=0)
     b = q[g] - q[g].mean(axis=0)
-    rot, _ = Rotation.align_vectors(a, b)  # a ~ R b
+    with warnings.catch_warnings():  # collinear input: reported by the solver's identifiability check
+        warnings.simplefilter("ignore", UserWarning)
+        rot, _ = Rotation.align_vectors(a, b)  # a ~ R b
     R_BD = rot.as_matrix()
     known = np.flatnonzero(data.orientation_known)
     if known.size:
