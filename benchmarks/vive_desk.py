@@ -18,8 +18,9 @@ C. Seed 001's accuracy table reproduced: 3 / 4 / 5 points x orientation scatter 
    (same points at 3 fixture orientations) alongside.
 D. TCP by camera: CRLB ratio of vgr's ML estimate and seed 002's closed form.
 
-Writes benchmarks/results/vive_desk.json. BLAS threads are pinned to 1 (the shared 2-core machine
-makes multithreaded L-BFGS-B 3x slower).
+Writes benchmarks/results/vive_desk.json and the figure vive_desk_accuracy.png next to it
+(``--plot-only`` redraws it from the JSON). BLAS threads are pinned to 1 (the shared 2-core
+machine makes multithreaded L-BFGS-B 3x slower).
 """
 
 from __future__ import annotations
@@ -461,6 +462,47 @@ def section_tcp(trials: int, seed: int) -> dict:
     return out
 
 
+def plot_table(table: dict, path: Path) -> None:
+    """Figure of section C: TCP position error at the calibration orientation and 20 deg away."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = {
+        "seed_lbfgsb": "seed 001 L-BFGS-B, 1 orientation",
+        "vgr_ml": "vgr ML, 1 orientation",
+        "vgr_ml_3_orientations": "vgr ML, 3 orientations",
+    }
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for m, style, color in zip(names, ("o-", "s-", "^-"), ("C0", "C2", "C4"), strict=True):
+        for n_pts, alpha in ((3, 1.0), (5, 0.4)):
+            rows = [r for r in table["rows"] if r["method"] == m and r["points"] == n_pts]
+            x = [r["scatter_rms_pairwise_deg"] for r in rows]
+            lab = f"{names[m]}, {n_pts} points"
+            kw = {"alpha": alpha, "label": lab, "color": color}
+            axes[0].plot(x, [r["tcp_at_calibration_rms_mm"] for r in rows], style, **kw)
+            axes[1].plot(x, [r["tcp_tilted_20deg_rms_mm"] for r in rows], style, **kw)
+    seed_claim = table["seed_claims"]["scatter_to_position_error_mm (L=0.15 m)"]
+    axes[0].plot(
+        [float(k) for k in seed_claim], list(seed_claim.values()), "k--", label="seed's L x angle claim"
+    )
+    axes[0].set_ylim(0, 6)
+    axes[0].set_title("TCP position error at the calibration orientation")
+    axes[1].set_yscale("log")
+    axes[1].set_title("TCP position error 20 deg away from it")
+    for ax in axes:
+        ax.set_xlabel("fixture orientation scatter (deg, RMS pairwise)")
+        ax.set_ylabel("RMS error (mm)")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7)
+    fig.suptitle(
+        f"Vive desk calibration, {table['trials_per_cell']} trials per cell, tracker 0.5 mm / 0.1 deg"
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=200)
@@ -468,7 +510,12 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=20251122)
     ap.add_argument("--quick", action="store_true", help="10 trials everywhere (smoke test)")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "vive_desk.json"))
+    ap.add_argument("--plot-only", action="store_true", help="redraw the figure from --out's JSON")
     a = ap.parse_args()
+    figure = Path(a.out).with_name("vive_desk_accuracy.png")
+    if a.plot_only:
+        plot_table(json.loads(Path(a.out).read_text())["C_seed_accuracy_table"], figure)
+        return
     trials, table_trials = (10, 5) if a.quick else (a.trials, a.table_trials)
     t0 = time.perf_counter()
     result = {
@@ -506,7 +553,8 @@ def main() -> None:
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=2))
-    print(f"wrote {out} in {result['wall_time_s']:.0f} s")
+    plot_table(result["C_seed_accuracy_table"], figure)
+    print(f"wrote {out} and {figure} in {result['wall_time_s']:.0f} s")
 
 
 if __name__ == "__main__":
