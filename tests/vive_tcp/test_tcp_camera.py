@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
@@ -205,3 +207,36 @@ def test_moveit_real_data_camera_pose_within_moveit_tolerance():
     assert res.usable and not res.outliers.any()
     assert 3.5 < res.metrics["rms_error_mm"] < 5.5
     assert 0.7 < res.metrics["chi2_per_dof"] < 1.5
+
+
+@settings(max_examples=10, deadline=None)
+@given(
+    st.tuples(*[st.floats(-3.0, 3.0, allow_nan=False)] * 3),
+    st.tuples(*[st.floats(-1.0, 1.0, allow_nan=False)] * 3),
+)
+def test_moving_the_camera_changes_only_T_cam_base(rv, t):
+    """Equivariance: camera points re-expressed in another camera frame C' change T_cam_base to
+    T_C'_C @ T_cam_base and leave the TCP point unchanged."""
+    sim = simulate_tcp_camera(seed=9)
+    T_new = T_from_Rt(Rotation.from_rotvec(rv).as_matrix(), t)
+    p_new = sim.data.p_cam @ T_new[:3, :3].T + T_new[:3, 3]
+    a = calibrate_tcp_camera(sim.data)
+    b = calibrate_tcp_camera(TcpCameraData.from_arrays(sim.data.T_base_flange, p_new, noise=sim.data.noise))
+    dt, dr = pose_error(T_new @ a.estimate["T_cam_base"], b.estimate["T_cam_base"])
+    assert dt < 1e-7 and dr < 1e-7
+    assert np.allclose(a.estimate["p_flange_tcp"], b.estimate["p_flange_tcp"], atol=1e-8)
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 15), st.integers(0, 2), st.sampled_from(["cam", "pos", "rot"]))
+def test_nan_anywhere_is_rejected(i, j, where):
+    sim = simulate_tcp_camera(seed=10)
+    T, p = sim.data.T_base_flange.copy(), sim.data.p_cam.copy()
+    if where == "cam":
+        p[i, j] = np.nan
+    elif where == "pos":
+        T[i, j, 3] = np.nan
+    else:
+        T[i, j, (j + 1) % 3] = np.inf
+    with pytest.raises(ValueError, match="NaN"):
+        TcpCameraData.from_arrays(T, p)

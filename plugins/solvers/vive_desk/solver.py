@@ -8,6 +8,8 @@ Pipeline of :func:`calibrate_vive_desk`:
 3. maximum-likelihood refinement on SE(3) (:mod:`.model`): scipy ``least_squares`` (Levenberg-
    Marquardt) with the exact Jacobian, residuals whitened by the noise model, the fixture scatter of
    every contact estimated as a nuisance rotation with its prior;
+   A design whose null space contains the lever arm (one fixture orientation) gets a weak prior on
+   it (``lever_arm_prior_sigma_m``); other undetermined directions are gauge-fixed at the start;
 4. covariance of the 12 unknowns (marginal over the nuisance), chi-square consistency, studentised
    per-contact outlier tests, structural identifiability (the design's null space, e.g. the lever-arm
    / desk-origin trade-off of a single fixture orientation) and the predicted accuracy;
