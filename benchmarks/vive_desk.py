@@ -267,9 +267,7 @@ def section_seed_protocol(trials: int, seed: int) -> dict:
                 errs[m]["T_desktop_tcp_at_calibration.position"].append(eo[:3])
                 errs[m]["T_desktop_tcp_at_calibration.rotation"].append(eo[3:])
                 for T_BK in test_tracker_poses(T_BD, T_KC):
-                    errs[m]["T_desktop_tcp_20deg.position"].append(
-                        desk_tcp_out_error(A, B, T_BK, T_BD, T_KC)[:3]
-                    )
+                    errs[m]["T_desktop_tcp_20deg.position"].append(desk_tcp_out_error(A, B, T_BK, T_BD, T_KC)[:3])
         sec: dict = {"information_rank": rank, "crlb_rms": {}, "methods": {}, "vgr_verdicts": verdicts}
         for b, v in bounds.items():
             u, f = unit(b)
@@ -484,9 +482,7 @@ def plot_table(table: dict, path: Path) -> None:
             axes[0].plot(x, [r["tcp_at_calibration_rms_mm"] for r in rows], style, **kw)
             axes[1].plot(x, [r["tcp_tilted_20deg_rms_mm"] for r in rows], style, **kw)
     seed_claim = table["seed_claims"]["scatter_to_position_error_mm (L=0.15 m)"]
-    axes[0].plot(
-        [float(k) for k in seed_claim], list(seed_claim.values()), "k--", label="seed's L x angle claim"
-    )
+    axes[0].plot([float(k) for k in seed_claim], list(seed_claim.values()), "k--", label="seed's L x angle claim")
     axes[0].set_ylim(0, 6)
     axes[0].set_title("TCP position error at the calibration orientation")
     axes[1].set_yscale("log")
@@ -496,9 +492,7 @@ def plot_table(table: dict, path: Path) -> None:
         ax.set_ylabel("RMS error (mm)")
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7)
-    fig.suptitle(
-        f"Vive desk calibration, {table['trials_per_cell']} trials per cell, tracker 0.5 mm / 0.1 deg"
-    )
+    fig.suptitle(f"Vive desk calibration, {table['trials_per_cell']} trials per cell, tracker 0.5 mm / 0.1 deg")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
@@ -546,9 +540,7 @@ def main() -> None:
     result["D_tcp_camera"] = section_tcp(trials, a.seed + 200_000)
     print(json.dumps(result["D_tcp_camera"], indent=1), flush=True)
     print("C: seed accuracy table", flush=True)
-    result["C_seed_accuracy_table"] = section_accuracy_table(
-        table_trials, a.seed + 300_000, [0.0, 0.5, 1.0, 2.0, 5.0]
-    )
+    result["C_seed_accuracy_table"] = section_accuracy_table(table_trials, a.seed + 300_000, [0.0, 0.5, 1.0, 2.0, 5.0])
     result["wall_time_s"] = time.perf_counter() - t0
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)

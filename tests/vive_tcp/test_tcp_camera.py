@@ -197,9 +197,7 @@ def test_moveit_real_data_camera_pose_within_moveit_tolerance():
     ref = np.array([0.659, -0.249, 0.830])
     p_mm = np.round(res.estimate["p_flange_tcp"] * 1e3, 2)
     m = res.metrics
-    print(
-        f"t_base_cam = {np.round(t, 4)} m, p_flange_tcp = {p_mm} mm, residual RMS {m['rms_error_mm']:.2f} mm"
-    )
+    print(f"t_base_cam = {np.round(t, 4)} m, p_flange_tcp = {p_mm} mm, residual RMS {m['rms_error_mm']:.2f} mm")
     assert np.all(np.abs(t - ref) <= 0.01 * np.abs(ref))
     R_ref = Rotation.from_euler("XYZ", [0.230, -2.540, 1.950]).as_matrix()  # Eigen eulerAngles(0,1,2)
     angle = np.degrees(Rotation.from_matrix(R_ref.T @ res.estimate["T_base_cam"][:3, :3]).magnitude())

@@ -96,9 +96,7 @@ def test_propagated_covariance_matches_sampling():
         T[:3, :3] = T[:3, :3] @ exp_so3(rng.normal(scale=np.radians(0.1), size=3))
         D = desktop_tcp(T, perturb(T_BD, xi[:6]), perturb(T_KC, xi[6:]))
         samples.append(
-            np.concatenate(
-                [D[:3, 3] - out.T_desktop_tcp[:3, 3], log_so3(D[:3, :3] @ out.T_desktop_tcp[:3, :3].T)]
-            )
+            np.concatenate([D[:3, 3] - out.T_desktop_tcp[:3, 3], log_so3(D[:3, :3] @ out.T_desktop_tcp[:3, :3].T)])
         )
     emp = np.cov(np.array(samples).T)
     assert np.allclose(np.sqrt(np.diag(emp)), np.sqrt(np.diag(out.covariance)), rtol=0.08)

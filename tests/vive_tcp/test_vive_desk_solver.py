@@ -43,9 +43,7 @@ def errors_mm_deg(res, sim):
 
 def error12(res, sim):
     e = np.zeros(12)
-    for k, (name, T) in enumerate(
-        (("T_base_desktop", sim.T_base_desktop), ("T_tracker_tcp", sim.T_tracker_tcp))
-    ):
+    for k, (name, T) in enumerate((("T_base_desktop", sim.T_base_desktop), ("T_tracker_tcp", sim.T_tracker_tcp))):
         A = res.estimate[name]
         e[6 * k : 6 * k + 3] = A[:3, 3] - T[:3, 3]
         e[6 * k + 3 : 6 * k + 6] = log_so3(A[:3, :3] @ T[:3, :3].T)
@@ -149,9 +147,7 @@ def test_cad_prior_makes_a_single_orientation_usable():
 def test_two_orientations_leave_one_direction_three_fix_all():
     R = tilted_fixture_orientations(30.0)
     pts2 = np.vstack([SEED_POINTS_3] * 2)
-    sim2 = simulate_contacts(
-        pts2, seed=4, R_desktop_tcp=np.repeat(R[:2], 3, axis=0), fixture_scatter_rad=GOOD_SCATTER
-    )
+    sim2 = simulate_contacts(pts2, seed=4, R_desktop_tcp=np.repeat(R[:2], 3, axis=0), fixture_scatter_rad=GOOD_SCATTER)
     res2 = calibrate_vive_desk(sim2.data)
     assert res2.verdict == "degenerate" and res2.metrics["design_rank"] == 11
     assert any("different axis" in a for a in res2.advice)
@@ -170,9 +166,7 @@ def test_free_orientation_pivot_contacts_make_the_lever_arm_identifiable():
     pts = np.vstack([SEED_POINTS_3, np.zeros((6, 3))])
     Rf = np.stack([np.eye(3)] * 3 + R_piv)
     known = np.array([True] * 3 + [False] * 6)
-    sim = simulate_contacts(
-        pts, seed=5, R_desktop_tcp=Rf, orientation_known=known, fixture_scatter_rad=GOOD_SCATTER
-    )
+    sim = simulate_contacts(pts, seed=5, R_desktop_tcp=Rf, orientation_known=known, fixture_scatter_rad=GOOD_SCATTER)
     res = calibrate_vive_desk(sim.data)
     assert res.metrics["design_rank"] == 12, res.reasons
     assert res.usable, res.reasons
@@ -192,9 +186,7 @@ def test_collinear_points_are_degenerate_with_one_orientation_and_a_warning_with
     # with three fixture orientations the relative rotations pin the desk's roll about the line
     pts = np.vstack([P] * 3)
     Rf = np.repeat(tilted_fixture_orientations(), 4, axis=0)
-    res3 = calibrate_vive_desk(
-        simulate_contacts(pts, seed=6, R_desktop_tcp=Rf, fixture_scatter_rad=GOOD_SCATTER).data
-    )
+    res3 = calibrate_vive_desk(simulate_contacts(pts, seed=6, R_desktop_tcp=Rf, fixture_scatter_rad=GOOD_SCATTER).data)
     assert res3.metrics["design_rank"] == 12
     assert any("collinear" in r and r.startswith("[warning]") for r in res3.reasons)
 
@@ -203,9 +195,7 @@ def test_points_closer_than_10_cm_warn():
     P = np.array([[0, 0, 0], [0.05, 0, 0], [0, 0.2, 0], [0.2, 0.2, 0]])
     pts = np.vstack([P] * 3)
     Rf = np.repeat(tilted_fixture_orientations(), 4, axis=0)
-    res = calibrate_vive_desk(
-        simulate_contacts(pts, seed=6, R_desktop_tcp=Rf, fixture_scatter_rad=GOOD_SCATTER).data
-    )
+    res = calibrate_vive_desk(simulate_contacts(pts, seed=6, R_desktop_tcp=Rf, fixture_scatter_rad=GOOD_SCATTER).data)
     assert any("50 mm apart" in r and r.startswith("[warning]") for r in res.reasons)
     assert any("10 cm" in a for a in res.advice)
 
@@ -280,13 +270,9 @@ def test_model_jacobian_matches_finite_differences():
     pts, Rf = multi_orientation()
     known = np.ones(len(pts), bool)
     known[4] = False
-    sim = simulate_contacts(
-        pts, seed=12, R_desktop_tcp=Rf, orientation_known=known, fixture_scatter_rad=np.radians(1)
-    )
+    sim = simulate_contacts(pts, seed=12, R_desktop_tcp=Rf, orientation_known=known, fixture_scatter_rad=np.radians(1))
     rng = np.random.default_rng(0)
-    T_BD0 = sim.T_base_desktop @ T_from_Rt(
-        Rotation.from_rotvec(rng.normal(size=3) * 0.1).as_matrix(), [0.01, 0, 0]
-    )
+    T_BD0 = sim.T_base_desktop @ T_from_Rt(Rotation.from_rotvec(rng.normal(size=3) * 0.1).as_matrix(), [0.01, 0, 0])
     prior = TrackerTcpPrior(sim.T_tracker_tcp, 2e-3, np.radians(1.0))
     prob = DeskProblem(sim.data, T_BD0, sim.T_tracker_tcp, sim.data.R_desktop_tcp, prior)
     x = rng.normal(scale=0.2, size=prob.n_params)

@@ -18,9 +18,7 @@ from scipy.stats import chi2
 F64 = NDArray[np.float64]
 
 
-def marginal_covariance(
-    J: ArrayLike, n_keep: int | None = None, *, rel_tol: float = 1e-10
-) -> tuple[F64, int]:
+def marginal_covariance(J: ArrayLike, n_keep: int | None = None, *, rel_tol: float = 1e-10) -> tuple[F64, int]:
     """Covariance of the first *n_keep* parameters (others are nuisance) and the rank of J.
 
     The columns are equilibrated (divided by their norms) before the SVD so that parameters in

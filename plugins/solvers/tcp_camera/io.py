@@ -118,9 +118,7 @@ def load_tcp_csv(path: str | Path) -> TcpCameraData:
     ur_cols = ["flange_rx", "flange_ry", "flange_rz"]
     missing = [c for c in need if c not in header]
     if missing or not (all(c in header for c in quat_cols) or all(c in header for c in ur_cols)):
-        raise ValueError(
-            f"{path}: CSV header needs {need} and either {quat_cols} or {ur_cols}; missing {missing}"
-        )
+        raise ValueError(f"{path}: CSV header needs {need} and either {quat_cols} or {ur_cols}; missing {missing}")
     use_quat = all(c in header for c in quat_cols)
     samples = []
     for n, raw in enumerate(reader):

@@ -81,9 +81,7 @@ def simulate_tcp_camera(
     T_meas = T_true.copy()
     if robot_position_sigma_m or robot_rotation_sigma_rad:
         for i in range(len(T_meas)):
-            T_meas[i, :3, :3] = T_true[i, :3, :3] @ exp_so3(
-                rng.normal(scale=robot_rotation_sigma_rad, size=3)
-            )
+            T_meas[i, :3, :3] = T_true[i, :3, :3] @ exp_so3(rng.normal(scale=robot_rotation_sigma_rad, size=3))
             T_meas[i, :3, 3] += rng.normal(scale=robot_position_sigma_m, size=3)
     noise = TcpNoiseModel(tuple(sig_c), robot_position_sigma_m, robot_rotation_sigma_rad)
     return SimulatedTcp(TcpCameraData.from_arrays(T_meas, p_cam, noise=noise), T_CB, pF)

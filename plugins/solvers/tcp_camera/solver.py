@@ -77,9 +77,7 @@ class TcpThresholds:
 
 def _check_input(data: TcpCameraData, groups: list[NDArray[np.int_]]) -> list[Issue]:
     if data.n < 4:
-        raise ValueError(
-            f"need at least 4 samples (9 unknowns, 3 equations per sample, plus redundancy), got {data.n}"
-        )
+        raise ValueError(f"need at least 4 samples (9 unknowns, 3 equations per sample, plus redundancy), got {data.n}")
     T = data.T_base_flange
     for i in range(data.n):
         for j in range(i):
@@ -117,9 +115,7 @@ def _check_input(data: TcpCameraData, groups: list[NDArray[np.int_]]) -> list[Is
     spread_c = float(np.sqrt(np.mean(np.sum(pc**2, 1))))
     spread_t = float(np.sqrt(np.mean(np.sum(tc**2, 1))))
     if spread_t > 1e-3 and not 0.05 < spread_c / spread_t < 20:
-        raise ValueError(
-            f"mixed units: camera points spread {spread_c:.4g} but flange positions {spread_t:.4g}"
-        )
+        raise ValueError(f"mixed units: camera points spread {spread_c:.4g} but flange positions {spread_t:.4g}")
     return issues
 
 
@@ -193,9 +189,7 @@ def _fit(data: TcpCameraData, T0: F64, p0: F64, loss: str) -> tuple[_Problem, F6
     return problem, x, nfev, fit
 
 
-def _flag_outliers(
-    data: TcpCameraData, problem: _Problem, th: TcpThresholds
-) -> tuple[NDArray[np.bool_], float]:
+def _flag_outliers(data: TcpCameraData, problem: _Problem, th: TcpThresholds) -> tuple[NDArray[np.bool_], float]:
     """Sequential studentised tests: flag the worst sample, refit without it, test the rest again
     (one pass would also flag samples that the outlier's pull on the fit disturbs). Tests use a
     robust residual scale when the noise model is clearly too optimistic. Returns (flags, scale)."""
@@ -204,9 +198,7 @@ def _flag_outliers(
     for _ in range(max(1, data.n // 4)):
         keep = np.flatnonzero(~flagged)
         r, J = problem.residual_and_jacobian(np.zeros(9))
-        stats, dofs, pvals = studentised_block_tests(
-            J, r, [np.arange(3 * i, 3 * i + 3) for i in range(keep.size)]
-        )
+        stats, dofs, pvals = studentised_block_tests(J, r, [np.arange(3 * i, 3 * i + 3) for i in range(keep.size)])
         if chi2_consistency(float(r @ r), r.size - 9)[1] < th.chi2_p_value:
             factor = max(1.0, robust_variance_factor(stats, dofs))
             pvals = np.where(dofs > 0, chi2_dist.sf(stats / factor, np.maximum(dofs, 1)), 1.0)
@@ -317,16 +309,13 @@ def calibrate_tcp_camera(
     metrics["predicted_rms_p_flange_tcp_mm"] = pred_tcp * 1e3
     metrics["predicted_rms_T_cam_base_position_mm"] = float(np.sqrt(np.sum(sd[0:3] ** 2)) * 1e3)
     metrics["predicted_rms_T_cam_base_rotation_deg"] = pred_rot
-    if ident.full_rank and (
-        pred_tcp > th.max_predicted_tcp_rms_m or pred_rot > th.max_predicted_rotation_rms_deg
-    ):
+    if ident.full_rank and (pred_tcp > th.max_predicted_tcp_rms_m or pred_rot > th.max_predicted_rotation_rms_deg):
         issues.append(
             Issue(
                 "warning",
                 f"weakly determined: predicted RMS error of the TCP {pred_tcp * 1e3:.2f} mm, of the camera "
                 f"rotation {pred_rot:.3f} deg",
-                "add poses: larger orientation changes (>= 30 deg) about two or more axes and longer "
-                "pure translations",
+                "add poses: larger orientation changes (>= 30 deg) about two or more axes and longer pure translations",
             )
         )
     outliers, factor = _flag_outliers(data, problem, th)
@@ -337,8 +326,7 @@ def calibrate_tcp_camera(
         issues.append(
             Issue(
                 "warning",
-                f"sample(s) {', '.join(bad)} disagree with the model beyond the noise "
-                f"(p < {th.outlier_p_value:g})",
+                f"sample(s) {', '.join(bad)} disagree with the model beyond the noise (p < {th.outlier_p_value:g})",
                 f"re-measure sample(s) {', '.join(bad)} (marker detection? robot pose timing?)",
             )
         )

@@ -35,12 +35,8 @@ class ViveThresholds:
     accept_mean_rotation_deg: float = 0.5  # seed: mean rotation error < 0.5 deg
     min_point_spacing_m: float = 0.10  # seed: points closer than 10 cm are not recommended
     collinear_width_m: float = 0.01  # RMS distance of the points from their best-fit line
-    max_predicted_position_rms_m: float = (
-        1.0e-3  # predicted RMS error of a calibrated translation (seed: < 1 mm)
-    )
-    max_predicted_rotation_rms_deg: float = (
-        0.5  # predicted RMS error of a calibrated rotation (seed: < 0.5 deg)
-    )
+    max_predicted_position_rms_m: float = 1.0e-3  # predicted RMS error of a calibrated translation (seed: < 1 mm)
+    max_predicted_rotation_rms_deg: float = 0.5  # predicted RMS error of a calibrated rotation (seed: < 0.5 deg)
     outlier_p_value: float = 1e-3
     chi2_p_value: float = 1e-3
 
@@ -127,9 +123,7 @@ def check_samples(data: ViveDeskData, thresholds: ViveThresholds) -> tuple[list[
         )
     repeats = data.n - len(pts)
     if repeats:
-        issues.append(
-            Issue("info", f"{repeats} repeated contact(s) of the same desk point: averaged by the fit")
-        )
+        issues.append(Issue("info", f"{repeats} repeated contact(s) of the same desk point: averaged by the fit"))
     centred = pts - pts.mean(axis=0)
     s = np.linalg.svd(centred, compute_uv=False)
     width = float(s[1] / np.sqrt(len(pts)))
@@ -157,9 +151,7 @@ def check_samples(data: ViveDeskData, thresholds: ViveThresholds) -> tuple[list[
     return issues, metrics
 
 
-def collinearity_issue(
-    width_m: float, structurally_deficient: bool, thresholds: ViveThresholds
-) -> Issue | None:
+def collinearity_issue(width_m: float, structurally_deficient: bool, thresholds: ViveThresholds) -> Issue | None:
     """Issue for (nearly) collinear contact points; degenerate when the design is also rank deficient."""
     if width_m >= thresholds.collinear_width_m:
         return None
@@ -187,13 +179,9 @@ def pose_consistency(data: ViveDeskData, thresholds: ViveThresholds) -> tuple[li
         tag = f"fixture orientation {g_no + 1}" if len(groups) > 1 else "the fixture orientation"
         t = thresholds
         if max_deg < t.consistency_excellent_deg:
-            issues.append(
-                Issue("info", f"pose consistency at {tag}: {max_deg:.2f} deg, excellent (< 1 mm expected)")
-            )
+            issues.append(Issue("info", f"pose consistency at {tag}: {max_deg:.2f} deg, excellent (< 1 mm expected)"))
         elif max_deg < t.consistency_good_deg:
-            issues.append(
-                Issue("info", f"pose consistency at {tag}: {max_deg:.2f} deg, good (1-2 mm expected)")
-            )
+            issues.append(Issue("info", f"pose consistency at {tag}: {max_deg:.2f} deg, good (1-2 mm expected)"))
         elif max_deg < t.consistency_fail_deg:
             issues.append(
                 Issue(

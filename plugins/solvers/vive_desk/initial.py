@@ -70,9 +70,7 @@ def initial_estimate(data: ViveDeskData, prior: TrackerTcpPrior | None = None) -
     R_BD = rot.as_matrix()
     known = np.flatnonzero(data.orientation_known)
     if known.size:
-        R_KC_i = np.einsum(
-            "nji,jk,nkl->nil", data.T_base_tracker[known, :3, :3], R_BD, data.R_desktop_tcp[known]
-        )
+        R_KC_i = np.einsum("nji,jk,nkl->nil", data.T_base_tracker[known, :3, :3], R_BD, data.R_desktop_tcp[known])
         R_KC = Rotation.from_matrix(R_KC_i).mean().as_matrix()
     else:
         R_KC = np.eye(3) if prior is None else prior.T_tracker_tcp[:3, :3]

@@ -62,17 +62,12 @@ def _unit_scale(units: str) -> float:
 def _noise(meta: dict[str, Any], k: float) -> ViveNoiseModel:
     base = ViveNoiseModel()
     return ViveNoiseModel(
-        tracker_position_sigma_m=float(meta.get("tracker_position_sigma", base.tracker_position_sigma_m / k))
-        * k,
+        tracker_position_sigma_m=float(meta.get("tracker_position_sigma", base.tracker_position_sigma_m / k)) * k,
         tracker_rotation_sigma_rad=float(
-            np.radians(
-                float(meta.get("tracker_rotation_sigma_deg", np.degrees(base.tracker_rotation_sigma_rad)))
-            )
+            np.radians(float(meta.get("tracker_rotation_sigma_deg", np.degrees(base.tracker_rotation_sigma_rad))))
         ),
         fixture_rotation_sigma_rad=float(
-            np.radians(
-                float(meta.get("fixture_rotation_sigma_deg", np.degrees(base.fixture_rotation_sigma_rad)))
-            )
+            np.radians(float(meta.get("fixture_rotation_sigma_deg", np.degrees(base.fixture_rotation_sigma_rad))))
         ),
         desk_point_sigma_m=float(meta.get("desk_point_sigma", 0.0)) * k,
     )

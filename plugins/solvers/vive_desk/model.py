@@ -33,9 +33,7 @@ from plugins.solvers.vive_desk.data import TrackerTcpPrior, ViveDeskData
 F64 = NDArray[np.float64]
 
 PARAM_NAMES = [
-    f"{frame}.{c}"
-    for frame in ("T_base_desktop", "T_tracker_tcp")
-    for c in ("vx", "vy", "vz", "wx", "wy", "wz")
+    f"{frame}.{c}" for frame in ("T_base_desktop", "T_tracker_tcp") for c in ("vx", "vy", "vz", "wx", "wy", "wz")
 ]
 N_MAIN = 12
 #: weight of the gauge rows that pin unidentifiable directions (1 um or 1 urad -> residual 100)

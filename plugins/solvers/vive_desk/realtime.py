@@ -30,9 +30,7 @@ F64 = NDArray[np.float64]
 
 def desktop_tcp(T_base_tracker: ArrayLike, T_base_desktop: ArrayLike, T_tracker_tcp: ArrayLike) -> F64:
     """T_desktop_tcp = inv(T_base_desktop) @ T_base_tracker @ T_tracker_tcp."""
-    return (
-        inv(T_base_desktop) @ np.asarray(T_base_tracker, dtype=float) @ np.asarray(T_tracker_tcp, dtype=float)
-    )
+    return inv(T_base_desktop) @ np.asarray(T_base_tracker, dtype=float) @ np.asarray(T_tracker_tcp, dtype=float)
 
 
 def desktop_tcp_jacobians(T_base_tracker: F64, T_base_desktop: F64, T_tracker_tcp: F64) -> tuple[F64, F64]:
@@ -139,9 +137,7 @@ class DesktopTcpConverter:
         if result.kind != "vive_desk":
             raise ValueError(f"expected a vive_desk calibration, got {result.kind!r}")
         if not result.usable and not allow_unusable:
-            raise ValueError(
-                f"calibration verdict is {result.verdict!r}: not usable ({'; '.join(result.reasons[:3])})"
-            )
+            raise ValueError(f"calibration verdict is {result.verdict!r}: not usable ({'; '.join(result.reasons[:3])})")
         noise = None
         if include_tracker_noise and "noise_model" in result.estimate:
             noise = ViveNoiseModel(**dict(result.estimate["noise_model"]))

@@ -121,8 +121,7 @@ def _describe_null_space(ident: Identifiability, n_groups: int) -> Issue:
             f"[{d[0]:+.2f}, {d[1]:+.2f}, {d[2]:+.2f}])"
         )
         advice = (
-            "add contacts at a fixture orientation tilted about a different axis (>= 30 deg), "
-            "or give TrackerTcpPrior"
+            "add contacts at a fixture orientation tilted about a different axis (>= 30 deg), or give TrackerTcpPrior"
         )
     else:
         what = f"{k} components of the tracker-to-TCP lever arm"
@@ -131,8 +130,7 @@ def _describe_null_space(ident: Identifiability, n_groups: int) -> Issue:
             "(e.g. 30 deg about desk x and 30 deg about desk y; free-orientation pivot contacts "
             "also work), or give TrackerTcpPrior with the CAD / caliper lever arm"
             if n_groups <= 1
-            else "add contacts at fixture orientations tilted about two different axes, "
-            "or give TrackerTcpPrior"
+            else "add contacts at fixture orientations tilted about two different axes, or give TrackerTcpPrior"
         )
     return Issue(
         "degenerate",
@@ -208,9 +206,7 @@ def calibrate_vive_desk(
         problem.prior = TrackerTcpPrior(T_KC0.copy(), lever_arm_prior_sigma_m)
         ident0 = _identifiability(problem, np.zeros(problem.n_params))
     if not ident0.full_rank:
-        problem.gauge = (
-            ident0.null_space * _SCALES / np.linalg.norm(ident0.null_space * _SCALES, axis=1)[:, None]
-        )
+        problem.gauge = ident0.null_space * _SCALES / np.linalg.norm(ident0.null_space * _SCALES, axis=1)[:, None]
     problem, x, nfev, ok, msg = _solve(problem, max_nfev)
     T_BD, T_KC = problem.poses(x)
     r, J = problem.residual_and_jacobian(x)
@@ -244,9 +240,7 @@ def calibrate_vive_desk(
         )
 
     # structural identifiability of the design
-    ident = _identifiability(
-        DeskProblem(data, T_BD, T_KC, problem.R_fix_ref, prior), np.zeros(problem.n_params)
-    )
+    ident = _identifiability(DeskProblem(data, T_BD, T_KC, problem.R_fix_ref, prior), np.zeros(problem.n_params))
     metrics["design_rank"] = float(ident.rank)
     groups = orientation_groups(data)
     col = collinearity_issue(metrics["point_line_width_mm"] * 1e-3, not ident.full_rank, th)
@@ -329,13 +323,10 @@ def calibrate_vive_desk(
         }
     )
     seed_ok = (
-        metrics["mean_position_error_mm"] < th.accept_mean_position_m * 1e3
-        and mean_rot < th.accept_mean_rotation_deg
+        metrics["mean_position_error_mm"] < th.accept_mean_position_m * 1e3 and mean_rot < th.accept_mean_rotation_deg
     )
     if seed_ok:
-        issues.append(
-            Issue("info", "seed 001 acceptance passed (mean position < 1 mm, mean rotation < 0.5 deg)")
-        )
+        issues.append(Issue("info", "seed 001 acceptance passed (mean position < 1 mm, mean rotation < 0.5 deg)"))
     else:
         issues.append(
             Issue(
@@ -376,8 +367,6 @@ def calibrate_vive_desk(
         metrics=metrics,
         method=METHOD
         if init == "exact"
-        else METHOD.replace(
-            "exact closed-form init (seed 001 step 1 via Kabsch)", "literal seed 001 step-1 init"
-        ),
+        else METHOD.replace("exact closed-form init (seed 001 step 1 via Kabsch)", "literal seed 001 step-1 init"),
         iterations=nfev,
     )
