@@ -12,7 +12,8 @@ when another one fits ``ratio`` times better and the misfit exceeds ``min_mismat
 Unit test. Rotations do not depend on length units, so a rotation-only estimate of X (Park-Martin)
 is valid even with mixed units; the translation equations ``(R_Aij - I) t_X = s R_X t_Bij - t_Aij``
 then give the scale ``s`` between camera and robot lengths, which must be 1. ``s`` near 1e-3 means
-the camera is in millimetres, near 1e3 the robot is.
+the camera is in millimetres, near 1e3 the robot is; a few percent off usually means a wrong
+calibration-target size or camera intrinsics (the camera's translations are scaled).
 """
 
 from __future__ import annotations
@@ -74,19 +75,24 @@ def check_setup_consistency(
     return SetupCheck(mismatch=mismatch, chosen=chosen, best=best, wrong=wrong, message=message)
 
 
-def estimate_unit_scale(setup: Setup, T_base_tcp: F64, T_cam_target: F64) -> float | None:
-    """Scale s with robot-length = s * camera-length, from the AX = XB translations; None if unobservable."""
+def estimate_unit_scale(setup: Setup, T_base_tcp: F64, T_cam_target: F64) -> tuple[float, float] | None:
+    """(s, sigma_s) with robot length = s * camera length, from the AX = XB translations.
+
+    None when the camera translations carry no scale information (the column of ``s`` is nearly
+    dependent on those of ``t_X``). ``sigma_s`` is the least-squares standard error (residual-based).
+    """
     m: RelativeMotions = relative_motions(setup, T_base_tcp, T_cam_target)
     R_X = park_martin(m)[:3, :3]
     lhs = np.zeros((len(m.A), 3, 4))
     lhs[:, :, :3] = m.A[:, :3, :3] - np.eye(3)
-    cam = m.B[:, :3, 3] @ R_X.T
-    lhs[:, :, 3] = -cam
-    rhs = -m.A[:, :3, 3]
-    Lf = lhs.reshape(-1, 4)
-    # the scale column must carry information beyond what t_X can absorb
-    col_norm = np.linalg.norm(Lf, axis=0)
-    if col_norm[3] < 1e-9 or np.linalg.cond(Lf / np.maximum(col_norm, 1e-300)) > 1e6:
+    lhs[:, :, 3] = -(m.B[:, :3, 3] @ R_X.T)
+    L = lhs.reshape(-1, 4)
+    rhs = -m.A[:, :3, 3].reshape(-1)
+    col_norm = np.linalg.norm(L, axis=0)
+    if col_norm[3] < 1e-9 or np.linalg.cond(L / np.maximum(col_norm, 1e-300)) > 1e6:
         return None
-    sol, *_ = np.linalg.lstsq(Lf, rhs.reshape(-1), rcond=None)
-    return float(sol[3])
+    sol, *_ = np.linalg.lstsq(L, rhs, rcond=None)
+    dof = max(L.shape[0] - 4, 1)
+    s2 = float(np.sum((L @ sol - rhs) ** 2)) / dof
+    cov = s2 * np.linalg.inv(L.T @ L)
+    return float(sol[3]), float(np.sqrt(max(cov[3, 3], 0.0)))

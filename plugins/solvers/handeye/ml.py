@@ -96,7 +96,7 @@ def _solve(model: EivModel, weights: F64, opts: MLOptions) -> tuple[EivModel, in
     sqrt_w = np.sqrt(weights)
     dense = model.n_params <= opts.dense_max_params
     x0 = np.zeros(model.n_params)
-    kw = dict(xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=opts.max_nfev, x_scale="jac")
+    kw = dict(xtol=1e-10, ftol=1e-12, gtol=1e-12, max_nfev=opts.max_nfev, x_scale="jac")
     if dense:
         res = least_squares(
             lambda x: model.residual_vector(x, sqrt_w),
@@ -186,7 +186,9 @@ def refine_ml(
 
     # ---- phase 1: robust IRLS
     scale = 1.0
+    last_solved_w = weights
     for _ in range(opts.max_robust_iterations):
+        last_solved_w = weights
         model, nfev, ok = _solve(model, weights, opts)
         nfev_total += nfev
         converged &= ok
@@ -237,10 +239,11 @@ def refine_ml(
         estimable = int(np.count_nonzero(redund >= 1.0))
         noise = current
 
-    # ---- phase 4: final ML fit on inliers and covariance
-    model, nfev, ok = _solve(model, inlier_w, opts)
-    nfev_total += nfev
-    converged &= ok
+    # ---- phase 4: final ML fit on inliers and covariance (phase 1 already is it when nothing changed)
+    if opts.estimate_noise or not np.array_equal(inlier_w, last_solved_w):
+        model, nfev, ok = _solve(model, inlier_w, opts)
+        nfev_total += nfev
+        converged &= ok
     st = model.state(np.zeros(model.n_params), jacobian=True)
     s2 = _per_sample_cost(model, st)
     info = model.information_xy(st, inlier_w)

@@ -178,14 +178,23 @@ def _calibrate(
             metrics=metrics,
             method="consistency check (not solved)",
         )
-    scale = estimate_unit_scale(setup, M, B)
-    if scale is not None:
+    unit = estimate_unit_scale(setup, M, B)
+    if unit is not None:
+        scale, scale_sd = unit
         metrics["unit_scale_robot_per_camera"] = scale
-        if not 0.1 <= scale <= 10.0:
+        metrics["unit_scale_std"] = scale_sd
+        significant = abs(scale - 1.0) > max(5.0 * scale_sd, 0.005)
+        if significant and not 0.5 <= scale <= 2.0:
             side = "camera" if scale < 1 else "robot"
             raise HandEyeInputError(
                 f"mixed length units: robot translations = {scale:.4g} x camera translations; the {side} "
-                "poses are probably in millimetres. Convert both to metres"
+                "poses are probably in other units (millimetres?). Convert both to metres"
+            )
+        if significant:
+            verdict = "warning"
+            reasons.append(
+                f"camera translations look scaled by {1.0 / scale:.4f} relative to the robot's "
+                f"(+-{scale_sd / scale**2:.4f}): check the calibration-target size and the camera intrinsics"
             )
 
     estimate_noise = (noise is None) if estimate_noise is None else estimate_noise
