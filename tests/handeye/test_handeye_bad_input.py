@@ -145,3 +145,11 @@ def test_never_a_silent_wrong_answer(seed, n, tilt, roll, noise_scale, setup):
     assert np.all(np.isfinite(res.covariance))
     # far beyond any 1e-4 chance event: a usable answer is consistent with its own covariance
     assert d @ np.linalg.solve(res.covariance[:6, :6], d) < stats.chi2.ppf(1 - 1e-5, 6)
+
+
+def test_metres_read_as_millimetres_is_an_error():
+    M, B = _copies()
+    M[:, :3, 3] /= 1000.0
+    B[:, :3, 3] /= 1000.0
+    with pytest.raises(HandEyeInputError, match="metres read as millimetres"):
+        calibrate_hand_eye(M, B, noise=NOISE)

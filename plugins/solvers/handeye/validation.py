@@ -9,7 +9,8 @@ in a documented, harmless way with a warning that ends up in the result's ``reas
   with a warning.
 * exact duplicate samples (same robot and camera pose): later copies dropped, with a warning;
   a camera pose repeated while the robot moved (a stale detection): warning.
-* units: translations whose typical size exceeds ``max_translation_m`` are millimetres (error).
+* units: translations whose typical size exceeds ``max_translation_m`` are millimetres, below
+  ``min_translation_m`` (5 mm) metres read as millimetres (error).
   Mixed units (robot in m, camera in mm or the reverse) are caught by the scale test of
   ``consistency``, which needs a rotation estimate. The solver works in metres only; the loaders
   take ``length_unit="mm"``.
@@ -102,13 +103,18 @@ def _check_finite_and_rigid(
     return A
 
 
-def _check_units(M: F64, B: F64, max_translation_m: float) -> None:
+def _check_units(M: F64, B: F64, max_translation_m: float, min_translation_m: float) -> None:
     for A, name in ((M, "robot poses T_base_tcp"), (B, "camera poses T_cam_target")):
         size = float(np.median(np.linalg.norm(A[:, :3, 3], axis=1)))
         if size > max_translation_m:
             raise HandEyeInputError(
                 f"{name}: median translation {size:.1f} m is not plausible; these look like millimetres. "
                 "vgr works in metres: convert (or load with length_unit='mm')"
+            )
+        if size < min_translation_m:
+            raise HandEyeInputError(
+                f"{name}: median translation {size * 1e3:.3f} mm is not plausible (a TCP at the base "
+                "origin, a target on the lens); metres read as millimetres? vgr works in metres"
             )
 
 
@@ -147,6 +153,7 @@ def validate_samples(
     exact_tol: float = 1e-6,
     repair_tol: float = 1e-3,
     max_translation_m: float = 20.0,
+    min_translation_m: float = 0.005,
 ) -> ValidatedSamples:
     """Check and normalise robot poses T_base_tcp and camera observations T_cam_target (metres)."""
     M = _as_stack(T_base_tcp, "robot poses T_base_tcp")
@@ -160,6 +167,6 @@ def validate_samples(
     warnings: list[str] = []
     M = _check_finite_and_rigid(M, "robot poses T_base_tcp", exact_tol, repair_tol, warnings)
     B = _check_finite_and_rigid(B, "camera poses T_cam_target", exact_tol, repair_tol, warnings)
-    _check_units(M, B, max_translation_m)
+    _check_units(M, B, max_translation_m, min_translation_m)
     keep = _duplicates(M, B, warnings)
     return ValidatedSamples(M[keep], B[keep], np.flatnonzero(keep).astype(np.int64), warnings)
