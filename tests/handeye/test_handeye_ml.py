@@ -136,3 +136,21 @@ def test_result_round_trips_through_json():
     assert np.allclose(back.estimate["T_tcp_cam"], res.estimate["T_tcp_cam"])
     assert np.allclose(back.covariance, res.covariance)
     assert back.residual_names == res.residual_names and back.residuals.shape == (12, 21)
+
+
+@pytest.mark.parametrize(("fraction", "usable"), [(0.2, True), (0.3, True), (0.4, False)])
+def test_heavy_contamination_is_either_removed_or_refused(fraction, usable):
+    rng = np.random.default_rng(28)
+    truth = sim.viewing_scene(rng, 20, "eye_in_hand")
+    meas = sim.add_noise(truth, NOISE, rng)
+    bad = rng.choice(20, int(fraction * 20), replace=False)
+    B = meas.T_cam_target.copy()
+    B[bad] = B[bad] @ tf.T_from_rotvec(rng.normal(size=3) * 0.2, rng.normal(size=3) * 0.05)
+    res = calibrate_hand_eye(meas.T_base_tcp, B, noise=NOISE)
+    assert res.usable == usable
+    if usable:
+        assert sorted(np.flatnonzero(res.outliers)) == sorted(bad)
+        d = pose_delta(res.estimate["T_tcp_cam"], truth.X)[0]
+        assert d @ np.linalg.solve(res.covariance[:6, :6], d) < stats.chi2.ppf(0.999, 6)
+    else:
+        assert res.verdict == "failed"

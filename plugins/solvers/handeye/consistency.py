@@ -9,11 +9,11 @@ readings, R_X is fitted (Park-Martin) and the median geodesic misfit
 ``angle(R_Aij^T R_X R_Bij R_X^T)`` over pairs is compared; the chosen reading is declared wrong
 when another one fits ``ratio`` times better and the misfit exceeds ``min_mismatch_rad``.
 
-Unit test. Rotations do not depend on length units, so a rotation-only estimate of X (Park-Martin)
-is valid even with mixed units; the translation equations ``(R_Aij - I) t_X = s R_X t_Bij - t_Aij``
-then give the scale ``s`` between camera and robot lengths, which must be 1. ``s`` near 1e-3 means
-the camera is in millimetres, near 1e3 the robot is; a few percent off usually means a wrong
-calibration-target size or camera intrinsics (the camera's translations are scaled).
+Unit test. The translation of a relative motion along its own rotation axis is a screw invariant:
+robot and camera motions of a pair must show the same value, whatever X is. The slope ``s`` of
+robot against camera values over all pairs is the length scale between them and must be 1. ``s``
+near 1e-3 means the camera is in millimetres, near 1e3 the robot is; a few percent off usually
+means a wrong calibration-target size or camera intrinsics (the camera's translations are scaled).
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 from plugins.solvers.handeye.closed_form import park_martin
 from plugins.solvers.handeye.lie import rotation_angles
@@ -75,24 +76,41 @@ def check_setup_consistency(
     return SetupCheck(mismatch=mismatch, chosen=chosen, best=best, wrong=wrong, message=message)
 
 
-def estimate_unit_scale(setup: Setup, T_base_tcp: F64, T_cam_target: F64) -> tuple[float, float] | None:
-    """(s, sigma_s) with robot length = s * camera length, from the AX = XB translations.
+def estimate_unit_scale(
+    setup: Setup, T_base_tcp: F64, T_cam_target: F64, *, robust: bool = True
+) -> tuple[float, float] | None:
+    """(s, sigma_s) with robot length = s * camera length; None when unobservable.
 
-    None when the camera translations carry no scale information (the column of ``s`` is nearly
-    dependent on those of ``t_X``). ``sigma_s`` is the least-squares standard error (residual-based).
+    Uses a screw invariant that needs no estimate of X: the translation of a relative motion along
+    its own rotation axis, ``d = axis . t``, is the same for the robot motion and its hand-eye
+    conjugate (``a_A = R_X a_B`` and ``a_A^T (R_A - I) = 0`` in ``(R_A - I) t_X = R_X t_B - t_A``).
+    ``s`` is the slope of ``d_A`` against ``d_B`` over pose pairs with 5-170 degrees of rotation;
+    ``robust`` uses Cauchy weights (scale from the median residual) so a few bad samples cannot
+    fake a unit error. ``sigma_s`` is the weighted least-squares standard error.
     """
     m: RelativeMotions = relative_motions(setup, T_base_tcp, T_cam_target)
-    R_X = park_martin(m)[:3, :3]
-    lhs = np.zeros((len(m.A), 3, 4))
-    lhs[:, :, :3] = m.A[:, :3, :3] - np.eye(3)
-    lhs[:, :, 3] = -(m.B[:, :3, 3] @ R_X.T)
-    L = lhs.reshape(-1, 4)
-    rhs = -m.A[:, :3, 3].reshape(-1)
-    col_norm = np.linalg.norm(L, axis=0)
-    if col_norm[3] < 1e-9 or np.linalg.cond(L / np.maximum(col_norm, 1e-300)) > 1e6:
+    ra = Rotation.from_matrix(m.A[:, :3, :3]).as_rotvec()
+    rb = Rotation.from_matrix(m.B[:, :3, :3]).as_rotvec()
+    th, tb = np.linalg.norm(ra, axis=1), np.linalg.norm(rb, axis=1)
+    # camera angle too: a stale (repeated) observation has no axis
+    use = (th > np.deg2rad(5.0)) & (th < np.deg2rad(170.0)) & (tb > np.deg2rad(1.0))
+    if np.count_nonzero(use) < 3:
         return None
-    sol, *_ = np.linalg.lstsq(L, rhs, rcond=None)
-    dof = max(L.shape[0] - 4, 1)
-    s2 = float(np.sum((L @ sol - rhs) ** 2)) / dof
-    cov = s2 * np.linalg.inv(L.T @ L)
-    return float(sol[3]), float(np.sqrt(max(cov[3, 3], 0.0)))
+    d_a = np.einsum("ki,ki->k", ra[use] / th[use, None], m.A[use, :3, 3])
+    d_b = np.einsum("ki,ki->k", rb[use] / tb[use, None], m.B[use, :3, 3])
+    if np.max(np.abs(d_b)) < 1e-9 or np.max(np.abs(d_a)) < 1e-9:
+        return None
+    w = np.ones_like(d_a)
+    for _ in range(10 if robust else 1):
+        s = float(np.sum(w * d_a * d_b) / np.sum(w * d_b * d_b))
+        r = d_a - s * d_b
+        c = 2.5 * 1.4826 * max(float(np.median(np.abs(r))), 1e-15)
+        if robust:
+            w = 1.0 / (1.0 + (r / c) ** 2)
+    r = d_a - s * d_b
+    dof = max(len(r) - 1, 1)
+    var = float(np.sum(w * r**2)) / dof / float(np.sum(w * d_b * d_b))
+    # pairs share samples, so they are not independent: inflate by the pairs-per-sample ratio
+    n = T_base_tcp.shape[0]
+    var *= max(len(r) / max(n - 1, 1), 1.0)
+    return s, float(np.sqrt(var))

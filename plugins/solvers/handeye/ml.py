@@ -6,7 +6,8 @@ Runs :class:`ml_model.EivModel` through ``scipy.optimize.least_squares`` in four
    ``s_i`` (its square is chi-square with 6 degrees of freedom): Huber weight ``min(1, c / s_i)`` or
    Cauchy weight ``1 / (1 + s_i^2 / c^2)``, with ``c^2`` the ``robust_quantile`` of chi-square(6)
    times a robust variance factor (median of ``s_i^2`` over the chi-square median; never below 1
-   when the noise is declared, so a correct noise model is not tightened by chance).
+   when the noise is declared, so a correct noise model is not tightened by chance). Samples beyond
+   the outlier threshold get weight 0 (Huber's bounded pull of gross outliers would bias the fit).
 2. **Outliers** - samples with ``s_i^2`` above the ``outlier_quantile`` of chi-square(6) (same
    scaling) are flagged and left out of the final estimate.
 3. **Noise estimation** (``estimate_noise=True``) - variance-component estimation (Förstner /
@@ -197,6 +198,8 @@ def refine_ml(
         new_w = _robust_weights(
             s2, opts.loss, float(stats.chi2.ppf(opts.robust_quantile, DOF_PER_SAMPLE)) * scale
         )
+        if opts.loss != "linear":  # beyond the outlier threshold a sample no longer pulls at all
+            new_w[s2 > float(stats.chi2.ppf(opts.outlier_quantile, DOF_PER_SAMPLE)) * scale] = 0.0
         done = np.max(np.abs(new_w - weights)) < 1e-3
         weights = new_w
         if done or opts.loss == "linear":

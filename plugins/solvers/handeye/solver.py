@@ -6,8 +6,9 @@ Pipeline of :func:`calibrate_hand_eye` / :func:`calibrate_robot_world`:
 2. ``degeneracy`` - motion set analysed BEFORE solving; a degenerate set returns verdict
    ``degenerate`` with the reasons and the poses to add, and no estimate.
 3. ``consistency`` - wrong set-up or inverted poses (verdict ``failed``), mixed units (error).
-4. closed forms (``closed_form``; all of them for ``init="auto"``, the one with the smallest robust
-   pose-chain cost wins) and a gross-outlier pre-filter on the pose chains.
+4. ``consensus`` (least median of squares over pose triples) finds gross outliers; closed forms
+   (``closed_form``; all of them for ``init="auto"``, the one with the smallest median pose-chain
+   cost wins) run on the consensus set.
 5. ``ml`` - maximum likelihood on SE(3) with both noise models, robust loss, outlier flags,
    optional noise estimation, covariance.
 
@@ -34,6 +35,7 @@ from scipy import stats
 from engine.transforms import angle_between
 from plugins.solvers.calibration_result import CalibrationResult
 from plugins.solvers.handeye.closed_form import CLOSED_FORM_METHODS, closed_form
+from plugins.solvers.handeye.consensus import lmeds_consensus, pose_chain_cost
 from plugins.solvers.handeye.consistency import check_setup_consistency, estimate_unit_scale
 from plugins.solvers.handeye.degeneracy import MotionThresholds, analyse_motions
 from plugins.solvers.handeye.lie import pose_delta
@@ -77,17 +79,6 @@ class AccuracyTargets:
     max_noise_rot_rad: float = float(np.deg2rad(1.0))
 
 
-def _chain_cost(setup: Setup, M: F64, B: F64, X: F64, Y: F64, noise: NoiseModel) -> F64:
-    """Per-sample pose-chain deviation in noise units (rough, for ranking and pre-filtering)."""
-    d = pose_delta(chain_poses(setup, M, X, B), np.broadcast_to(Y, M.shape))
-    s_t = np.hypot(np.mean(noise.camera.trans_sigma), np.mean(noise.robot.trans_sigma) + 1e-12)
-    s_r = np.hypot(np.mean(noise.camera.rot_sigma), np.mean(noise.robot.rot_sigma) + 1e-12)
-    # lever arm: a rotation error at the camera moves the chain by distance * angle
-    lever = np.median(np.linalg.norm(B[:, :3, 3], axis=1))
-    s_t = np.hypot(s_t, lever * s_r)
-    return np.linalg.norm(d[:, :3], axis=1) / s_t + np.linalg.norm(d[:, 3:], axis=1) / s_r
-
-
 def _initialise(
     setup: Setup, M: F64, B: F64, methods: Sequence[str], noise: NoiseModel
 ) -> tuple[str, F64, F64, dict[str, tuple[F64, F64]]]:
@@ -98,14 +89,8 @@ def _initialise(
             cands[m] = (X, Y)
     if not cands:
         raise FloatingPointError("every closed-form initialiser returned non-finite values")
-    best = min(cands, key=lambda k: float(np.median(_chain_cost(setup, M, B, *cands[k], noise))))
+    best = min(cands, key=lambda k: float(np.median(pose_chain_cost(setup, M, B, *cands[k], noise))))
     return best, *cands[best], cands
-
-
-def _gross_outliers(cost: F64) -> NDArray[np.bool_]:
-    med = float(np.median(cost))
-    mad = 1.4826 * float(np.median(np.abs(cost - med)))
-    return cost > max(med + 8.0 * mad, 5.0 * med, 10.0)
 
 
 def _spread(d: F64) -> tuple[float, float, float, float]:
@@ -132,6 +117,7 @@ def _calibrate(
     covariance_scale: CovarianceScale,
     motion_thresholds: MotionThresholds | None,
     accuracy: AccuracyTargets,
+    seed: int,
 ) -> CalibrationResult:
     setup = check_setup(setup)
     if init != "auto" and init not in CLOSED_FORM_METHODS:
@@ -181,32 +167,28 @@ def _calibrate(
     unit = estimate_unit_scale(setup, M, B)
     if unit is not None:
         scale, scale_sd = unit
-        metrics["unit_scale_robot_per_camera"] = scale
-        metrics["unit_scale_std"] = scale_sd
-        significant = abs(scale - 1.0) > max(5.0 * scale_sd, 0.005)
-        if significant and not 0.5 <= scale <= 2.0:
+        if not 0.5 <= scale <= 2.0 and abs(scale - 1.0) > 5.0 * scale_sd:
             side = "camera" if scale < 1 else "robot"
             raise HandEyeInputError(
                 f"mixed length units: robot translations = {scale:.4g} x camera translations; the {side} "
                 "poses are probably in other units (millimetres?). Convert both to metres"
-            )
-        if significant:
-            verdict = "warning"
-            reasons.append(
-                f"camera translations look scaled by {1.0 / scale:.4f} relative to the robot's "
-                f"(+-{scale_sd / scale**2:.4f}): check the calibration-target size and the camera intrinsics"
             )
 
     estimate_noise = (noise is None) if estimate_noise is None else estimate_noise
     noise0 = noise if noise is not None else DEFAULT_PRIOR
 
     methods = list(CLOSED_FORM_METHODS) if init == "auto" else [init]
-    best, X0, Y0, cands = _initialise(setup, M, B, methods, noise0)
     weights0 = np.ones(data.n)
-    gross = _gross_outliers(_chain_cost(setup, M, B, X0, Y0, noise0))
-    if np.any(gross) and np.count_nonzero(~gross) >= 3:
-        best, X0, Y0, cands = _initialise(setup, M[~gross], B[~gross], methods, noise0)
-        weights0 = (~gross).astype(float)
+    best, X0, Y0, cands = _initialise(setup, M, B, methods, noise0)
+    cost = pose_chain_cost(setup, M, B, X0, Y0, noise0)
+    # suspicious samples, or chains far beyond the noise (a start spoilt by many outliers)
+    if np.max(cost) > 3.0 * np.median(cost) or np.median(cost) > 10.0:
+        consensus = lmeds_consensus(setup, M, B, noise0, seed=seed)
+        if consensus is not None and 3 <= np.count_nonzero(~consensus.outliers) < data.n:
+            keep = ~consensus.outliers
+            weights0 = keep.astype(float)
+            metrics["consensus_outliers"] = float(np.count_nonzero(consensus.outliers))
+            best, X0, Y0, cands = _initialise(setup, M[keep], B[keep], methods, noise0)
     if len(cands) > 1:
         Xs = [c[0] for c in cands.values()]
         metrics["closed_form_spread_trans_m"] = max(
@@ -317,6 +299,19 @@ def _assemble(
         }
     )
 
+    # ---- camera length scale on the inliers (wrong target size or intrinsics scale the camera)
+    unit = estimate_unit_scale(setup, M[inl], B[inl], robust=False) if np.count_nonzero(inl) >= 3 else None
+    if unit is not None:
+        scale, scale_sd = unit
+        metrics["unit_scale_robot_per_camera"] = scale
+        metrics["unit_scale_std"] = scale_sd
+        if abs(scale - 1.0) > max(5.0 * scale_sd, 0.005):
+            verdict = "warning" if verdict == "ok" else verdict
+            reasons.append(
+                f"camera translations look scaled by {1.0 / scale:.4f} relative to the robot's "
+                f"(+-{scale_sd / scale**2:.4f}): check the calibration-target size and the camera intrinsics"
+            )
+
     # ---- verdict
     if not fit.converged:
         verdict = "failed"
@@ -395,6 +390,7 @@ def calibrate_hand_eye(
     covariance_scale: CovarianceScale = "auto",
     motion_thresholds: MotionThresholds | None = None,
     accuracy: AccuracyTargets | None = None,
+    seed: int = 0,
 ) -> CalibrationResult:
     """Hand-eye calibration (AX = XB) from robot poses T_base_tcp and camera observations T_cam_target.
 
@@ -409,6 +405,7 @@ def calibrate_hand_eye(
             ``daniilidis``, ``shah``.
         loss: ``"huber"`` (default), ``"cauchy"`` or ``"linear"`` (plain ML, no down-weighting).
         covariance_scale: see the module docstring.
+        seed: seed of the random choice of pose triples in the outlier consensus (``consensus``).
 
     Returns:
         CalibrationResult with estimate ``{x_name, y_name, "setup"}``, 12x12 covariance, per-sample
@@ -420,7 +417,7 @@ def calibrate_hand_eye(
     return _calibrate(
         "hand_eye", T_base_tcp, T_cam_target, setup=setup, noise=noise, estimate_noise=estimate_noise,
         init=init, loss=loss, covariance_scale=covariance_scale, motion_thresholds=motion_thresholds,
-        accuracy=accuracy or AccuracyTargets(),
+        accuracy=accuracy or AccuracyTargets(), seed=seed,
     )  # fmt: skip
 
 
@@ -436,6 +433,7 @@ def calibrate_robot_world(
     covariance_scale: CovarianceScale = "auto",
     motion_thresholds: MotionThresholds | None = None,
     accuracy: AccuracyTargets | None = None,
+    seed: int = 0,
 ) -> CalibrationResult:
     """Robot-world + hand-eye calibration (AX = ZB): X and Z estimated jointly, both reported.
 
@@ -447,5 +445,5 @@ def calibrate_robot_world(
     return _calibrate(
         "robot_world", T_base_tcp, T_cam_target, setup=setup, noise=noise, estimate_noise=estimate_noise,
         init=init, loss=loss, covariance_scale=covariance_scale, motion_thresholds=motion_thresholds,
-        accuracy=accuracy or AccuracyTargets(),
+        accuracy=accuracy or AccuracyTargets(), seed=seed,
     )  # fmt: skip
