@@ -7,9 +7,12 @@ See docs/handeye.md for the models, conventions and file formats.
 """
 
 from plugins.solvers.handeye.closed_form import CLOSED_FORM_METHODS, closed_form
+from plugins.solvers.handeye.crlb import crlb_covariance, rms_bounds
 from plugins.solvers.handeye.degeneracy import MotionThresholds, analyse_motions
+from plugins.solvers.handeye.io import PoseSamples, load_pose_pairs, write_pose_pairs_json
 from plugins.solvers.handeye.noise import DEFAULT_PRIOR, NoiseModel, PoseNoise
 from plugins.solvers.handeye.problem import SETUPS, Setup
+from plugins.solvers.handeye.report import format_report
 from plugins.solvers.handeye.solver import (
     RESIDUAL_NAMES,
     AccuracyTargets,
@@ -28,9 +31,15 @@ __all__ = [
     "MotionThresholds",
     "NoiseModel",
     "PoseNoise",
+    "PoseSamples",
     "Setup",
     "analyse_motions",
     "calibrate_hand_eye",
     "calibrate_robot_world",
     "closed_form",
+    "crlb_covariance",
+    "format_report",
+    "load_pose_pairs",
+    "rms_bounds",
+    "write_pose_pairs_json",
 ]

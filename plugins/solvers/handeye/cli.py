@@ -14,9 +14,9 @@ from pathlib import Path
 
 from plugins.solvers.handeye.io import load_pose_pairs
 from plugins.solvers.handeye.noise import NoiseModel
+from plugins.solvers.handeye.problem import check_setup
 from plugins.solvers.handeye.report import format_report
 from plugins.solvers.handeye.solver import calibrate_hand_eye, calibrate_robot_world
-from plugins.solvers.handeye.validation import HandEyeInputError
 
 __all__ = ["main"]
 
@@ -34,7 +34,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     try:
         samples = load_pose_pairs(args.data, length_unit="mm" if args.mm else None)
-        setup = args.setup or samples.setup or "eye_in_hand"
+        setup = check_setup(args.setup or samples.setup or "eye_in_hand")
         noise = None
         if args.robot_noise or args.camera_noise:
             if not args.camera_noise:
@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
             noise = NoiseModel.isotropic(robot[0], robot[1], args.camera_noise[0], args.camera_noise[1])
         solve = calibrate_robot_world if args.kind == "robot_world" else calibrate_hand_eye
         result = solve(samples.T_base_tcp, samples.T_cam_target, setup=setup, noise=noise, loss=args.loss)
-    except HandEyeInputError as exc:
+    except ValueError as exc:  # HandEyeInputError and unknown set-up names
         print(f"bad input: {exc}", file=sys.stderr)
         return 2
     print(format_report(result))

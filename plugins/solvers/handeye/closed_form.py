@@ -103,7 +103,7 @@ def _translation_ls(m: RelativeMotions, R_X: F64) -> F64:
     lhs = (m.A[:, :3, :3] - np.eye(3)).reshape(-1, 3)
     rhs = (m.B[:, :3, 3] @ R_X.T - m.A[:, :3, 3]).reshape(-1)
     t, *_ = np.linalg.lstsq(lhs, rhs, rcond=None)
-    return t
+    return np.asarray(t, dtype=float)
 
 
 def _conjugate_camera(m: RelativeMotions, R: F64) -> RelativeMotions:
