@@ -177,7 +177,8 @@ def assemble_result(
     n_out = int(np.count_nonzero(fit.outliers))
     if n_out:
         idx = ", ".join(str(int(i)) for i in index[fit.outliers][:12])
-        reasons.append(f"{n_out} outlier sample(s) left out of the estimate: {idx}")
+        fate = "kept in the estimate (loss='linear')" if loss == "linear" else "left out of the estimate"
+        reasons.append(f"{n_out} outlier sample(s) {fate}: {idx}")
         advice.append("inspect the outlier samples (detection, robot/camera time sync, target slipped)")
         verdict = "warning" if verdict == "ok" else verdict
         if n_out > accuracy.max_outlier_fraction * n:
