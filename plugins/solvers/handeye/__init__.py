@@ -1,0 +1,45 @@
+"""Hand-eye (AX=XB) and robot-world (AX=ZB) calibration: library API (no engine dependency).
+
+Entry points: :func:`calibrate_hand_eye`, :func:`calibrate_robot_world` (return
+``plugins.solvers.calibration_result.CalibrationResult``), the loaders :func:`load_pose_pairs`,
+the Cramér–Rao bound :func:`crlb_covariance` and the report :func:`format_report`.
+See docs/handeye.md for the models, conventions and file formats.
+"""
+
+from plugins.solvers.handeye.closed_form import CLOSED_FORM_METHODS, closed_form
+from plugins.solvers.handeye.crlb import crlb_covariance, rms_bounds
+from plugins.solvers.handeye.degeneracy import MotionThresholds, analyse_motions
+from plugins.solvers.handeye.io import PoseSamples, load_pose_pairs, write_pose_pairs_json
+from plugins.solvers.handeye.noise import DEFAULT_PRIOR, NoiseModel, PoseNoise
+from plugins.solvers.handeye.problem import SETUPS, Setup
+from plugins.solvers.handeye.report import format_report
+from plugins.solvers.handeye.solver import (
+    RESIDUAL_NAMES,
+    AccuracyTargets,
+    calibrate_hand_eye,
+    calibrate_robot_world,
+)
+from plugins.solvers.handeye.validation import HandEyeInputError
+
+__all__ = [
+    "CLOSED_FORM_METHODS",
+    "DEFAULT_PRIOR",
+    "RESIDUAL_NAMES",
+    "SETUPS",
+    "AccuracyTargets",
+    "HandEyeInputError",
+    "MotionThresholds",
+    "NoiseModel",
+    "PoseNoise",
+    "PoseSamples",
+    "Setup",
+    "analyse_motions",
+    "calibrate_hand_eye",
+    "calibrate_robot_world",
+    "closed_form",
+    "crlb_covariance",
+    "format_report",
+    "load_pose_pairs",
+    "rms_bounds",
+    "write_pose_pairs_json",
+]

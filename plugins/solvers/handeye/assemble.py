@@ -1,0 +1,237 @@
+"""Turning an ML fit into a CalibrationResult: covariance scaling, metrics, residual table, verdict.
+
+Covariance scaling (``covariance_scale``): with a declared noise model the covariance is the
+inverse Fisher information (``a_priori``); ``auto`` keeps it when the global chi-square test of the
+residuals accepts the declared noise (two-sided, 1 %) and otherwise scales it by the variance factor
+``chi2 / dof`` (and says so); ``a_posteriori`` always scales. With the noise estimated from the
+data the covariance is always scaled by the (near 1) variance factor.
+
+Parameters of the covariance: decoupled perturbations (``lie``) of X then Y, i.e. translation in
+the parent frame (m) and rotation about parent-frame axes (rad).
+
+Verdict rules (on top of the input and motion checks): ``failed`` when the ML did not converge,
+more than ``max_outlier_fraction`` of the samples are outliers, the residuals exceed the declared
+noise by more than ``sqrt(max_variance_factor)``, or the estimated noise exceeds
+``max_noise_*``; ``warning`` for outliers, a declared noise that does not fit, a camera length
+scale off 1, or an uncertainty of X above ``max_std_*`` (seed 000: hand-eye error below 0.5 mm).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import stats
+
+from plugins.solvers.calibration_result import CalibrationResult
+from plugins.solvers.handeye.consistency import estimate_unit_scale
+from plugins.solvers.handeye.lie import pose_delta
+from plugins.solvers.handeye.ml import Loss, MLFit
+from plugins.solvers.handeye.problem import Setup, chain_poses
+
+F64 = NDArray[np.float64]
+CovarianceScale = Literal["auto", "a_priori", "a_posteriori"]
+
+__all__ = ["RESIDUAL_NAMES", "AccuracyTargets", "CovarianceScale", "assemble_result"]
+
+RESIDUAL_NAMES: list[str] = [
+    "sample_index",
+    *(f"chain_{c}" for c in ("tx", "ty", "tz", "rx", "ry", "rz")),
+    *(f"robot_{c}" for c in ("tx", "ty", "tz", "rx", "ry", "rz")),
+    *(f"camera_{c}" for c in ("tx", "ty", "tz", "rx", "ry", "rz")),
+    "mahalanobis2",
+    "weight",
+]
+
+
+@dataclass(frozen=True)
+class AccuracyTargets:
+    """When the estimate's own uncertainty (1 sigma, RMS over axes) earns a ``warning``.
+
+    Seed 000 asks for a hand-eye calibration error below 0.5 mm.
+    """
+
+    max_std_trans_m: float = 0.5e-3
+    max_std_rot_rad: float = float(np.deg2rad(0.05))
+    max_outlier_fraction: float = 1.0 / 3.0
+    max_variance_factor: float = 25.0  # residuals 5x the declared noise -> failed
+    max_noise_trans_m: float = 0.01  # estimated noise above this -> failed (not a rigid calibration)
+    max_noise_rot_rad: float = float(np.deg2rad(1.0))
+
+
+def _spread(d: F64) -> tuple[float, float, float, float]:
+    t = np.linalg.norm(d[:, :3], axis=1)
+    r = np.linalg.norm(d[:, 3:], axis=1)
+    return (float(np.sqrt(np.mean(t**2))), float(t.max()), float(np.sqrt(np.mean(r**2))), float(r.max()))
+
+
+def _param_names(x_name: str, y_name: str) -> list[str]:
+    comps = ("tx", "ty", "tz", "rx", "ry", "rz")
+    return [f"{x_name}.{c}" for c in comps] + [f"{y_name}.{c}" for c in comps]
+
+
+def assemble_result(
+    kind: str,
+    setup: Setup,
+    x_name: str,
+    y_name: str,
+    index: NDArray[np.int64],
+    M: F64,
+    B: F64,
+    fit: MLFit,
+    init_method: str,
+    loss: Loss,
+    noise_estimated: bool,
+    covariance_scale: CovarianceScale,
+    accuracy: AccuracyTargets,
+    verdict: str,
+    reasons: list[str],
+    advice: list[str],
+    metrics: dict[str, float],
+) -> CalibrationResult:
+    n = M.shape[0]
+    inl = ~fit.outliers
+    reasons = reasons + fit.notes
+    # ---- covariance scaling
+    vf = fit.chi2 / fit.dof if fit.dof > 0 else float("nan")
+    cov_factor = 1.0
+    if fit.dof <= 0:
+        reasons.append("no redundancy (dof <= 0): the covariance cannot be checked against the residuals")
+        verdict = "warning"
+    elif noise_estimated or covariance_scale == "a_posteriori":
+        cov_factor = vf
+    elif covariance_scale == "auto":
+        lo, hi = stats.chi2.ppf([0.005, 0.995], fit.dof) / fit.dof
+        if not lo <= vf <= hi:
+            cov_factor = vf
+            verdict = "warning"
+            reasons.append(
+                f"declared noise does not fit the residuals: variance factor {vf:.3g} (residuals "
+                f"{np.sqrt(vf):.2f}x the declared sigmas, accepted range {lo:.2f}-{hi:.2f}); "
+                "covariance scaled by it"
+            )
+            advice.append(
+                "state the robot and camera noise that matches the data, or pass noise=None to estimate it"
+            )
+    cov = fit.covariance * cov_factor
+
+    # ---- pose-chain spread (each sample's own estimate of Y against the fit)
+    d_chain = pose_delta(chain_poses(setup, M, fit.X, B), np.broadcast_to(fit.Y, M.shape))
+    t_rms, t_max, r_rms, r_max = _spread(d_chain[inl])
+    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    metrics.update(
+        {
+            "n_samples": float(n),
+            "n_inliers": float(np.count_nonzero(inl)),
+            "n_outliers": float(np.count_nonzero(fit.outliers)),
+            "chain_spread_trans_rms_m": t_rms,
+            "chain_spread_trans_max_m": t_max,
+            "chain_spread_rot_rms_rad": r_rms,
+            "chain_spread_rot_max_rad": r_max,
+            "camera_residual_trans_rms_m": float(
+                np.sqrt(np.mean(np.sum(fit.e_camera[inl, :3] ** 2, axis=1)))
+            ),
+            "camera_residual_rot_rms_rad": float(
+                np.sqrt(np.mean(np.sum(fit.e_camera[inl, 3:] ** 2, axis=1)))
+            ),
+            "robot_residual_trans_rms_m": float(np.sqrt(np.mean(np.sum(fit.e_robot[inl, :3] ** 2, axis=1)))),
+            "robot_residual_rot_rms_rad": float(np.sqrt(np.mean(np.sum(fit.e_robot[inl, 3:] ** 2, axis=1)))),
+            "chi2": fit.chi2,
+            "dof": float(fit.dof),
+            "variance_factor": vf,
+            "covariance_factor": cov_factor,
+            "std_x_trans_m": float(np.sqrt(np.sum(std[0:3] ** 2))),
+            "std_x_rot_rad": float(np.sqrt(np.sum(std[3:6] ** 2))),
+            "std_y_trans_m": float(np.sqrt(np.sum(std[6:9] ** 2))),
+            "std_y_rot_rad": float(np.sqrt(np.sum(std[9:12] ** 2))),
+            "noise_robot_trans_m": float(np.mean(fit.noise.robot.trans_sigma)),
+            "noise_robot_rot_rad": float(np.mean(fit.noise.robot.rot_sigma)),
+            "noise_camera_trans_m": float(np.mean(fit.noise.camera.trans_sigma)),
+            "noise_camera_rot_rad": float(np.mean(fit.noise.camera.rot_sigma)),
+            "noise_estimated": float(noise_estimated),
+            "noise_groups_estimated": float(fit.noise_groups_estimated),
+            "threshold_scale": fit.threshold_scale,
+            "nfev": float(fit.nfev),
+        }
+    )
+
+    # ---- camera length scale on the inliers (wrong target size or intrinsics scale the camera)
+    unit = estimate_unit_scale(setup, M[inl], B[inl], robust=False) if np.count_nonzero(inl) >= 3 else None
+    if unit is not None:
+        scale, scale_sd = unit
+        metrics["unit_scale_robot_per_camera"] = scale
+        metrics["unit_scale_std"] = scale_sd
+        if abs(scale - 1.0) > max(5.0 * scale_sd, 0.005):
+            verdict = "warning" if verdict == "ok" else verdict
+            reasons.append(
+                f"camera translations look scaled by {1.0 / scale:.4f} relative to the robot's "
+                f"(+-{scale_sd / scale**2:.4f}): check the calibration-target size and the camera intrinsics"
+            )
+
+    # ---- verdict
+    if not fit.converged:
+        verdict = "failed"
+        reasons.append("the maximum-likelihood refinement did not converge")
+    n_out = int(np.count_nonzero(fit.outliers))
+    if n_out:
+        idx = ", ".join(str(int(i)) for i in index[fit.outliers][:12])
+        fate = "kept in the estimate (loss='linear')" if loss == "linear" else "left out of the estimate"
+        reasons.append(f"{n_out} outlier sample(s) {fate}: {idx}")
+        advice.append("inspect the outlier samples (detection, robot/camera time sync, target slipped)")
+        verdict = "warning" if verdict == "ok" else verdict
+        if n_out > accuracy.max_outlier_fraction * n:
+            verdict = "failed"
+            reasons.append(
+                f"too many outliers ({n_out} of {n}): the data are not consistent with one calibration"
+            )
+    if not noise_estimated and np.isfinite(vf) and vf > accuracy.max_variance_factor:
+        verdict = "failed"
+        reasons.append(
+            f"residuals are {np.sqrt(vf):.1f}x the declared noise: the model does not fit the data"
+        )
+    worst_t = max(metrics["noise_robot_trans_m"], metrics["noise_camera_trans_m"])
+    worst_r = max(metrics["noise_robot_rot_rad"], metrics["noise_camera_rot_rad"])
+    if noise_estimated and (worst_t > accuracy.max_noise_trans_m or worst_r > accuracy.max_noise_rot_rad):
+        verdict = "failed"
+        reasons.append(
+            f"the data need {worst_t * 1e3:.1f} mm / {np.rad2deg(worst_r):.2f} deg of pose noise to fit one "
+            f"rigid hand-eye transform (limits {accuracy.max_noise_trans_m * 1e3:.0f} mm / "
+            f"{np.rad2deg(accuracy.max_noise_rot_rad):.1f} deg): wrong set-up, frames, time sync or a "
+            "moving target"
+        )
+    if (
+        metrics["std_x_trans_m"] > accuracy.max_std_trans_m
+        or metrics["std_x_rot_rad"] > accuracy.max_std_rot_rad
+    ):
+        verdict = "warning" if verdict == "ok" else verdict
+        reasons.append(
+            f"{x_name} uncertainty {metrics['std_x_trans_m'] * 1e3:.3f} mm / "
+            f"{np.rad2deg(metrics['std_x_rot_rad']):.4f} deg (1 sigma) exceeds the target "
+            f"{accuracy.max_std_trans_m * 1e3:.2f} mm / {np.rad2deg(accuracy.max_std_rot_rad):.3f} deg"
+        )
+        advice.append("add poses with larger rotations about different axes, or reduce the measurement noise")
+    if not (np.all(np.isfinite(fit.X)) and np.all(np.isfinite(fit.Y)) and np.all(np.isfinite(cov))):
+        verdict = "failed"
+        reasons.append("non-finite estimate")
+
+    residuals = np.column_stack(
+        [index.astype(float), d_chain, fit.e_robot, fit.e_camera, fit.s2, fit.weights]
+    )
+    return CalibrationResult(
+        kind=kind,
+        verdict=verdict,  # type: ignore[arg-type]
+        estimate={x_name: fit.X, y_name: fit.Y, "setup": setup},
+        param_names=_param_names(x_name, y_name),
+        covariance=cov,
+        residuals=residuals,
+        residual_names=list(RESIDUAL_NAMES),
+        outliers=fit.outliers.copy(),
+        reasons=reasons,
+        advice=advice,
+        metrics=metrics,
+        method=f"{init_method} + ML (errors-in-variables, {loss} loss"
+        + (", noise estimated)" if noise_estimated else ")"),
+        iterations=fit.nfev,
+    )

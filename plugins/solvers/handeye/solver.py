@@ -1,0 +1,242 @@
+"""Hand-eye (AX=XB) and robot-world (AX=ZB) calibration: checks, initialisation, ML, verdict.
+
+Pipeline of :func:`calibrate_hand_eye` / :func:`calibrate_robot_world`:
+
+1. ``validation`` - NaN, shapes, rigidity, duplicates, millimetres (raises ``HandEyeInputError``).
+2. ``degeneracy`` - motion set analysed BEFORE solving; a degenerate set returns verdict
+   ``degenerate`` with the reasons and the poses to add, and no estimate.
+3. ``consistency`` - wrong set-up or inverted poses (verdict ``failed``), mixed units (error).
+4. ``consensus`` (least median of squares over pose triples) finds gross outliers; closed forms
+   (``closed_form``; all of them for ``init="auto"``, the one with the smallest median pose-chain
+   cost wins) run on the consensus set.
+5. ``ml`` - maximum likelihood on SE(3) with both noise models, robust loss, outlier flags,
+   optional noise estimation, covariance.
+
+6. ``assemble`` - covariance scaling, pose-chain spread, residual table, metrics and verdict.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from engine.transforms import angle_between
+from plugins.solvers.calibration_result import CalibrationResult
+from plugins.solvers.handeye.assemble import RESIDUAL_NAMES, AccuracyTargets, CovarianceScale, assemble_result
+from plugins.solvers.handeye.closed_form import CLOSED_FORM_METHODS, closed_form
+from plugins.solvers.handeye.consensus import lmeds_consensus, pose_chain_cost
+from plugins.solvers.handeye.consistency import check_setup_consistency, estimate_unit_scale
+from plugins.solvers.handeye.degeneracy import MotionThresholds, analyse_motions
+from plugins.solvers.handeye.ml import Loss, MLOptions, refine_ml
+from plugins.solvers.handeye.noise import DEFAULT_PRIOR, NoiseModel
+from plugins.solvers.handeye.problem import Setup, check_setup, frames_of
+from plugins.solvers.handeye.validation import HandEyeInputError, validate_samples
+
+F64 = NDArray[np.float64]
+
+__all__ = [
+    "RESIDUAL_NAMES",
+    "AccuracyTargets",
+    "calibrate_hand_eye",
+    "calibrate_robot_world",
+]
+
+
+def _initialise(
+    setup: Setup, M: F64, B: F64, methods: Sequence[str], noise: NoiseModel
+) -> tuple[str, F64, F64, dict[str, tuple[F64, F64]]]:
+    cands: dict[str, tuple[F64, F64]] = {}
+    for m in methods:
+        X, Y = closed_form(setup, M, B, m)
+        if np.all(np.isfinite(X)) and np.all(np.isfinite(Y)):
+            cands[m] = (X, Y)
+    if not cands:  # cannot happen with validated input; kept so that NaN never reaches the ML
+        raise FloatingPointError("every closed-form initialiser returned non-finite values")
+    best = min(cands, key=lambda k: float(np.median(pose_chain_cost(setup, M, B, *cands[k], noise))))
+    return best, *cands[best], cands
+
+
+def _calibrate(
+    kind: str,
+    T_base_tcp: Sequence[ArrayLike] | ArrayLike,
+    T_cam_target: Sequence[ArrayLike] | ArrayLike,
+    *,
+    setup: Setup,
+    noise: NoiseModel | None,
+    estimate_noise: bool | None,
+    init: str,
+    loss: Loss,
+    covariance_scale: CovarianceScale,
+    motion_thresholds: MotionThresholds | None,
+    accuracy: AccuracyTargets,
+    seed: int,
+) -> CalibrationResult:
+    setup = check_setup(setup)
+    if init != "auto" and init not in CLOSED_FORM_METHODS:
+        raise ValueError(f"init must be 'auto' or one of {list(CLOSED_FORM_METHODS)}, got {init!r}")
+    if covariance_scale not in ("auto", "a_priori", "a_posteriori"):
+        raise ValueError(f"covariance_scale must be auto, a_priori or a_posteriori, got {covariance_scale!r}")
+    frames = frames_of(setup)
+    data = validate_samples(T_base_tcp, T_cam_target)
+    M, B = data.T_base_tcp, data.T_cam_target
+    reasons = list(data.warnings)
+    advice: list[str] = []
+    verdict = "warning" if reasons else "ok"
+
+    motion = analyse_motions(setup, M, B, motion_thresholds)
+    metrics: dict[str, float] = dict(motion.metrics)
+    metrics["n_samples_given"] = float(len(np.atleast_3d(np.asarray(T_base_tcp, dtype=float))))
+    if motion.verdict == "degenerate":
+        return CalibrationResult(
+            kind=kind,
+            verdict="degenerate",
+            reasons=reasons + motion.reasons,
+            advice=motion.advice,
+            metrics=metrics,
+            method="motion analysis (not solved)",
+        )
+    if motion.verdict == "warning":
+        verdict = "warning"
+    reasons += motion.reasons
+    advice += motion.advice
+
+    sc = check_setup_consistency(setup, M, B)
+    for (s, _), v in sc.mismatch.items():
+        metrics[f"axis_misfit_{s}_rad"] = v
+    if sc.wrong:
+        return CalibrationResult(
+            kind=kind,
+            verdict="failed",
+            reasons=[*reasons, sc.message],
+            advice=[
+                "check the set-up (eye_in_hand: camera on the flange; eye_to_hand: camera fixed) and that "
+                "robot poses are T_base_tcp and camera poses T_cam_target; the data fit "
+                f"setup={sc.best[0]!r} as given"
+            ],
+            metrics=metrics,
+            method="consistency check (not solved)",
+        )
+    unit = estimate_unit_scale(setup, M, B)
+    if unit is not None:
+        scale, scale_sd = unit
+        if not 0.5 <= scale <= 2.0 and abs(scale - 1.0) > 5.0 * scale_sd:
+            side = "camera" if scale < 1 else "robot"
+            raise HandEyeInputError(
+                f"mixed length units: robot translations = {scale:.4g} x camera translations; the {side} "
+                "poses are probably in other units (millimetres?). Convert both to metres"
+            )
+
+    estimate_noise = (noise is None) if estimate_noise is None else estimate_noise
+    noise0 = noise if noise is not None else DEFAULT_PRIOR
+
+    methods = list(CLOSED_FORM_METHODS) if init == "auto" else [init]
+    weights0 = np.ones(data.n)
+    try:
+        best, X0, Y0, cands = _initialise(setup, M, B, methods, noise0)
+    except FloatingPointError as exc:
+        return CalibrationResult(kind=kind, verdict="failed", reasons=[*reasons, str(exc)], metrics=metrics)
+    cost = pose_chain_cost(setup, M, B, X0, Y0, noise0)
+    # suspicious samples, or chains far beyond the noise (a start spoilt by many outliers)
+    if np.max(cost) > 3.0 * np.median(cost) or np.median(cost) > 10.0:
+        consensus = lmeds_consensus(setup, M, B, noise0, seed=seed)
+        if consensus is not None and 3 <= np.count_nonzero(~consensus.outliers) < data.n:
+            keep = ~consensus.outliers
+            weights0 = keep.astype(float)
+            metrics["consensus_outliers"] = float(np.count_nonzero(consensus.outliers))
+            best, X0, Y0, cands = _initialise(setup, M[keep], B[keep], methods, noise0)
+    if len(cands) > 1:
+        Xs = [c[0] for c in cands.values()]
+        metrics["closed_form_spread_trans_m"] = max(
+            float(np.linalg.norm(a[:3, 3] - b[:3, 3])) for a in Xs for b in Xs
+        )
+        metrics["closed_form_spread_rot_rad"] = max(
+            angle_between(a[:3, :3], b[:3, :3]) for a in Xs for b in Xs
+        )
+
+    fit = refine_ml(
+        setup,
+        M,
+        B,
+        X0,
+        Y0,
+        noise0,
+        options=MLOptions(loss=loss, estimate_noise=estimate_noise),
+        initial_weights=weights0,
+    )
+    return assemble_result(
+        kind, setup, frames.x_name, frames.y_name, data.index, M, B, fit, best, loss, estimate_noise,
+        covariance_scale, accuracy, verdict, reasons, advice, metrics,
+    )  # fmt: skip
+
+
+def calibrate_hand_eye(
+    T_base_tcp: Sequence[ArrayLike] | ArrayLike,
+    T_cam_target: Sequence[ArrayLike] | ArrayLike,
+    *,
+    setup: Setup = "eye_in_hand",
+    noise: NoiseModel | None = None,
+    estimate_noise: bool | None = None,
+    init: str = "auto",
+    loss: Loss = "huber",
+    covariance_scale: CovarianceScale = "auto",
+    motion_thresholds: MotionThresholds | None = None,
+    accuracy: AccuracyTargets | None = None,
+    seed: int = 0,
+) -> CalibrationResult:
+    """Hand-eye calibration (AX = XB) from robot poses T_base_tcp and camera observations T_cam_target.
+
+    Args:
+        T_base_tcp: robot flange/TCP poses in the base frame, ``(n, 4, 4)`` in metres.
+        T_cam_target: calibration target poses seen by the camera, ``(n, 4, 4)`` in metres.
+        setup: ``"eye_in_hand"`` (estimates ``T_tcp_cam`` and the fixed ``T_base_target``) or
+            ``"eye_to_hand"`` (estimates ``T_base_cam`` and the target on the flange ``T_tcp_target``).
+        noise: declared robot / camera noise; ``None`` estimates it from the data.
+        estimate_noise: force noise estimation on or off (default: on exactly when ``noise`` is None).
+        init: ``"auto"`` (best of all closed forms) or one of ``tsai_lenz``, ``park_martin``,
+            ``daniilidis``, ``shah``.
+        loss: ``"huber"`` (default), ``"cauchy"`` or ``"linear"`` (plain ML, no down-weighting).
+        covariance_scale: see the module docstring.
+        seed: seed of the random choice of pose triples in the outlier consensus (``consensus``).
+
+    Returns:
+        CalibrationResult with estimate ``{x_name, y_name, "setup"}``, 12x12 covariance, per-sample
+        residuals (``RESIDUAL_NAMES``), outlier flags, verdict, reasons, advice and metrics.
+
+    Raises:
+        HandEyeInputError: unusable input (NaN, shapes, non-rigid poses, millimetres, mixed units).
+    """
+    return _calibrate(
+        "hand_eye", T_base_tcp, T_cam_target, setup=setup, noise=noise, estimate_noise=estimate_noise,
+        init=init, loss=loss, covariance_scale=covariance_scale, motion_thresholds=motion_thresholds,
+        accuracy=accuracy or AccuracyTargets(), seed=seed,
+    )  # fmt: skip
+
+
+def calibrate_robot_world(
+    T_base_tcp: Sequence[ArrayLike] | ArrayLike,
+    T_cam_target: Sequence[ArrayLike] | ArrayLike,
+    *,
+    setup: Setup = "eye_in_hand",
+    noise: NoiseModel | None = None,
+    estimate_noise: bool | None = None,
+    init: str = "shah",
+    loss: Loss = "huber",
+    covariance_scale: CovarianceScale = "auto",
+    motion_thresholds: MotionThresholds | None = None,
+    accuracy: AccuracyTargets | None = None,
+    seed: int = 0,
+) -> CalibrationResult:
+    """Robot-world + hand-eye calibration (AX = ZB): X and Z estimated jointly, both reported.
+
+    Same data and arguments as :func:`calibrate_hand_eye`; ``A_i = T_base_tcp_i`` (or its inverse
+    for eye-to-hand), ``B_i = T_cam_target_i^-1``, X the hand-eye transform and Z = ``T_base_target``
+    (eye-in-hand) or ``T_tcp_target`` (eye-to-hand). Initialised with Shah's Kronecker closed form by
+    default; the ML refinement and the result are those of the hand-eye solver.
+    """
+    return _calibrate(
+        "robot_world", T_base_tcp, T_cam_target, setup=setup, noise=noise, estimate_noise=estimate_noise,
+        init=init, loss=loss, covariance_scale=covariance_scale, motion_thresholds=motion_thresholds,
+        accuracy=accuracy or AccuracyTargets(), seed=seed,
+    )  # fmt: skip
