@@ -235,10 +235,7 @@ def print_summary(result: dict) -> None:
     for key, m in result["opencv_protocol"].items():
         a = (m["as_opencv_runs_worst_rvec_rad"], m["as_opencv_runs_worst_t_m"])
         b = (m["as_described_worst_rvec_rad"], m["as_described_worst_t_m"])
-        print(
-            f"  {key:18s} as OpenCV runs: {a[0]:.4f} rad {a[1]:.4f} m | "
-            f"as described: {b[0]:.4f} rad {b[1]:.4f} m"
-        )
+        print(f"  {key:18s} as OpenCV runs: {a[0]:.4f} rad {a[1]:.4f} m | as described: {b[0]:.4f} rad {b[1]:.4f} m")
     for name, c in result["coverage"].items():
         print(
             f"coverage of vgr's 95 % ellipsoid, {name}, {c['trials']} trials: "
@@ -270,13 +267,11 @@ def main() -> None:
             "opencv": cv2.__version__,
         },
         "scenarios": {
-            name: run_scenario(name, noise, args.trials, args.poses, args.seed)
-            for name, noise in SCENARIOS.items()
+            name: run_scenario(name, noise, args.trials, args.poses, args.seed) for name, noise in SCENARIOS.items()
         },
         "opencv_protocol": run_opencv_protocol(args.seed),
         "coverage": {
-            name: run_coverage(noise, args.coverage_trials, args.poses, args.seed)
-            for name, noise in SCENARIOS.items()
+            name: run_coverage(noise, args.coverage_trials, args.poses, args.seed) for name, noise in SCENARIOS.items()
         },
     }
     result["wall_time_s"] = time.time() - t0

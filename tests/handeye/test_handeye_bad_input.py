@@ -11,9 +11,7 @@ from plugins.solvers.handeye import simulate as sim
 from plugins.solvers.handeye.lie import pose_delta
 
 NOISE = NoiseModel.isotropic(0.02, 0.1, 0.1, 0.5)
-SCENE = sim.add_noise(
-    sim.viewing_scene(np.random.default_rng(40), 12, "eye_in_hand"), NOISE, np.random.default_rng(41)
-)
+SCENE = sim.add_noise(sim.viewing_scene(np.random.default_rng(40), 12, "eye_in_hand"), NOISE, np.random.default_rng(41))
 CLEAN = calibrate_hand_eye(SCENE.T_base_tcp, SCENE.T_cam_target, noise=NOISE)
 FAST = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

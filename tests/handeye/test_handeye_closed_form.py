@@ -98,7 +98,5 @@ def test_small_relative_rotations_do_not_spoil_the_estimate():
         sim.Scene("eye_in_hand", M, B, scene.X, scene.Y), NoiseModel.isotropic(0.01, 0.05, 0.05, 0.2), rng
     )
     for method in CLOSED_FORM_METHODS:
-        (tx, rx), _ = _errors(
-            method, sim.Scene("eye_in_hand", noisy.T_base_tcp, noisy.T_cam_target, scene.X, scene.Y)
-        )
+        (tx, rx), _ = _errors(method, sim.Scene("eye_in_hand", noisy.T_base_tcp, noisy.T_cam_target, scene.X, scene.Y))
         assert tx < 0.005 and np.rad2deg(rx) < 0.3, method

@@ -60,9 +60,7 @@ def test_too_few_poses_is_degenerate(n):
 
 def test_weak_rotation_diversity_is_a_warning_with_advice():
     rng = np.random.default_rng(34)
-    scene = sim.add_noise(
-        sim.viewing_scene(rng, 12, "eye_in_hand", max_tilt_deg=6.0, max_roll_deg=60.0), NOISE, rng
-    )
+    scene = sim.add_noise(sim.viewing_scene(rng, 12, "eye_in_hand", max_tilt_deg=6.0, max_roll_deg=60.0), NOISE, rng)
     res = calibrate_hand_eye(scene.T_base_tcp, scene.T_cam_target, noise=NOISE)
     assert res.verdict == "warning" and res.usable
     assert any("weak rotation diversity" in r for r in res.reasons)

@@ -20,9 +20,7 @@ def _monte_carlo(setup: str, noise: NoiseModel, n_poses: int, trials: int, seed:
     err, inside = [], 0
     for _ in range(trials):
         meas = sim.add_noise(scene, noise, rng)
-        res = calibrate_hand_eye(
-            meas.T_base_tcp, meas.T_cam_target, setup=setup, noise=None if estimate else noise
-        )
+        res = calibrate_hand_eye(meas.T_base_tcp, meas.T_cam_target, setup=setup, noise=None if estimate else noise)
         x_name = res.param_names[0].split(".")[0]
         d = pose_delta(res.estimate[x_name], scene.X)[0]
         err.append(d)

@@ -58,9 +58,7 @@ def _numeric_dd(f, T: np.ndarray, h: float = 1e-6) -> np.ndarray:
     for k in range(6):
         d = np.zeros((1, 6))
         d[0, k] = h
-        J[:, k] = (
-            pose_delta(f(retract(T[None], d)), base)[0] - pose_delta(f(retract(T[None], -d)), base)[0]
-        ) / (2 * h)
+        J[:, k] = (pose_delta(f(retract(T[None], d)), base)[0] - pose_delta(f(retract(T[None], -d)), base)[0]) / (2 * h)
     return J
 
 

@@ -112,9 +112,7 @@ def assemble_result(
                 f"{np.sqrt(vf):.2f}x the declared sigmas, accepted range {lo:.2f}-{hi:.2f}); "
                 "covariance scaled by it"
             )
-            advice.append(
-                "state the robot and camera noise that matches the data, or pass noise=None to estimate it"
-            )
+            advice.append("state the robot and camera noise that matches the data, or pass noise=None to estimate it")
     cov = fit.covariance * cov_factor
 
     # ---- pose-chain spread (each sample's own estimate of Y against the fit)
@@ -130,12 +128,8 @@ def assemble_result(
             "chain_spread_trans_max_m": t_max,
             "chain_spread_rot_rms_rad": r_rms,
             "chain_spread_rot_max_rad": r_max,
-            "camera_residual_trans_rms_m": float(
-                np.sqrt(np.mean(np.sum(fit.e_camera[inl, :3] ** 2, axis=1)))
-            ),
-            "camera_residual_rot_rms_rad": float(
-                np.sqrt(np.mean(np.sum(fit.e_camera[inl, 3:] ** 2, axis=1)))
-            ),
+            "camera_residual_trans_rms_m": float(np.sqrt(np.mean(np.sum(fit.e_camera[inl, :3] ** 2, axis=1)))),
+            "camera_residual_rot_rms_rad": float(np.sqrt(np.mean(np.sum(fit.e_camera[inl, 3:] ** 2, axis=1)))),
             "robot_residual_trans_rms_m": float(np.sqrt(np.mean(np.sum(fit.e_robot[inl, :3] ** 2, axis=1)))),
             "robot_residual_rot_rms_rad": float(np.sqrt(np.mean(np.sum(fit.e_robot[inl, 3:] ** 2, axis=1)))),
             "chi2": fit.chi2,
@@ -183,14 +177,10 @@ def assemble_result(
         verdict = "warning" if verdict == "ok" else verdict
         if n_out > accuracy.max_outlier_fraction * n:
             verdict = "failed"
-            reasons.append(
-                f"too many outliers ({n_out} of {n}): the data are not consistent with one calibration"
-            )
+            reasons.append(f"too many outliers ({n_out} of {n}): the data are not consistent with one calibration")
     if not noise_estimated and np.isfinite(vf) and vf > accuracy.max_variance_factor:
         verdict = "failed"
-        reasons.append(
-            f"residuals are {np.sqrt(vf):.1f}x the declared noise: the model does not fit the data"
-        )
+        reasons.append(f"residuals are {np.sqrt(vf):.1f}x the declared noise: the model does not fit the data")
     worst_t = max(metrics["noise_robot_trans_m"], metrics["noise_camera_trans_m"])
     worst_r = max(metrics["noise_robot_rot_rad"], metrics["noise_camera_rot_rad"])
     if noise_estimated and (worst_t > accuracy.max_noise_trans_m or worst_r > accuracy.max_noise_rot_rad):
@@ -201,10 +191,7 @@ def assemble_result(
             f"{np.rad2deg(accuracy.max_noise_rot_rad):.1f} deg): wrong set-up, frames, time sync or a "
             "moving target"
         )
-    if (
-        metrics["std_x_trans_m"] > accuracy.max_std_trans_m
-        or metrics["std_x_rot_rad"] > accuracy.max_std_rot_rad
-    ):
+    if metrics["std_x_trans_m"] > accuracy.max_std_trans_m or metrics["std_x_rot_rad"] > accuracy.max_std_rot_rad:
         verdict = "warning" if verdict == "ok" else verdict
         reasons.append(
             f"{x_name} uncertainty {metrics['std_x_trans_m'] * 1e3:.3f} mm / "
@@ -216,9 +203,7 @@ def assemble_result(
         verdict = "failed"
         reasons.append("non-finite estimate")
 
-    residuals = np.column_stack(
-        [index.astype(float), d_chain, fit.e_robot, fit.e_camera, fit.s2, fit.weights]
-    )
+    residuals = np.column_stack([index.astype(float), d_chain, fit.e_robot, fit.e_camera, fit.s2, fit.weights])
     return CalibrationResult(
         kind=kind,
         verdict=verdict,  # type: ignore[arg-type]

@@ -61,9 +61,7 @@ def check_setup_consistency(
         mismatch[(s, False)] = float(np.median(misfit))
     chosen = (setup, False)
     best = min(mismatch, key=mismatch.__getitem__)
-    wrong = (
-        best != chosen and mismatch[chosen] > ratio * mismatch[best] and mismatch[chosen] > min_mismatch_rad
-    )
+    wrong = best != chosen and mismatch[chosen] > ratio * mismatch[best] and mismatch[chosen] > min_mismatch_rad
     message = ""
     if wrong:
         message = (

@@ -119,9 +119,7 @@ def analyse_motions(
             f"{np.rad2deg(max_rot):.2f} deg (< {th.min_total_rotation_deg} deg); translations alone do not "
             "determine the hand-eye rotation"
         )
-        rep.advice.append(
-            f"rotate the {mover} by 20-30 degrees between poses, about at least two different axes"
-        )
+        rep.advice.append(f"rotate the {mover} by 20-30 degrees between poses, about at least two different axes")
         return rep
 
     ex_min = float(np.rad2deg(excitation[0]))

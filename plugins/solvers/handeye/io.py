@@ -77,9 +77,7 @@ def _pose(position: Any, quat: Any = None, rotvec: Any = None, *, where: str) ->
         return T_from_pose7(p, q)
     r = np.asarray(rotvec, dtype=float).reshape(3)
     if np.linalg.norm(r) > 2.0 * np.pi + 1e-9:
-        raise HandEyeInputError(
-            f"{where}: rotation vector {r} is longer than 2 pi: degrees instead of radians?"
-        )
+        raise HandEyeInputError(f"{where}: rotation vector {r} is longer than 2 pi: degrees instead of radians?")
     return T_from_rotvec(r, p)
 
 
@@ -106,22 +104,15 @@ def load_pose_pairs_json(path: str | Path, *, length_unit: str | None = None) ->
     ids: list[str] = []
     if isinstance(data, dict):
         if data.get("format") != VGR_FORMAT:
-            raise HandEyeInputError(
-                f"{path}: unknown JSON format {data.get('format')!r}; expected {VGR_FORMAT!r}"
-            )
+            raise HandEyeInputError(f"{path}: unknown JSON format {data.get('format')!r}; expected {VGR_FORMAT!r}")
         file_unit = data.get("length_unit", "m")
         if length_unit is not None and length_unit != file_unit:
-            raise HandEyeInputError(
-                f"{path}: file says length_unit={file_unit!r} but {length_unit!r} was asked"
-            )
+            raise HandEyeInputError(f"{path}: file says length_unit={file_unit!r} but {length_unit!r} was asked")
         length_unit = file_unit
         setup = data.get("setup")
         samples = data.get("samples", [])
         M = [_pose_from_json(s["T_base_tcp"], f"{path} sample {k} T_base_tcp") for k, s in enumerate(samples)]
-        B = [
-            _pose_from_json(s["T_cam_target"], f"{path} sample {k} T_cam_target")
-            for k, s in enumerate(samples)
-        ]
+        B = [_pose_from_json(s["T_cam_target"], f"{path} sample {k} T_cam_target") for k, s in enumerate(samples)]
         ids = [str(s.get("id", k)) for k, s in enumerate(samples)]
     elif isinstance(data, list):
         M, B = [], []
@@ -168,8 +159,7 @@ def load_pose_pairs_csv(path: str | Path, *, length_unit: str = "m") -> PoseSamp
         rvec = {prefix + c for c in ("rx", "ry", "rz")}
         if not pos <= cols or not (quat <= cols or rvec <= cols):
             raise HandEyeInputError(
-                f"{path}: missing columns for {prefix}*: need {sorted(pos)} and either {sorted(quat)} "
-                f"or {sorted(rvec)}"
+                f"{path}: missing columns for {prefix}*: need {sorted(pos)} and either {sorted(quat)} or {sorted(rvec)}"
             )
     M, B, ids = [], [], []
     for k, row in enumerate(reader):

@@ -195,9 +195,7 @@ def refine_ml(
         converged &= ok
         s2 = _per_sample_cost(model, model.state(np.zeros(model.n_params)))
         scale = threshold_scale(s2, weights > 0.5)
-        new_w = _robust_weights(
-            s2, opts.loss, float(stats.chi2.ppf(opts.robust_quantile, DOF_PER_SAMPLE)) * scale
-        )
+        new_w = _robust_weights(s2, opts.loss, float(stats.chi2.ppf(opts.robust_quantile, DOF_PER_SAMPLE)) * scale)
         if opts.loss != "linear":  # beyond the outlier threshold a sample no longer pulls at all
             new_w[s2 > float(stats.chi2.ppf(opts.outlier_quantile, DOF_PER_SAMPLE)) * scale] = 0.0
         done = np.max(np.abs(new_w - weights)) < 1e-3

@@ -131,11 +131,7 @@ class EivModel:
             Jg_cam = np.concatenate([Wc * (dEB @ dB_dX @ K_X), Wc * (dEB @ dB_dY @ K_Y)], axis=2)
             if self.robot_free:
                 K_M = _blockdiag_I_J(so3_left_jacobian(dM[:, 3:]))
-                dC_dM = (
-                    d_inverse(M)
-                    if self.setup == "eye_in_hand"
-                    else np.broadcast_to(np.eye(6), (self.n, 6, 6))
-                )
+                dC_dM = d_inverse(M) if self.setup == "eye_in_hand" else np.broadcast_to(np.eye(6), (self.n, 6, 6))
                 dB_dM = d_product_right(Xi)[0] @ d_product_left(C, Y) @ dC_dM
                 dEM = -_blockdiag_I_J(so3_right_jacobian_inv(e_robot[:, 3:]))
                 Wr = self.w_robot[None, :, None]

@@ -63,17 +63,11 @@ def add_noise(scene: Scene, noise: NoiseModel, rng: np.random.Generator) -> Scen
 
 def _default_unknowns(setup: Setup) -> tuple[F64, F64]:
     if setup == "eye_in_hand":
-        X = T_from_Rt(
-            Rotation.from_euler("xyz", [3.0, -2.0, 91.0], degrees=True).as_matrix(), [0.05, -0.03, 0.08]
-        )
+        X = T_from_Rt(Rotation.from_euler("xyz", [3.0, -2.0, 91.0], degrees=True).as_matrix(), [0.05, -0.03, 0.08])
         Y = T_from_Rt(Rotation.from_euler("z", 25.0, degrees=True).as_matrix(), [0.65, 0.12, 0.02])
     else:
-        X = T_from_Rt(
-            Rotation.from_euler("xyz", [-150.0, 5.0, 80.0], degrees=True).as_matrix(), [0.9, -0.2, 1.1]
-        )
-        Y = T_from_Rt(
-            Rotation.from_euler("xyz", [0.0, 180.0, 30.0], degrees=True).as_matrix(), [0.0, 0.02, 0.12]
-        )
+        X = T_from_Rt(Rotation.from_euler("xyz", [-150.0, 5.0, 80.0], degrees=True).as_matrix(), [0.9, -0.2, 1.1])
+        Y = T_from_Rt(Rotation.from_euler("xyz", [0.0, 180.0, 30.0], degrees=True).as_matrix(), [0.0, 0.02, 0.12])
     return X, Y
 
 
@@ -115,9 +109,7 @@ def viewing_scene(
     return Scene(setup, M, B, X, Y)
 
 
-def _opencv_pose(
-    rng: np.random.Generator, theta_range: tuple[float, float], t_range: tuple[float, float]
-) -> F64:
+def _opencv_pose(rng: np.random.Generator, theta_range: tuple[float, float], t_range: tuple[float, float]) -> F64:
     axis = rng.uniform(-1.0, 1.0, size=3)  # not normalised, as in the original generator
     theta = rng.uniform(*theta_range) * np.sign(rng.uniform(-1.0, 1.0))
     t = rng.uniform(*t_range, size=3) * np.sign(rng.uniform(-1.0, 1.0, size=3))

@@ -148,12 +148,8 @@ def _calibrate(
             best, X0, Y0, cands = _initialise(setup, M[keep], B[keep], methods, noise0)
     if len(cands) > 1:
         Xs = [c[0] for c in cands.values()]
-        metrics["closed_form_spread_trans_m"] = max(
-            float(np.linalg.norm(a[:3, 3] - b[:3, 3])) for a in Xs for b in Xs
-        )
-        metrics["closed_form_spread_rot_rad"] = max(
-            angle_between(a[:3, :3], b[:3, :3]) for a in Xs for b in Xs
-        )
+        metrics["closed_form_spread_trans_m"] = max(float(np.linalg.norm(a[:3, 3] - b[:3, 3])) for a in Xs for b in Xs)
+        metrics["closed_form_spread_rot_rad"] = max(angle_between(a[:3, :3], b[:3, :3]) for a in Xs for b in Xs)
 
     fit = refine_ml(
         setup,

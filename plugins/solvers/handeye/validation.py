@@ -66,9 +66,7 @@ def _list(idx: NDArray[np.int64], limit: int = 8) -> str:
     return ", ".join(items) + (f" ... ({len(idx)} in all)" if len(idx) > limit else "")
 
 
-def _check_finite_and_rigid(
-    A: F64, name: str, exact_tol: float, repair_tol: float, warnings: list[str]
-) -> F64:
+def _check_finite_and_rigid(A: F64, name: str, exact_tol: float, repair_tol: float, warnings: list[str]) -> F64:
     bad = np.flatnonzero(~np.all(np.isfinite(A), axis=(1, 2)))
     if bad.size:
         raise HandEyeInputError(f"{name}: NaN or infinity in sample(s) {_list(bad)}")
@@ -80,8 +78,7 @@ def _check_finite_and_rigid(
     bad = np.flatnonzero(det <= 0.0)
     if bad.size:
         raise HandEyeInputError(
-            f"{name}: rotation has det <= 0 (a reflection, e.g. a left-handed frame) in sample(s) "
-            f"{_list(bad)}"
+            f"{name}: rotation has det <= 0 (a reflection, e.g. a left-handed frame) in sample(s) {_list(bad)}"
         )
     dev = np.max(np.abs(np.transpose(R, (0, 2, 1)) @ R - np.eye(3)), axis=(1, 2))
     bad = np.flatnonzero(dev > repair_tol)
@@ -159,9 +156,7 @@ def validate_samples(
     M = _as_stack(T_base_tcp, "robot poses T_base_tcp")
     B = _as_stack(T_cam_target, "camera poses T_cam_target")
     if M.shape[0] != B.shape[0]:
-        raise HandEyeInputError(
-            f"{M.shape[0]} robot poses but {B.shape[0]} camera poses: every sample needs both"
-        )
+        raise HandEyeInputError(f"{M.shape[0]} robot poses but {B.shape[0]} camera poses: every sample needs both")
     if M.shape[0] == 0:
         raise HandEyeInputError("no samples")
     warnings: list[str] = []
