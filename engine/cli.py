@@ -12,7 +12,7 @@ import logging
 import signal
 import sys
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 from rich.console import Console
@@ -230,8 +230,10 @@ def cmd_schemas(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------- parser
 
-# Modules of later capabilities add their verbs here (each: add(subparsers)).
-EXTRA_VERBS: list[Callable[[argparse._SubParsersAction], None]] = []  # type: ignore[type-arg]
+# Modules that add verbs: each has ``add_verbs(subparsers)``; add a line per capability.
+VERB_MODULES: list[str] = [
+    "engine.cli_recording",
+]
 
 
 def _add_recipe_args(p: argparse.ArgumentParser) -> None:
@@ -281,14 +283,14 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("schemas", help="print the protobuf schema of every message type")
     p.set_defaults(func=cmd_schemas)
 
-    cli_recording.add_verbs(sub)
-    for add in EXTRA_VERBS:
-        add(sub)
+    import importlib
+
+    for name in VERB_MODULES:
+        importlib.import_module(name).add_verbs(sub)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    _load_cli_extensions()
     parser = build_parser()
     args = parser.parse_args(argv)
     level = logging.WARNING - 10 * min(args.verbose, 2)
@@ -307,20 +309,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         console.print("[yellow]interrupted[/]")
         return EXIT_INTERRUPTED
 
-
-def _load_cli_extensions() -> None:
-    """Import the modules that register extra verbs/observers (kept out of start-up otherwise)."""
-    import importlib
-
-    for mod in CLI_EXTENSION_MODULES:
-        try:
-            importlib.import_module(mod)
-        except ModuleNotFoundError as exc:
-            if exc.name != mod:
-                raise
-
-
-CLI_EXTENSION_MODULES: list[str] = []
 
 if __name__ == "__main__":
     sys.exit(main())
