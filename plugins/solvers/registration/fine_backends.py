@@ -75,7 +75,7 @@ def _open3d(kind: str) -> Callable[[PreparedCloud, PreparedCloud, np.ndarray, Ic
         current: PreparedCloud, template: PreparedCloud, T_init: np.ndarray, s: IcpSettings
     ) -> BackendOutput:
         crit = reg.ICPConvergenceCriteria(
-            relative_fitness=1e-9, relative_rmse=1e-9, max_iteration=s.max_iterations
+            relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=s.max_iterations
         )
         with open3d_threads(s.num_threads):
             src, tgt = current.open3d(), template.open3d()

@@ -39,7 +39,8 @@ class GlobalParams:
     ``method``: ``planar`` (seed 004 correction only), ``fpfh`` (FPFH + RANSAC only) or ``auto`` (both
     generators; planar is skipped, with a note, when either cloud has no dominant plane).
     ``coarse_voxel_m``: voxel of the hypothesis stage (default 2x the fine voxel, at least the
-    template's spacing). ``max_refined``: coarse hypotheses refined by ICP. ``ambiguity_gap``: minimum
+    template's spacing). ``max_refined``: coarse hypotheses refined by ICP (with ``coarse_backend``,
+    GICP by default: the widest basin of convergence). ``ambiguity_gap``: minimum
     relative score gap ``(s_runner_up - s_best) / s_runner_up`` for an unambiguous result.
     Hypotheses closer than ``distinct_translation_m`` (at the part centre) and ``distinct_rotation_rad``
     are the same pose. ``seed`` fixes every random choice (RANSAC, plane RANSAC).
@@ -50,7 +51,8 @@ class GlobalParams:
     coarse_voxel_m: float | None = None
     fpfh: FpfhParams = field(default_factory=FpfhParams)
     planar: PlanarParams = field(default_factory=PlanarParams)
-    max_refined: int = 6
+    max_refined: int = 4
+    coarse_backend: str = "small_gicp_gicp"
     ambiguity_gap: float = 0.1
     distinct_translation_m: float = 0.003
     distinct_rotation_rad: float = float(np.radians(3.0))
@@ -65,11 +67,12 @@ def _same_pose(Ta: np.ndarray, Tb: np.ndarray, center: np.ndarray, params: Globa
     )
 
 
-def _coarse_fine_params(fine: FineParams, coarse: PreparedCloud) -> FineParams:
+def _coarse_fine_params(fine: FineParams, coarse: PreparedCloud, backend: str) -> FineParams:
     """ICP settings for refining coarse hypotheses on the coarse clouds (wider basin, looser stop)."""
     res = coarse.resolution()
     return replace(
         fine,
+        backend=backend,
         preprocess=replace(fine.preprocess, voxel_size_m=coarse.voxel_size_m),
         max_correspondence_m=4.0 * res,
         inlier_distance_m=1.5 * res,
@@ -77,6 +80,8 @@ def _coarse_fine_params(fine: FineParams, coarse: PreparedCloud) -> FineParams:
         max_iterations=30,
         rotation_eps_rad=1e-4,
         translation_eps_m=1e-5,
+        recheck_iterations=0,
+        polish_voxel_m=None,
     )
 
 
@@ -96,13 +101,13 @@ def register_global(current: Any, template: Any, params: GlobalParams | None = N
         cur = prepare_cloud(current, fine_pp, name="current")
         coarse_voxel = params.coarse_voxel_m or max(2.0 * fine_pp.voxel_size_m, tmpl.spacing())
         coarse_pp = fine_pp.coarser(coarse_voxel)
-        tmpl_c = prepare_cloud(tmpl.points, coarse_pp, name="template")
-        cur_c = prepare_cloud(cur.points, coarse_pp, name="current")
+        tmpl_c = prepare_cloud(tmpl, coarse_pp, name="template")
+        cur_c = prepare_cloud(cur, coarse_pp, name="current")
     except InvalidInputError as exc:
         return failed(method, str(exc))
     timings["preprocess"] = time.perf_counter() - t0
 
-    coarse_params = _coarse_fine_params(params.fine, tmpl_c)
+    coarse_params = _coarse_fine_params(params.fine, tmpl_c, params.coarse_backend)
     trunc_c = coarse_params.truncation_m or 3.0 * tmpl_c.resolution()
     candidates: list[tuple[np.ndarray, str]] = []
     t1 = time.perf_counter()
@@ -162,24 +167,30 @@ def register_global(current: Any, template: Any, params: GlobalParams | None = N
     refined_c.sort(key=lambda x: x[0])
     timings["coarse_icp"] = time.perf_counter() - t3
 
-    # fine ICP on the distinct survivors (best three are enough for ranking and the gap)
+    if not refined_c:
+        return failed(method, "every hypothesis failed to refine", **notes)
+
+    # fine ICP on the best; then on runners-up whose coarse score is within twice the ambiguity gap,
+    # until one stays distinct from the best, so that an ambiguity is decided on fine scores
     t4 = time.perf_counter()
+    s_best_c = refined_c[0][0]
     finals: list[tuple[RegistrationResult, np.ndarray, str]] = []
-    for _, T, label in refined_c[:3]:
+    unrefined: list[tuple[float, np.ndarray, str]] = []
+    for k, (sc, T, label) in enumerate(refined_c):
+        close = sc > 0 and (sc - s_best_c) / sc < 2.0 * params.ambiguity_gap
+        if k > 0 and (len(finals) >= 2 or not close):
+            unrefined.append((sc, T, label))
+            continue
         r = refine(cur, tmpl, T, params.fine)
         T_r = r.T_match if r.T_match is not None else r.details.get("T_candidate")
-        if T_r is None:
-            continue
-        if any(_same_pose(T_r, T_o, cur.centroid, params) for _, T_o, _ in finals):
+        if T_r is None or any(_same_pose(T_r, T_o, cur.centroid, params) for _, T_o, _ in finals):
             continue
         finals.append((r, T_r, label))
     timings["fine_icp"] = time.perf_counter() - t4
     if not finals:
         return failed(method, "every hypothesis failed to refine", **notes)
     finals.sort(key=lambda x: x[0].score)
-
     best_r, best_T, _ = finals[0]
-    hyps = [Hypothesis(T, r.score, r.fitness, r.inlier_rmse, label) for r, T, label in finals]
     result = evaluate(
         cur,
         tmpl,
@@ -189,23 +200,30 @@ def register_global(current: Any, template: Any, params: GlobalParams | None = N
         iterations=best_r.iterations,
         converged=best_r.converged,
     )
+    hyps = [Hypothesis(T, r.score, r.fitness, r.inlier_rmse, f"{label} (fine)") for r, T, label in finals]
+    hyps += [Hypothesis(T, sc, float("nan"), float("nan"), f"{label} (coarse)") for sc, T, label in unrefined]
     result.hypotheses = hyps
     if len(finals) > 1:
         s1, s2 = finals[0][0].score, finals[1][0].score
         result.score_gap = float((s2 - s1) / s2) if s2 > 0 else 0.0
-    else:
-        result.score_gap = 1.0
+        runner_ok = finals[1][0].fitness >= params.fine.min_fitness
+        n_close = 1 + sum(
+            1 for r, _, _ in finals[1:] if r.score > 0 and (r.score - s1) / r.score < params.ambiguity_gap
+        )
+    else:  # every close runner-up merged into the best: the gap is the coarse one to the next pose
+        s2 = unrefined[0][0] if unrefined else float("inf")
+        result.score_gap = float((s2 - s_best_c) / s2) if np.isfinite(s2) and s2 > 0 else 1.0
+        runner_ok, n_close = False, 1
     notes["n_candidates"] = len(candidates)
     notes["coarse_voxel_m"] = coarse_voxel
     result.details.update(notes)
-    runner_ok = len(finals) > 1 and finals[1][0].fitness >= params.fine.min_fitness
     if result.verdict != "failed" and runner_ok and result.score_gap < params.ambiguity_gap:
         result.verdict = "ambiguous"
         result.details["T_candidate"] = best_T
         result.T_match = None
         result.reasons.insert(
             0,
-            f"{len(finals)} distinct poses fit almost equally well (score gap {result.score_gap:.1%} < "
+            f"{n_close} distinct poses fit almost equally well (score gap {result.score_gap:.1%} < "
             f"{params.ambiguity_gap:.0%}): symmetric or self-similar part; candidates in hypotheses",
         )
     timings["total"] = time.perf_counter() - t0

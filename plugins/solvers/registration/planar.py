@@ -43,7 +43,7 @@ class PlanarParams:
     plane_iterations: int = 1000
     min_plane_fraction: float = 0.25
     sweep_step_deg: float = 5.0
-    score_points: int = 1500
+    score_points: int = 800
     keep: int = 4
 
 
@@ -115,20 +115,17 @@ def planar_hypotheses(
     candidates: list[tuple[float, np.ndarray, str]] = []
     for flip, sign in ((0, 1.0), (1, -1.0)):
         R0 = _align(sign * cur.plane.normal, n_t)
-        scores = np.empty(n_steps)
-        Ts = []
-        for k, theta in enumerate(angles):
-            R = Rotation.from_rotvec(n_t * theta).as_matrix() @ R0
-            T = tf.T_from_Rt(R, c_t - R @ cur.center)
-            d, _ = template.nearest(tf.transform_points(T, sample), num_threads=num_threads)
-            scores[k] = float(np.mean(np.minimum(d, truncation_m)))
-            Ts.append(T)
+        Rs = Rotation.from_rotvec(np.outer(angles, n_t)).as_matrix() @ R0  # (n_steps, 3, 3)
+        ts = c_t[None, :] - Rs @ cur.center
+        mapped = np.einsum("kij,nj->kni", Rs, sample) + ts[:, None, :]  # all sweep steps at once
+        d, _ = template.nearest(mapped.reshape(-1, 3), num_threads=num_threads)
+        scores = np.minimum(d, truncation_m).reshape(n_steps, -1).mean(axis=1)
         # local minima over the circular sweep
         left, right = np.roll(scores, 1), np.roll(scores, -1)
         minima = np.flatnonzero((scores <= left) & (scores <= right))
         for k in minima:
             label = f"planar:flip={flip}:angle={np.degrees(angles[k]):.1f}"
-            candidates.append((float(scores[k]), Ts[k], label))
+            candidates.append((float(scores[k]), tf.T_from_Rt(Rs[k], ts[k]), label))
     candidates.sort(key=lambda c: c[0])
     diag = {
         "current_plane_fraction": cur.fraction,

@@ -96,7 +96,8 @@ class PreparedCloud:
     viewpoint: tuple[float, float, float] | None
     raw_count: int
     name: str = "cloud"
-    _cache: dict[str, Any] = field(default_factory=dict, repr=False)
+    full_points: np.ndarray | None = field(default=None, repr=False)
+    _cache: dict[Any, Any] = field(default_factory=dict, repr=False)
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
@@ -104,6 +105,22 @@ class PreparedCloud:
     @property
     def centroid(self) -> np.ndarray:
         return self.points.mean(axis=0)
+
+    def at_voxel(self, voxel_size_m: float) -> PreparedCloud:
+        """The same capture at another voxel size (0 = every point), from ``full_points`` (cached)."""
+        key = ("voxel", float(voxel_size_m))
+        if key not in self._cache:
+            src = self.full_points if self.full_points is not None else self.points
+            self._cache[key] = PreparedCloud(
+                points=voxel_downsample(src, voxel_size_m),
+                voxel_size_m=float(voxel_size_m),
+                normal_k=self.normal_k,
+                viewpoint=self.viewpoint,
+                raw_count=self.raw_count,
+                name=self.name,
+                full_points=src,
+            )
+        return self._cache[key]
 
     def open3d(self) -> o3d.geometry.PointCloud:
         """Open3D cloud with oriented PCA normals (k nearest neighbours)."""
@@ -190,7 +207,12 @@ def prepare_cloud(
     if isinstance(cloud, PreparedCloud):
         if abs(cloud.voxel_size_m - params.voxel_size_m) <= 1e-12 and cloud.normal_k == params.normal_k:
             return cloud
-        cloud = cloud.points
+        # already cropped and filtered: downsample its full-resolution points again (cached on it)
+        key = ("prepared", params.voxel_size_m, params.normal_k, params.viewpoint, params.min_points)
+        if key not in cloud._cache:
+            src = cloud.full_points if cloud.full_points is not None else cloud.points
+            cloud._cache[key] = prepare_cloud(src, params.coarser(params.voxel_size_m), name=name)
+        return cloud._cache[key]
     if not (np.isfinite(params.voxel_size_m) and params.voxel_size_m >= 0):
         raise InvalidInputError(f"voxel size must be a finite number >= 0, got {params.voxel_size_m}")
     pts = as_points(cloud, name=name, min_points=params.min_points, drop_non_finite=params.drop_non_finite)
@@ -219,4 +241,5 @@ def prepare_cloud(
         viewpoint=params.viewpoint,
         raw_count=raw_count,
         name=name,
+        full_points=pts,
     )

@@ -11,6 +11,11 @@ Weak directions come from the eigen-decomposition of ``H`` moved to the cloud's 
 rotations scaled by the cloud radius ``L`` (so a rotation of ``w`` compares with a translation of
 ``L w``): an eigenvalue far below the largest one marks a direction the geometry hardly constrains
 (e.g. a flat plate sliding in its plane or spinning about its normal).
+
+``stationarity_chi2`` measures how far the estimate is from the point-to-plane optimum for the same
+correspondences: the Gauss-Newton step still available, in units of the estimate's own covariance
+(``g^T H^-1 g / s^2`` with ``g = J^T r``). An estimate at the optimum up to noise gives a value of
+the order of 6 (chi-square with 6 degrees of freedom); a backend that stopped early gives more.
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ class PoseUncertainty:
     residual_sigma_m: float
     weak_directions: list[WeakDirection]
     eigen_ratios: np.ndarray
+    stationarity_chi2: float
 
 
 def point_to_plane_hessian(p: np.ndarray, q: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -43,6 +49,10 @@ def point_to_plane_hessian(p: np.ndarray, q: np.ndarray, n: np.ndarray) -> tuple
     r = np.einsum("ij,ij->i", n, p - q)
     J = np.hstack([n, np.cross(p, n)])
     return J.T @ J, r
+
+
+def _jacobian(p: np.ndarray, n: np.ndarray) -> np.ndarray:
+    return np.hstack([n, np.cross(p, n)])
 
 
 def pose_uncertainty(
@@ -60,6 +70,7 @@ def pose_uncertainty(
     """
     m = p.shape[0]
     H, r = point_to_plane_hessian(p, q, n)
+    g = _jacobian(p, n).T @ r  # gradient of 0.5 |r|^2 at the estimate
     dof = max(m - 6, 1)
     s2 = float(r @ r) / dof
     center = p.mean(axis=0)
@@ -82,6 +93,11 @@ def pose_uncertainty(
     cov_o = Ad @ cov_c @ Ad.T  # xi_o = Ad xi_c
     cov_o = 0.5 * (cov_o + cov_o.T)
     sig = np.sqrt(np.clip(np.diag(cov_c), 0.0, None))
+    # Gauss-Newton step still available at the estimate, in units of its own uncertainty:
+    # chi2 = g^T H^-1 g / s^2 (~ chi-square with 6 dof if the estimate is the optimum up to noise).
+    g_s = D @ Ad.T @ g
+    w = V.T @ g_s
+    chi2 = float(np.sum(w**2 / lam_c) / max(s2, 1e-300))
     ratios = lam / lam_max
 
     weak: list[WeakDirection] = []
@@ -110,4 +126,5 @@ def pose_uncertainty(
         residual_sigma_m=float(np.sqrt(s2)),
         weak_directions=weak,
         eigen_ratios=np.clip(ratios, 0.0, None),
+        stationarity_chi2=chi2,
     )
