@@ -177,9 +177,9 @@ def _feature_part() -> tuple[mf.Manifold, dict, dict, dict]:
     )
     # Boss dia 30 at (35, -15) from the slab top to z = 45, the last 3 mm a 45 degree cone.
     boss_c = (35.0, -15.0)
-    boss = _cylinder(*boss_c, 19, 42, 15, _SEGMENTS_LARGE) + mf.Manifold.cylinder(
-        3, 15, 12, _SEGMENTS_LARGE
-    ).translate((*boss_c, 42))
+    boss = _cylinder(*boss_c, 19, 42, 15, _SEGMENTS_LARGE) + mf.Manifold.cylinder(3, 15, 12, _SEGMENTS_LARGE).translate(
+        (*boss_c, 42)
+    )
     solid = slab + step + tower + boss
     # Bore dia 10, 15 mm deep, in the boss; through hole dia 10; blind hole dia 8, 12 mm deep in the step;
     # oblique slot 25 x 8 x 5 mm in the step, rotated 30 degrees about Z.
@@ -339,9 +339,7 @@ def make_workpiece(name: str) -> Workpiece:
     if name not in _BUILDERS:
         raise ValueError(f"unknown workpiece {name!r}; known: {', '.join(_BUILDERS)}")
     V, F, features, radii, axes = _build_arrays(name)
-    mesh = o3d.geometry.TriangleMesh(
-        o3d.utility.Vector3dVector(V.copy()), o3d.utility.Vector3iVector(F.copy())
-    )
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(V.copy()), o3d.utility.Vector3iVector(F.copy()))
     mesh.compute_triangle_normals()
     mesh.compute_vertex_normals()
     _, symmetric, description = _BUILDERS[name]

@@ -104,9 +104,7 @@ class CalibrationResult:
         def arr(x: Any) -> np.ndarray | None:
             return None if x is None else np.asarray(x)
 
-        estimate = {
-            k: (np.asarray(v) if isinstance(v, list) else v) for k, v in d.get("estimate", {}).items()
-        }
+        estimate = {k: (np.asarray(v) if isinstance(v, list) else v) for k, v in d.get("estimate", {}).items()}
         return cls(
             kind=d["kind"],
             verdict=d["verdict"],

@@ -1,0 +1,47 @@
+# vgr: the two set-up commands are `make demo` and `make test`; both build .venv on first use.
+SHELL := /bin/bash
+PY ?= $(shell command -v python3.11 || command -v python3)
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | sha1sum | cut -c1-12)
+
+.PHONY: install sysdeps demo test lint bench golden clean
+
+install: $(STAMP)
+
+# Debian libraries that the open3d-cpu wheel needs at import time (libusb) and OpenMP (libgomp).
+sysdeps:
+	@if ! ldconfig -p | grep -q 'libusb-1.0.so.0' || ! ldconfig -p | grep -q 'libgomp.so.1'; then \
+	  if [ "$$(id -u)" = 0 ]; then \
+	    echo "installing Debian packages libusb-1.0-0 libgomp1"; \
+	    export DEBIAN_FRONTEND=noninteractive; \
+	    apt-get update -qq && apt-get install -y -qq --no-install-recommends libusb-1.0-0 libgomp1 >/dev/null; \
+	  else \
+	    echo "please run: sudo apt-get install libusb-1.0-0 libgomp1" >&2; exit 1; \
+	  fi; \
+	fi
+
+$(STAMP): pyproject.toml | sysdeps
+	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e ".[dev]"
+	@rm -f $(VENV)/.installed-* && touch $@
+
+demo: install
+	$(BIN)/vgr run recipes/demo.yaml
+
+test: install
+	$(BIN)/python -m pytest
+
+lint: install
+	$(BIN)/ruff check . && $(BIN)/ruff format --check .
+
+# Regenerate the golden recordings that CI replays (after an intended change of outputs).
+golden: install
+	$(BIN)/vgr run recipes/demo.yaml -p source.n_points=400 -p source.frames=10 --record recordings/demo.mcap --no-progress
+
+bench: install
+	$(BIN)/python benchmarks/engine_overhead.py
+
+clean:
+	rm -rf $(VENV) .pytest_cache .ruff_cache .hypothesis runs

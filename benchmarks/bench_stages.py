@@ -1,0 +1,82 @@
+"""Stages used only by benchmarks/engine_overhead.py (loaded through a recipe's ``plugins:`` list).
+
+``bench_source`` stamps each Blob's first 8 bytes with ``time.monotonic_ns()`` (one clock for every
+process on the machine) just before building and publishing it; ``bench_sink`` records the one-way
+latency at the entry of its handler and the arrival times for throughput.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import ClassVar
+
+from engine.hookspecs import hookimpl
+from engine.messages import Blob
+from engine.stage import Stage, StageParams
+
+
+def make_payload(base: bytes) -> bytes:
+    """Timestamp + body, built the same way for vgr and for raw zenoh (one copy of the body)."""
+    return time.monotonic_ns().to_bytes(8, "little") + base[8:]
+
+
+class BenchSource(Stage):
+    """Publishes `count` Blobs of `size` bytes, paced by `interval_s` (0 = as fast as possible)."""
+
+    type_name = "bench_source"
+    role = "source"
+    outputs: ClassVar = {"out": Blob}
+
+    class Params(StageParams):
+        size: int = 64
+        count: int = 1000
+        interval_s: float = 0.0
+        warmup: int = 20
+
+    def run(self) -> None:
+        p = self.params
+        base = bytes(max(p.size, 8))
+        nxt = time.perf_counter()
+        for _ in range(p.count + p.warmup):
+            if self.ctx.stopping:
+                return
+            if p.interval_s:
+                nxt += p.interval_s
+                while (d := nxt - time.perf_counter()) > 0:
+                    time.sleep(d)
+            self.ctx.publish("out", Blob(data=make_payload(base)))
+
+
+class BenchSink(Stage):
+    """Records latency (ns) and arrival times of every Blob; writes them as JSON on finish."""
+
+    type_name = "bench_sink"
+    role = "sink"
+    inputs: ClassVar = {"in": Blob}
+
+    class Params(StageParams):
+        output: str = "bench_sink.json"
+        warmup: int = 20
+
+    def setup(self) -> None:
+        self.lat: list[int] = []
+        self.arrivals: list[int] = []
+        self.n = 0
+
+    def on_message(self, port: str, msg: Blob) -> None:  # type: ignore[override]
+        now = time.monotonic_ns()
+        self.n += 1
+        if self.n <= self.params.warmup:
+            return
+        self.lat.append(now - int.from_bytes(bytes(msg.data[:8]), "little"))
+        self.arrivals.append(now)
+
+    def finish(self) -> None:
+        Path(self.params.output).write_text(json.dumps({"lat_ns": self.lat, "arrivals_ns": self.arrivals}))
+
+
+@hookimpl
+def vgr_stage_types() -> list[type]:
+    return [BenchSource, BenchSink]

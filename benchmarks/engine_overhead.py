@@ -1,0 +1,324 @@
+"""Engine overhead: stage-to-stage latency and throughput through vgr vs raw zenoh, same run.
+
+Payloads of 64 B, 4 KiB and 1.2 MB, in two topologies:
+
+* in-process — raw: one zenoh session, ``put`` -> subscriber callback (which reads the payload
+  bytes); vgr: ``bench_source`` -> ``bench_sink`` in one process (intra-process hand-over);
+* cross-process over tcp/127.0.0.1 — raw: publisher here, subscriber callback in a child process;
+  vgr: the same two stages in two ``vgr run --process`` processes.
+
+Latency is one-way, from just before the payload is built (``time.monotonic_ns()``, the same clock in
+every process) to the entry of the receiving callback / stage handler, with messages paced so that
+nothing queues; median / p90 / p99 over ``count`` messages after a warm-up. Throughput is messages per
+second at the receiver when the sender publishes as fast as it can (reliable, congestion control
+BLOCK, nothing dropped).
+
+Usage: ``python benchmarks/engine_overhead.py [--quick]``; writes benchmarks/results/engine_overhead.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import platform
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import zenoh
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path[:0] = [str(HERE), str(ROOT)]
+
+from bench_stages import make_payload  # noqa: E402
+
+SIZES = {"64B": 64, "4KiB": 4096, "1.2MB": 1_200_000}
+WARMUP = 20
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def session(listen: list[str] | None = None, connect: list[str] | None = None) -> zenoh.Session:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("listen/endpoints", json.dumps(listen or []))
+    conf.insert_json5("connect/endpoints", json.dumps(connect or []))
+    return zenoh.open(conf)
+
+
+def summarize(lat_ns: list[int], arrivals_ns: list[int], size: int) -> dict[str, float]:
+    lat = np.asarray(lat_ns, dtype=float) / 1e3
+    out: dict[str, float] = {}
+    if len(lat):
+        out |= {
+            "p50_us": float(np.median(lat)),
+            "p90_us": float(np.percentile(lat, 90)),
+            "p99_us": float(np.percentile(lat, 99)),
+            "n": len(lat),
+        }
+    if len(arrivals_ns) > 1:
+        span = (arrivals_ns[-1] - arrivals_ns[0]) / 1e9
+        rate = (len(arrivals_ns) - 1) / span if span > 0 else float("nan")
+        out |= {"msg_per_s": rate, "MB_per_s": rate * size / 1e6}
+    return out
+
+
+# --------------------------------------------------------------------------- raw zenoh
+
+
+def raw_in_process(size: int, count: int, interval_s: float) -> dict[str, float]:
+    s = session()
+    lat: list[int] = []
+    arr: list[int] = []
+    n = [0]
+
+    def cb(sample: zenoh.Sample) -> None:
+        now = time.monotonic_ns()
+        data = sample.payload.to_bytes()
+        n[0] += 1
+        if n[0] > WARMUP:
+            lat.append(now - int.from_bytes(data[:8], "little"))
+            arr.append(now)
+
+    sub = s.declare_subscriber("bench/raw", cb)
+    pub = s.declare_publisher("bench/raw", congestion_control=zenoh.CongestionControl.BLOCK)
+    send(pub, size, count, interval_s)
+    sub.undeclare()
+    pub.undeclare()
+    s.close()
+    return summarize(lat, arr, size)
+
+
+def send(pub: zenoh.Publisher, size: int, count: int, interval_s: float) -> None:
+    base = bytes(max(size, 8))
+    nxt = time.perf_counter()
+    for _ in range(count + WARMUP):
+        if interval_s:
+            nxt += interval_s
+            while (d := nxt - time.perf_counter()) > 0:
+                time.sleep(d)
+        pub.put(make_payload(base))
+
+
+def raw_subscriber_main(endpoint: str, out: str, total: int) -> None:
+    """Child process: subscribe over tcp, record, write JSON when all messages arrived."""
+    s = session(connect=[endpoint])
+    lat: list[int] = []
+    arr: list[int] = []
+    n = [0]
+    done = threading.Event()
+
+    def cb(sample: zenoh.Sample) -> None:
+        now = time.monotonic_ns()
+        data = sample.payload.to_bytes()
+        n[0] += 1
+        if n[0] > WARMUP:
+            lat.append(now - int.from_bytes(data[:8], "little"))
+            arr.append(now)
+        if n[0] >= total:
+            done.set()
+
+    s.declare_subscriber("bench/raw", cb)
+    done.wait(300)
+    Path(out).write_text(json.dumps({"lat_ns": lat, "arrivals_ns": arr}))
+    s.close()
+
+
+def raw_cross_process(size: int, count: int, interval_s: float) -> dict[str, float]:
+    port = free_port()
+    s = session(listen=[f"tcp/127.0.0.1:{port}"])
+    pub = s.declare_publisher("bench/raw", congestion_control=zenoh.CongestionControl.BLOCK)
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "raw.json"
+        child = subprocess.Popen(
+            [sys.executable, __file__, "--raw-sub", f"tcp/127.0.0.1:{port}", str(out), str(count + WARMUP)]
+        )
+        deadline = time.monotonic() + 30
+        while not pub.matching_status.matching and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.2)
+        send(pub, size, count, interval_s)
+        child.wait(300)
+        res = json.loads(out.read_text())
+    pub.undeclare()
+    s.close()
+    return summarize(res["lat_ns"], res["arrivals_ns"], size)
+
+
+# --------------------------------------------------------------------------- vgr
+
+
+RECIPE = """
+name: bench
+plugins: [bench_stages]
+processes:
+  pub: {{listen: ["tcp/127.0.0.1:{port}"]}}
+  sub: {{connect: ["tcp/127.0.0.1:{port}"], listen: []}}
+stages:
+  src:  {{type: bench_source, process: {p_pub}, params: {{size: {size}, count: {count}, interval_s: {interval}, warmup: {warmup}}}}}
+  sink: {{type: bench_sink, process: {p_sub}, inputs: {{in: src.out}}, params: {{output: "{out}", warmup: {warmup}}}}}
+"""
+
+
+def vgr_in_process(size: int, count: int, interval_s: float) -> dict[str, float]:
+    from engine.graph import build_graph
+    from engine.plugin_manager import load_registry
+    from engine.recipe import load_recipe
+    from engine.runner import Runner
+
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "sink.json"
+        text = RECIPE.format(
+            port=free_port(),
+            p_pub="main",
+            p_sub="main",
+            size=size,
+            count=count,
+            interval=interval_s,
+            warmup=WARMUP,
+            out=out,
+        )
+        text = text.replace("processes:", "unused_processes:")
+        text = "\n".join(x for x in text.splitlines() if not x.strip().startswith(("unused", "pub:", "sub:")))
+        loaded = load_recipe("bench.yaml", text=text)
+        summary = Runner(build_graph(loaded, load_registry(loaded.recipe.plugins))).run()
+        assert summary.ok, summary.stop_reason
+        res = json.loads(out.read_text())
+    return summarize(res["lat_ns"], res["arrivals_ns"], size)
+
+
+def vgr_cross_process(size: int, count: int, interval_s: float) -> dict[str, float]:
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(HERE), str(ROOT), os.environ.get("PYTHONPATH", "")]))
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "sink.json"
+        recipe = Path(tmp) / "bench.yaml"
+        recipe.write_text(
+            RECIPE.format(
+                port=free_port(),
+                p_pub="pub",
+                p_sub="sub",
+                size=size,
+                count=count,
+                interval=interval_s,
+                warmup=WARMUP,
+                out=out,
+            )
+        )
+        cmd = [sys.executable, "-m", "engine.cli", "run", str(recipe), "--no-progress", "--process"]
+        sub = subprocess.Popen([*cmd, "sub"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        pub = subprocess.Popen([*cmd, "pub"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        _, err_pub = pub.communicate(timeout=600)
+        _, err_sub = sub.communicate(timeout=600)
+        if pub.returncode or sub.returncode:
+            raise RuntimeError(f"vgr processes failed: {err_pub}\n{err_sub}")
+        res = json.loads(out.read_text())
+    return summarize(res["lat_ns"], res["arrivals_ns"], size)
+
+
+# --------------------------------------------------------------------------- main
+
+
+def machine() -> dict[str, object]:
+    cpu = ""
+    with contextlib.suppress(OSError, StopIteration):
+        cpu = next(
+            x.split(":", 1)[1].strip()
+            for x in Path("/proc/cpuinfo").read_text().splitlines()
+            if x.startswith("model name")
+        )
+    return {
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "python": platform.python_version(),
+        "zenoh": getattr(zenoh, "__version__", "1.x"),
+        "platform": platform.platform(),
+    }
+
+
+def median_of(runs: list[dict[str, float]]) -> dict[str, float]:
+    keys = set().union(*runs)
+    return {k: statistics.median(r[k] for r in runs if k in r) for k in sorted(keys)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--quick", action="store_true", help="fewer messages and repetitions (smoke test)")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--raw-sub", nargs=3, metavar=("ENDPOINT", "OUT", "TOTAL"), help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.raw_sub:
+        raw_subscriber_main(args.raw_sub[0], args.raw_sub[1], int(args.raw_sub[2]))
+        return
+    repeat = 1 if args.quick else args.repeat
+    plan = {  # size -> (latency count, pacing interval, throughput count)
+        "64B": (2000, 0.001, 20000),
+        "4KiB": (2000, 0.001, 20000),
+        "1.2MB": (300, 0.005, 600),
+    }
+    if args.quick:
+        plan = {k: (max(50, v[0] // 20), v[1], max(60, v[2] // 20)) for k, v in plan.items()}
+    runners = {
+        ("in_process", "raw_zenoh"): raw_in_process,
+        ("in_process", "vgr"): vgr_in_process,
+        ("cross_process", "raw_zenoh"): raw_cross_process,
+        ("cross_process", "vgr"): vgr_cross_process,
+    }
+    results: dict[str, dict[str, dict[str, dict[str, float]]]] = {}
+    for (topo, who), fn in runners.items():
+        for label, size in SIZES.items():
+            n_lat, interval, n_tp = plan[label]
+            lat = median_of([fn(size, n_lat, interval) for _ in range(repeat)])
+            tp = median_of([fn(size, n_tp, 0.0) for _ in range(repeat)])
+            row = {k: v for k, v in lat.items() if k.endswith("_us") or k == "n"}
+            row |= {k: v for k, v in tp.items() if k in ("msg_per_s", "MB_per_s")}
+            results.setdefault(topo, {}).setdefault(label, {})[who] = row
+            print(
+                f"{topo:14s} {label:6s} {who:10s} p50 {row['p50_us']:8.1f} us  p99 {row['p99_us']:8.1f} us  "
+                f"{row['msg_per_s']:10.0f} msg/s  {row['MB_per_s']:8.1f} MB/s",
+                flush=True,
+            )
+    ratios = {}
+    for topo, by_size in results.items():
+        for label, r in by_size.items():
+            lat_ratio = r["vgr"]["p50_us"] / r["raw_zenoh"]["p50_us"]
+            tp_ratio = r["vgr"]["msg_per_s"] / r["raw_zenoh"]["msg_per_s"]
+            ratios[f"{topo}/{label}"] = {
+                "latency_ratio_p50": lat_ratio,
+                "throughput_ratio": tp_ratio,
+                "meets_latency_target_1.5x": lat_ratio <= 1.5,
+                "meets_throughput_target_0.7x": tp_ratio >= 0.7,
+            }
+    doc = {
+        "benchmark": "engine_overhead",
+        "date": time.strftime("%Y-%m-%d %H:%M:%S"),
+        "machine": machine(),
+        "method": __doc__,
+        "repeat": repeat,
+        "plan": {k: {"latency_messages": v[0], "pacing_s": v[1], "throughput_messages": v[2]} for k, v in plan.items()},
+        "results": results,
+        "ratios_vgr_over_raw": ratios,
+    }
+    out = HERE / "results" / ("engine_overhead_quick.json" if args.quick else "engine_overhead.json")
+    out.parent.mkdir(exist_ok=True)
+    out.write_text(json.dumps(doc, indent=2))
+    for k, v in ratios.items():
+        print(f"{k:22s} latency x{v['latency_ratio_p50']:.2f}  throughput x{v['throughput_ratio']:.2f}")
+    print(f"written {out}")
+
+
+if __name__ == "__main__":
+    main()

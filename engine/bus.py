@@ -1,0 +1,242 @@
+"""The zenoh bus of one process: one session, vgr's key layout, streams, services, liveliness.
+
+Key expressions (``<run>`` is the run id)::
+
+    vgr/<run>/<stage>/<port>          data stream of an output port (pub/sub)
+    vgr/<run>/<stage>/srv/<service>   request/reply service of a stage (queryable)
+    vgr/<run>/_ready/<stage>          liveliness: the stage is declared and listening
+    vgr/<run>/_active/<process>       liveliness: the process still has stages producing data
+    vgr/<run>/_control                run-wide control (stop), published by any process
+
+The default session is the embedded set-up: peer mode, multicast scouting off, listening on
+loopback only (``tcp/127.0.0.1:0``). Stages of one process exchange message objects in-process
+(engine.inbox); a stream goes through zenoh, encoded, when another process or an external
+subscriber listens. Streams are reliable with congestion control BLOCK: nothing is dropped.
+
+Nothing may block zenoh's receive thread: it also delivers service replies, so a reader blocked
+there would deadlock a stage waiting for a reply. Remote inputs and service queries are therefore
+taken by callbacks that only append to unbounded queues; the runtime warns when one grows large.
+"""
+
+from __future__ import annotations
+
+import atexit
+import collections
+import contextlib
+import json
+import threading
+import weakref
+from collections.abc import Callable
+from typing import Any
+
+import zenoh
+
+from engine.codec import Envelope, Kind, encode_envelope
+from engine.recipe import ZenohSettings
+
+_open_buses: weakref.WeakSet[Bus] = weakref.WeakSet()
+
+
+def data_key(run: str, stage: str, port: str) -> str:
+    return f"vgr/{run}/{stage}/{port}"
+
+
+def service_key(run: str, stage: str, service: str) -> str:
+    return f"vgr/{run}/{stage}/srv/{service}"
+
+
+def ready_key(run: str, stage: str) -> str:
+    return f"vgr/{run}/_ready/{stage}"
+
+
+def active_key(run: str, process: str) -> str:
+    return f"vgr/{run}/_active/{process}"
+
+
+def control_key(run: str) -> str:
+    return f"vgr/{run}/_control"
+
+
+def exchange_key(run: str, stage: str, client: str) -> str:
+    return f"vgr/{run}/_svc/{stage}/{client}"
+
+
+STOP_ENVELOPE = encode_envelope(Envelope(Kind.STOP, 0, 0, ""))
+
+
+def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps(settings.mode))
+    conf.insert_json5("scouting/multicast/enabled", json.dumps(settings.multicast_scouting))
+    conf.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
+    conf.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
+    return conf
+
+
+class _Attachment:
+    def __init__(self, raw: bytes) -> None:
+        self._raw = raw
+
+    def to_bytes(self) -> bytes:
+        return self._raw
+
+
+class _StopMarker:
+    """Looks like a zenoh Sample/Query carrying the STOP envelope."""
+
+    attachment = _Attachment(STOP_ENVELOPE)
+    payload = None
+
+    def __enter__(self) -> _StopMarker:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+
+class Inbox:
+    """Unbounded FIFO fed by a zenoh callback (never blocks zenoh's threads), read with ``recv()``."""
+
+    def __init__(self, key: str) -> None:
+        self.key_expr = key
+        self._items: collections.deque[Any] = collections.deque()
+        self._cv = threading.Condition(threading.Lock())
+        self.decl: Any = None
+
+    def __call__(self, item: Any) -> None:
+        with self._cv:
+            self._items.append(item)
+            self._cv.notify()
+
+    def recv(self) -> Any:
+        with self._cv:
+            while not self._items:
+                self._cv.wait()
+            return self._items.popleft()
+
+    def wake(self) -> None:
+        self(_StopMarker())
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def undeclare(self) -> None:
+        if self.decl is not None:
+            self.decl.undeclare()
+
+
+class BusError(RuntimeError):
+    """The zenoh session could not be opened or used."""
+
+
+class Bus:
+    """One zenoh session and the declarations made on it; ``close()`` undeclares and closes."""
+
+    def __init__(self, settings: ZenohSettings | None = None) -> None:
+        self.settings = settings or ZenohSettings()
+        try:
+            self.session = zenoh.open(zenoh_config(self.settings))
+        except Exception as exc:
+            raise BusError(
+                f"cannot open zenoh session ({self.settings.mode}, listen={self.settings.listen}, "
+                f"connect={self.settings.connect}): {exc}"
+            ) from exc
+        self._decls: list[Any] = []
+        self._lock = threading.Lock()
+        self.closed = False
+        _open_buses.add(self)
+
+    # -- declarations ----------------------------------------------------------------------
+    def _keep(self, decl: Any) -> Any:
+        with self._lock:
+            self._decls.append(decl)
+        return decl
+
+    def remote_publisher(self, key: str) -> zenoh.Publisher:
+        """Publisher to other sessions only (stages here get messages in-process, see engine.inbox):
+        reliable, congestion control BLOCK, so nothing is dropped."""
+        return self._keep(
+            self.session.declare_publisher(
+                key,
+                congestion_control=zenoh.CongestionControl.BLOCK,
+                reliability=zenoh.Reliability.RELIABLE,
+                allowed_destination=zenoh.Locality.REMOTE,
+            )
+        )
+
+    def subscribe_remote(self, key: str, callback: Callable[[zenoh.Sample], None]) -> zenoh.Subscriber:
+        """Subscriber to other sessions' publications; *callback* runs on zenoh's receive thread
+        and must never block (engine.inbox.PortInbox only appends)."""
+        return self._keep(self.session.declare_subscriber(key, callback, allowed_origin=zenoh.Locality.REMOTE))
+
+    def subscribe(self, key: str, callback: Callable[[zenoh.Sample], None]) -> zenoh.Subscriber:
+        """Subscriber calling *callback* on zenoh's thread (keep it short: observers, control)."""
+        return self._keep(self.session.declare_subscriber(key, callback))
+
+    def queryable(self, key: str) -> Inbox:
+        """Queryable whose queries go to an :class:`Inbox` (never blocks zenoh's threads)."""
+        box = Inbox(key)
+        box.decl = self._keep(self.session.declare_queryable(key, box))
+        return box
+
+    def token(self, key: str) -> zenoh.LivelinessToken:
+        return self._keep(self.session.liveliness().declare_token(key))
+
+    def alive(self, key_expr: str, timeout_s: float = 1.0) -> set[str]:
+        """Keys of the liveliness tokens currently matching *key_expr* (across all processes)."""
+        replies = self.session.liveliness().get(key_expr, timeout=timeout_s)
+        return {str(r.ok.key_expr) for r in replies if r.ok is not None}
+
+    # -- request/reply ---------------------------------------------------------------------
+    def request(self, key: str, payload: bytes, attachment: bytes, timeout_s: float) -> tuple[bytes, bytes]:
+        """Send a query and return the first reply's (payload, attachment).
+
+        Raises TimeoutError when nothing answered in time, LookupError when no service exists,
+        RuntimeError with the provider's message when it replied with an error.
+        """
+        replies = self.session.get(
+            key,
+            payload=payload,
+            attachment=attachment,
+            timeout=timeout_s,
+            target=zenoh.QueryTarget.BEST_MATCHING,
+        )
+        for reply in replies:
+            if reply.ok is not None:
+                att = reply.ok.attachment
+                return reply.ok.payload.to_bytes(), att.to_bytes() if att is not None else b""
+            err = reply.err.payload.to_bytes().decode(errors="replace") if reply.err is not None else "?"
+            if err == "Timeout":
+                raise TimeoutError(f"no reply from {key} within {timeout_s:g} s")
+            raise RuntimeError(err)
+        raise LookupError(f"no service answers at {key} (is its stage running?)")
+
+    def put(self, key: str, payload: bytes, attachment: bytes | None = None) -> None:
+        self.session.put(key, payload, attachment=attachment, congestion_control=zenoh.CongestionControl.BLOCK)
+
+    # -- shutdown --------------------------------------------------------------------------
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        with self._lock:
+            decls, self._decls = self._decls, []
+        for d in reversed(decls):
+            # already undeclared, or a reader still holds it: the session close below frees it
+            with contextlib.suppress(Exception):
+                d.undeclare()
+        with contextlib.suppress(Exception):
+            self.session.close()
+
+    def __enter__(self) -> Bus:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+@atexit.register
+def _close_all() -> None:
+    """Zenoh sessions must be closed before interpreter exit; this is the last resort."""
+    for bus in list(_open_buses):
+        bus.close()

@@ -1,0 +1,323 @@
+"""The ``vgr`` command line: run, validate, graph, plugins, schemas (and the verbs of later modules).
+
+Exit codes: 0 success; 1 the run failed (a stage failed or was stopped); 2 invalid recipe or usage;
+130 interrupted by Ctrl-C.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import sys
+import threading
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from rich.console import Console
+from rich.live import Live
+from rich.markup import escape
+from rich.table import Table
+
+from engine import cli_recording
+from engine.errors import RecipeError
+from engine.graph import Graph, build_graph
+from engine.plugin_manager import PluginError, Registry, load_registry
+from engine.recipe import load_recipe
+from engine.recording import RecordingError
+from engine.replay import ReplayError
+from engine.runner import RunError, Runner, RunSummary
+from engine.runtime import StageStats
+
+console = Console(stderr=True)
+out = Console(width=None if sys.stdout.isatty() else 160)
+
+EXIT_OK, EXIT_FAILED, EXIT_INVALID, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+
+def _load_graph(args: argparse.Namespace) -> tuple[Graph, Registry]:
+    loaded = load_recipe(args.recipe, args.param or [])
+    registry = load_registry(loaded.recipe.plugins)
+    return build_graph(loaded, registry), registry
+
+
+def _stats_table(stats: Sequence[StageStats], title: str) -> Table:
+    t = Table(title=title, title_justify="left")
+    for col in ("stage", "type", "process", "state", "in", "out", "errors", "busy ms"):
+        t.add_column(col, justify="right" if col in ("in", "out", "errors", "busy ms") else "left")
+    for s in stats:
+        style = {"failed": "red", "stopped": "yellow", "finished": "green"}.get(s.state, "")
+        t.add_row(
+            s.name,
+            s.type_name,
+            s.process,
+            f"[{style}]{s.state}[/]" if style else s.state,
+            str(s.messages_in + s.requests_served),
+            str(s.messages_out),
+            str(s.errors),
+            f"{s.busy_s * 1e3:.1f}",
+        )
+    return t
+
+
+def print_summary(summary: RunSummary) -> None:
+    out.print(_stats_table(summary.stages, f"run {summary.run_id} ({summary.process}) in {summary.wall_s:.2f} s"))
+    for ev in summary.events:
+        colour = "yellow" if ev.level == "warning" else "red"
+        out.print(f"[{colour}]{ev.level}[/] {ev.stage}: {escape(f'[{ev.code}] {ev.message}')}", soft_wrap=True)
+        if ev.traceback and ev.level in ("error", "alarm"):
+            out.print(ev.traceback, markup=False, highlight=False)
+    for name, path in summary.artifacts.items():
+        out.print(f"{name}: {escape(path)}", highlight=False, soft_wrap=True)
+    if summary.ok:
+        out.print("[green]run finished[/]")
+    else:
+        out.print(f"[red]run failed[/]: {escape(summary.stop_reason or 'a stage failed')}", soft_wrap=True)
+
+
+def run_with_progress(runner: Runner, show: bool) -> RunSummary:
+    """Run in this thread (signals arrive here); a live table appears if the run lasts > 1 s."""
+    done = threading.Event()
+
+    def live() -> None:
+        if done.wait(1.0):
+            return
+        with Live(
+            _stats_table(runner.snapshot(), "running"), console=console, refresh_per_second=4, transient=True
+        ) as lv:
+            while not done.wait(0.25):
+                lv.update(_stats_table(runner.snapshot(), f"running {runner.run_id}"))
+
+    th = threading.Thread(target=live, daemon=True) if show else None
+    if th:
+        th.start()
+    previous = signal.getsignal(signal.SIGINT)
+
+    def on_sigint(signum: int, frame: Any) -> None:
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # a second Ctrl-C interrupts hard
+        runner.stop("interrupted (Ctrl-C)")
+
+    in_main = threading.current_thread() is threading.main_thread()
+    if in_main:
+        signal.signal(signal.SIGINT, on_sigint)
+    try:
+        return runner.run()
+    finally:
+        done.set()
+        if th:
+            th.join(1.0)
+        if in_main:
+            signal.signal(signal.SIGINT, previous)
+
+
+# --------------------------------------------------------------------------- verbs
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    graph, registry = _load_graph(args)
+    recipe = graph.recipe
+    from engine.recipe import ProcessSettings
+
+    if args.listen or args.connect:
+        over = recipe.processes.get(args.process) or ProcessSettings()
+        recipe.processes[args.process] = ProcessSettings(
+            listen=args.listen or over.listen, connect=args.connect or over.connect
+        )
+    from engine.cli_recording import make_recorder
+
+    recorder = make_recorder(args, graph, registry)
+    observers = [recorder] if recorder is not None else []
+    runner = Runner(
+        graph,
+        process=args.process,
+        run_id=args.run_id,
+        observers=observers,
+        ready_timeout_s=args.ready_timeout,
+    )
+    summary = run_with_progress(runner, show=not args.no_progress and console.is_terminal)
+    if args.json:
+        out.print_json(json.dumps(_summary_dict(summary)))
+    else:
+        print_summary(summary)
+    if summary.stop_reason and "interrupted" in summary.stop_reason:
+        return EXIT_INTERRUPTED
+    return summary.exit_code
+
+
+def _summary_dict(s: RunSummary) -> dict[str, Any]:
+    return {
+        "run_id": s.run_id,
+        "recipe": s.recipe,
+        "process": s.process,
+        "ok": s.ok,
+        "stop_reason": s.stop_reason,
+        "wall_s": s.wall_s,
+        "artifacts": s.artifacts,
+        "stages": [{**vars(st), "messages_in": st.messages_in, "messages_out": st.messages_out} for st in s.stages],
+        "events": [{"level": e.level, "stage": e.stage, "code": e.code, "message": e.message} for e in s.events],
+    }
+
+
+def cmd_validate(args: argparse.Namespace) -> int:
+    graph, _ = _load_graph(args)
+    out.print(
+        f"[green]ok[/]: {graph.loaded.file}: recipe {graph.recipe.name!r}, {len(graph.nodes)} stages, "
+        f"{len(graph.edges)} data edges, {len(graph.service_edges)} service edges, "
+        f"processes: {', '.join(graph.processes())}"
+    )
+    return EXIT_OK
+
+
+def cmd_graph(args: argparse.Namespace) -> int:
+    graph, _ = _load_graph(args)
+    print(graph.to_dot() if args.format == "dot" else graph.to_mermaid())
+    return EXIT_OK
+
+
+def cmd_plugins(args: argparse.Namespace) -> int:
+    registry = load_registry(args.plugin or [])
+    described = [registry.stages[n].describe() | {"plugin": registry.stage_origin[n]} for n in sorted(registry.stages)]
+    if args.json:
+        print(json.dumps(described, indent=2, default=str))
+        return EXIT_OK
+    out.print(f"plugins: {', '.join(registry.plugins)}")
+    for d in described:
+        t = Table(
+            title=f"{d['type']}  [dim]({d['role']}, plugin {d['plugin']})[/]",
+            title_justify="left",
+            caption=d["summary"],
+            caption_justify="left",
+            show_header=True,
+        )
+        t.add_column("kind")
+        t.add_column("name")
+        t.add_column("type / default")
+        for k, v in d["inputs"].items():
+            t.add_row("input", k, v)
+        for k, v in d["outputs"].items():
+            t.add_row("output", k, v)
+        for k, v in d["services"].items():
+            t.add_row("service", k, v)
+        for k, v in d["uses"].items():
+            t.add_row("uses", k, v)
+        for k, v in d["params"].items():
+            dflt = "required" if v["required"] else f"= {v['default']!r}"
+            t.add_row(
+                "param",
+                k,
+                f"{v['type']} {dflt}" + (f"  [dim]{v['description']}[/]" if v["description"] else ""),
+            )
+        out.print(t)
+    return EXIT_OK
+
+
+def cmd_schemas(args: argparse.Namespace) -> int:
+    from engine.codec import registry
+    from engine.schemas import proto_text
+
+    load_registry()
+    for name in registry.names():
+        cls = registry.get(name)
+        print(f"// {name}: {(cls.__doc__ or '').strip().splitlines()[0]}")
+        print(proto_text(cls.SCHEMA))
+        print()
+    return EXIT_OK
+
+
+# --------------------------------------------------------------------------- parser
+
+# Modules of later capabilities add their verbs here (each: add(subparsers)).
+EXTRA_VERBS: list[Callable[[argparse._SubParsersAction], None]] = []  # type: ignore[type-arg]
+
+
+def _add_recipe_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("recipe", help="recipe YAML file")
+    p.add_argument(
+        "-p",
+        "--param",
+        action="append",
+        metavar="KEY=VALUE",
+        help="override: stage.param=value, vars.name=value, seed=N (repeatable)",
+    )
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="vgr", description="3D-vision-guided robot correction")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv for debug)")
+    sub = parser.add_subparsers(dest="verb", required=True)
+
+    p = sub.add_parser("run", help="run a recipe")
+    _add_recipe_args(p)
+    p.add_argument("--process", default="main", help="which of the recipe's processes to run here (default main)")
+    p.add_argument("--run-id", help="run id shared by all processes of the run (default: recipe run_id or name)")
+    p.add_argument(
+        "--listen", action="append", metavar="ENDPOINT", help="zenoh listen endpoint, e.g. tcp/127.0.0.1:7447"
+    )
+    p.add_argument("--connect", action="append", metavar="ENDPOINT", help="zenoh endpoint to connect to")
+    p.add_argument("--ready-timeout", type=float, default=15.0, help="seconds to wait for the other processes")
+    p.add_argument("--no-progress", action="store_true", help="no live progress table")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    cli_recording.add_run_options(p)
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("validate", help="check a recipe (types, wiring, parameters, cycles) without running it")
+    _add_recipe_args(p)
+    p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("graph", help="print a recipe's DAG (Mermaid or Graphviz dot)")
+    _add_recipe_args(p)
+    p.add_argument("--format", choices=["mermaid", "dot"], default="mermaid")
+    p.set_defaults(func=cmd_graph)
+
+    p = sub.add_parser("plugins", help="list every stage type with its ports and parameters")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--plugin", action="append", metavar="MODULE", help="also load this plugin module")
+    p.set_defaults(func=cmd_plugins)
+
+    p = sub.add_parser("schemas", help="print the protobuf schema of every message type")
+    p.set_defaults(func=cmd_schemas)
+
+    cli_recording.add_verbs(sub)
+    for add in EXTRA_VERBS:
+        add(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    _load_cli_extensions()
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    level = logging.WARNING - 10 * min(args.verbose, 2)
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return int(args.func(args) or 0)
+    except RecipeError as exc:
+        console.print(f"[red]invalid recipe[/] ({len(exc.problems)} problem{'s' * (len(exc.problems) > 1)}):")
+        for p in exc.problems:
+            console.print(f"  {p}", markup=False, highlight=False, soft_wrap=True)
+        return EXIT_INVALID
+    except (PluginError, RunError, FileNotFoundError, ValueError, RecordingError, ReplayError) as exc:
+        console.print(f"[red]error[/]: {escape(str(exc))}", highlight=False, soft_wrap=True)
+        return EXIT_INVALID
+    except KeyboardInterrupt:
+        console.print("[yellow]interrupted[/]")
+        return EXIT_INTERRUPTED
+
+
+def _load_cli_extensions() -> None:
+    """Import the modules that register extra verbs/observers (kept out of start-up otherwise)."""
+    import importlib
+
+    for mod in CLI_EXTENSION_MODULES:
+        try:
+            importlib.import_module(mod)
+        except ModuleNotFoundError as exc:
+            if exc.name != mod:
+                raise
+
+
+CLI_EXTENSION_MODULES: list[str] = []
+
+if __name__ == "__main__":
+    sys.exit(main())

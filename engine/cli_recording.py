@@ -1,0 +1,151 @@
+"""CLI verbs of recordings: ``vgr replay``, ``vgr inspect``, ``vgr recover`` (and the recorder of ``vgr run``)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from datetime import UTC, datetime
+from typing import Any
+
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from engine.graph import Graph
+from engine.plugin_manager import Registry
+
+out = Console(width=None if sys.stdout.isatty() else 160)
+EXIT_OK, EXIT_DIFFERENT, EXIT_INVALID = 0, 1, 2
+
+
+def make_recorder(args: argparse.Namespace, graph: Graph, registry: Registry) -> Any:
+    """The Recorder for ``vgr run`` (None with --no-record or ``record.enabled: false``)."""
+    from engine.recorder import Recorder, resolve_path
+
+    settings = graph.recipe.record
+    if getattr(args, "no_record", False) or (not settings.enabled and not getattr(args, "record", None)):
+        return None
+    path = resolve_path(settings, graph.recipe.name, args.process, getattr(args, "record", None))
+    return Recorder(path, settings, graph.loaded, registry.plugins)
+
+
+def add_run_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--record", metavar="PATH", help="record to this file or directory (default runs/)")
+    p.add_argument("--no-record", action="store_true", help="do not record this run")
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from engine.diff import DIFFERENT, IDENTICAL, WITHIN
+    from engine.replay import replay, write_updated
+
+    speed = None if args.speed in (None, "max") else float(args.speed)
+    stages = [s for s in (args.stages or "").split(",") if s] or None
+    report, rec, graph = replay(args.file, recipe=args.recipe, overrides=args.param or [], stages=stages, speed=speed)
+    t = Table(title=f"replay of {args.file}: re-ran {', '.join(report.rerun) or 'nothing'}", title_justify="left")
+    for col in ("topic", "recorded", "replayed", "verdict", "first difference"):
+        t.add_column(col, overflow="fold")
+    colour = {IDENTICAL: "green", WITHIN: "yellow", DIFFERENT: "red"}
+    for v in (*report.streams, *report.requests):
+        extra = v.first_difference or (f"max |diff| {v.max_abs_diff:.3g}" if v.verdict == WITHIN else "")
+        t.add_row(
+            escape(v.topic),
+            str(v.recorded),
+            str(v.replayed),
+            f"[{colour.get(v.verdict, '')}]{v.verdict}[/]",
+            escape(extra),
+        )
+    out.print(t)
+    for v in (*report.streams, *report.requests):
+        if v.verdict == DIFFERENT:
+            out.print(f"[red]different[/] {escape(v.first_difference)}", highlight=False, soft_wrap=True)
+    for f in report.failures:
+        out.print(f"[red]stage failure during replay[/]: {escape(f)}", highlight=False)
+    counts = {k: sum(1 for v in (*report.streams, *report.requests) if v.verdict == k) for k in colour}
+    out.print(f"{counts[IDENTICAL]} identical, {counts[WITHIN]} within tolerance, {counts[DIFFERENT]} different")
+    if args.update:
+        changed = bool(args.recipe or args.param)
+        path = write_updated(report, rec, args.file, graph.loaded.text if changed else None, graph.loaded.overrides)
+        out.print(f"[yellow]golden recording rewritten[/]: {path}")
+        return EXIT_OK
+    return EXIT_OK if report.ok else EXIT_DIFFERENT
+
+
+def _ns(t: int) -> str:
+    return datetime.fromtimestamp(t / 1e9, UTC).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3]
+
+
+def cmd_inspect(args: argparse.Namespace) -> int:
+    from engine.recording import inspect, load
+
+    info = inspect(load(args.file))
+    if args.json:
+        print(json.dumps(info, indent=2))
+        return EXIT_OK
+    run = info["run"]
+    out.print(
+        f"[bold]{info['path']}[/] ({info['size_bytes'] / 1e6:.2f} MB): recipe [bold]{info['recipe']}[/], "
+        f"run {run.get('run_id')}, process {run.get('process')}, seed {run.get('seed')}, clock {run.get('clock')}, "
+        f"started {run.get('started_utc')}, span {info['time_span_s']:.3f} s",
+        highlight=False,
+    )
+    if info["summary"]:
+        out.print(f"summary: ok={info['summary'].get('ok')} {info['summary'].get('stop_reason', '')}", highlight=False)
+    t = Table(title="topics", title_justify="left")
+    for col in ("topic", "type", "schema", "count", "rate Hz", "first", "last"):
+        t.add_column(col, justify="right" if col in ("count", "rate Hz") else "left")
+    for tp in info["topics"]:
+        rate = f"{tp['rate_hz']:.1f}" if tp["rate_hz"] else "-"
+        t.add_row(
+            tp["topic"], tp["type"], tp["schema"], str(tp["count"]), rate, _ns(tp["first_ns"]), _ns(tp["last_ns"])
+        )
+    out.print(t)
+    if info["service_exchanges"]:
+        s = Table(title="service exchanges", title_justify="left")
+        s.add_column("caller -> provider")
+        s.add_column("count", justify="right")
+        for k, v in info["service_exchanges"].items():
+            s.add_row(k, str(v))
+        out.print(s)
+    v = Table(title="versions", title_justify="left")
+    v.add_column("package")
+    v.add_column("version")
+    for k, val in info["versions"].items():
+        v.add_row(k, val)
+    out.print(v)
+    out.print(f"deliveries recorded: {info['deliveries']}; attachments: {', '.join(info['attachments']) or 'none'}")
+    return EXIT_OK
+
+
+def cmd_recover(args: argparse.Namespace) -> int:
+    from engine.recording import recover
+
+    r = recover(args.file, args.output)
+    state = "complete file" if r.complete else f"truncated ({r.error or 'no footer'})"
+    last = _ns(r.last_log_time) if r.last_log_time else "-"
+    out.print(
+        f"recovered {r.messages} records from {r.source} ({state}); last log time {last}\nwritten {r.output}",
+        highlight=False,
+    )
+    return EXIT_OK
+
+
+def add_verbs(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser("replay", help="re-run a recording's solver/action stages and diff their outputs")
+    p.add_argument("file", help="recording (.mcap)")
+    p.add_argument("--recipe", help="replay with this recipe instead of the recorded one")
+    p.add_argument("-p", "--param", action="append", metavar="KEY=VALUE", help="override a parameter for the replay")
+    p.add_argument("--stages", help="comma-separated stages to re-run (default: all but sources/sensors/devices)")
+    p.add_argument("--speed", default="max", help="'max' (default) or a factor of real time, e.g. 1")
+    p.add_argument("--update", action="store_true", help="rewrite the recording with the replayed outputs (new golden)")
+    p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser("inspect", help="topics, counts, rates, time span, recipe and versions of a recording")
+    p.add_argument("file")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_inspect)
+
+    p = sub.add_parser("recover", help="rebuild the index of a recording cut short (e.g. kill -9)")
+    p.add_argument("file")
+    p.add_argument("-o", "--output", help="output file (default FILE-recovered.mcap)")
+    p.set_defaults(func=cmd_recover)

@@ -1,0 +1,90 @@
+"""Discovering plugins and holding the registry of stage types, message types and model effects.
+
+``load_registry()`` builds a pluggy PluginManager, loads every entry point of group ``vgr``
+(including vgr's own ``plugins.builtin``) plus any extra modules a recipe names, and collects what
+the hooks return. Two plugins claiming one stage type name is an error that names both.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import pluggy
+
+from engine import codec
+from engine.hookspecs import PROJECT, VgrSpecs
+from engine.messages import Message
+from engine.stage import EVENTS_PORT, Stage
+
+
+class PluginError(RuntimeError):
+    """A plugin could not be loaded or declares something invalid."""
+
+
+@dataclass
+class Registry:
+    """Everything the loaded plugins provide."""
+
+    stages: dict[str, type[Stage]] = field(default_factory=dict)
+    stage_origin: dict[str, str] = field(default_factory=dict)
+    effects: dict[str, Any] = field(default_factory=dict)
+    plugins: list[str] = field(default_factory=list)
+
+    def stage(self, type_name: str) -> type[Stage]:
+        return self.stages[type_name]
+
+
+def _check_stage(cls: Any, origin: str) -> None:
+    if not (isinstance(cls, type) and issubclass(cls, Stage)):
+        raise PluginError(f"plugin {origin} returned {cls!r}, which is not a Stage subclass")
+    if not cls.type_name:
+        raise PluginError(f"stage class {cls.__module__}.{cls.__name__} (plugin {origin}) has no type_name")
+    if EVENTS_PORT in cls.outputs:
+        raise PluginError(f"stage {cls.type_name}: output port name {EVENTS_PORT!r} is reserved")
+    for kind, ports in (("input", cls.inputs), ("output", cls.outputs)):
+        for port, mtype in ports.items():
+            if not (isinstance(mtype, type) and issubclass(mtype, Message)):
+                raise PluginError(f"stage {cls.type_name}: {kind} port {port!r} type {mtype!r} is not a Message")
+
+
+def load_registry(extra_modules: Iterable[str] = (), *, entry_points: bool = True) -> Registry:
+    """Load plugins (entry points of group ``vgr`` + *extra_modules*) and build the registry."""
+    pm = pluggy.PluginManager(PROJECT)
+    pm.add_hookspecs(VgrSpecs)
+    if entry_points:
+        pm.load_setuptools_entrypoints(PROJECT)
+    for mod_name in extra_modules:
+        try:
+            mod = importlib.import_module(mod_name)
+        except Exception as exc:
+            raise PluginError(f"cannot import plugin module {mod_name!r}: {exc}") from exc
+        if not pm.is_registered(mod):
+            pm.register(mod, name=mod_name)
+    if entry_points and "builtin" not in {name for name, _ in pm.list_name_plugin()}:
+        raise PluginError(
+            "vgr's built-in plugins are not registered: install vgr (`make install` or `pip install -e .`)"
+        )
+    reg = Registry(plugins=sorted(name for name, _ in pm.list_name_plugin() if name))
+    for impl in pm.hook.vgr_message_types.get_hookimpls():
+        for mtype in impl.function() or []:
+            if not (isinstance(mtype, type) and issubclass(mtype, Message)):
+                raise PluginError(f"plugin {impl.plugin_name} returned {mtype!r} as a message type")
+            codec.registry.add(mtype)
+    for impl in pm.hook.vgr_stage_types.get_hookimpls():
+        for cls in impl.function() or []:
+            _check_stage(cls, impl.plugin_name)
+            prev = reg.stage_origin.get(cls.type_name)
+            if prev is not None and reg.stages[cls.type_name] is not cls:
+                raise PluginError(
+                    f"stage type {cls.type_name!r} is provided twice: by plugin {prev} and by {impl.plugin_name}"
+                )
+            reg.stages[cls.type_name] = cls
+            reg.stage_origin[cls.type_name] = impl.plugin_name
+    for impl in pm.hook.vgr_model_effects.get_hookimpls():
+        for eff in impl.function() or []:
+            name = getattr(eff, "name", None) or getattr(eff, "__name__", str(eff))
+            reg.effects[name] = eff
+    return reg

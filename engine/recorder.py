@@ -1,0 +1,362 @@
+"""Recording a run to MCAP: every message, service exchange and delivery, with the recipe and versions.
+
+One file per process: ``runs/<YYYYmmdd-HHMMSS>-<recipe>.mcap`` (``-<process>`` appended for
+processes other than ``main``), or the recipe's ``record.path``. Contents:
+
+* a channel per output port, topic ``/<stage>/<port>``, protobuf-encoded with the message's schema
+  (Foxglove schemas for geometry, so Foxglove shows the 3D view); ``sequence`` = the message's seq,
+  ``publish_time`` = its source stamp, ``log_time`` = the run's clock when it was published. Inputs
+  that arrived from other processes are recorded on their producer's topic, so the file is
+  self-contained;
+* ``/<stage>/_svc/<client>`` (vgr.v1.ServiceExchange): every service call with request and reply;
+* ``/_vgr/deliveries`` (vgr.v1.Delivery) and ``/_vgr/finish`` (vgr.v1.StageFinish): the order in
+  which each stage handled its inputs, which replay follows instead of arrival order;
+* metadata ``vgr.run`` (run id, process, seed, clock, start), ``vgr.recipe`` (text, overrides,
+  resolved parameters), ``vgr.versions`` (vgr, Python, packages, plugins), ``vgr.summary`` (at the
+  end); the recipe text is also an attachment ``recipe.yaml``.
+
+Chunked, compressed (zstd by default) and indexed. A writer thread owns the file; it closes the
+current chunk and flushes to the OS at least every ``record.flush_interval_s`` (default 1 s), so a
+``kill -9`` loses at most that much: ``vgr recover`` rebuilds the index of such a file.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import platform
+import queue
+import threading
+import time
+from datetime import datetime
+from importlib import metadata as importlib_metadata
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from mcap.writer import CompressionType, Writer
+from mcap_protobuf.schema import build_file_descriptor_set
+
+from engine import __version__, codec
+from engine.codec import Envelope
+from engine.recipe import LoadedRecipe, RecordSettings
+from engine.runner import Observer, Runner, RunSummary
+from engine.schemas import proto_class
+
+if TYPE_CHECKING:
+    from engine.graph import ServiceEdge
+    from engine.messages import Message
+
+log = logging.getLogger("vgr.recorder")
+
+TOPIC_DELIVERIES = "/_vgr/deliveries"
+TOPIC_FINISH = "/_vgr/finish"
+PACKAGES = (
+    "numpy",
+    "scipy",
+    "open3d-cpu",
+    "open3d",
+    "eclipse-zenoh",
+    "protobuf",
+    "mcap",
+    "pydantic",
+    "pluggy",
+    "small_gicp",
+    "kiss-icp",
+)
+_COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+
+
+def topic_of(stage: str, port: str) -> str:
+    return f"/{stage}/{port}"
+
+
+def service_topic(stage: str, client: str) -> str:
+    return f"/{stage}/_svc/{client}"
+
+
+def default_path(recipe: str, process: str, directory: str | Path = "runs") -> Path:
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    suffix = "" if process == "main" else f"-{process}"
+    return Path(directory) / f"{stamp}-{recipe}{suffix}.mcap"
+
+
+def resolve_path(settings: RecordSettings, recipe: str, process: str, override: str | None = None) -> Path:
+    """Where this process records: *override* or ``record.path`` (a file, or a directory), else runs/."""
+    target = override or settings.path
+    if target is None:
+        path = default_path(recipe, process)
+    else:
+        p = Path(target)
+        path = default_path(recipe, process, p) if (p.is_dir() or target.endswith("/")) else p
+    path.parent.mkdir(parents=True, exist_ok=True)
+    n = 1
+    candidate = path
+    while candidate.exists() and override is None and settings.path is None:
+        candidate = path.with_name(f"{path.stem}-{n}{path.suffix}")
+        n += 1
+    return candidate
+
+
+def versions(plugins: list[str]) -> dict[str, str]:
+    out = {"vgr": __version__, "python": platform.python_version(), "platform": platform.platform()}
+    for pkg in PACKAGES:
+        try:
+            out[pkg] = importlib_metadata.version(pkg)
+        except importlib_metadata.PackageNotFoundError:
+            continue
+    out["plugins"] = ",".join(plugins)
+    return out
+
+
+class Recorder(Observer):
+    """Run observer writing the MCAP file from its own thread (stage threads only enqueue)."""
+
+    def __init__(self, path: Path, settings: RecordSettings, loaded: LoadedRecipe, plugins: list[str]) -> None:
+        self.path = Path(path)
+        self.settings = settings
+        self.loaded = loaded
+        self.plugins = plugins
+        self.error: str | None = None
+        self.messages_written = 0
+        self._q: queue.SimpleQueue[tuple[Any, ...]] = queue.SimpleQueue()
+        self._thread: threading.Thread | None = None
+        self._runner: Runner | None = None
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self._seen_remote: set[tuple[str, int]] = set()
+
+    # -- observer interface (stage threads) ----------------------------------------------------
+    def on_start(self, runner: Runner) -> None:
+        self._runner = runner
+        self._file = self.path.open("wb")
+        self._writer = Writer(
+            self._file, chunk_size=self.settings.chunk_size, compression=_COMPRESSION[self.settings.compression]
+        )
+        self._writer.start(profile="", library=f"vgr {__version__}")
+        recipe = self.loaded.recipe
+        self._writer.add_metadata(
+            "vgr.run",
+            {
+                "run_id": runner.run_id,
+                "process": runner.process,
+                "seed": str(recipe.seed),
+                "clock": recipe.clock,
+                "recipe": recipe.name,
+                "recipe_file": self.loaded.file or "",
+                "started_utc": runner.started_at.isoformat(),
+                "clock_start_ns": str(runner.clock.now_ns()),
+            },
+        )
+        self._writer.add_metadata(
+            "vgr.recipe",
+            {
+                "text": self.loaded.text,
+                "overrides": json.dumps(self.loaded.overrides),
+                "resolved_json": recipe.model_dump_json(),
+            },
+        )
+        self._writer.add_metadata("vgr.versions", versions(self.plugins))
+        self._writer.add_attachment(
+            log_time=runner.clock.now_ns(),
+            create_time=runner.clock.now_ns(),
+            name="recipe.yaml",
+            media_type="application/yaml",
+            data=self.loaded.text.encode(),
+        )
+        self._thread = threading.Thread(target=self._write_loop, name="vgr:recorder", daemon=True)
+        self._thread.start()
+
+    def _now(self) -> int:
+        assert self._runner is not None
+        return self._runner.clock.now_ns()
+
+    def on_publish(self, stage: str, port: str, payload: bytes, envelope: bytes, msg: Message) -> None:
+        self._q.put(("msg", stage, port, msg.TYPE, self._now(), msg.stamp_ns, msg.seq, payload))
+
+    def on_receive(self, src_stage: str, src_port: str, payload: bytes, envelope: bytes) -> None:
+        env = codec.decode_envelope(envelope)
+        self._q.put(("remote", src_stage, src_port, env.type_name, self._now(), env.stamp_ns, env.seq, payload))
+
+    def on_deliver(self, stage: str, port: str, env: Envelope) -> None:
+        assert self._runner is not None
+        edge = next(e for e in self._runner.graph.inputs_of(stage) if e.dst_port == port)
+        self._q.put(("deliver", stage, port, topic_of(edge.src, edge.src_port), env.seq, self._now()))
+
+    def on_stage_finish(self, stage: str) -> None:
+        self._q.put(("finish", stage, self._now()))
+
+    def on_service(
+        self,
+        stage: str,
+        client: str,
+        edge: ServiceEdge,
+        req_payload: bytes,
+        req_env: bytes,
+        reply_payload: bytes,
+        reply_env: bytes,
+        error: str,
+    ) -> None:
+        req = codec.decode_envelope(req_env)
+        reply_type = codec.decode_envelope(reply_env).type_name if reply_env else ""
+        self._q.put(
+            (
+                "svc",
+                stage,
+                client,
+                edge.provider,
+                edge.service,
+                req.type_name,
+                req_payload,
+                req.seq,
+                reply_type,
+                reply_payload,
+                error,
+                self._now(),
+            )
+        )
+
+    def on_finish(self, runner: Runner, summary: RunSummary) -> None:
+        self._q.put(("end", summary))
+        if self._thread is not None:
+            self._thread.join(60)
+        summary.artifacts["recording"] = str(self.path)
+        if self.error:
+            summary.artifacts["recording_error"] = self.error
+
+    # -- writer thread -----------------------------------------------------------------------
+    def _write_loop(self) -> None:
+        interval = self.settings.flush_interval_s
+        last_flush = time.monotonic()
+        dirty = False
+        while True:
+            timeout = max(0.0, interval - (time.monotonic() - last_flush))
+            try:
+                item = self._q.get(timeout=timeout)
+            except queue.Empty:
+                item = None
+            if item is not None and item[0] == "end":
+                self._close(item[1])
+                return
+            if item is not None:
+                try:
+                    self._write(item)
+                    dirty = True
+                except Exception as exc:  # disk full, ...: keep draining, report at the end
+                    if self.error is None:
+                        self.error = f"{type(exc).__name__}: {exc}"
+                        log.error("recording to %s failed: %s", self.path, exc)
+            if dirty and time.monotonic() - last_flush >= interval:
+                try:
+                    self._writer.flush()
+                except Exception as exc:
+                    self.error = self.error or f"{type(exc).__name__}: {exc}"
+                last_flush = time.monotonic()
+                dirty = False
+
+    def _schema(self, full_name: str) -> int:
+        sid = self._schemas.get(full_name)
+        if sid is None:
+            fds = build_file_descriptor_set(proto_class(full_name))
+            sid = self._writer.register_schema(name=full_name, encoding="protobuf", data=fds.SerializeToString())
+            self._schemas[full_name] = sid
+        return sid
+
+    def _channel(self, topic: str, schema: str, meta: dict[str, str]) -> int:
+        cid = self._channels.get(topic)
+        if cid is None:
+            cid = self._writer.register_channel(
+                topic=topic, message_encoding="protobuf", schema_id=self._schema(schema), metadata=meta
+            )
+            self._channels[topic] = cid
+        return cid
+
+    def _write(self, item: tuple[Any, ...]) -> None:
+        kind = item[0]
+        assert self._runner is not None
+        if kind in ("msg", "remote"):
+            _, stage, port, type_name, log_time, stamp, seq, payload = item
+            topic = topic_of(stage, port)
+            if kind == "remote":
+                if (topic, seq) in self._seen_remote:
+                    return
+                self._seen_remote.add((topic, seq))
+            cls = codec.registry.get(type_name)
+            node = self._runner.graph.nodes[stage]
+            cid = self._channel(
+                topic,
+                cls.SCHEMA,
+                {"stage": stage, "port": port, "type": type_name, "process": node.spec.process, "role": node.cls.role},
+            )
+            self._writer.add_message(
+                channel_id=cid, log_time=log_time, data=bytes(payload), publish_time=stamp, sequence=seq & 0xFFFFFFFF
+            )
+            self.messages_written += 1
+        elif kind == "deliver":
+            _, stage, port, src_topic, seq, log_time = item
+            pb = proto_class("vgr.v1.Delivery")(stage=stage, port=port, source_topic=src_topic, seq=seq)
+            cid = self._channel(TOPIC_DELIVERIES, "vgr.v1.Delivery", {"kind": "deliveries"})
+            self._writer.add_message(
+                channel_id=cid, log_time=log_time, data=pb.SerializeToString(), publish_time=log_time
+            )
+        elif kind == "finish":
+            _, stage, log_time = item
+            pb = proto_class("vgr.v1.StageFinish")(stage=stage)
+            cid = self._channel(TOPIC_FINISH, "vgr.v1.StageFinish", {"kind": "finish"})
+            self._writer.add_message(
+                channel_id=cid, log_time=log_time, data=pb.SerializeToString(), publish_time=log_time
+            )
+        elif kind == "svc":
+            (_, stage, client, provider, service, req_type, req, req_seq, reply_type, reply, error, log_time) = item
+            pb = proto_class("vgr.v1.ServiceExchange")(
+                caller=stage,
+                client=client,
+                provider=provider,
+                service=service,
+                request_type=req_type,
+                request=bytes(req),
+                request_seq=req_seq,
+                reply_type=reply_type,
+                reply=bytes(reply),
+                error=error,
+            )
+            cid = self._channel(
+                service_topic(stage, client),
+                "vgr.v1.ServiceExchange",
+                {"stage": stage, "client": client, "provider": provider, "service": service},
+            )
+            self._writer.add_message(
+                channel_id=cid,
+                log_time=log_time,
+                data=pb.SerializeToString(),
+                publish_time=log_time,
+                sequence=req_seq & 0xFFFFFFFF,
+            )
+
+    def _close(self, summary: RunSummary) -> None:
+        try:
+            self._writer.add_metadata(
+                "vgr.summary",
+                {
+                    "ok": str(summary.ok).lower(),
+                    "stop_reason": summary.stop_reason or "",
+                    "wall_s": f"{summary.wall_s:.3f}",
+                    "stages": json.dumps(
+                        [
+                            {
+                                "name": s.name,
+                                "state": s.state,
+                                "in": s.messages_in,
+                                "out": s.messages_out,
+                                "errors": s.errors,
+                            }
+                            for s in summary.stages
+                        ]
+                    ),
+                    "recording_error": self.error or "",
+                },
+            )
+            self._writer.finish()
+        except Exception as exc:
+            self.error = self.error or f"{type(exc).__name__}: {exc}"
+        finally:
+            self._file.close()

@@ -1,0 +1,352 @@
+"""Running a recipe's stages in this process, from start-up barrier to clean shutdown.
+
+Life of a run (per process):
+
+1. open the bus, construct this process's stages, declare publishers, input channels, services;
+2. declare liveliness tokens and, when the recipe spans several processes, wait until every
+   stage of the recipe is declared (so no message is published before its consumer listens);
+3. ``setup()`` each stage, start pump threads and source threads;
+4. wait until every *driven* stage (sources and everything downstream of them) has finished here
+   and no other process still has active stages; service-only stages then end their streams;
+5. on a stage failure (``on_error: stop``), Ctrl-C or a stop from another process: stop
+   everything promptly; stages that do not return within the grace period are reported;
+6. ``teardown()`` every stage, undeclare, close the zenoh session, return a :class:`RunSummary`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from typing import Any
+
+from engine.bus import Bus, active_key, control_key, ready_key
+from engine.clock import Clock, make_clock
+from engine.codec import Envelope
+from engine.graph import Graph, ServiceEdge
+from engine.messages import Event, Message
+from engine.runtime import StageRuntime, StageStats
+
+log = logging.getLogger("vgr.runner")
+
+STOP_GRACE_S = 10.0
+
+
+class RunError(RuntimeError):
+    """The run could not start (bus, stage construction, start-up barrier)."""
+
+
+class Observer:
+    """Sees everything a process's stages do, in the order they do it (recorder, tests).
+
+    Calls come from stage threads; an observer must be quick and thread-safe.
+    """
+
+    def on_start(self, runner: Runner) -> None:
+        """The stages exist and are declared; nothing has run yet."""
+
+    def on_publish(self, stage: str, port: str, payload: bytes, envelope: bytes, msg: Message) -> None:
+        """*stage* published *msg* on *port* (encoded: payload + envelope)."""
+
+    def on_receive(self, src_stage: str, src_port: str, payload: bytes, envelope: bytes) -> None:
+        """A message of a stage in another process arrived here (before it is delivered)."""
+
+    def on_deliver(self, stage: str, port: str, env: Envelope) -> None:
+        """*stage* is about to handle message ``env.seq`` of its input *port*."""
+
+    def on_stage_finish(self, stage: str) -> None:
+        """All inputs of *stage* have ended; its ``finish()`` is about to run."""
+
+    def on_service(
+        self,
+        stage: str,
+        client: str,
+        edge: ServiceEdge,
+        req_payload: bytes,
+        req_env: bytes,
+        reply_payload: bytes,
+        reply_env: bytes,
+        error: str,
+    ) -> None:
+        """*stage* called ``edge.provider.edge.service`` through *client*; the exchange is complete."""
+
+    def on_finish(self, runner: Runner, summary: RunSummary) -> None:
+        """The run is over (sessions closed); *summary* may be annotated (artifacts)."""
+
+
+@dataclass
+class RunSummary:
+    run_id: str
+    recipe: str
+    process: str
+    ok: bool
+    stop_reason: str | None
+    stages: list[StageStats]
+    wall_s: float
+    events: list[Event] = field(default_factory=list)  # warnings, errors and alarms
+    artifacts: dict[str, str] = field(default_factory=dict)  # e.g. recording path
+
+    @property
+    def exit_code(self) -> int:
+        return 0 if self.ok else 1
+
+
+def _driven_stages(graph: Graph) -> set[str]:
+    """Sources and every stage reachable from a source through data edges."""
+    driven = {n for n, node in graph.nodes.items() if node.cls.is_source()}
+    for name in graph.order:
+        if any(e.src in driven for e in graph.inputs_of(name)):
+            driven.add(name)
+    return driven
+
+
+class Runner:
+    """Runs the stages of one process of a recipe graph."""
+
+    def __init__(
+        self,
+        graph: Graph,
+        *,
+        process: str = "main",
+        run_id: str | None = None,
+        clock: Clock | None = None,
+        observers: list[Observer] | None = None,
+        ready_timeout_s: float = 15.0,
+        bus: Bus | None = None,
+    ) -> None:
+        recipe = graph.recipe
+        if process not in graph.processes():
+            raise RunError(
+                f"recipe {recipe.name!r} has no stage in process {process!r} "
+                f"(processes: {', '.join(graph.processes())})"
+            )
+        self.graph = graph
+        self.process = process
+        self.run_id = run_id or recipe.run_id or recipe.name
+        self.seed = recipe.seed
+        self.clock = clock or make_clock(recipe.clock)
+        self.observers = list(observers or [])
+        self.ready_timeout_s = ready_timeout_s
+        self.stop_event = threading.Event()
+        self.stop_reason: str | None = None
+        self.failed_stages: list[str] = []
+        self.driven = _driven_stages(graph)
+        self.multi_process = len(graph.processes()) > 1
+        self._own_bus = bus is None
+        self._bus = bus
+        self.runtimes: dict[str, StageRuntime] = {}
+        self.events: list[Event] = []
+        self._events_lock = threading.Lock()
+        self._progress = threading.Event()
+        self._tokens: dict[str, Any] = {}
+        self.started_at = datetime.now(UTC)
+
+    @property
+    def bus(self) -> Bus:
+        assert self._bus is not None, "bus not open"
+        return self._bus
+
+    # -- callbacks from runtimes -------------------------------------------------------------
+    def note_event(self, ev: Event) -> None:
+        if ev.level in ("warning", "error", "alarm"):
+            with self._events_lock:
+                self.events.append(ev)
+            logging.getLogger(f"vgr.stage.{ev.stage}").log(
+                logging.WARNING if ev.level == "warning" else logging.ERROR, "[%s] %s", ev.code, ev.message
+            )
+
+    def stage_done(self, rt: StageRuntime) -> None:
+        self._progress.set()
+
+    def stage_failed(self, rt: StageRuntime) -> None:
+        self.failed_stages.append(rt.name)
+        if self.graph.recipe.on_error == "stop":
+            self.stop(f"stage {rt.name!r} failed: {rt.stats.error}")
+        else:
+            rt.close_outputs()
+            rt.data_done.set()
+            self._progress.set()
+
+    def stop(self, reason: str, *, broadcast: bool = True) -> None:
+        """Stop the run (idempotent). Other processes of the run are told unless *broadcast* is False."""
+        if self.stop_event.is_set():
+            return
+        self.stop_reason = reason
+        self.stop_event.set()
+        self._progress.set()
+        log.warning("stopping run %s: %s", self.run_id, reason)
+        # stop() may run on a stage's own thread (a failure): it only flags; the main thread wakes
+        # the readers in _shutdown, so nothing here can block on a full channel.
+        if broadcast and self.multi_process and self._bus is not None and not self._bus.closed:
+            try:
+                self._bus.put(control_key(self.run_id), json.dumps({"stop": reason, "process": self.process}).encode())
+            except Exception:
+                log.exception("could not broadcast the stop")
+
+    def _wake_all(self) -> None:
+        """Unblock every pump thread of this process (non-blocking)."""
+        for rt in self.runtimes.values():
+            rt.wake()
+
+    def _on_control(self, sample: Any) -> None:
+        try:
+            msg = json.loads(sample.payload.to_bytes())
+        except ValueError:
+            return
+        if "stop" in msg and msg.get("process") != self.process:
+            self.stop(f"stopped by process {msg.get('process')!r}: {msg['stop']}", broadcast=False)
+
+    # -- the run -----------------------------------------------------------------------------
+    def run(self) -> RunSummary:
+        """Run to completion (or stop) and return the summary; RunError if the run cannot start."""
+        t0 = time.monotonic()
+        try:
+            try:
+                self._start()
+                self._wait_until_done()
+            except KeyboardInterrupt:
+                self.stop("interrupted (Ctrl-C)")
+        finally:
+            self._shutdown()
+        ok = not self.failed_stages and self.stop_reason is None
+        summary = RunSummary(
+            self.run_id,
+            self.graph.recipe.name,
+            self.process,
+            ok,
+            self.stop_reason,
+            [rt.stats for rt in self.runtimes.values()],
+            time.monotonic() - t0,
+            list(self.events),
+        )
+        for obs in self.observers:
+            obs.on_finish(self, summary)
+        return summary
+
+    def _start(self) -> None:
+        recipe = self.graph.recipe
+        if self._bus is None:
+            self._bus = Bus(recipe.zenoh_for(self.process))
+        local = self.graph.stages_in(self.process)
+        for name in local:
+            self.runtimes[name] = StageRuntime(self, self.graph.nodes[name])
+        for obs in self.observers:
+            obs.on_start(self)
+        for name, rt in self.runtimes.items():
+            node = self.graph.nodes[name]
+            try:
+                rt.stage = node.cls(rt, node.params)
+            except Exception as exc:
+                raise RunError(
+                    f"stage {name!r} ({node.cls.type_name}) could not be created: {type(exc).__name__}: {exc}"
+                ) from exc
+            rt.declare_outputs()
+        for rt in self.runtimes.values():
+            rt.declare_inputs()
+        if self.multi_process:
+            self.bus.subscribe(control_key(self.run_id), self._on_control)
+            if any(rt.driven for rt in self.runtimes.values()):
+                self._tokens["active"] = self.bus.token(active_key(self.run_id, self.process))
+        for name in local:
+            self._tokens[name] = self.bus.token(ready_key(self.run_id, name))
+        if self.multi_process:
+            self._barrier()
+        for name in local:
+            rt = self.runtimes[name]
+            rt.stats.state = "running"
+            try:
+                assert rt.stage is not None
+                rt.stage.setup()
+            except Exception as exc:
+                rt.fail(exc, "setup")
+        if self.stop_event.is_set():
+            return
+        for name in local:
+            rt = self.runtimes[name]
+            if not rt.driven and not rt.node.cls.inputs:
+                rt.data_done.set()  # pure service providers do not hold the run open
+            rt.start_threads()
+
+    def _barrier(self) -> None:
+        expected = set(self.graph.nodes)
+        deadline = time.monotonic() + self.ready_timeout_s
+        while True:
+            ready = {k.rsplit("/", 1)[-1] for k in self.bus.alive(ready_key(self.run_id, "*"))}
+            missing = expected - ready
+            if not missing:
+                return
+            if self.stop_event.is_set():
+                raise RunError(f"run stopped while waiting for stages: {self.stop_reason}")
+            if time.monotonic() > deadline:
+                where = ", ".join(f"{m} (process {self.graph.nodes[m].spec.process})" for m in sorted(missing))
+                raise RunError(
+                    f"after {self.ready_timeout_s:g} s these stages are not running: {where}. "
+                    f"Start `vgr run RECIPE --process NAME` for each process, with the same run id "
+                    f"({self.run_id}) and zenoh endpoints that connect them."
+                )
+            time.sleep(0.05)
+
+    def _local_driven_done(self) -> bool:
+        return all(rt.data_done.is_set() for rt in self.runtimes.values() if rt.driven)
+
+    def _remote_active(self) -> bool:
+        if not self.multi_process:
+            return False
+        own = active_key(self.run_id, self.process)
+        return bool(self.bus.alive(active_key(self.run_id, "*")) - {own})
+
+    def _wait_until_done(self) -> None:
+        while not self.stop_event.is_set():
+            if self._local_driven_done():
+                token = self._tokens.pop("active", None)
+                if token is not None:
+                    token.undeclare()
+                if not self._remote_active():
+                    break
+            self._progress.wait(0.05)
+            self._progress.clear()
+        if self.stop_event.is_set():
+            return
+        # the data is complete everywhere: service-only stages end their streams, consumers drain
+        for name in self.graph.stages_in(self.process):
+            rt = self.runtimes[name]
+            if not rt.driven and not rt.node.cls.inputs:
+                rt.close_outputs()
+        deadline = time.monotonic() + STOP_GRACE_S
+        while not all(rt.data_done.is_set() for rt in self.runtimes.values()):
+            if self.stop_event.is_set() or time.monotonic() > deadline:
+                break
+            self._progress.wait(0.05)
+            self._progress.clear()
+
+    def _shutdown(self) -> None:
+        if self._bus is None:
+            return
+        self.stop_event.set()  # ends service pumps and idle readers; a failure only if stop_reason is set
+        self._wake_all()
+        deadline = time.monotonic() + STOP_GRACE_S
+        for rt in self.runtimes.values():
+            for t in rt.threads:
+                t.join(max(0.0, deadline - time.monotonic()))
+            stuck = [t.name for t in rt.threads if t.is_alive()]
+            if stuck:
+                rt.stats.error = rt.stats.error or f"did not stop within {STOP_GRACE_S:g} s: {', '.join(stuck)}"
+                self.note_event(Event(level="error", code="stage_stuck", stage=rt.name, message=rt.stats.error))
+            if rt.stats.state == "running":
+                rt.stats.state = "stopped" if self.stop_reason else "finished"
+        for name in reversed(self.graph.stages_in(self.process)):
+            self.runtimes[name].teardown()
+        for tok in self._tokens.values():
+            with contextlib.suppress(Exception):
+                tok.undeclare()
+        self._tokens.clear()
+        if self._own_bus:
+            self._bus.close()
+
+    def snapshot(self) -> list[StageStats]:
+        """Live per-stage counters (for progress displays)."""
+        return [rt.stats for rt in self.runtimes.values()]

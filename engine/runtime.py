@@ -1,0 +1,475 @@
+"""One stage at run time: its context (publish, call, events), its locks and counters, its threads.
+
+The runner (engine.runner) creates a :class:`StageRuntime` per stage of this process.
+
+Data path of ``publish(port, msg)``:
+
+* consumers in this process get the message object itself, its arrays frozen read-only through their
+  :class:`~engine.inbox.PortInbox` (handled inline on the publisher's thread when the consumer is
+  idle, else by the consumer's pump thread; see engine.inbox);
+* when anything outside the process may listen — a stage of another process, an external zenoh
+  subscriber (a robot controller, a viewer), or a run observer such as the recorder — the message is
+  encoded once (engine.codec) and put on ``vgr/<run>/<stage>/<port>``.
+
+Handlers of one stage never run concurrently (one re-entrant lock per stage) and each input port's
+messages arrive in publication order. A failure inside a handler becomes an ``error`` Event with
+its traceback, never a silent death.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+import traceback
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from engine import codec
+from engine.bus import data_key, service_key
+from engine.codec import CodecError, Envelope, Kind
+from engine.graph import StageNode
+from engine.inbox import LOCAL, REMOTE, STOP, PortInbox
+from engine.messages import Event, Message, freeze
+from engine.stage import EVENTS_PORT, ServiceError, ServiceTimeoutError, Stage, StageContext, stage_rng
+
+if TYPE_CHECKING:
+    from engine.runner import Runner
+
+log = logging.getLogger("vgr.runtime")
+LOCAL_QUEUE_DEPTH = 64  # messages a local producer may run ahead of its consumer
+BACKLOG_WARN = 1000  # first backlog of a cross-process input that raises a warning
+
+
+@dataclass
+class StageStats:
+    """Per-stage counters reported at the end of a run (and live by the progress display)."""
+
+    name: str
+    type_name: str
+    process: str
+    role: str
+    received: dict[str, int] = field(default_factory=dict)
+    published: dict[str, int] = field(default_factory=dict)
+    requests_served: int = 0
+    calls_made: int = 0
+    errors: int = 0
+    busy_s: float = 0.0
+    state: str = "pending"  # pending | running | finished | failed | stopped
+    error: str = ""
+
+    @property
+    def messages_in(self) -> int:
+        return sum(self.received.values())
+
+    @property
+    def messages_out(self) -> int:
+        return sum(v for k, v in self.published.items() if k != EVENTS_PORT)
+
+
+class _Output:
+    """One output port: its zenoh publisher, local consumers, sequence counter and lock."""
+
+    def __init__(self, runtime: StageRuntime, port: str) -> None:
+        rt = runtime
+        self.port = port
+        self.type = rt.node.cls.all_outputs()[port]
+        self.lock = threading.Lock()  # seq order == delivery order == wire order
+        self.seq = 0
+        self.closed = False
+        self.local: list[tuple[StageRuntime, str]] = []  # (consumer, its input port)
+        graph = rt.runner.graph
+        self.remote_consumers = any(
+            graph.nodes[e.dst].spec.process != rt.node.spec.process for e in graph.consumers_of(rt.name, port)
+        )
+        self.publisher = rt.runner.bus.remote_publisher(data_key(rt.run_id, rt.name, port))
+        self.external = bool(self.publisher.matching_status.matching)
+        self._listener = self.publisher.declare_matching_listener(self._on_matching)
+
+    def _on_matching(self, status: Any) -> None:
+        self.external = bool(status.matching)
+
+    def needs_bytes(self, observers: list[Any]) -> bool:
+        return self.remote_consumers or self.external or bool(observers)
+
+
+class StageRuntime(StageContext):
+    """The engine side of one stage in this process (implements StageContext)."""
+
+    def __init__(self, runner: Runner, node: StageNode) -> None:
+        self.runner = runner
+        self.node = node
+        self.name = node.name
+        self.run_id = runner.run_id
+        self.seed = runner.seed
+        self.rng = stage_rng(runner.seed, node.name)
+        self.clock = runner.clock
+        self.log = logging.getLogger(f"vgr.stage.{node.name}")
+        self.lock = threading.RLock()  # serialises the stage's handlers
+        self.inline = node.spec.dispatch == "auto"
+        self.stats = StageStats(
+            node.name,
+            node.cls.type_name,
+            node.spec.process,
+            node.cls.role,
+            received={p: 0 for p in node.cls.inputs},
+            published={p: 0 for p in node.cls.all_outputs()},
+        )
+        self.outputs: dict[str, _Output] = {}
+        self.inboxes: dict[str, PortInbox] = {}
+        self.queryables: dict[str, Any] = {}  # service -> bus.Inbox
+        self._last_in_seq: dict[str, int] = {}
+        self.pending_inputs: set[str] = set(node.cls.inputs)
+        self.failed = False
+        self.data_done = threading.Event()
+        self.threads: list[threading.Thread] = []
+        self.stage: Stage | None = None
+        self.clients = {e.client_name: e for e in runner.graph.service_edges if e.client == node.name}
+        self._causal = threading.local()  # stamp of the input being handled on this thread
+        self._call_seq: dict[str, int] = {}  # requests sent per service client
+
+    # -- StageContext ------------------------------------------------------------------------
+    @property
+    def stopping(self) -> bool:
+        return self.runner.stop_event.is_set()
+
+    def sleep(self, seconds: float) -> bool:
+        return self.clock.sleep(seconds, self.runner.stop_event)
+
+    def publish(self, port: str, msg: Message) -> None:
+        out = self.outputs.get(port)
+        if out is None:
+            outs = ", ".join(self.node.cls.all_outputs())
+            raise ValueError(f"stage {self.name!r} has no output port {port!r} (outputs: {outs})")
+        if not isinstance(msg, out.type):
+            raise TypeError(f"stage {self.name!r}: port {port!r} carries {out.type.TYPE}, got {type(msg).__name__}")
+        msg = freeze(msg)
+        observers = self.runner.observers
+        with out.lock:
+            if out.closed:
+                raise RuntimeError(f"stage {self.name!r}: port {port!r} has already ended")
+            out.seq += 1
+            msg.seq = out.seq
+            if not msg.stamp_ns:
+                msg.stamp_ns = getattr(self._causal, "stamp", 0) or self.clock.now_ns()
+            env = Envelope(Kind.DATA, msg.seq, msg.stamp_ns, msg.TYPE)
+            if out.needs_bytes(observers):
+                payload, att = codec.encode_payload(msg), codec.encode_envelope(env)
+                for obs in observers:
+                    obs.on_publish(self.name, port, payload, att, msg)
+                if out.remote_consumers or out.external:
+                    out.publisher.put(payload, attachment=att)
+            self.stats.published[port] += 1
+            for consumer, cport in out.local:
+                consumer.offer(cport, env, msg)
+
+    def call(self, client: str, request: Message, timeout_s: float = 10.0) -> Message:
+        edge = self.clients.get(client)
+        if edge is None:
+            raise ServiceError(f"stage {self.name!r} has no service client {client!r} wired in the recipe")
+        spec = self.node.cls.uses[client]
+        if not isinstance(request, spec.request):
+            raise TypeError(f"client {client!r} sends {spec.request.TYPE}, got {type(request).__name__}")
+        if not request.stamp_ns:
+            request.stamp_ns = getattr(self._causal, "stamp", 0) or self.clock.now_ns()
+        self._call_seq[client] = request.seq = self._call_seq.get(client, 0) + 1
+        payload, att = codec.encode(request)
+        key = service_key(self.run_id, edge.provider, edge.service)
+        self.stats.calls_made += 1
+        reply_payload, reply_att, error = b"", b"", ""
+        try:
+            reply_payload, reply_att = self.runner.bus.request(key, payload, att, timeout_s)
+            reply = codec.decode(reply_payload, codec.decode_envelope(reply_att))
+        except TimeoutError as exc:
+            error = str(exc)
+            raise ServiceTimeoutError(f"{self.name} -> {edge.provider}.{edge.service}: {exc}") from None
+        except (LookupError, RuntimeError, CodecError) as exc:
+            error = str(exc)
+            raise ServiceError(f"{self.name} -> {edge.provider}.{edge.service}: {exc}") from None
+        finally:
+            for obs in self.runner.observers:
+                obs.on_service(self.name, client, edge, payload, att, reply_payload, reply_att, error)
+        if not isinstance(reply, spec.reply):
+            raise ServiceError(
+                f"{edge.provider}.{edge.service} replied {type(reply).__name__}, expected {spec.reply.TYPE}"
+            )
+        return reply
+
+    def event(self, level: str, code: str, message: str, **details: Any) -> None:
+        tb = details.pop("traceback", "")
+        ev = Event(level=level, code=code, stage=self.name, message=message, traceback=tb, details=details)
+        self.runner.note_event(ev)
+        out = self.outputs.get(EVENTS_PORT)
+        if out is not None and not out.closed:
+            self.publish(EVENTS_PORT, ev)
+
+    # -- wiring ------------------------------------------------------------------------------
+    def declare_outputs(self) -> None:
+        for port in self.node.cls.all_outputs():
+            self.outputs[port] = _Output(self, port)
+        for svc in self.node.cls.services:
+            self.queryables[svc] = self.runner.bus.queryable(service_key(self.run_id, self.name, svc))
+
+    def declare_inputs(self) -> None:
+        """Create the input queues; local producers are linked to them, remote ones subscribed."""
+        for edge in self.runner.graph.inputs_of(self.name):
+            producer = self.runner.runtimes.get(edge.src)
+            if producer is not None:  # same process
+                box = PortInbox(edge.dst_port, LOCAL_QUEUE_DEPTH)
+                producer.outputs[edge.src_port].local.append((self, edge.dst_port))
+            else:
+                box = PortInbox(edge.dst_port, None)
+                self.runner.bus.subscribe_remote(data_key(self.run_id, edge.src, edge.src_port), box)
+            self.inboxes[edge.dst_port] = box
+
+    @property
+    def driven(self) -> bool:
+        return self.name in self.runner.driven
+
+    def start_threads(self) -> None:
+        for port, box in self.inboxes.items():
+            self._spawn(f"{self.name}.{port}", self._input_pump, port, box)
+        for svc, q in self.queryables.items():
+            self._spawn(f"{self.name}.srv.{svc}", self._service_pump, svc, q)
+        if self.node.cls.is_source():
+            self._spawn(f"{self.name}.run", self._source_main)
+
+    def _spawn(self, name: str, target: Any, *args: Any) -> None:
+        t = threading.Thread(target=target, args=args, name=f"vgr:{name}", daemon=True)
+        self.threads.append(t)
+        t.start()
+
+    # -- delivery ----------------------------------------------------------------------------
+    def offer(self, port: str, env: Envelope, msg: Message | None) -> None:
+        """A local producer hands over a message (or an end of stream, msg None)."""
+        box = self.inboxes[port]
+        if self.inline and box.claim_idle():
+            if self.lock.acquire(blocking=False):
+                try:
+                    self._handle(port, env, msg)
+                finally:
+                    self.lock.release()
+                    box.release()
+                return
+            box.release()
+        box.put((LOCAL, env, msg))
+
+    def _input_pump(self, port: str, box: PortInbox) -> None:
+        backlog_warn = BACKLOG_WARN
+        while True:
+            kind, a, b = box.get()
+            try:
+                if kind == STOP:
+                    return
+                if kind == REMOTE:
+                    if box.depth is None and len(box) >= backlog_warn:
+                        self.event(
+                            "warning",
+                            "input_backlog",
+                            f"input {port!r} has {len(box)} messages waiting: this stage is slower than "
+                            "its producer in another process",
+                            backlog=len(box),
+                        )
+                        backlog_warn *= 4
+                    env, msg = self._decode_remote(port, a)
+                    if env is None:
+                        continue
+                else:
+                    env, msg = a, b
+                with self.lock:
+                    self._handle(port, env, msg)
+                if env.kind == Kind.EOS:
+                    return
+            finally:
+                box.release()
+
+    def _decode_remote(self, port: str, sample: Any) -> tuple[Envelope | None, Message | None]:
+        att = sample.attachment
+        try:
+            raw_env = att.to_bytes() if att is not None else b""
+            env = codec.decode_envelope(raw_env)
+            if env.kind != Kind.DATA:
+                return env, None
+            payload = sample.payload.to_bytes()
+            if self.runner.observers:
+                edge = next(e for e in self.runner.graph.inputs_of(self.name) if e.dst_port == port)
+                for obs in self.runner.observers:
+                    obs.on_receive(edge.src, edge.src_port, payload, raw_env)
+            return env, codec.decode(payload, env)
+        except CodecError as exc:
+            if not self.stopping:
+                self.event("warning", "undecodable_message", f"ignored a message on input {port!r}: {exc}")
+            return None, None
+
+    def _handle(self, port: str, env: Envelope, msg: Message | None) -> None:
+        """Deliver one message or end of stream; the caller holds the stage lock."""
+        if self.stopping or self.failed:
+            return
+        if env.kind == Kind.EOS:
+            self._input_ended(port)
+            return
+        if env.kind != Kind.DATA or msg is None:
+            return
+        assert self.stage is not None
+        last = self._last_in_seq.get(port, 0)
+        if env.seq != last + 1:
+            self.event(
+                "warning",
+                "sequence_gap",
+                f"input {port!r}: expected seq {last + 1}, got {env.seq}",
+                expected=last + 1,
+                got=env.seq,
+            )
+        self._last_in_seq[port] = env.seq
+        self.stats.received[port] += 1
+        for obs in self.runner.observers:
+            obs.on_deliver(self.name, port, env)
+        t0 = time.perf_counter()
+        self._causal.stamp = msg.stamp_ns
+        try:
+            self.stage.on_message(port, msg)
+        except Exception as exc:
+            self.fail(exc, f"on_message({port!r})")
+        finally:
+            self._causal.stamp = 0
+            self.stats.busy_s += time.perf_counter() - t0
+
+    def _input_ended(self, port: str) -> None:
+        self.pending_inputs.discard(port)
+        self.inboxes[port].close()  # its pump exits (the end may have been handled inline)
+        if self.pending_inputs or self.data_done.is_set():
+            return
+        if not self.failed and self.stage is not None:
+            for obs in self.runner.observers:
+                obs.on_stage_finish(self.name)
+            try:
+                self.stage.finish()
+            except Exception as exc:
+                self.fail(exc, "finish")
+        self.close_outputs()
+        self._mark_data_done()
+
+    # -- sources and services ------------------------------------------------------------------
+    def _source_main(self) -> None:
+        assert self.stage is not None
+        try:
+            self.stage.run()
+        except Exception as exc:
+            self.fail(exc, "run")
+        finally:
+            if not self.stopping:
+                self.close_outputs()
+            self._mark_data_done()
+
+    def _service_pump(self, svc: str, queryable: Any) -> None:
+        stop = self.runner.stop_event
+        spec = self.node.cls.services[svc]
+        while True:
+            query = queryable.recv()
+            with query:
+                if stop.is_set():
+                    return
+                att = query.attachment
+                try:
+                    env = codec.decode_envelope(att.to_bytes() if att is not None else b"")
+                    if env.kind == Kind.STOP:
+                        return
+                    payload = query.payload.to_bytes() if query.payload is not None else b""
+                    request = codec.decode(payload, env)
+                    if not isinstance(request, spec.request):
+                        raise CodecError(f"service {svc!r} takes {spec.request.TYPE}, got {type(request).__name__}")
+                except CodecError as exc:
+                    query.reply_err(f"bad request to {self.name}.{svc}: {exc}")
+                    continue
+                reply_bytes, error = self._serve(svc, spec.reply, request)
+                if reply_bytes is not None:
+                    query.reply(query.key_expr, reply_bytes[0], attachment=reply_bytes[1])
+                else:
+                    query.reply_err(f"{self.name}.{svc} failed: {error}")
+
+    def _serve(self, svc: str, reply_type: type[Message], request: Message) -> tuple[tuple[bytes, bytes] | None, str]:
+        with self.lock:
+            t0 = time.perf_counter()
+            self._causal.stamp = request.stamp_ns
+            try:
+                assert self.stage is not None
+                reply = self.stage.on_request(svc, request)
+                if not isinstance(reply, reply_type):
+                    raise TypeError(f"service {svc!r} must reply {reply_type.TYPE}, got {type(reply).__name__}")
+                if not reply.stamp_ns:
+                    reply.stamp_ns = request.stamp_ns or self.clock.now_ns()
+                return codec.encode(reply), ""
+            except Exception as exc:  # the caller gets the error; the stage keeps serving
+                error = f"{type(exc).__name__}: {exc}"
+                self.stats.errors += 1
+                self.event("error", "service_exception", f"{svc}: {error}", traceback=traceback.format_exc())
+                return None, error
+            finally:
+                self._causal.stamp = 0
+                self.stats.busy_s += time.perf_counter() - t0
+                self.stats.requests_served += 1
+
+    # -- state changes -----------------------------------------------------------------------
+    def _mark_data_done(self) -> None:
+        if self.stats.state == "running":
+            self.stats.state = "finished"
+        self.data_done.set()
+        self.runner.stage_done(self)
+
+    def close_outputs(self) -> None:
+        """Send end-of-stream on every data output (not ``events``, which closes at teardown)."""
+        for port in self.node.cls.outputs:
+            self._close_port(port)
+
+    def _close_port(self, port: str) -> None:
+        out = self.outputs.get(port)
+        if out is None:
+            return
+        with out.lock:
+            if out.closed:
+                return
+            out.closed = True
+            env = Envelope(Kind.EOS, out.seq + 1, self.clock.now_ns(), "")
+            if out.remote_consumers or out.external:
+                out.publisher.put(b"", attachment=codec.encode_envelope(env))
+            for consumer, cport in out.local:
+                consumer.offer(cport, env, None)
+
+    def fail(self, exc: BaseException, where: str) -> None:
+        """Record a stage failure as an error Event with traceback and tell the runner."""
+        self.failed = True
+        self.stats.errors += 1
+        self.stats.state = "failed"
+        self.stats.error = f"{type(exc).__name__} in {where}: {exc}"
+        tb = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
+        self.log.error("stage %s failed in %s: %s", self.name, where, exc)
+        try:
+            self.event("error", "stage_exception", self.stats.error, traceback=tb, where=where)
+        except Exception:  # publishing the event must not hide the original failure
+            log.exception("could not publish the error event of %s", self.name)
+        self.runner.stage_failed(self)
+
+    def wake(self) -> None:
+        """Unblock every pump thread of this stage (the run is stopping)."""
+        for box in self.inboxes.values():
+            box.close()
+        for q in self.queryables.values():
+            q.wake()
+
+    def teardown(self) -> None:
+        if self.stage is not None:
+            try:
+                self.stage.teardown()
+            except Exception as exc:
+                self.stats.errors += 1
+                self.stats.error = self.stats.error or f"teardown: {exc}"
+                self.runner.note_event(
+                    Event(
+                        level="error",
+                        code="teardown_exception",
+                        stage=self.name,
+                        message=str(exc),
+                        traceback=traceback.format_exc(),
+                    )
+                )
+        self._close_port(EVENTS_PORT)

@@ -1,0 +1,202 @@
+"""What a stage is: typed ports, parameters, services, and the context the engine hands it.
+
+A stage type is a subclass of :class:`Stage` that declares
+
+* ``type_name``  the name recipes use (``type: transform_cloud``),
+* ``inputs`` / ``outputs``  port name -> message class (typed ports, checked before a run),
+* ``services``  services it answers (name -> :class:`ServiceSpec`), and ``uses``: services of
+  other stages it calls, wired in the recipe like inputs (``uses: {robot: sim_robot.move}``),
+* ``Params``  a pydantic model of its parameters (unknown keys are errors),
+* ``role``  source | sensor | device | solver | action | transform | sink — replay re-runs every
+  stage except sources, sensors and devices (robots), which it feeds from the recording.
+
+The engine guarantees: ``on_message`` and ``on_request`` of one stage are never called
+concurrently, and messages of one input port arrive in publication order. A message published
+without ``stamp_ns`` gets the stamp of the input being handled (causal time), or the clock's time
+when published from ``run()``; so outputs do not depend on when a handler happened to run, and a
+replay reproduces them bit for bit. Stages read time only through ``ctx.clock``. ``run`` (sources only)
+runs on the stage's own thread; it must return when the input ends or ``ctx.stopping`` is set.
+Every stage has an implicit ``events`` output carrying :class:`~engine.messages.Event`.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, ClassVar, Literal, get_args, get_origin
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict
+
+from engine.messages import Message
+
+if TYPE_CHECKING:
+    from engine.clock import Clock
+
+Role = Literal["source", "sensor", "device", "solver", "action", "transform", "sink"]
+PLAYBACK_ROLES: frozenset[str] = frozenset({"source", "sensor", "device"})  # replay feeds these from the file
+EVENTS_PORT = "events"
+
+
+def stage_rng(seed: int, stage: str) -> np.random.Generator:
+    """The random generator of *stage* in a run with *seed* (the same in a run and its replay)."""
+    import zlib
+
+    return np.random.default_rng([seed & 0xFFFFFFFF, zlib.crc32(stage.encode())])
+
+
+class StageParams(BaseModel):
+    """Base of every stage's parameter model: unknown keys are rejected, values validated."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, arbitrary_types_allowed=True)
+
+
+@dataclass(frozen=True)
+class ServiceSpec:
+    """A request/reply service: request and reply message classes and a one-line description."""
+
+    request: type[Message]
+    reply: type[Message]
+    doc: str = ""
+
+
+class ServiceError(RuntimeError):
+    """A service call failed: the provider raised, refused, or no provider answered."""
+
+
+class ServiceTimeoutError(ServiceError):
+    """No reply within the timeout."""
+
+
+class StageContext:
+    """The engine's side of a stage: publish, call services, raise events, read the clock.
+
+    Implemented by the runner; stages only use this interface.
+    """
+
+    name: str
+    run_id: str
+    seed: int
+    rng: np.random.Generator
+    clock: Clock
+    log: logging.Logger
+
+    def publish(self, port: str, msg: Message) -> None:
+        """Publish *msg* on output *port* (seq and, if unset, stamp are filled in)."""
+        raise NotImplementedError
+
+    def call(self, client: str, request: Message, timeout_s: float = 10.0) -> Message:
+        """Call the service wired to *client* in the recipe's ``uses`` and wait for its reply."""
+        raise NotImplementedError
+
+    def event(self, level: str, code: str, message: str, **details: Any) -> None:
+        """Publish an Event (debug/info/warning/error/alarm) on this stage's ``events`` port."""
+        raise NotImplementedError
+
+    @property
+    def stopping(self) -> bool:
+        """True once the run is stopping (end of input elsewhere, Ctrl-C, a failure)."""
+        raise NotImplementedError
+
+    def sleep(self, seconds: float) -> bool:
+        """Sleep on the run's clock; returns False (early) when the run is stopping."""
+        raise NotImplementedError
+
+
+class Stage:
+    """Base class of every stage type. Subclass it, declare ports/params, implement handlers."""
+
+    type_name: ClassVar[str] = ""
+    role: ClassVar[Role] = "transform"
+    inputs: ClassVar[Mapping[str, type[Message]]] = {}
+    outputs: ClassVar[Mapping[str, type[Message]]] = {}
+    services: ClassVar[Mapping[str, ServiceSpec]] = {}
+    uses: ClassVar[Mapping[str, ServiceSpec]] = {}
+    Params: ClassVar[type[StageParams]] = StageParams
+
+    def __init__(self, ctx: StageContext, params: StageParams) -> None:
+        self.ctx = ctx
+        self.params = params
+
+    # -- lifecycle -------------------------------------------------------------------------
+    def setup(self) -> None:
+        """Called once the bus is up and every stage of the run is ready, before any message."""
+
+    def run(self) -> None:
+        """Sources only: produce messages until done (return) or ``ctx.stopping``."""
+
+    def on_message(self, port: str, msg: Message) -> None:
+        """Handle one message from input *port*."""
+
+    def on_request(self, service: str, request: Message) -> Message:
+        """Answer a request to one of ``services``; raise to return an error to the caller."""
+        raise NotImplementedError(f"{self.type_name} declares service {service!r} but does not answer it")
+
+    def finish(self) -> None:
+        """All inputs have ended: flush what is pending (outputs still open)."""
+
+    def teardown(self) -> None:
+        """Always called last, also after a failure; release devices here."""
+
+    # -- introspection ---------------------------------------------------------------------
+    @classmethod
+    def is_source(cls) -> bool:
+        return cls.run is not Stage.run
+
+    @classmethod
+    def summary(cls) -> str:
+        doc = (cls.__doc__ or "").strip()
+        return doc.splitlines()[0] if doc else ""
+
+    @classmethod
+    def all_outputs(cls) -> dict[str, type[Message]]:
+        """Declared outputs plus the implicit ``events`` port (computed once per class)."""
+        cached = cls.__dict__.get("_all_outputs_cache")
+        if cached is None:
+            from engine.messages import Event
+
+            cached = {**cls.outputs, EVENTS_PORT: Event}
+            cls._all_outputs_cache = cached  # type: ignore[attr-defined]
+        return cached
+
+    @classmethod
+    def describe(cls) -> dict[str, Any]:
+        """Ports, services and parameters (with defaults and types) for ``vgr plugins``."""
+        params = {}
+        for name, f in cls.Params.model_fields.items():
+            params[name] = {
+                "type": _type_name(f.annotation),
+                "required": f.is_required(),
+                "default": None if f.is_required() else _jsonable(f.get_default(call_default_factory=True)),
+                "description": f.description or "",
+            }
+        return {
+            "type": cls.type_name,
+            "role": cls.role,
+            "summary": cls.summary(),
+            "module": cls.__module__,
+            "inputs": {k: v.TYPE for k, v in cls.inputs.items()},
+            "outputs": {k: v.TYPE for k, v in cls.all_outputs().items()},
+            "services": {k: f"{v.request.TYPE} -> {v.reply.TYPE}" for k, v in cls.services.items()},
+            "uses": {k: f"{v.request.TYPE} -> {v.reply.TYPE}" for k, v in cls.uses.items()},
+            "params": params,
+        }
+
+
+def _type_name(t: Any) -> str:
+    if t is None:
+        return "None"
+    if get_origin(t) is Literal:
+        return " | ".join(repr(a) for a in get_args(t))
+    return getattr(t, "__name__", None) or str(t).replace("typing.", "")
+
+
+def _jsonable(v: Any) -> Any:
+    if isinstance(v, BaseModel):
+        return v.model_dump()
+    if isinstance(v, tuple | list):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    return v

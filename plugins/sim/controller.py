@@ -1,0 +1,429 @@
+"""Simulated robot controller (library part; the zenoh service stage wraps it later).
+
+Behaves like a vendor controller in simulated time:
+
+* ``move_j`` (joint-space, synchronised axes) and ``move_l`` (TCP moves on a straight line with
+  slerped orientation) with speed and acceleration, trapezoidal time law; ``move_j_pose`` is a
+  joint move to a Cartesian target (IK first). Default speeds/accelerations are URScript's.
+* Time is whatever the injected ``clock`` (a callable returning seconds, e.g. ``SimClock``) says;
+  the controller never sleeps. A move starts at the clock's time when it is commanded and the
+  state at any time ``t`` (past or future of the plan) is computed on demand.
+* Targets out of the joint limits, unreachable, with NaN, or a linear path through a singularity are
+  refused with a reason and no motion; so is a move commanded while another is running ("busy").
+* Command ids are idempotent: a second command with an id already seen is not executed; the first
+  result is returned again with ``duplicate=True``.
+* Reported joint angles and ``T_base_tcp`` are the nominal model's (what the real controller would
+  report from its encoders and its model). The truth (``q_actual``, ``T_world_tcp_actual``) comes
+  from the :class:`RobotWithEffects`, evaluated with the per-joint approach directions the
+  controller records (for backlash), the time since warm-up start (thermal drift) and the payload.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from engine.transforms import as_transform, exp_so3, log_so3
+
+from .ik import solve_ik
+from .kinematics import RobotModel
+from .motion_profile import TrapezoidProfile, trapezoid
+from .robot_effects.base import SampleContext
+from .true_robot import RobotWithEffects
+
+F64 = NDArray[np.float64]
+MoveKind = Literal["movej", "movel"]
+
+# URScript defaults
+MOVEJ_SPEED = 1.05  # rad/s
+MOVEJ_ACCEL = 1.4  # rad/s^2
+MOVEL_SPEED = 0.25  # m/s
+MOVEL_ACCEL = 1.2  # m/s^2
+MOVEL_ANGULAR_SPEED = 1.05  # rad/s of the tool orientation
+MOVEL_ANGULAR_ACCEL = 1.4  # rad/s^2
+
+TIME_EPS_S = 1e-9  # clocks count integer nanoseconds: a move has arrived within 1 ns of its end
+MOVEL_STEP_M = 0.005  # waypoint spacing used to validate a linear path
+MOVEL_STEP_RAD = 0.02
+MOVEL_MAX_JOINT_STEP_RAD = 0.25  # a larger jump between waypoints means a singularity/branch flip
+
+
+@dataclass(frozen=True)
+class MoveResult:
+    """Answer to a move command. ``end_s`` is the sim time the robot arrives (== start if refused)."""
+
+    command_id: str
+    kind: MoveKind
+    accepted: bool
+    reason: str
+    start_s: float
+    end_s: float
+    q_target: F64 | None = None
+    duplicate: bool = False
+
+    @property
+    def duration_s(self) -> float:
+        return self.end_s - self.start_s
+
+
+@dataclass(frozen=True)
+class RobotState:
+    """Controller state at ``t_s``. ``q``/``T_base_tcp`` are reported; ``*_actual`` are the truth."""
+
+    t_s: float
+    q: F64
+    qd: F64
+    moving: bool
+    command_id: str | None
+    approach_direction: F64
+    T_base_tcp: F64
+    q_actual: F64
+    T_world_tcp_actual: F64
+
+
+@dataclass
+class _Segment:
+    command_id: str
+    kind: MoveKind
+    t0: float
+    q0: F64
+    q1: F64
+    profile: TrapezoidProfile  # over the path parameter s in [0, 1]
+    direction_after: F64
+    # move_l only
+    path_s: F64 | None = None
+    path_q: F64 | None = None
+    pose0: tuple[F64, F64] | None = None  # (p0, R0)
+    pose_delta: tuple[F64, F64] | None = None  # (p1 - p0, log(R0^T R1))
+    cache: dict = field(default_factory=dict)
+
+    @property
+    def t1(self) -> float:
+        return self.t0 + self.profile.duration
+
+
+class SimRobotController:
+    """Simulated controller of one robot (see module docstring)."""
+
+    def __init__(
+        self,
+        nominal: RobotModel,
+        clock: Callable[[], float],
+        *,
+        true_robot: RobotWithEffects | None = None,
+        q_initial: ArrayLike | None = None,
+        payload_kg: float = 0.0,
+        warmup_start_s: float | None = None,
+        initial_direction: ArrayLike | float = 1.0,
+    ) -> None:
+        self.nominal = nominal
+        self.true_robot = true_robot if true_robot is not None else RobotWithEffects(nominal)
+        if self.true_robot.nominal is not nominal and self.true_robot.nominal.dof != nominal.dof:
+            raise ValueError("true robot and nominal model have different numbers of joints")
+        self.clock = clock
+        q0 = nominal.home if q_initial is None else nominal.check_joints(q_initial, name="q_initial")[0][0]
+        if not nominal.within_limits(q0):
+            raise ValueError("initial joints out of limits: " + "; ".join(nominal.limit_violations(q0)))
+        self._q_initial = q0.copy()
+        d = np.broadcast_to(np.asarray(initial_direction, dtype=float), (nominal.dof,)).copy()
+        if not np.all(np.isin(d, (-1.0, 1.0))):
+            raise ValueError("initial_direction must be +1 or -1 per joint")
+        self._dir_initial = d
+        self.payload_kg = float(payload_kg)
+        self.warmup_start_s = float(clock()) if warmup_start_s is None else float(warmup_start_s)
+        self._segments: list[_Segment] = []
+        self._results: dict[str, MoveResult] = {}
+
+    # ----------------------------------------------------------------------------- state
+
+    def _now(self) -> float:
+        t = float(self.clock())
+        if not np.isfinite(t):
+            raise ValueError(f"clock returned {t}")
+        return t
+
+    def _segment_at(self, t: float) -> tuple[_Segment | None, bool]:
+        """(segment in effect at t, whether it is still moving); None before the first move."""
+        seg = None
+        for s in self._segments:
+            if s.t0 <= t:
+                seg = s
+            else:
+                break
+        return seg, seg is not None and t < seg.t1 - TIME_EPS_S
+
+    def _joints_at(self, seg: _Segment | None, t: float) -> tuple[F64, F64, F64]:
+        """(q, qd, approach direction) at time t."""
+        if seg is None:
+            return self._q_initial.copy(), np.zeros(self.nominal.dof), self._dir_initial.copy()
+        prev_dir = self._direction_before(seg)
+        if t >= seg.t1 - TIME_EPS_S:
+            return seg.q1.copy(), np.zeros(self.nominal.dof), seg.direction_after.copy()
+        tau = t - seg.t0
+        s = float(seg.profile.position(tau))
+        sd = float(seg.profile.velocity(tau))
+        if seg.kind == "movej":
+            q = seg.q0 + s * (seg.q1 - seg.q0)
+            qd = sd * (seg.q1 - seg.q0)
+        else:
+            q, dq_ds = self._movel_joints(seg, s)
+            qd = sd * dq_ds
+        moving = np.abs(qd) > 1e-12
+        direction = np.where(moving, np.sign(qd), prev_dir)
+        return q, qd, direction
+
+    def _direction_before(self, seg: _Segment) -> F64:
+        i = self._segments.index(seg)
+        return self._segments[i - 1].direction_after if i > 0 else self._dir_initial
+
+    def state(self, t_s: float | None = None) -> RobotState:
+        """Reported and true state at ``t_s`` (default: the clock's now)."""
+        t = self._now() if t_s is None else float(t_s)
+        seg, moving = self._segment_at(t)
+        q, qd, direction = self._joints_at(seg, t)
+        ctx = SampleContext(
+            t_s=np.array([t - self.warmup_start_s]),
+            direction=direction[None, :],
+            payload_kg=np.array([self.payload_kg]),
+        )
+        q_act = self.true_robot.actual_joints(q[None, :], ctx)[0]
+        T_act = self.true_robot.fk(q[None, :], ctx)[0]
+        return RobotState(
+            t_s=t,
+            q=q,
+            qd=qd,
+            moving=moving,
+            command_id=None if seg is None else seg.command_id,
+            approach_direction=direction,
+            T_base_tcp=self.nominal.fk(q, frame="base"),
+            q_actual=q_act,
+            T_world_tcp_actual=T_act,
+        )
+
+    def is_moving(self, t_s: float | None = None) -> bool:
+        t = self._now() if t_s is None else float(t_s)
+        return self._segment_at(t)[1]
+
+    def result(self, command_id: str) -> MoveResult | None:
+        return self._results.get(command_id)
+
+    def set_payload(self, payload_kg: float) -> None:
+        if not (np.isfinite(payload_kg) and payload_kg >= 0):
+            raise ValueError(f"payload must be finite and >= 0 kg, got {payload_kg}")
+        self.payload_kg = float(payload_kg)
+
+    # ----------------------------------------------------------------------------- commands
+
+    def _admit(self, command_id: str, kind: MoveKind) -> tuple[MoveResult | None, float]:
+        """Idempotency and busy checks. Returns (early answer or None, now)."""
+        if not isinstance(command_id, str) or not command_id:
+            raise ValueError("command_id must be a non-empty string")
+        if command_id in self._results:
+            return replace(self._results[command_id], duplicate=True), 0.0
+        now = self._now()
+        seg, moving = self._segment_at(now)
+        if moving:
+            return self._refuse(
+                command_id, kind, now, f"busy: command {seg.command_id!r} is moving until t = {seg.t1:.3f} s"
+            ), now
+        return None, now
+
+    def _refuse(self, command_id: str, kind: MoveKind, now: float, reason: str) -> MoveResult:
+        res = MoveResult(command_id, kind, False, reason, now, now)
+        self._results[command_id] = res
+        return res
+
+    def _accept(self, seg: _Segment) -> MoveResult:
+        self._segments.append(seg)
+        res = MoveResult(seg.command_id, seg.kind, True, "ok", seg.t0, seg.t1, seg.q1.copy())
+        self._results[seg.command_id] = res
+        return res
+
+    @staticmethod
+    def _check_limit(name: str, value: float) -> str | None:
+        if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
+            return f"{name} must be a finite positive number, got {value!r}"
+        return None
+
+    def move_j(
+        self, command_id: str, q_target: ArrayLike, speed: float = MOVEJ_SPEED, accel: float = MOVEJ_ACCEL
+    ) -> MoveResult:
+        """Joint move to ``q_target`` (rad); ``speed``/``accel`` of the leading axis (rad/s, rad/s^2)."""
+        early, now = self._admit(command_id, "movej")
+        if early is not None:
+            return early
+        for name, v in (("speed", speed), ("accel", accel)):
+            if (msg := self._check_limit(name, v)) is not None:
+                return self._refuse(command_id, "movej", now, msg)
+        try:
+            q1 = self.nominal.check_joints(q_target, name="q_target")[0][0]
+        except ValueError as e:
+            return self._refuse(command_id, "movej", now, str(e))
+        if not self.nominal.within_limits(q1):
+            return self._refuse(
+                command_id,
+                "movej",
+                now,
+                "target out of joint limits: " + "; ".join(self.nominal.limit_violations(q1)),
+            )
+        q0 = self.state(now).q
+        return self._accept(self._joint_segment(command_id, now, q0, q1, speed, accel))
+
+    def _joint_segment(self, cid: str, now: float, q0: F64, q1: F64, speed: float, accel: float) -> _Segment:
+        dq = q1 - q0
+        adq = np.abs(dq)
+        moving = adq > 1e-12
+        prev = self.state(now).approach_direction
+        direction = np.where(moving, np.sign(dq), prev)
+        if not np.any(moving):
+            return _Segment(cid, "movej", now, q0, q1, trapezoid(0.0, 1.0, 1.0), direction)
+        v_lim = np.minimum(speed, self.nominal.max_speed)[moving] / adq[moving]
+        a_lim = np.minimum(accel, self.nominal.max_accel)[moving] / adq[moving]
+        profile = trapezoid(1.0, float(v_lim.min()), float(a_lim.min()))
+        return _Segment(cid, "movej", now, q0, q1, profile, direction)
+
+    def move_j_pose(
+        self, command_id: str, T_base_tcp: ArrayLike, speed: float = MOVEJ_SPEED, accel: float = MOVEJ_ACCEL
+    ) -> MoveResult:
+        """Joint move to a Cartesian target (IK from the current joints, nearest branch first)."""
+        early, now = self._admit(command_id, "movej")
+        if early is not None:
+            return early
+        try:
+            T_w = self.nominal.T_world_base @ as_transform(T_base_tcp, name="target T_base_tcp")
+        except ValueError as e:
+            return self._refuse(command_id, "movej", now, str(e))
+        q0 = self.state(now).q
+        ik = solve_ik(self.nominal, T_w, q0)
+        if not ik.success:
+            return self._refuse(command_id, "movej", now, f"{ik.status}: {ik.reason}")
+        return self.move_j(command_id, ik.q, speed, accel)
+
+    def move_l(
+        self,
+        command_id: str,
+        T_base_tcp: ArrayLike,
+        speed: float = MOVEL_SPEED,
+        accel: float = MOVEL_ACCEL,
+        angular_speed: float = MOVEL_ANGULAR_SPEED,
+        angular_accel: float = MOVEL_ANGULAR_ACCEL,
+    ) -> MoveResult:
+        """Linear TCP move to ``T_base_tcp`` (m/s, m/s^2 along the path; rad/s for the orientation).
+
+        The whole path is checked before moving (IK at waypoints every 5 mm / 1.1 deg): unreachable
+        points, joint limits and branch flips near singularities are refused. The time law is slowed
+        down where needed so that no joint exceeds its speed or acceleration limit.
+        """
+        early, now = self._admit(command_id, "movel")
+        if early is not None:
+            return early
+        for name, v in (
+            ("speed", speed),
+            ("accel", accel),
+            ("angular_speed", angular_speed),
+            ("angular_accel", angular_accel),
+        ):
+            if (msg := self._check_limit(name, v)) is not None:
+                return self._refuse(command_id, "movel", now, msg)
+        try:
+            T1 = as_transform(T_base_tcp, name="target T_base_tcp")
+        except ValueError as e:
+            return self._refuse(command_id, "movel", now, str(e))
+        st = self.state(now)
+        T0 = st.T_base_tcp
+        dp = T1[:3, 3] - T0[:3, 3]
+        phi = log_so3(T0[:3, :3].T @ T1[:3, :3])
+        L, th = float(np.linalg.norm(dp)), float(np.linalg.norm(phi))
+        k = int(np.clip(np.ceil(max(L / MOVEL_STEP_M, th / MOVEL_STEP_RAD)), 2, 4000))
+        s_grid = np.linspace(0.0, 1.0, k + 1)
+        T_wb = self.nominal.T_world_base
+        end = solve_ik(self.nominal, T_wb @ T1, st.q)
+        if not end.success:
+            return self._refuse(command_id, "movel", now, f"target {end.status}: {end.reason}")
+        qs = [st.q]
+        for s in s_grid[1:]:
+            T_s = T_wb @ _interp_pose(T0[:3, 3], T0[:3, :3], dp, phi, s)
+            ik = solve_ik(self.nominal, T_s, qs[-1], n_random_seeds=0, classify_failures=False)
+            if not ik.success:
+                where = f"{s * L * 1e3:.1f} mm along the path" if L > 0 else f"{s * 100:.0f} % of the rotation"
+                return self._refuse(
+                    command_id,
+                    "movel",
+                    now,
+                    f"the straight path cannot be followed within the joint limits at {where} "
+                    f"(leaves the workspace or the limits); use move_j or add a via point",
+                )
+            if np.max(np.abs(ik.q - qs[-1])) > MOVEL_MAX_JOINT_STEP_RAD:
+                return self._refuse(
+                    command_id,
+                    "movel",
+                    now,
+                    f"path passes through or near a singularity at {s * L * 1e3:.1f} mm along the path "
+                    "(joint solution jumps); use move_j or add a via point",
+                )
+            qs.append(ik.q)
+        path_q = np.array(qs)
+        dq_ds = np.diff(path_q, axis=0) / np.diff(s_grid)[:, None]
+        peak = np.max(np.abs(dq_ds), axis=0)
+        v_caps = [speed / L if L > 0 else np.inf, angular_speed / th if th > 0 else np.inf]
+        a_caps = [accel / L if L > 0 else np.inf, angular_accel / th if th > 0 else np.inf]
+        nz = peak > 1e-12
+        v_caps += list(self.nominal.max_speed[nz] / peak[nz])
+        a_caps += list(self.nominal.max_accel[nz] / peak[nz])
+        direction = _last_motion_direction(np.diff(path_q, axis=0), st.approach_direction)
+        if L == 0 and th == 0:
+            profile = trapezoid(0.0, 1.0, 1.0)
+        else:
+            profile = trapezoid(1.0, float(min(v_caps)), float(min(a_caps)))
+        seg = _Segment(
+            command_id,
+            "movel",
+            now,
+            st.q,
+            path_q[-1],
+            profile,
+            direction,
+            path_s=s_grid,
+            path_q=path_q,
+            pose0=(T0[:3, 3].copy(), T0[:3, :3].copy()),
+            pose_delta=(dp, phi),
+        )
+        return self._accept(seg)
+
+    def _movel_joints(self, seg: _Segment, s: float) -> tuple[F64, F64]:
+        """Joints on the straight-line path at parameter s (IK seeded by the waypoint table)."""
+        assert seg.path_s is not None and seg.path_q is not None and seg.pose0 and seg.pose_delta
+        i = int(np.clip(np.searchsorted(seg.path_s, s) - 1, 0, len(seg.path_s) - 2))
+        w = (s - seg.path_s[i]) / (seg.path_s[i + 1] - seg.path_s[i])
+        q_lin = (1 - w) * seg.path_q[i] + w * seg.path_q[i + 1]
+        dq_ds = (seg.path_q[i + 1] - seg.path_q[i]) / (seg.path_s[i + 1] - seg.path_s[i])
+        if s in seg.cache:
+            return seg.cache[s], dq_ds
+        T_s = self.nominal.T_world_base @ _interp_pose(*seg.pose0, *seg.pose_delta, s)
+        ik = solve_ik(self.nominal, T_s, q_lin, n_random_seeds=0, classify_failures=False)
+        q = ik.q if ik.success else q_lin
+        if len(seg.cache) > 256:
+            seg.cache.clear()
+        seg.cache[s] = q
+        return q, dq_ds
+
+
+def _last_motion_direction(steps: F64, previous: F64) -> F64:
+    """Per joint: sign of the last non-zero step, or the previous direction if it never moved."""
+    out = previous.copy()
+    for j in range(steps.shape[1]):
+        nz = np.flatnonzero(np.abs(steps[:, j]) > 1e-12)
+        if nz.size:
+            out[j] = np.sign(steps[nz[-1], j])
+    return out
+
+
+def _interp_pose(p0: F64, R0: F64, dp: F64, phi: F64, s: float) -> F64:
+    T = np.eye(4)
+    T[:3, :3] = R0 @ exp_so3(s * phi)
+    T[:3, 3] = p0 + s * dp
+    return T

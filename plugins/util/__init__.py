@@ -1,0 +1,1 @@
+"""Generic stages: synthetic sources, rigid transforms, statistics sinks (demos, tests, glue)."""

@@ -1,0 +1,16 @@
+"""Test-suite set-up: helper modules living next to the tests of each area are importable.
+
+pytest runs with ``--import-mode=importlib`` (test files in different folders may share a base
+name), which does not put test folders on ``sys.path``; a folder's helper module (e.g.
+``tests/sim/simcam_helpers.py``) is made importable here instead.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+_TESTS = Path(__file__).resolve().parent
+for _d in sorted(p for p in _TESTS.iterdir() if p.is_dir() and not p.name.startswith((".", "__"))):
+    if str(_d) not in sys.path:
+        sys.path.append(str(_d))

@@ -1,0 +1,55 @@
+"""The vgr command line: plugins, graph, validate, run, exit codes."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from engine.cli import main
+
+
+def test_plugins_lists_every_stage_type_with_ports_and_params(capsys):
+    assert main(["plugins", "--json"]) == 0
+    described = {d["type"]: d for d in json.loads(capsys.readouterr().out)}
+    sc = described["synthetic_cloud"]
+    assert sc["outputs"] == {"cloud": "PointCloud", "events": "Event"} and sc["role"] == "source"
+    assert sc["params"]["n_points"]["default"] == 2000 and sc["plugin"] == "builtin"
+    assert described["transform_cloud"]["inputs"] == {"cloud": "PointCloud"}
+
+
+def test_plugins_loads_extra_modules(capsys):
+    assert main(["plugins", "--plugin", "stage_fixtures", "--json"]) == 0
+    types = {d["type"]: d for d in json.loads(capsys.readouterr().out)}
+    assert types["t_caller"]["uses"] == {"svc": "Request -> Request"}
+    assert types["t_echo"]["services"] == {"echo": "Request -> Request"}
+
+
+def test_graph_prints_mermaid_and_dot(capsys):
+    assert main(["graph", "recipes/demo.yaml"]) == 0
+    text = capsys.readouterr().out
+    assert text.startswith("flowchart LR") and "source -->|cloud → cloud: PointCloud| move" in text
+    assert main(["graph", "recipes/demo.yaml", "--format", "dot"]) == 0
+    assert '"move" -> "stats"' in capsys.readouterr().out
+
+
+def test_validate_exit_codes(tmp_path, capsys):
+    assert main(["validate", "recipes/demo.yaml"]) == 0
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: x\nstages:\n  a: {type: synthetic_clout}\n")
+    assert main(["validate", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert f"{bad}:3:" in err and "did you mean 'synthetic_cloud'" in err
+
+
+def test_run_demo_with_override_and_json_summary(capsys):
+    assert main(["run", "recipes/demo.yaml", "-p", "source.frames=3", "--no-progress", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["ok"] is True
+    by = {s["name"]: s for s in summary["stages"]}
+    assert by["stats"]["messages_in"] == 3 and by["source"]["messages_out"] == 3
+
+
+@pytest.mark.parametrize("argv", [["run", "nope.yaml"], ["run", "recipes/demo.yaml", "-p", "bogus.x=1"]])
+def test_run_refuses_bad_input_with_exit_2(argv, capsys):
+    assert main([*argv, "--no-progress"]) == 2

@@ -1,0 +1,161 @@
+"""The wire codec: round trips, compatibility with standard protobuf / Foxglove decoders, bad bytes."""
+
+from __future__ import annotations
+
+import contextlib
+
+import numpy as np
+import pytest
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud as FoxPointCloud
+from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame as FoxPoseInFrame
+from foxglove_schemas_protobuf.RawImage_pb2 import RawImage as FoxRawImage
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from engine import codec
+from engine import messages as m
+from engine import transforms as tf
+from engine.codec import CodecError, Envelope, Kind
+
+
+def roundtrip(msg: m.Message) -> m.Message:
+    payload, env = codec.encode(msg)
+    return codec.decode(payload, codec.decode_envelope(env))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(0, 500),
+    st.sampled_from(["float32", "float64"]),
+    st.booleans(),
+    st.booleans(),
+    st.integers(0, 2**62),
+    st.integers(1, 2**40),
+)
+def test_point_cloud_roundtrip_is_exact(n, dtype, with_normals, with_colors, stamp, seq):
+    rng = np.random.default_rng(n)
+    pc = m.PointCloud(
+        points=rng.normal(size=(n, 3)).astype(dtype),
+        frame_id="cam",
+        stamp_ns=stamp,
+        normals=rng.normal(size=(n, 3)) if with_normals else None,
+        colors=rng.integers(0, 256, size=(n, 3)) if with_colors else None,
+    )
+    pc.seq = seq
+    out = roundtrip(pc)
+    assert isinstance(out, m.PointCloud) and out.seq == seq and out.stamp_ns == stamp and out.frame_id == "cam"
+    assert out.points.dtype == np.dtype(dtype) and np.array_equal(out.points, pc.points)
+    assert (out.normals is None) == (not with_normals) and (out.colors is None) == (not with_colors)
+    if with_normals:
+        assert np.array_equal(out.normals, pc.normals)
+    if with_colors:
+        assert np.array_equal(out.colors, pc.colors)
+
+
+def test_point_cloud_payload_is_a_standard_foxglove_message():
+    pts = np.arange(30, dtype=np.float32).reshape(10, 3)
+    payload, _ = codec.encode(m.PointCloud(points=pts, frame_id="camera", stamp_ns=1_500_000_000))
+    fox = FoxPointCloud()
+    fox.ParseFromString(payload)
+    assert fox.frame_id == "camera" and fox.point_stride == 12 and [f.name for f in fox.fields] == ["x", "y", "z"]
+    assert fox.timestamp.seconds == 1 and fox.timestamp.nanos == 500_000_000
+    assert np.array_equal(np.frombuffer(fox.data, np.float32).reshape(-1, 3), pts)
+
+
+def test_decoder_reads_foxglove_messages_encoded_by_anyone():
+    fox = FoxPointCloud(frame_id="x", point_stride=24, data=np.ones((4, 3)).tobytes())
+    for name, off in (("x", 0), ("y", 8), ("z", 16)):
+        fox.fields.add(name=name, offset=off, type=8)
+    out = codec.decode_payload(m.PointCloud, fox.SerializeToString())
+    assert out.points.shape == (4, 3) and np.all(out.points == 1.0)
+    img = FoxRawImage(width=3, height=2, encoding="32FC1", step=12, data=np.arange(6, dtype=np.float32).tobytes())
+    out_img = codec.decode_payload(m.Image, img.SerializeToString())
+    assert out_img.data.shape == (2, 3) and out_img.data[1, 2] == 5.0
+
+
+def test_pose_uses_foxglove_pose_in_frame():
+    T = tf.T_from_rotvec([0.1, -0.2, 0.3], [1.0, 2.0, 3.0])
+    payload, _ = codec.encode(m.PoseStamped(T=T, frame_id="base"))
+    fox = FoxPoseInFrame()
+    fox.ParseFromString(payload)
+    assert fox.frame_id == "base" and fox.pose.position.z == 3.0
+    assert np.allclose(roundtrip(m.PoseStamped(T=T, frame_id="base")).T, T, atol=1e-15)
+
+
+@pytest.mark.parametrize(
+    "msg",
+    [
+        m.Image(data=np.full((4, 5), np.nan, np.float32), frame_id="cam"),
+        m.CameraInfo(width=640, height=480, K=np.array([[500, 0, 320], [0, 500, 240], [0, 0, 1.0]])),
+        m.Transform(frame_id="base", child_frame_id="tcp", T=tf.T_from_rotvec([0, 0, 1], [0, 0, 1])),
+        m.FrameTransforms(transforms=[m.Transform(frame_id="a", child_frame_id="b")]),
+        m.JointState(names=["j1", "j2"], positions=np.array([0.1, -0.2]), velocities=np.zeros(2)),
+        m.Blob(data=b"\x00\x01" * 100, content_type="application/octet-stream"),
+        m.TrackerPose(serial="LHR-1", T=tf.T_from_rotvec([0.1, 0, 0], [0, 1, 0]), valid=False),
+        m.Event(level="alarm", code="x", stage="s", message="hello", traceback="tb", details={"a": [1, 2]}),
+        m.CalibrationResultMsg(
+            kind="handeye", verdict="ok", transforms={"T_tcp_cam": np.eye(4)}, metrics={"rms_mm": 0.1}
+        ),
+        m.RobotCommand(command_id="c1", kind="move_j", joints=np.array([0.0, 1.0])),
+        m.RobotReply(command_id="c1", ok=True, T=np.eye(4), joints=np.zeros(6), duplicate=True),
+        m.Correction(
+            kind="delta_tool",
+            T=tf.T_from_rotvec([0, 0, 0.01], [0.001, 0, 0]),
+            verdict="refused",
+            reasons=["r"],
+        ),
+        m.Request(command="capture", args={"exposure": 3}),
+    ],
+)
+def test_every_message_type_roundtrips(msg):
+    out = roundtrip(msg)
+    assert type(out) is type(msg)
+    for k, v in vars(msg).items():
+        w = getattr(out, k)
+        if k == "seq":
+            continue
+        if isinstance(v, np.ndarray):
+            assert np.allclose(v, w, equal_nan=True, atol=1e-12), k
+        elif isinstance(v, list) and v and isinstance(v[0], m.Transform):
+            assert np.allclose(v[0].T, w[0].T)
+        elif isinstance(v, dict) and v and isinstance(next(iter(v.values())), np.ndarray):
+            assert all(np.allclose(v[x], w[x]) for x in v)
+        elif isinstance(v, memoryview | bytes):
+            assert bytes(v) == bytes(w)
+        else:
+            assert v == w, k
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.binary(max_size=200))
+def test_garbage_payload_raises_codec_error_only(raw):
+    for cls in (m.PointCloud, m.Image, m.Blob, m.Event, m.PoseStamped):
+        with contextlib.suppress(CodecError):
+            codec.decode_payload(cls, raw)
+
+
+@given(st.binary(max_size=60))
+def test_garbage_envelope_raises_codec_error_only(raw):
+    with contextlib.suppress(CodecError):
+        codec.decode_envelope(raw)
+
+
+def test_envelope_roundtrip_and_version_check():
+    env = Envelope(Kind.EOS, 42, 123456789, "PointCloud")
+    assert codec.decode_envelope(codec.encode_envelope(env)) == env
+    newer = codec.encode_envelope(Envelope(Kind.DATA, 1, 1, "Blob", schema_version=99))
+    with pytest.raises(CodecError, match="newer"):
+        codec.decode_envelope(newer)
+
+
+def test_unknown_type_name_is_a_codec_error():
+    with pytest.raises(CodecError, match="unknown message type"):
+        codec.decode(b"", Envelope(Kind.DATA, 1, 1, "NoSuchType"))
+
+
+def test_bulk_arrays_are_zero_copy_views_of_the_payload():
+    pts = np.random.default_rng(0).normal(size=(1000, 3)).astype(np.float32)
+    payload, env = codec.encode(m.PointCloud(points=pts))
+    out = codec.decode(payload, codec.decode_envelope(env))
+    assert not out.points.flags.writeable  # a view of the (immutable) payload: stages must not modify inputs
+    assert np.shares_memory(out.points, np.frombuffer(payload, np.uint8))

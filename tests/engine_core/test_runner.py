@@ -1,0 +1,207 @@
+"""The runner: ordered delivery, services, failures as events, prompt stop, clean shutdown."""
+
+from __future__ import annotations
+
+import itertools
+import threading
+import time
+
+import numpy as np
+import pytest
+from recipe_helpers import graph_from
+from stage_fixtures import COLLECTED
+
+from engine.runner import Runner
+
+pytestmark = pytest.mark.timeout(60)
+
+
+def run(text: str, **kw) -> tuple[Runner, object]:
+    runner = Runner(graph_from(text), **kw)
+    return runner, runner.run()
+
+
+CHAIN = """
+name: chain
+plugins: [stage_fixtures]
+run_id: {rid}
+clock: sim
+stages:
+  src: {{type: t_counter, params: {{n: {n}}}}}
+  mid: {{type: t_relay, inputs: {{in: src.out}}, params: {{fail_at: {fail}}}}}
+  sink: {{type: t_collector, inputs: {{in: mid.out}}}}
+"""
+
+
+def test_chain_delivers_every_message_in_order():
+    runner, s = run(CHAIN.format(rid="chain1", n=200, fail=-1))
+    rows = COLLECTED["chain1"]["sink"]
+    assert s.ok and s.stop_reason is None
+    assert [r["args"]["i"] for r in rows] == list(range(200))
+    assert [r["seq"] for r in rows] == list(range(1, 201))
+    assert all(r["args"]["path"] == ["mid"] for r in rows)
+    by = {st.name: st for st in s.stages}
+    assert by["src"].published["out"] == 200 and by["mid"].received["in"] == 200 and by["sink"].received["in"] == 200
+    assert all(st.state == "finished" for st in s.stages)
+    assert runner.bus.closed
+
+
+def test_stage_exception_becomes_an_error_event_with_traceback_and_stops_the_run():
+    t0 = time.monotonic()
+    _, s = run(CHAIN.format(rid="fail1", n=100, fail=5))
+    assert time.monotonic() - t0 < 20
+    assert not s.ok and "stage 'mid' failed" in s.stop_reason and "planned failure at i=5" in s.stop_reason
+    errors = [e for e in s.events if e.level == "error"]
+    assert errors and errors[0].stage == "mid" and errors[0].code == "stage_exception"
+    assert "RuntimeError: planned failure at i=5" in errors[0].traceback and "on_message" in errors[0].traceback
+    by = {st.name: st for st in s.stages}
+    assert by["mid"].state == "failed" and by["mid"].errors == 1
+
+
+def test_on_error_continue_lets_the_healthy_branch_finish():
+    text = """
+    name: branches
+    plugins: [stage_fixtures]
+    run_id: cont1
+    on_error: continue
+    stages:
+      src: {type: t_counter, params: {n: 30}}
+      bad: {type: t_relay, inputs: {in: src.out}, params: {fail_at: 3}}
+      good: {type: t_relay, inputs: {in: src.out}}
+      sink_bad: {type: t_collector, inputs: {in: bad.out}}
+      sink_good: {type: t_collector, inputs: {in: good.out}}
+    """
+    _, s = run(text)
+    assert len(COLLECTED["cont1"]["sink_good"]) == 30
+    assert len(COLLECTED["cont1"]["sink_bad"]) == 3
+    assert not s.ok and {st.name: st.state for st in s.stages}["bad"] == "failed"
+
+
+SERVICE = """
+name: svc
+plugins: [stage_fixtures]
+run_id: {rid}
+stages:
+  src: {{type: t_counter, params: {{n: 5}}}}
+  echo: {{type: t_echo, params: {{delay_s: {delay}}}}}
+  call: {{type: t_caller, inputs: {{in: src.out}}, uses: {{svc: echo.echo}}, params: {{command: {cmd}, timeout_s: {to}}}}}
+  sink: {{type: t_collector, inputs: {{in: call.out}}}}
+"""
+
+
+def test_service_calls_get_replies():
+    _, s = run(SERVICE.format(rid="svc1", delay=0, cmd="echo", to=5))
+    rows = COLLECTED["svc1"]["sink"]
+    assert s.ok and [r["args"]["i"] for r in rows] == list(range(5))
+    assert all(r["args"]["served_by"] == "echo" for r in rows)
+    assert {st.name: st for st in s.stages}["echo"].requests_served == 5
+
+
+def test_provider_exception_is_returned_to_the_caller_and_recorded():
+    _, s = run(SERVICE.format(rid="svc2", delay=0, cmd="boom", to=5))
+    rows = COLLECTED["svc2"]["sink"]
+    assert [r["args"]["error"] for r in rows] == ["ServiceError"] * 5
+    assert "ValueError: boom requested" in rows[0]["args"]["text"]
+    assert any(e.code == "service_exception" and e.stage == "echo" for e in s.events)
+
+
+def test_service_timeout_is_reported_as_timeout():
+    _, _s = run(SERVICE.format(rid="svc3", delay=0.5, cmd="echo", to=0.1))
+    rows = COLLECTED["svc3"]["sink"]
+    assert rows and all(r["args"]["error"] == "ServiceTimeoutError" for r in rows)
+
+
+def test_stop_from_another_thread_ends_an_endless_run_promptly():
+    text = """
+    name: endless
+    plugins: [stage_fixtures]
+    run_id: stop1
+    stages:
+      src: {type: t_counter, params: {forever: true, rate_hz: 2000}}
+      mid: {type: t_relay, inputs: {in: src.out}}
+      sink: {type: t_collector, inputs: {in: mid.out}}
+    """
+    runner = Runner(graph_from(text))
+    threading.Timer(0.5, runner.stop, args=("test stop",)).start()
+    t0 = time.monotonic()
+    s = runner.run()
+    assert time.monotonic() - t0 < 10
+    assert not s.ok and s.stop_reason == "test stop"
+    assert len(COLLECTED["stop1"]["sink"]) > 10
+    assert runner.bus.closed
+
+
+def test_merge_keeps_per_port_order():
+    text = """
+    name: merge
+    plugins: [stage_fixtures]
+    run_id: merge1
+    stages:
+      a: {type: t_counter, params: {n: 50}}
+      b: {type: t_counter, params: {n: 70}}
+      m: {type: t_merge, inputs: {a: a.out, b: b.out}}
+      sink: {type: t_collector, inputs: {in: m.out}}
+    """
+    _, s = run(text)
+    rows = COLLECTED["merge1"]["sink"]
+    assert s.ok
+    assert [r["args"]["i"] for r in rows if r["command"] == "a"] == list(range(50))
+    assert [r["args"]["i"] for r in rows if r["command"] == "b"] == list(range(70))
+
+
+def test_sim_clock_stamps_are_deterministic():
+    text = """
+    name: clock
+    clock: sim
+    run_id: clock1
+    stages:
+      src: {type: synthetic_cloud, params: {n_points: 10, frames: 5, rate_hz: 10}}
+      sink: {type: cloud_stats, inputs: {cloud: src.cloud}}
+    """
+    runner = Runner(graph_from(text))
+    runner.run()
+    stamps = [r["stamp_ns"] for r in runner.runtimes["sink"].stage.rows]
+    assert [b - a for a, b in itertools.pairwise(stamps)] == [100_000_000] * 4
+
+
+def test_unknown_process_is_refused():
+    from engine.runner import RunError
+
+    with pytest.raises(RunError, match="no stage in process 'elsewhere'"):
+        Runner(graph_from(CHAIN.format(rid="x", n=1, fail=-1)), process="elsewhere")
+
+
+def test_published_arrays_are_frozen_and_republishing_does_not_mutate_inputs():
+    from engine.messages import PointCloud, freeze
+
+    pc = PointCloud(points=np.zeros((3, 3)))
+    out = freeze(pc)
+    assert out is pc and not pc.points.flags.writeable
+    with pytest.raises(ValueError):
+        pc.points[0, 0] = 1.0  # a producer writing after publish is caught, not silently shared
+    out.seq = 4
+    again = freeze(out)
+    assert again is not out and again.points is out.points  # passed-on messages are copied, arrays shared
+
+
+def test_inline_and_threaded_dispatch_give_identical_results():
+    rows = {}
+    for mode in ("auto", "thread"):
+        text = f"""
+        name: d
+        plugins: [stage_fixtures]
+        run_id: disp_{mode}
+        stages:
+          a: {{type: t_counter, params: {{n: 300}}}}
+          b: {{type: t_counter, params: {{n: 200}}}}
+          m: {{type: t_merge, inputs: {{a: a.out, b: b.out}}, dispatch: {mode}}}
+          r: {{type: t_relay, inputs: {{in: m.out}}, dispatch: {mode}}}
+          sink: {{type: t_collector, inputs: {{in: r.out}}, dispatch: {mode}}}
+        """
+        _, s = run(text)
+        assert s.ok
+        got = COLLECTED[f"disp_{mode}"]["sink"]
+        rows[mode] = sorted((r["command"], r["args"]["i"]) for r in got)
+        for port, n in (("a", 300), ("b", 200)):
+            assert [r["args"]["i"] for r in got if r["command"] == port] == list(range(n))
+    assert rows["auto"] == rows["thread"]

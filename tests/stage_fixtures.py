@@ -1,0 +1,226 @@
+"""Stages used only by the engine tests, registered as a plugin module (recipe ``plugins:`` list).
+
+``collector`` keeps what it received in ``COLLECTED[run_id][stage]`` (in-process tests) and can
+also write it as JSON (subprocess tests).
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from collections import defaultdict
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+from pydantic import Field
+
+from engine.hookspecs import hookimpl
+from engine.messages import Blob, PointCloud, PoseStamped, Request
+from engine.stage import ServiceSpec, Stage, StageParams
+
+COLLECTED: dict[str, dict[str, list[dict[str, Any]]]] = defaultdict(lambda: defaultdict(list))
+
+
+class Counter(Stage):
+    """Emits Request messages with args {i: 0..n-1}; optionally forever until stopped."""
+
+    type_name = "t_counter"
+    role = "source"
+    outputs: ClassVar = {"out": Request}
+
+    class Params(StageParams):
+        n: int = 10
+        forever: bool = False
+        rate_hz: float = 0.0
+
+    def run(self) -> None:
+        i = 0
+        while (self.params.forever or i < self.params.n) and not self.ctx.stopping:  # type: ignore[attr-defined]
+            self.ctx.publish("out", Request(command="count", args={"i": i}))
+            i += 1
+            if self.params.rate_hz and not self.ctx.sleep(1.0 / self.params.rate_hz):  # type: ignore[attr-defined]
+                return
+
+
+class Relay(Stage):
+    """Forwards Requests, adding its name to args['path']; fails on args.i == fail_at."""
+
+    type_name = "t_relay"
+    inputs: ClassVar = {"in": Request}
+    outputs: ClassVar = {"out": Request}
+
+    class Params(StageParams):
+        fail_at: int = -1
+
+    def on_message(self, port: str, msg: Request) -> None:  # type: ignore[override]
+        if msg.args.get("i") == self.params.fail_at:  # type: ignore[attr-defined]
+            raise RuntimeError(f"planned failure at i={msg.args['i']}")
+        args = dict(msg.args)
+        args["path"] = [*args.get("path", []), self.ctx.name]
+        self.ctx.publish("out", Request(command=msg.command, args=args))
+
+
+class Merge(Stage):
+    """Two inputs, one output: forwards everything, tagging the port it came in on."""
+
+    type_name = "t_merge"
+    inputs: ClassVar = {"a": Request, "b": Request}
+    outputs: ClassVar = {"out": Request}
+
+    def on_message(self, port: str, msg: Request) -> None:  # type: ignore[override]
+        self.ctx.publish("out", Request(command=port, args=msg.args))
+
+
+class Collector(Stage):
+    """Keeps every received message (seq, command, args)."""
+
+    type_name = "t_collector"
+    role = "sink"
+    inputs: ClassVar = {"in": Request}
+
+    class Params(StageParams):
+        output: str | None = None
+
+    def setup(self) -> None:
+        self.rows: list[dict[str, Any]] = []
+
+    def on_message(self, port: str, msg: Request) -> None:  # type: ignore[override]
+        row = {"seq": msg.seq, "command": msg.command, "args": msg.args}
+        self.rows.append(row)
+        COLLECTED[self.ctx.run_id][self.ctx.name].append(row)
+
+    def finish(self) -> None:
+        if self.params.output:  # type: ignore[attr-defined]
+            Path(self.params.output).write_text(json.dumps(self.rows))  # type: ignore[attr-defined]
+
+
+class EchoService(Stage):
+    """Service 'echo': replies with the request's args plus {'served_by': name}; 'boom' raises."""
+
+    type_name = "t_echo"
+    role = "sensor"
+    services: ClassVar = {"echo": ServiceSpec(Request, Request, "echo the args back")}
+
+    class Params(StageParams):
+        delay_s: float = 0.0
+
+    def on_request(self, service: str, request: Request) -> Request:  # type: ignore[override]
+        if request.command == "boom":
+            raise ValueError("boom requested")
+        if self.params.delay_s:  # type: ignore[attr-defined]
+            threading.Event().wait(self.params.delay_s)  # type: ignore[attr-defined]
+        return Request(command="echo", args={**request.args, "served_by": self.ctx.name})
+
+
+class Caller(Stage):
+    """For each input, calls its 'svc' client and publishes the reply (or the error text)."""
+
+    type_name = "t_caller"
+    inputs: ClassVar = {"in": Request}
+    outputs: ClassVar = {"out": Request}
+    uses: ClassVar = {"svc": ServiceSpec(Request, Request)}
+
+    class Params(StageParams):
+        command: str = "echo"
+        timeout_s: float = Field(5.0, gt=0)
+
+    def on_message(self, port: str, msg: Request) -> None:  # type: ignore[override]
+        from engine.stage import ServiceError
+
+        try:
+            reply = self.ctx.call(
+                "svc",
+                Request(command=self.params.command, args=msg.args),  # type: ignore[attr-defined]
+                timeout_s=self.params.timeout_s,
+            )  # type: ignore[attr-defined]
+            self.ctx.publish("out", reply)
+        except ServiceError as exc:
+            self.ctx.publish("out", Request(command="error", args={"error": type(exc).__name__, "text": str(exc)}))
+
+
+class RelayWithService(Relay):
+    """A relay that also answers 'echo' (to build wait cycles in validation tests)."""
+
+    type_name = "t_relay_service"
+    services: ClassVar = {"echo": ServiceSpec(Request, Request)}
+
+    def on_request(self, service: str, request: Request) -> Request:  # type: ignore[override]
+        return request
+
+
+class NeedsParam(Stage):
+    """Has a required parameter (validation tests)."""
+
+    type_name = "t_needs_param"
+    role = "sink"
+    inputs: ClassVar = {"in": Request}
+
+    class Params(StageParams):
+        factor: float
+
+
+class BlobSink(Stage):
+    """Counts Blob payload bytes."""
+
+    type_name = "t_blob_sink"
+    role = "sink"
+    inputs: ClassVar = {"in": Blob}
+
+
+@hookimpl
+def vgr_stage_types() -> list[type]:
+    return [
+        Counter,
+        Relay,
+        Merge,
+        Collector,
+        EchoService,
+        Caller,
+        BlobSink,
+        NeedsParam,
+        RelayWithService,
+        NoisyCloud,
+        ThreadedCentroid,
+    ]
+
+
+class NoisyCloud(Stage):
+    """For each Request, a PointCloud of args.i + n points drawn from the stage's seeded generator."""
+
+    type_name = "t_noisy_cloud"
+    role = "solver"
+    inputs: ClassVar = {"in": Request}
+    outputs: ClassVar = {"cloud": PointCloud}
+
+    class Params(StageParams):
+        n: int = 50
+        scale: float = 1.0
+
+    def on_message(self, port: str, msg: Request) -> None:  # type: ignore[override]
+        k = self.params.n + int(msg.args.get("i", 0))  # type: ignore[attr-defined]
+        pts = self.ctx.rng.normal(scale=self.params.scale, size=(k, 3))  # type: ignore[attr-defined]
+        self.ctx.publish("cloud", PointCloud(points=pts, frame_id="noise"))
+
+
+class ThreadedCentroid(Stage):
+    """Centroid of each cloud computed by 4 worker threads over chunks, combined in chunk order."""
+
+    type_name = "t_threaded_centroid"
+    role = "solver"
+    inputs: ClassVar = {"cloud": PointCloud}
+    outputs: ClassVar = {"centroid": PoseStamped}
+
+    def setup(self) -> None:
+        self.pool = ThreadPoolExecutor(max_workers=4)
+
+    def on_message(self, port: str, msg: PointCloud) -> None:  # type: ignore[override]
+        chunks = np.array_split(np.asarray(msg.points, dtype=float), 4)
+        sums = list(self.pool.map(lambda c: c.sum(axis=0), chunks))  # results come back in chunk order
+        T = np.eye(4)
+        T[:3, 3] = np.sum(sums, axis=0) / max(1, len(msg.points))
+        self.ctx.publish("centroid", PoseStamped(T=T, frame_id=msg.frame_id))
+
+    def teardown(self) -> None:
+        self.pool.shutdown()
