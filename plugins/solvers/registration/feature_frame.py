@@ -134,12 +134,16 @@ def _frame(c1: np.ndarray, c2: np.ndarray, n: np.ndarray) -> np.ndarray:
 
 
 def fit_feature_frame(
-    cloud: Any, params: FeatureFrameParams | None = None, *, reference: FeatureFrame | None = None
+    cloud: Any,
+    params: FeatureFrameParams | None = None,
+    *,
+    reference: FeatureFrame | None = None,
+    name: str = "cloud",
 ) -> FeatureFrame:
     """Fit the workpiece frame of *cloud* (see module docstring); raises InvalidInputError with a reason
     (AmbiguousOrderError when the feature order cannot be decided against *reference*)."""
     params = params or FeatureFrameParams()
-    prep = prepare_cloud(cloud, params.preprocess, name="cloud")
+    prep = prepare_cloud(cloud, params.preprocess, name=name)
     pts = prep.points
     spacing = prep.spacing()
     dist = params.plane_distance_m or max(2.0 * spacing, 0.3e-3)
@@ -246,17 +250,23 @@ def register_feature_frame(
     method = f"feature_frame:{params.feature_kind}"
     t0 = time.perf_counter()
     try:
-        F_t = template if isinstance(template, FeatureFrame) else fit_feature_frame(template, params)
+        F_t = (
+            template
+            if isinstance(template, FeatureFrame)
+            else fit_feature_frame(template, params, name="template")
+        )
     except InvalidInputError as exc:
-        return failed(method, f"template: {exc}")
+        return failed(method, str(exc))
+    except Exception as exc:  # a fitting error must not escape the stage
+        return failed(method, f"template: {type(exc).__name__}: {exc}")
     try:
-        F_c = fit_feature_frame(current, params, reference=F_t)
+        F_c = fit_feature_frame(current, params, reference=F_t, name="current")
     except AmbiguousOrderError as exc:
         res = RegistrationResult(verdict="ambiguous", method=method, reasons=[f"current: {exc}"])
         res.details["template_frame"] = F_t.to_dict()
         return res
     except InvalidInputError as exc:
-        return failed(method, f"current: {exc}")
+        return failed(method, str(exc) if str(exc).startswith("current") else f"current: {exc}")
     except Exception as exc:  # a fitting error must not escape the stage
         return failed(method, f"current: {type(exc).__name__}: {exc}")
 

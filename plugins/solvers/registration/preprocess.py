@@ -226,6 +226,7 @@ def prepare_cloud(
     if params.outlier_k > 0 and pts.shape[0] > params.outlier_k:
         pts = remove_outliers(pts, params.outlier_k, params.outlier_std_ratio)
     raw_count = int(pts.shape[0])
+    check_spread(pts, name=name, min_extent_m=params.min_extent_m)
     down = voxel_downsample(pts, params.voxel_size_m)
     min_after = max(params.min_points, params.normal_k)
     if down.shape[0] < min_after:

@@ -28,7 +28,9 @@ def workpiece(name: str) -> Workpiece:
     return make_workpiece(name)
 
 
-def camera(width: int = 640, height: int = 480, sigma_m: float = 1e-4, hfov_deg: float = 60.0) -> DepthCameraModel:
+def camera(
+    width: int = 640, height: int = 480, sigma_m: float = 1e-4, hfov_deg: float = 60.0
+) -> DepthCameraModel:
     """Pinhole depth camera with ``sigma_m`` depth noise (0.1 mm default) and 80 deg grazing dropout."""
     f = (width / 2.0) / np.tan(np.radians(hfov_deg) / 2.0)
     k = PinholeIntrinsics(width, height, f, f, (width - 1) / 2.0, (height - 1) / 2.0)
@@ -84,23 +86,9 @@ class Capture:
 
 
 def capture(name: str, T_cam_part: np.ndarray, cam: DepthCameraModel, rng: np.random.Generator) -> Capture:
-    """Render the part at ``T_cam_part``.
-
-    Work-around for plugins.sim (branch sim-cam, b4bb337): Embree occasionally lets one ray slip
-    through a shared mesh edge and hit a wall from inside; the camera then refuses the whole frame
-    ("back faces hit"). We shift the part by 1 um and render again (the returned truth is the shifted
-    pose), instead of editing plugins/sim. Reported to the lead.
-    """
-    T = T_cam_part.copy()
-    for _ in range(5):
-        try:
-            cap = cam.render([(workpiece(name), T)], np.eye(4), rng)
-            return Capture(cap.points, T)
-        except ValueError as exc:
-            if "back faces" not in str(exc):
-                raise
-            T = T @ tf.T_from_Rt(np.eye(3), [1e-6, 0.0, 0.0])
-    raise RuntimeError("simulated camera kept hitting back faces")
+    """Render the part at ``T_cam_part`` (camera at the world origin)."""
+    cap = cam.render([(workpiece(name), T_cam_part)], np.eye(4), rng)
+    return Capture(cap.points, T_cam_part)
 
 
 def model_template(name: str, T_cam_part: np.ndarray, spacing_m: float, rng: np.random.Generator) -> Capture:
@@ -124,3 +112,13 @@ def match_error(T_est: np.ndarray, template: Capture, current: Capture, name: st
     c = tf.transform_points(current.T_cam_part, part_center(name)[None, :])
     dt = np.linalg.norm(tf.transform_points(T_est, c) - tf.transform_points(T_true, c))
     return float(dt * 1e3), float(np.degrees(tf.angle_between(T_est[:3, :3], T_true[:3, :3])))
+
+
+def flat_table(cam: DepthCameraModel, rng: np.random.Generator, depth_m: float = DISTANCE_M + 0.008) -> np.ndarray:
+    """Capture of an empty fixture: a 0.8 x 0.6 m flat table top at ``depth_m`` filling the view (the
+    part that should lie on it is missing)."""
+    import open3d as o3d
+
+    box = o3d.geometry.TriangleMesh.create_box(0.8, 0.6, 0.02)
+    box.translate((-0.4, -0.3, depth_m))
+    return cam.render([(box, np.eye(4))], np.eye(4), rng).points
