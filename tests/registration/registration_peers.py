@@ -59,15 +59,15 @@ def open3d_point_to_plane(
 ) -> np.ndarray:
     src, tgt = _o3d_cloud(current, VOXEL_M), _o3d_cloud(template, VOXEL_M)
     crit = reg.ICPConvergenceCriteria(relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=MAX_ITERATIONS)
-    res = reg.registration_icp(
-        src, tgt, max_correspondence_m, T_init, reg.TransformationEstimationPointToPlane(), crit
-    )
+    res = reg.registration_icp(src, tgt, max_correspondence_m, T_init, reg.TransformationEstimationPointToPlane(), crit)
     return np.array(res.transformation)
 
 
 def kiss_icp(current: np.ndarray, template: np.ndarray, T_init: np.ndarray) -> np.ndarray:
     vmap = VoxelHashMap(voxel_size=MAX_CORRESPONDENCE_M, max_distance=1e6, max_points_per_voxel=20)
-    vmap.add_points(np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(template)).voxel_down_sample(VOXEL_M).points))
+    vmap.add_points(
+        np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(template)).voxel_down_sample(VOXEL_M).points)
+    )
     src = np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(current)).voxel_down_sample(VOXEL_M).points)
     registration = Registration(
         max_num_iterations=MAX_ITERATIONS, convergence_criterion=TRANSLATION_EPS_M, max_num_threads=1

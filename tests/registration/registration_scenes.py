@@ -28,9 +28,7 @@ def workpiece(name: str) -> Workpiece:
     return make_workpiece(name)
 
 
-def camera(
-    width: int = 640, height: int = 480, sigma_m: float = 1e-4, hfov_deg: float = 60.0
-) -> DepthCameraModel:
+def camera(width: int = 640, height: int = 480, sigma_m: float = 1e-4, hfov_deg: float = 60.0) -> DepthCameraModel:
     """Pinhole depth camera with ``sigma_m`` depth noise (0.1 mm default) and 80 deg grazing dropout."""
     f = (width / 2.0) / np.tan(np.radians(hfov_deg) / 2.0)
     k = PinholeIntrinsics(width, height, f, f, (width - 1) / 2.0, (height - 1) / 2.0)

@@ -199,9 +199,7 @@ def fit_feature_frame(
         )
 
     if reference is None:
-        order = sorted(
-            range(len(circles)), key=lambda k: (round(circles[k].radius_m / 1e-4), circles[k].center_uv[0])
-        )
+        order = sorted(range(len(circles)), key=lambda k: (round(circles[k].radius_m / 1e-4), circles[k].center_uv[0]))
         if len(circles) > 2:  # the farthest-apart pair is the most precise X axis
             pairs = itertools.combinations(range(len(circles)), 2)
             i, j = max(pairs, key=lambda p: np.linalg.norm(centers3[p[0]] - centers3[p[1]]))
@@ -250,11 +248,7 @@ def register_feature_frame(
     method = f"feature_frame:{params.feature_kind}"
     t0 = time.perf_counter()
     try:
-        F_t = (
-            template
-            if isinstance(template, FeatureFrame)
-            else fit_feature_frame(template, params, name="template")
-        )
+        F_t = template if isinstance(template, FeatureFrame) else fit_feature_frame(template, params, name="template")
     except InvalidInputError as exc:
         return failed(method, str(exc))
     except Exception as exc:  # a fitting error must not escape the stage

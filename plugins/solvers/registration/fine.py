@@ -148,15 +148,9 @@ def evaluate(
     over_t = unc.sigma_translation_m > params.max_sigma_translation_m
     over_r = unc.sigma_rotation_rad > params.max_sigma_rotation_rad
     if np.any(over_t) or np.any(over_r):
-        axes = [
-            f"{a} {s * 1e3:.3g} mm"
-            for a, s, o in zip("xyz", unc.sigma_translation_m, over_t, strict=True)
-            if o
-        ]
+        axes = [f"{a} {s * 1e3:.3g} mm" for a, s, o in zip("xyz", unc.sigma_translation_m, over_t, strict=True) if o]
         axes += [
-            f"r{a} {np.degrees(s):.3g} deg"
-            for a, s, o in zip("xyz", unc.sigma_rotation_rad, over_r, strict=True)
-            if o
+            f"r{a} {np.degrees(s):.3g} deg" for a, s, o in zip("xyz", unc.sigma_rotation_rad, over_r, strict=True) if o
         ]
         res.verdict = "ambiguous"
         res.reasons.insert(
@@ -179,9 +173,7 @@ def _recheck(
     ``recheck_iterations <= 0`` disables the check (used for the coarse stage of global matching)."""
     if params.recheck_iterations <= 0:
         return T, True
-    out = run_backend(
-        params.backend, current, template, T, replace(settings, max_iterations=params.recheck_iterations)
-    )
+    out = run_backend(params.backend, current, template, T, replace(settings, max_iterations=params.recheck_iterations))
     T2 = out.T_match
     if not (np.all(np.isfinite(T2)) and tf.is_rotation(T2[:3, :3], tol=1e-6)):
         return T, False

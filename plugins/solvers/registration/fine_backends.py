@@ -46,9 +46,7 @@ class BackendOutput:
 def _small_gicp(
     kind: str,
 ) -> Callable[[PreparedCloud, PreparedCloud, np.ndarray, IcpSettings], BackendOutput]:
-    def run(
-        current: PreparedCloud, template: PreparedCloud, T_init: np.ndarray, s: IcpSettings
-    ) -> BackendOutput:
+    def run(current: PreparedCloud, template: PreparedCloud, T_init: np.ndarray, s: IcpSettings) -> BackendOutput:
         tgt, tgt_tree = template.small_gicp(s.num_threads)
         src, _ = current.small_gicp(s.num_threads)
         res = small_gicp.align(
@@ -71,12 +69,8 @@ def _small_gicp(
 def _open3d(kind: str) -> Callable[[PreparedCloud, PreparedCloud, np.ndarray, IcpSettings], BackendOutput]:
     reg = o3d.pipelines.registration
 
-    def run(
-        current: PreparedCloud, template: PreparedCloud, T_init: np.ndarray, s: IcpSettings
-    ) -> BackendOutput:
-        crit = reg.ICPConvergenceCriteria(
-            relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=s.max_iterations
-        )
+    def run(current: PreparedCloud, template: PreparedCloud, T_init: np.ndarray, s: IcpSettings) -> BackendOutput:
+        crit = reg.ICPConvergenceCriteria(relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=s.max_iterations)
         with open3d_threads(s.num_threads):
             src, tgt = current.open3d(), template.open3d()
             if kind == "plane":
@@ -98,18 +92,14 @@ def _open3d(kind: str) -> Callable[[PreparedCloud, PreparedCloud, np.ndarray, Ic
     return run
 
 
-def _kiss_icp(
-    current: PreparedCloud, template: PreparedCloud, T_init: np.ndarray, s: IcpSettings
-) -> BackendOutput:
+def _kiss_icp(current: PreparedCloud, template: PreparedCloud, T_init: np.ndarray, s: IcpSettings) -> BackendOutput:
     from kiss_icp.mapping import VoxelHashMap
     from kiss_icp.registration import Registration
 
     key = ("kiss_map", s.kiss_voxel_m, s.kiss_points_per_voxel)
     vmap = template._cache.get(key)
     if vmap is None:
-        vmap = VoxelHashMap(
-            voxel_size=s.kiss_voxel_m, max_distance=1e6, max_points_per_voxel=s.kiss_points_per_voxel
-        )
+        vmap = VoxelHashMap(voxel_size=s.kiss_voxel_m, max_distance=1e6, max_points_per_voxel=s.kiss_points_per_voxel)
         vmap.add_points(template.points)
         template._cache[key] = vmap
     registration = Registration(

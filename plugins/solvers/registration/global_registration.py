@@ -62,8 +62,7 @@ class GlobalParams:
 def _same_pose(Ta: np.ndarray, Tb: np.ndarray, center: np.ndarray, params: GlobalParams) -> bool:
     dt = np.linalg.norm(tf.transform_points(Ta, center) - tf.transform_points(Tb, center))
     return bool(
-        dt < params.distinct_translation_m
-        and tf.angle_between(Ta[:3, :3], Tb[:3, :3]) < params.distinct_rotation_rad
+        dt < params.distinct_translation_m and tf.angle_between(Ta[:3, :3], Tb[:3, :3]) < params.distinct_rotation_rad
     )
 
 

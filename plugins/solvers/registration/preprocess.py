@@ -195,9 +195,7 @@ def voxel_downsample(points: np.ndarray, voxel_size_m: float) -> np.ndarray:
     return np.asarray(pcd.voxel_down_sample(voxel_size_m).points).copy()
 
 
-def prepare_cloud(
-    cloud: Any, params: PreprocessParams | None = None, *, name: str = "cloud"
-) -> PreparedCloud:
+def prepare_cloud(cloud: Any, params: PreprocessParams | None = None, *, name: str = "cloud") -> PreparedCloud:
     """Validate, crop, de-noise and downsample *cloud*; raise :class:`InvalidInputError` with a reason.
 
     *cloud* may already be a :class:`PreparedCloud` at the same voxel size (returned unchanged), which

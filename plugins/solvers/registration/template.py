@@ -92,9 +92,7 @@ def make_template(
     if kind == "cloud":
         pp = preprocess or PreprocessParams()
         prep = prepare_cloud(cloud, pp, name="template")
-        return Template(
-            kind, name, T_photo, _params_dict(pp), points=prep.points, metadata=dict(metadata or {})
-        )
+        return Template(kind, name, T_photo, _params_dict(pp), points=prep.points, metadata=dict(metadata or {}))
     if kind == "feature_frame":
         fp = feature_params or FeatureFrameParams()
         if preprocess is not None:
@@ -187,6 +185,4 @@ def roi_from_dict(d: dict[str, Any] | None) -> RoiBox | None:
     """Inverse of :meth:`RoiBox.to_dict` (for re-using a template's ROI on the current captures)."""
     if d is None:
         return None
-    return RoiBox(
-        center=tuple(d["center"]), extent=tuple(d["extent"]), rotation=tuple(tuple(r) for r in d["rotation"])
-    )
+    return RoiBox(center=tuple(d["center"]), extent=tuple(d["extent"]), rotation=tuple(tuple(r) for r in d["rotation"]))

@@ -39,9 +39,7 @@ def as_points(cloud: Any, *, name: str, min_points: int, drop_non_finite: bool =
             arr = np.asarray(cloud)
         except Exception as exc:  # ragged lists and the like
             raise InvalidInputError(f"{name} cloud cannot be read as an array: {exc}") from exc
-    if arr.dtype == object or not (
-        np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)
-    ):
+    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
         raise InvalidInputError(f"{name} cloud must hold real numbers, got dtype {arr.dtype}")
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise InvalidInputError(f"{name} cloud must have shape (N, 3), got {arr.shape}")
@@ -58,9 +56,7 @@ def as_points(cloud: Any, *, name: str, min_points: int, drop_non_finite: bool =
     if pts.shape[0] == 0:
         raise InvalidInputError(f"{name} cloud is empty")
     if pts.shape[0] < min_points:
-        raise InvalidInputError(
-            f"{name} cloud has {pts.shape[0]} points, fewer than the {min_points} required"
-        )
+        raise InvalidInputError(f"{name} cloud has {pts.shape[0]} points, fewer than the {min_points} required")
     big = float(np.max(np.abs(pts)))
     if big > MAX_ABS_COORDINATE_M:
         raise InvalidInputError(
