@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import registration_scenes as S
+import registration_scenes as scenes
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
@@ -134,19 +134,19 @@ def test_random_blobs_are_never_silently_matched_to_the_box(seed, n, spread):
 
 @pytest.fixture(scope="module")
 def plate_scene():
-    cam = S.camera(640, 480)
+    cam = scenes.camera(640, 480)
     rng = np.random.default_rng(11)
-    tmpl = S.model_template("planar_plate", S.nominal_pose("planar_plate"), 0.0007, rng)
+    tmpl = scenes.model_template("planar_plate", scenes.nominal_pose("planar_plate"), 0.0007, rng)
     return cam, rng, tmpl
 
 
 def test_template_from_another_part_fails(plate_scene):
     """The current capture shows feature_part; the template is the planar plate."""
     cam, rng, tmpl = plate_scene
-    cur = S.capture("feature_part", S.nominal_pose("feature_part"), cam, rng)
+    cur = scenes.capture("feature_part", scenes.nominal_pose("feature_part"), cam, rng)
     for res in (
         register_global(cur.points, tmpl.points, GlobalParams(method="auto")),
-        register_fine(cur.points, tmpl.points, S.true_match(tmpl, cur)),
+        register_fine(cur.points, tmpl.points, scenes.true_match(tmpl, cur)),
     ):
         assert res.verdict == "failed", res.summary()
         assert res.T_match is None
@@ -156,7 +156,7 @@ def test_template_from_another_part_fails(plate_scene):
 def test_cloud_with_the_part_missing_fails(plate_scene):
     """The part is missing: the camera sees only the empty fixture (a flat table) where it should be."""
     cam, rng, tmpl = plate_scene
-    table = S.flat_table(cam, rng)
+    table = scenes.flat_table(cam, rng)
     for res in (
         register_global(table, tmpl.points, GlobalParams(method="auto")),
         register_fine(table, tmpl.points, np.eye(4)),
