@@ -22,6 +22,9 @@ import small_gicp
 from .determinism import open3d_threads
 from .preprocess import PreparedCloud
 
+#: Open3D stops when the relative changes of fitness and inlier RMSE both fall below this.
+OPEN3D_RELATIVE_TOLERANCE = 1e-7
+
 BACKENDS = ("small_gicp_gicp", "small_gicp_plane", "open3d_plane", "open3d_gicp", "kiss_icp")
 
 
@@ -70,7 +73,11 @@ def _open3d(kind: str) -> Callable[[PreparedCloud, PreparedCloud, np.ndarray, Ic
     reg = o3d.pipelines.registration
 
     def run(current: PreparedCloud, template: PreparedCloud, T_init: np.ndarray, s: IcpSettings) -> BackendOutput:
-        crit = reg.ICPConvergenceCriteria(relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=s.max_iterations)
+        crit = reg.ICPConvergenceCriteria(
+            relative_fitness=OPEN3D_RELATIVE_TOLERANCE,
+            relative_rmse=OPEN3D_RELATIVE_TOLERANCE,
+            max_iteration=s.max_iterations,
+        )
         with open3d_threads(s.num_threads):
             src, tgt = current.open3d(), template.open3d()
             if kind == "plane":

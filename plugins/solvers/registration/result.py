@@ -41,6 +41,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+from engine import transforms as tf
+
 Verdict = Literal["ok", "ambiguous", "failed"]
 
 
@@ -115,6 +117,14 @@ class RegistrationResult:
     def best(self) -> Hypothesis | None:
         """Best-ranked hypothesis (also for ambiguous results), or None."""
         return self.hypotheses[0] if self.hypotheses else None
+
+    def covariance_at(self, point: np.ndarray) -> np.ndarray | None:
+        """6x6 covariance of the twist ``(v, w)`` moved to *point* (template frame, m): the
+        translation block is then the uncertainty of where that point of the part is."""
+        if self.covariance is None:
+            return None
+        Ad = tf.adjoint(tf.T_from_Rt(np.eye(3), -np.asarray(point, dtype=float).reshape(3)))
+        return Ad @ self.covariance @ Ad.T
 
     def sigma_mm_deg(self) -> dict[str, float]:
         """Per-axis one-sigma for people: ``x_mm, y_mm, z_mm, rx_deg, ry_deg, rz_deg``."""
