@@ -40,7 +40,9 @@ class GlobalParams:
     generators; planar is skipped, with a note, when either cloud has no dominant plane).
     ``coarse_voxel_m``: voxel of the hypothesis stage (default 2x the fine voxel, at least the
     template's spacing). ``max_refined``: coarse hypotheses refined by ICP (with ``coarse_backend``,
-    GICP by default: the widest basin of convergence). ``ambiguity_gap``: minimum
+    GICP by default: the widest basin of convergence). Runners-up whose coarse score is within twice
+    the ambiguity gap of the best are refined at the fine level too (at most ``max_fine`` distinct
+    poses), so an ambiguity is decided on fine scores. ``ambiguity_gap``: minimum
     relative score gap ``(s_runner_up - s_best) / s_runner_up`` for an unambiguous result.
     Hypotheses closer than ``distinct_translation_m`` (at the part centre) and ``distinct_rotation_rad``
     are the same pose. ``seed`` fixes every random choice (RANSAC, plane RANSAC).
@@ -52,6 +54,7 @@ class GlobalParams:
     fpfh: FpfhParams = field(default_factory=FpfhParams)
     planar: PlanarParams = field(default_factory=PlanarParams)
     max_refined: int = 4
+    max_fine: int = 3
     coarse_backend: str = "small_gicp_gicp"
     ambiguity_gap: float = 0.1
     distinct_translation_m: float = 0.003
@@ -177,7 +180,7 @@ def register_global(current: Any, template: Any, params: GlobalParams | None = N
     unrefined: list[tuple[float, np.ndarray, str]] = []
     for k, (sc, T, label) in enumerate(refined_c):
         close = sc > 0 and (sc - s_best_c) / sc < 2.0 * params.ambiguity_gap
-        if k > 0 and (len(finals) >= 2 or not close):
+        if k > 0 and (len(finals) >= params.max_fine or not close):
             unrefined.append((sc, T, label))
             continue
         r = refine(cur, tmpl, T, params.fine)
