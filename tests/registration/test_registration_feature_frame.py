@@ -77,9 +77,10 @@ def test_synthetic_plate_frame_and_match(kind):
         err_mm = 1e3 * np.linalg.norm(tf.transform_points(res.T_match, c) - tf.transform_points(T_true, c))
         err_deg = np.degrees(tf.angle_between(res.T_match[:3, :3], T_true[:3, :3]))
         # pins: only ~25 cap-rim points on the 0.8 mm grid, so the centre is less precise
-        limit_mm = 0.1 if kind == "hole" else 0.3
-        assert err_mm < limit_mm and err_deg < 0.05, (err_mm, err_deg)
-        assert res.sigma_translation_m.max() < limit_mm * 1e-3 and np.isfinite(res.covariance).all()
+        limit_mm, limit_deg = (0.1, 0.05) if kind == "hole" else (0.3, 0.15)
+        assert err_mm < limit_mm and err_deg < limit_deg, (err_mm, err_deg)
+        # the first-order sigma has the error's order of magnitude
+        assert res.sigma_translation_m.max() < 2e-3 * limit_mm and np.isfinite(res.covariance).all()
 
 
 def test_symmetric_feature_pair_is_ambiguous():
