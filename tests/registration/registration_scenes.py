@@ -113,10 +113,10 @@ def match_error(T_est: np.ndarray, template: Capture, current: Capture, name: st
 
 
 def flat_table(cam: DepthCameraModel, rng: np.random.Generator, depth_m: float = DISTANCE_M + 0.008) -> np.ndarray:
-    """Capture of an empty fixture: a 0.8 x 0.6 m flat table top at ``depth_m`` filling the view (the
-    part that should lie on it is missing)."""
+    """Capture of an empty fixture: a 0.3 x 0.25 m flat table top at ``depth_m`` around the optical
+    axis (the part that should lie on it is missing)."""
     import open3d as o3d
 
-    box = o3d.geometry.TriangleMesh.create_box(0.8, 0.6, 0.02)
-    box.translate((-0.4, -0.3, depth_m))
+    box = o3d.geometry.TriangleMesh.create_box(0.3, 0.25, 0.02)
+    box.translate((-0.15, -0.125, depth_m))
     return cam.render([(box, np.eye(4))], np.eye(4), rng).points
