@@ -1,17 +1,19 @@
 """What makes the matchers reproducible: Open3D's global random seed and its process-wide thread limit.
 
-Findings (Open3D 0.20 with oneTBB, small_gicp 1.0, KISS-ICP 1.3; measured by
-``tests/registration/test_determinism.py`` and described in docs/registration.md):
+Findings (Open3D 0.20 with oneTBB, small_gicp 1.0.1, KISS-ICP 1.3.0; measured by
+``tests/registration/test_registration_determinism.py`` and ``benchmarks/registration.py``):
 
 * ``registration_ransac_based_on_feature_matching`` and ``PointCloud.segment_plane`` draw from Open3D's
-  global generator (``o3d.utility.random.seed``). Their result depends on the number of TBB threads
-  (each worker consumes its own share of the random stream), so vgr runs them with Open3D limited to
-  ONE thread and reseeds before every call. With that, the same seed gives bit-identical output
-  whatever thread count the caller allows elsewhere.
-* Open3D ICP, normal estimation, voxel downsampling, small_gicp registration/normal estimation and
-  KISS-ICP registration showed no thread-count dependence in our measurements for the thread counts
-  we allow (1 and 2); small_gicp's multi-threaded voxel grid is documented as non-deterministic and
-  is never used.
+  global generator (``o3d.utility.random.seed``). Left multi-threaded, RANSAC's result depends on the
+  number of TBB threads (same seed, 1 vs 2 threads: different poses for 3 of 3 seeds on the bunny),
+  so vgr runs both with Open3D limited to ONE thread and reseeds before every call.
+* With ``num_threads=1`` (vgr's default) every matcher is bit-identical run after run and whatever
+  Open3D's process-wide thread limit is (1 or 2): Open3D normals/FPFH/voxel grid are per-point
+  computations, and the ICP backends then reduce in a fixed order.
+* With ``num_threads=2`` small_gicp's and Open3D's ICP reductions sum in a scheduling-dependent order:
+  results differ in the last bits (<= 6e-16 measured), also from run to run. KISS-ICP stayed
+  identical. So bit-exact replay requires ``num_threads=1``; 2 threads agree to 1e-12.
+* small_gicp's multi-threaded voxel grid is documented as non-deterministic and is never used.
 
 ``o3d.utility.set_max_threads`` is process-wide: :func:`open3d_threads` changes it for the duration of
 a call and restores the previous value. Stages that run Open3D concurrently in several Python threads
