@@ -187,7 +187,9 @@ def bench_global(poses: int) -> dict:
 
 def bench_paper_table(poses: int, symmetric_poses: int) -> dict:
     cam = scenes.camera(640, 480)
-    planar = GlobalParams(method="planar", fine=FineParams(backend="open3d_plane"), seed=0)
+    planar = GlobalParams(
+        method="planar", fine=FineParams(backend="open3d_plane"), coarse_backend="open3d_plane", seed=0
+    )
     out = {}
     for part, n in (("planar_plate", poses), ("symmetric_plate", symmetric_poses)):
         rng = np.random.default_rng(SEED + (2 if part == "planar_plate" else 3))

@@ -1,6 +1,7 @@
 """A fixed seed gives one answer: bit-identical with ``num_threads=1`` (vgr's default) whatever
 Open3D's process-wide thread limit is, run after run; with ``num_threads=2`` the ICP backends'
-parallel reductions change the last bits (measured <= 6e-16), so 2 threads are not bit-exact.
+parallel reductions change the last bits, which can move the stopping iteration, so 2 threads agree
+only to the convergence tolerance (measured up to 1e-8) and are not bit-exact.
 Open3D RANSAC and plane segmentation always run seeded on one thread (see determinism.py)."""
 
 from __future__ import annotations
@@ -72,7 +73,7 @@ def test_two_threads_agree_to_rounding(pair):
     for backend in BACKENDS:
         a = register_fine(cur, tmpl, T0, FineParams(backend=backend, num_threads=1)).T_match
         b = register_fine(cur, tmpl, T0, FineParams(backend=backend, num_threads=2)).T_match
-        assert np.allclose(a, b, rtol=0.0, atol=1e-12), backend
+        assert np.allclose(a, b, rtol=0.0, atol=1e-6), backend  # 1 um / 1 urad: the convergence tolerance
 
 
 def test_different_seeds_may_differ_but_each_is_reproducible(pair):

@@ -44,8 +44,8 @@ def as_points(cloud: Any, *, name: str, min_points: int, drop_non_finite: bool =
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise InvalidInputError(f"{name} cloud must have shape (N, 3), got {arr.shape}")
     pts = np.ascontiguousarray(arr, dtype=np.float64)
-    finite = np.all(np.isfinite(pts), axis=1)
-    n_bad = int(pts.shape[0] - np.count_nonzero(finite))
+    finite = None if np.isfinite(pts).all() else np.all(np.isfinite(pts), axis=1)
+    n_bad = 0 if finite is None else int(pts.shape[0] - np.count_nonzero(finite))
     if n_bad:
         if not drop_non_finite:
             raise InvalidInputError(
@@ -87,8 +87,8 @@ def check_spread(points: np.ndarray, *, name: str, min_extent_m: float) -> None:
     A registration needs a surface; the second-largest principal extent must reach *min_extent_m*.
     """
     centered = points - points.mean(axis=0)
-    # singular values of the centred cloud / sqrt(N) = principal standard deviations
-    sv = np.linalg.svd(centered, compute_uv=False) / np.sqrt(max(points.shape[0], 1))
+    scatter = centered.T @ centered / max(points.shape[0], 1)
+    sv = np.sqrt(np.clip(np.linalg.eigvalsh(scatter), 0.0, None))[::-1]  # principal standard deviations
     if sv[0] < min_extent_m:
         raise InvalidInputError(
             f"{name} cloud spans only {sv[0] * 1e3:.3g} mm (all points at one spot); need >= "
