@@ -42,17 +42,18 @@ _PACKED_DTYPES = {v: k for k, v in _PACKED_TYPES.items()}
 
 
 # --------------------------------------------------------------------------- proto helpers
+# Public: plugins defining their own message types (engine.schemas.define_proto) use them too.
 
 
-def _set_stamp(pb: Any, stamp_ns: int) -> None:
+def set_stamp(pb: Any, stamp_ns: int) -> None:
     pb.timestamp.seconds, pb.timestamp.nanos = divmod(int(stamp_ns), 1_000_000_000)
 
 
-def _get_stamp(pb: Any) -> int:
+def get_stamp(pb: Any) -> int:
     return int(pb.timestamp.seconds) * 1_000_000_000 + int(pb.timestamp.nanos)
 
 
-def _set_pose(pose_pb: Any, T: np.ndarray) -> None:
+def set_pose(pose_pb: Any, T: np.ndarray) -> None:
     T = np.asarray(T, dtype=float)
     p, q = T[:3, 3], tf.quat_xyzw_from_R(T[:3, :3])
     pose_pb.position.x, pose_pb.position.y, pose_pb.position.z = (float(v) for v in p)
@@ -60,7 +61,7 @@ def _set_pose(pose_pb: Any, T: np.ndarray) -> None:
     o.x, o.y, o.z, o.w = (float(v) for v in q)
 
 
-def _get_pose(pose_pb: Any) -> np.ndarray:
+def get_pose(pose_pb: Any) -> np.ndarray:
     p, o = pose_pb.position, pose_pb.orientation
     if (o.x, o.y, o.z, o.w) == (0.0, 0.0, 0.0, 0.0):
         return tf.T_from_Rt(np.eye(3), (p.x, p.y, p.z))  # unset orientation means identity
@@ -167,7 +168,7 @@ class PointCloud(Message):
 
     def to_proto(self) -> tuple[ProtoMessage, Bulk]:
         pb = self.proto()
-        _set_stamp(pb, self.stamp_ns)
+        set_stamp(pb, self.stamp_ns)
         pb.frame_id = self.frame_id
         pb.pose.orientation.w = 1.0
         cols = self._layout()
@@ -200,7 +201,7 @@ class PointCloud(Message):
         xyz_t = dtype.fields["x"][0] if "x" in names else np.dtype(np.float32)
         if names == ["x", "y", "z"] and pb.point_stride == 3 * xyz_t.itemsize:
             points = np.frombuffer(data, dtype=xyz_t).reshape(n, 3)
-            return cls(stamp_ns=_get_stamp(pb), frame_id=pb.frame_id, points=points)
+            return cls(stamp_ns=get_stamp(pb), frame_id=pb.frame_id, points=points)
         rec = np.frombuffer(data, dtype=dtype, count=n)
 
         def stack(keys: tuple[str, str, str]) -> np.ndarray | None:
@@ -210,7 +211,7 @@ class PointCloud(Message):
 
         pts = stack(("x", "y", "z"))
         return cls(
-            stamp_ns=_get_stamp(pb),
+            stamp_ns=get_stamp(pb),
             frame_id=pb.frame_id,
             points=pts if pts is not None else np.zeros((n, 3)),
             normals=stack(("normal_x", "normal_y", "normal_z")),
@@ -250,7 +251,7 @@ class Image(Message):
 
     def to_proto(self) -> tuple[ProtoMessage, Bulk]:
         pb = self.proto()
-        _set_stamp(pb, self.stamp_ns)
+        set_stamp(pb, self.stamp_ns)
         pb.frame_id = self.frame_id
         h, w = self.data.shape[:2]
         pb.width, pb.height, pb.encoding = w, h, self.encoding
@@ -263,7 +264,7 @@ class Image(Message):
         buf = bulk if bulk is not None else pb.data
         shape = (pb.height, pb.width) if ch == 1 else (pb.height, pb.width, ch)
         data = np.frombuffer(buf, dtype=dt).reshape(shape)
-        return cls(stamp_ns=_get_stamp(pb), frame_id=pb.frame_id, data=data, encoding=pb.encoding)
+        return cls(stamp_ns=get_stamp(pb), frame_id=pb.frame_id, data=data, encoding=pb.encoding)
 
 
 @dataclass(kw_only=True, eq=False)
@@ -281,7 +282,7 @@ class CameraInfo(Message):
 
     def to_proto(self) -> tuple[ProtoMessage, Bulk]:
         pb = self.proto()
-        _set_stamp(pb, self.stamp_ns)
+        set_stamp(pb, self.stamp_ns)
         pb.frame_id, pb.width, pb.height = self.frame_id, self.width, self.height
         pb.distortion_model = self.distortion_model
         K = np.asarray(self.K, dtype=float)
@@ -296,7 +297,7 @@ class CameraInfo(Message):
     @classmethod
     def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
         return cls(
-            stamp_ns=_get_stamp(pb),
+            stamp_ns=get_stamp(pb),
             frame_id=pb.frame_id,
             width=pb.width,
             height=pb.height,
@@ -317,14 +318,14 @@ class PoseStamped(Message):
 
     def to_proto(self) -> tuple[ProtoMessage, Bulk]:
         pb = self.proto()
-        _set_stamp(pb, self.stamp_ns)
+        set_stamp(pb, self.stamp_ns)
         pb.frame_id = self.frame_id
-        _set_pose(pb.pose, self.T)
+        set_pose(pb.pose, self.T)
         return pb, None
 
     @classmethod
     def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
-        return cls(stamp_ns=_get_stamp(pb), frame_id=pb.frame_id, T=_get_pose(pb.pose))
+        return cls(stamp_ns=get_stamp(pb), frame_id=pb.frame_id, T=get_pose(pb.pose))
 
 
 @dataclass(kw_only=True, eq=False)
@@ -348,7 +349,7 @@ class Transform(Message):
 
 
 def _fill_frame_transform(pb: Any, t: Transform) -> None:
-    _set_stamp(pb, t.stamp_ns)
+    set_stamp(pb, t.stamp_ns)
     pb.parent_frame_id, pb.child_frame_id = t.frame_id, t.child_frame_id
     T = np.asarray(t.T, dtype=float)
     p, q = T[:3, 3], tf.quat_xyzw_from_R(T[:3, :3])
@@ -364,7 +365,7 @@ def _read_frame_transform(pb: Any) -> dict[str, Any]:
         else (tf.T_from_Rt(np.eye(3), (t.x, t.y, t.z)))
     )
     return {
-        "stamp_ns": _get_stamp(pb),
+        "stamp_ns": get_stamp(pb),
         "frame_id": pb.parent_frame_id,
         "child_frame_id": pb.child_frame_id,
         "T": T,
@@ -406,7 +407,7 @@ class JointState(Message):
 
     def to_proto(self) -> tuple[ProtoMessage, Bulk]:
         pb = self.proto()
-        _set_stamp(pb, self.stamp_ns)
+        set_stamp(pb, self.stamp_ns)
         n = len(self.positions)
         names = self.names or [f"joint{i + 1}" for i in range(n)]
         for i in range(n):
@@ -421,7 +422,7 @@ class JointState(Message):
     def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
         js = list(pb.joints)
         return cls(
-            stamp_ns=_get_stamp(pb),
+            stamp_ns=get_stamp(pb),
             names=[j.name for j in js],
             positions=np.array([j.position for j in js]),
             velocities=np.array([j.velocity for j in js]) if js and js[0].HasField("velocity") else None,
@@ -491,14 +492,14 @@ class Blob(Message):
 
     def to_proto(self) -> tuple[ProtoMessage, Bulk]:
         pb = self.proto()
-        _set_stamp(pb, self.stamp_ns)
+        set_stamp(pb, self.stamp_ns)
         pb.frame_id, pb.content_type = self.frame_id, self.content_type
         return pb, memoryview(self.data).cast("B")
 
     @classmethod
     def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
         return cls(
-            stamp_ns=_get_stamp(pb),
+            stamp_ns=get_stamp(pb),
             frame_id=pb.frame_id,
             content_type=pb.content_type,
             data=bulk if bulk is not None else pb.data,
@@ -519,23 +520,23 @@ class TrackerPose(Message):
 
     def to_proto(self) -> tuple[ProtoMessage, Bulk]:
         pb = self.proto()
-        _set_stamp(pb, self.stamp_ns)
+        set_stamp(pb, self.stamp_ns)
         pb.frame_id, pb.serial, pb.valid, pb.tracking_result = (
             self.frame_id,
             self.serial,
             self.valid,
             self.tracking_result,
         )
-        _set_pose(pb.pose, self.T)
+        set_pose(pb.pose, self.T)
         return pb, None
 
     @classmethod
     def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
         return cls(
-            stamp_ns=_get_stamp(pb),
+            stamp_ns=get_stamp(pb),
             frame_id=pb.frame_id,
             serial=pb.serial,
-            T=_get_pose(pb.pose),
+            T=get_pose(pb.pose),
             valid=pb.valid,
             tracking_result=pb.tracking_result,
         )
@@ -564,7 +565,7 @@ class Event(Message):
 
     def to_proto(self) -> tuple[ProtoMessage, Bulk]:
         pb = self.proto()
-        _set_stamp(pb, self.stamp_ns)
+        set_stamp(pb, self.stamp_ns)
         pb.level, pb.code, pb.stage, pb.message, pb.traceback = (
             self.level,
             self.code,
@@ -578,7 +579,7 @@ class Event(Message):
     @classmethod
     def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
         return cls(
-            stamp_ns=_get_stamp(pb),
+            stamp_ns=get_stamp(pb),
             level=pb.level or "info",
             code=pb.code,
             stage=pb.stage,
@@ -614,7 +615,7 @@ class CalibrationResultMsg(Message):
 
     def to_proto(self) -> tuple[ProtoMessage, Bulk]:
         pb = self.proto()
-        _set_stamp(pb, self.stamp_ns)
+        set_stamp(pb, self.stamp_ns)
         pb.kind, pb.verdict, pb.method, pb.result_json = (
             self.kind,
             self.verdict,
@@ -623,7 +624,7 @@ class CalibrationResultMsg(Message):
         )
         pb.reasons.extend(self.reasons)
         for name, T in self.transforms.items():
-            _set_pose(pb.transforms.add(name=name).pose, T)
+            set_pose(pb.transforms.add(name=name).pose, T)
         for name, v in self.metrics.items():
             pb.metrics.add(name=name, value=float(v))
         return pb, None
@@ -631,12 +632,12 @@ class CalibrationResultMsg(Message):
     @classmethod
     def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
         return cls(
-            stamp_ns=_get_stamp(pb),
+            stamp_ns=get_stamp(pb),
             kind=pb.kind,
             verdict=pb.verdict,
             method=pb.method,
             reasons=list(pb.reasons),
-            transforms={t.name: _get_pose(t.pose) for t in pb.transforms},
+            transforms={t.name: get_pose(t.pose) for t in pb.transforms},
             metrics={m.name: m.value for m in pb.metrics},
             result_json=pb.result_json,
         )
@@ -666,7 +667,7 @@ class RobotCommand(Message):
 
     def to_proto(self) -> tuple[ProtoMessage, Bulk]:
         pb = self.proto()
-        _set_stamp(pb, self.stamp_ns)
+        set_stamp(pb, self.stamp_ns)
         pb.frame_id, pb.command_id, pb.kind, pb.comment = (
             self.frame_id,
             self.command_id,
@@ -675,7 +676,7 @@ class RobotCommand(Message):
         )
         pb.speed, pb.acceleration = self.speed, self.acceleration
         if self.T is not None:
-            _set_pose(pb.pose, self.T)
+            set_pose(pb.pose, self.T)
         if self.joints is not None:
             pb.joints.extend(np.asarray(self.joints, dtype=float).tolist())
         return pb, None
@@ -683,11 +684,11 @@ class RobotCommand(Message):
     @classmethod
     def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
         return cls(
-            stamp_ns=_get_stamp(pb),
+            stamp_ns=get_stamp(pb),
             frame_id=pb.frame_id,
             command_id=pb.command_id,
             kind=pb.kind,
-            T=_get_pose(pb.pose) if pb.HasField("pose") else None,
+            T=get_pose(pb.pose) if pb.HasField("pose") else None,
             joints=np.array(pb.joints) if len(pb.joints) else None,
             speed=pb.speed,
             acceleration=pb.acceleration,
@@ -712,11 +713,11 @@ class RobotReply(Message):
 
     def to_proto(self) -> tuple[ProtoMessage, Bulk]:
         pb = self.proto()
-        _set_stamp(pb, self.stamp_ns)
+        set_stamp(pb, self.stamp_ns)
         pb.frame_id, pb.command_id, pb.ok, pb.error = self.frame_id, self.command_id, self.ok, self.error
         pb.duration_s, pb.duplicate = self.duration_s, self.duplicate
         if self.T is not None:
-            _set_pose(pb.pose, self.T)
+            set_pose(pb.pose, self.T)
         if self.joints is not None:
             pb.joints.extend(np.asarray(self.joints, dtype=float).tolist())
         return pb, None
@@ -724,12 +725,12 @@ class RobotReply(Message):
     @classmethod
     def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
         return cls(
-            stamp_ns=_get_stamp(pb),
+            stamp_ns=get_stamp(pb),
             frame_id=pb.frame_id,
             command_id=pb.command_id,
             ok=pb.ok,
             error=pb.error,
-            T=_get_pose(pb.pose) if pb.HasField("pose") else None,
+            T=get_pose(pb.pose) if pb.HasField("pose") else None,
             joints=np.array(pb.joints) if len(pb.joints) else None,
             duration_s=pb.duration_s,
             duplicate=pb.duplicate,
@@ -750,9 +751,9 @@ class Correction(Message):
 
     def to_proto(self) -> tuple[ProtoMessage, Bulk]:
         pb = self.proto()
-        _set_stamp(pb, self.stamp_ns)
+        set_stamp(pb, self.stamp_ns)
         pb.frame_id, pb.kind, pb.verdict = self.frame_id, self.kind, self.verdict
-        _set_pose(pb.pose, self.T)
+        set_pose(pb.pose, self.T)
         pb.translation_m = float(np.linalg.norm(self.T[:3, 3]))
         pb.rotation_rad = float(np.linalg.norm(tf.log_so3(self.T[:3, :3])))
         pb.reasons.extend(self.reasons)
@@ -761,10 +762,10 @@ class Correction(Message):
     @classmethod
     def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
         return cls(
-            stamp_ns=_get_stamp(pb),
+            stamp_ns=get_stamp(pb),
             frame_id=pb.frame_id,
             kind=pb.kind,
-            T=_get_pose(pb.pose),
+            T=get_pose(pb.pose),
             verdict=pb.verdict,
             reasons=list(pb.reasons),
         )
@@ -782,14 +783,14 @@ class Request(Message):
 
     def to_proto(self) -> tuple[ProtoMessage, Bulk]:
         pb = self.proto()
-        _set_stamp(pb, self.stamp_ns)
+        set_stamp(pb, self.stamp_ns)
         pb.command = self.command
         pb.args_json = json.dumps(self.args, sort_keys=True, default=_json_default)
         return pb, None
 
     @classmethod
     def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
-        return cls(stamp_ns=_get_stamp(pb), command=pb.command, args=json.loads(pb.args_json) if pb.args_json else {})
+        return cls(stamp_ns=get_stamp(pb), command=pb.command, args=json.loads(pb.args_json) if pb.args_json else {})
 
 
 BUILTIN_MESSAGE_TYPES: tuple[type[Message], ...] = (

@@ -75,6 +75,8 @@ class _ReplayContext(StageContext):
         self.rng = stage_rng(self.seed, node.name)
         self.clock = replayer.clock
         self.log = logging.getLogger(f"vgr.replay.{node.name}")
+        recipe_file = replayer.rec.metadata.get("vgr.run", {}).get("recipe_file", "")
+        self.recipe_dir = Path(recipe_file).resolve().parent if recipe_file and Path(recipe_file).is_file() else None
         self.seq: dict[str, int] = defaultdict(int)
         self.causal_stamp = 0
         self.failed = False
@@ -103,6 +105,9 @@ class _ReplayContext(StageContext):
 
     def call(self, client: str, request: Message, timeout_s: float = 10.0) -> Message:
         return self.replayer.serve_call(self, client, request)
+
+    def has_client(self, client: str) -> bool:
+        return any(e.client == self.name and e.client_name == client for e in self.replayer.graph.service_edges)
 
     def event(self, level: str, code: str, message: str, **details: Any) -> None:
         tb = details.pop("traceback", "")

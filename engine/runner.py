@@ -132,6 +132,7 @@ class Runner:
         self.observers = list(observers or [])
         self.ready_timeout_s = ready_timeout_s
         self.stop_event = threading.Event()
+        self.started = False  # True once every local stage's setup() has run
         self.stop_reason: str | None = None
         self.failed_stages: list[str] = []
         self.driven = _driven_stages(graph)
@@ -265,6 +266,7 @@ class Runner:
                 rt.fail(exc, "setup")
         if self.stop_event.is_set():
             return
+        self.started = True
         for name in local:
             rt = self.runtimes[name]
             if not rt.driven and not rt.node.cls.inputs:

@@ -105,6 +105,8 @@ class StageRuntime(StageContext):
         self.rng = stage_rng(runner.seed, node.name)
         self.clock = runner.clock
         self.log = logging.getLogger(f"vgr.stage.{node.name}")
+        path = runner.graph.loaded.path
+        self.recipe_dir = path.resolve().parent if path is not None and path.is_file() else None
         self.lock = threading.RLock()  # serialises the stage's handlers
         self.inline = node.spec.dispatch == "auto"
         self.stats = StageStats(
@@ -195,6 +197,9 @@ class StageRuntime(StageContext):
             )
         return reply
 
+    def has_client(self, client: str) -> bool:
+        return client in self.clients
+
     def event(self, level: str, code: str, message: str, **details: Any) -> None:
         tb = details.pop("traceback", "")
         ev = Event(level=level, code=code, stage=self.name, message=message, traceback=tb, details=details)
@@ -243,6 +248,9 @@ class StageRuntime(StageContext):
     def offer(self, port: str, env: Envelope, msg: Message | None) -> None:
         """A local producer hands over a message (or an end of stream, msg None)."""
         box = self.inboxes[port]
+        if not self.runner.started:  # published during setup(): delivered once every stage is set up
+            box.put((LOCAL, env, msg), block=False)
+            return
         if self.inline and box.claim_idle():
             if self.lock.acquire(blocking=False):
                 try:

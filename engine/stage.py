@@ -24,6 +24,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Literal, get_args, get_origin
 
 import numpy as np
@@ -85,6 +86,7 @@ class StageContext:
     rng: np.random.Generator
     clock: Clock
     log: logging.Logger
+    recipe_dir: Path | None = None  # folder of the recipe file: relative paths in parameters start here
 
     def publish(self, port: str, msg: Message) -> None:
         """Publish *msg* on output *port* (seq and, if unset, stamp are filled in)."""
@@ -92,6 +94,10 @@ class StageContext:
 
     def call(self, client: str, request: Message, timeout_s: float = 10.0) -> Message:
         """Call the service wired to *client* in the recipe's ``uses`` and wait for its reply."""
+        raise NotImplementedError
+
+    def has_client(self, client: str) -> bool:
+        """True when the recipe wired the service client *client* (optional clients may be unwired)."""
         raise NotImplementedError
 
     def event(self, level: str, code: str, message: str, **details: Any) -> None:

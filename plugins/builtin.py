@@ -9,10 +9,36 @@ from engine.hookspecs import hookimpl
 @hookimpl
 def vgr_stage_types() -> list[type]:
     from plugins.actions.capture import CaptureAtPose
+    from plugins.actions.docking import Docking, DualDocking
+    from plugins.actions.guidance import Guidance
     from plugins.sim.stages.camera import SimCamera
+    from plugins.sim.stages.evaluation import DockingEvaluator
     from plugins.sim.stages.robot import SimRobot
     from plugins.sim.stages.tracker import SimTracker
+    from plugins.solvers.registration.stage import Matcher
     from plugins.util.cloud_stages import CloudStats, SyntheticCloud, TransformCloud
     from plugins.util.trigger import Trigger
 
-    return [SyntheticCloud, TransformCloud, CloudStats, Trigger, SimRobot, SimCamera, SimTracker, CaptureAtPose]
+    return [
+        SyntheticCloud,
+        TransformCloud,
+        CloudStats,
+        Trigger,
+        SimRobot,
+        SimCamera,
+        SimTracker,
+        DockingEvaluator,
+        CaptureAtPose,
+        Guidance,
+        Docking,
+        DualDocking,
+        Matcher,
+    ]
+
+
+@hookimpl
+def vgr_message_types() -> list[type]:
+    from plugins.actions.messages import GuidanceResult
+    from plugins.solvers.registration.messages import MatchResult
+
+    return [MatchResult, GuidanceResult]

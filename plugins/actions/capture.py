@@ -15,7 +15,7 @@ from pydantic import Field
 from engine.messages import PointCloud, PoseStamped, Request, RobotCommand
 from engine.stage import ServiceError, Stage, StageParams
 from plugins.interfaces import CAMERA_CAPTURE, ROBOT_MOVE
-from plugins.sim.stages.params import PoseSpec
+from plugins.params import PoseSpec
 
 
 class CaptureAtPose(Stage):

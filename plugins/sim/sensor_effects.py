@@ -91,6 +91,13 @@ class PoseOffset:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], where: str = "pose offset") -> PoseOffset:
+        """From a recipe mapping; the rotation may also be given as ``rotation_deg`` (a rotation
+        vector in degrees, easier to write than radians)."""
+        data = dict(data)
+        if "rotation_deg" in data:
+            if "rotation_rotvec_rad" in data:
+                raise ValueError(f"{where}: give rotation_deg or rotation_rotvec_rad, not both")
+            data["rotation_rotvec_rad"] = tuple(math.radians(v) for v in _vec3(data.pop("rotation_deg"), where))
         return cls(**_from_mapping(cls, data, where))
 
 

@@ -28,10 +28,10 @@ from engine.messages import (
 )
 from engine.stage import ServiceSpec, Stage, StageParams
 from plugins.interfaces import CAMERA_OUTPUTS, CAMERA_SERVICES
+from plugins.params import PoseSpec
 from plugins.sim.camera import DepthCameraModel, DepthNoiseModel, PinholeIntrinsics, default_intrinsics
 from plugins.sim.cell import CameraMount, PartPlacement, SimCell
 from plugins.sim.sensor_effects import SensorEffects
-from plugins.sim.stages.params import PoseSpec
 from plugins.sim.workpieces import make_workpiece
 
 NOISE_PRESETS = ("noiseless", "industrial_structured_light", "realsense_d415", "kinect_v1")
@@ -167,5 +167,7 @@ class SimCamera(Stage):
             for name, T in truth.T_world_parts.items()
         ]
         truth_tf.append(Transform(frame_id="world", child_frame_id="camera", T=truth.T_world_cam, stamp_ns=stamp))
+        if truth.T_world_tcp is not None:
+            truth_tf.append(Transform(frame_id="world", child_frame_id="tcp", T=truth.T_world_tcp, stamp_ns=stamp))
         self.ctx.publish("truth/part_poses", FrameTransforms(stamp_ns=stamp, transforms=truth_tf))
         return cloud

@@ -17,10 +17,10 @@ from pydantic import Field
 from engine.messages import FrameTransforms, JointState, PoseStamped, Request, RobotCommand, RobotReply, Transform
 from engine.stage import ServiceSpec, Stage, StageParams
 from plugins.interfaces import ROBOT_OUTPUTS, ROBOT_SERVICES
+from plugins.params import PoseSpec
 from plugins.sim import controller as ctl
 from plugins.sim.model_file import load_robot_model
 from plugins.sim.robot_effects import effect_from_config
-from plugins.sim.stages.params import PoseSpec
 from plugins.sim.true_robot import RobotWithEffects
 
 

@@ -21,8 +21,8 @@ from engine.messages import PoseStamped, Request, RobotReply, TrackerPose
 from engine.stage import ServiceSpec, Stage, StageParams
 from engine.transforms import inv
 from plugins.interfaces import TRACKER_OUTPUTS, TRACKER_SERVICES
+from plugins.params import PoseSpec
 from plugins.sim.sensor_effects import TrackerEffects
-from plugins.sim.stages.params import PoseSpec
 from plugins.sim.tracker import SimulatedViveTracker, ViveTrackerModel
 
 

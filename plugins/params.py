@@ -1,4 +1,4 @@
-"""Recipe parameter types shared by the simulated stages (poses written for people)."""
+"""Recipe parameter types shared by stages of every role (poses written for people)."""
 
 from __future__ import annotations
 

@@ -1,0 +1,101 @@
+"""``GuidanceResult``: what one run of the iterative guidance loop achieved (schema vgr.v1.GuidanceResult).
+
+Carries the mode, the verdict (``converged`` | ``not_converged`` | ``refused`` | ``failed``), the
+start and end TCP poses the docking formulas need (``T_start``, ``T_end``, T_base_tcp as the robot
+reports them) and the per-look residuals (what the matcher still saw, in mm and degrees).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, Self
+
+import numpy as np
+
+from engine.messages import Bulk, Message, get_pose, get_stamp, set_pose, set_stamp
+from engine.schemas import ProtoMessage, define_proto
+
+define_proto(
+    "vgr/v1/guidance.proto",
+    "vgr.v1",
+    """
+message GuidanceResult {             // one run of the guidance loop (plugins/actions/guidance.py)
+  google.protobuf.Timestamp timestamp = 1;
+  string frame_id = 2;               // frame of the poses: the robot base
+  string mode = 3;                   // eye_in_hand | eye_to_hand
+  string verdict = 4;                // converged | not_converged | refused | failed
+  repeated string reasons = 5;
+  foxglove.Pose T_start = 6;
+  foxglove.Pose T_end = 7;
+  uint32 moves = 8;                  // corrective moves made
+  repeated double residual_mm = 9;   // per look: |translation| of T_match
+  repeated double residual_deg = 10; // per look: |rotation| of T_match
+  repeated string match_verdicts = 11;
+  uint64 job = 12;                   // sequence number of the trigger that started it
+}
+""",
+)
+
+VERDICTS = ("converged", "not_converged", "refused", "failed")
+
+
+@dataclass(kw_only=True, eq=False)
+class GuidanceResult(Message):
+    """Outcome of one guidance run; only ``converged`` may be used for docking."""
+
+    TYPE: ClassVar[str] = "GuidanceResult"
+    SCHEMA: ClassVar[str] = "vgr.v1.GuidanceResult"
+
+    mode: str = "eye_in_hand"
+    verdict: str = "failed"
+    reasons: list[str] = field(default_factory=list)
+    T_start: np.ndarray = field(default_factory=lambda: np.eye(4))
+    T_end: np.ndarray = field(default_factory=lambda: np.eye(4))
+    moves: int = 0
+    residual_mm: list[float] = field(default_factory=list)
+    residual_deg: list[float] = field(default_factory=list)
+    match_verdicts: list[str] = field(default_factory=list)
+    job: int = 0
+
+    def __post_init__(self) -> None:
+        if self.verdict not in VERDICTS:
+            raise ValueError(f"guidance verdict {self.verdict!r} is not one of {VERDICTS}")
+
+    @property
+    def converged(self) -> bool:
+        return self.verdict == "converged"
+
+    def to_proto(self) -> tuple[ProtoMessage, Bulk]:
+        pb = self.proto()
+        set_stamp(pb, self.stamp_ns)
+        pb.frame_id, pb.mode, pb.verdict, pb.moves, pb.job = (
+            self.frame_id,
+            self.mode,
+            self.verdict,
+            self.moves,
+            self.job,
+        )
+        pb.reasons.extend(self.reasons)
+        set_pose(pb.T_start, self.T_start)
+        set_pose(pb.T_end, self.T_end)
+        pb.residual_mm.extend(float(x) for x in self.residual_mm)
+        pb.residual_deg.extend(float(x) for x in self.residual_deg)
+        pb.match_verdicts.extend(self.match_verdicts)
+        return pb, None
+
+    @classmethod
+    def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
+        return cls(
+            stamp_ns=get_stamp(pb),
+            frame_id=pb.frame_id,
+            mode=pb.mode,
+            verdict=pb.verdict,
+            reasons=list(pb.reasons),
+            T_start=get_pose(pb.T_start),
+            T_end=get_pose(pb.T_end),
+            moves=pb.moves,
+            residual_mm=list(pb.residual_mm),
+            residual_deg=list(pb.residual_deg),
+            match_verdicts=list(pb.match_verdicts),
+            job=pb.job,
+        )
