@@ -76,22 +76,40 @@ class URRobotParams(StageParams):
     move_l_speed_max_m_s: float = Field(
         0.25, gt=0.0, le=HARD_MAX_LINEAR_SPEED_M_S, description="faster move_l commands are refused, m/s"
     )
-    move_l_accel_m_s2: float = Field(0.25, gt=0.0, le=HARD_MAX_LINEAR_ACCEL_M_S2, description="default, m/s^2")
-    move_l_accel_max_m_s2: float = Field(1.2, gt=0.0, le=HARD_MAX_LINEAR_ACCEL_M_S2, description="maximum, m/s^2")
+    move_l_accel_m_s2: float = Field(
+        0.25,
+        gt=0.0,
+        le=HARD_MAX_LINEAR_ACCEL_M_S2,
+        description="TCP acceleration of move_l when the command gives 0, m/s^2",
+    )
+    move_l_accel_max_m_s2: float = Field(
+        1.2, gt=0.0, le=HARD_MAX_LINEAR_ACCEL_M_S2, description="larger move_l accelerations are refused, m/s^2"
+    )
     move_j_speed_rad_s: float = Field(
         0.25, gt=0.0, le=HARD_MAX_JOINT_SPEED_RAD_S, description="leading-joint speed of move_j by default, rad/s"
     )
     move_j_speed_max_rad_s: float = Field(
         1.05, gt=0.0, le=HARD_MAX_JOINT_SPEED_RAD_S, description="faster move_j commands are refused, rad/s"
     )
-    move_j_accel_rad_s2: float = Field(0.5, gt=0.0, le=HARD_MAX_JOINT_ACCEL_RAD_S2, description="default, rad/s^2")
-    move_j_accel_max_rad_s2: float = Field(1.4, gt=0.0, le=HARD_MAX_JOINT_ACCEL_RAD_S2, description="max, rad/s^2")
-    stop_deceleration_rad_s2: float = Field(2.0, gt=0.0, le=HARD_MAX_JOINT_ACCEL_RAD_S2, description="stopJ, rad/s^2")
+    move_j_accel_rad_s2: float = Field(
+        0.5,
+        gt=0.0,
+        le=HARD_MAX_JOINT_ACCEL_RAD_S2,
+        description="leading-joint acceleration of move_j by default, rad/s^2",
+    )
+    move_j_accel_max_rad_s2: float = Field(
+        1.4, gt=0.0, le=HARD_MAX_JOINT_ACCEL_RAD_S2, description="larger move_j accelerations are refused, rad/s^2"
+    )
+    stop_deceleration_rad_s2: float = Field(
+        2.0, gt=0.0, le=HARD_MAX_JOINT_ACCEL_RAD_S2, description="joint deceleration of a stop command (stopJ), rad/s^2"
+    )
     arrival_tolerance_m: float = Field(
         0.001, gt=0.0, description="after a move, farther than this from the target is reported as a failure, m"
     )
     arrival_tolerance_deg: float = Field(0.5, gt=0.0, description="the same for orientation and joints, deg")
-    T_world_base: PoseSpec = Field(default_factory=PoseSpec, description="robot base in the world frame (frames)")
+    T_world_base: PoseSpec = Field(
+        default_factory=PoseSpec, description="robot base in the world frame (published on frames)"
+    )
     frequency_hz: float = Field(-1.0, description="RTDE frequency; -1 = the controller's (500 Hz e-Series, 125 CB3)")
     command_journal: str | None = Field(
         None, description="JSON-lines file of executed command ids; ids survive a restart (never re-executed)"
