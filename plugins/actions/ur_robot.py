@@ -196,7 +196,10 @@ class URRobot(Stage):
                 return replace(first, duplicate=True, seq=0, stamp_ns=0)
             return self._refused(cmd, known.error, ok=known.ok, duplicate=True)
         self.journal.start(cmd.command_id)
-        reply = self._execute(cmd)
+        try:
+            reply = self._execute(cmd)
+        except Exception as exc:  # a link lost between checks, an SDK error: answer (and journal) it
+            reply = self._refused(cmd, f"{cmd.kind}: {type(exc).__name__}: {exc}")
         self.journal.finish(cmd.command_id, reply.ok, reply.error, reply)
         self._publish_after_command()
         if not reply.ok:

@@ -133,19 +133,18 @@ class ViveTracker(Stage):
 
     def _message(self) -> TrackerPose:
         p: ViveTrackerParams = self.params  # type: ignore[assignment]
-        with self._lock:
+        with self._lock:  # the stream thread and the sample service share the device and the state
             reading = self._read()
-        if reading.valid != self._last_valid:
-            if reading.valid:
-                self.ctx.event("info", "tracking_ok", f"{self.device.serial}: tracking")
-            else:
-                self.ctx.event(
-                    "warning",
-                    "tracking_lost",
-                    f"{self.device.serial}: {reading.reason}",
-                    tracking_result=reading.tracking_result,
-                )
-            self._last_valid = reading.valid
+            changed, self._last_valid = reading.valid != self._last_valid, reading.valid
+        if changed and reading.valid:
+            self.ctx.event("info", "tracking_ok", f"{self.device.serial}: tracking")
+        elif changed:
+            self.ctx.event(
+                "warning",
+                "tracking_lost",
+                f"{self.device.serial}: {reading.reason}",
+                tracking_result=reading.tracking_result,
+            )
         return TrackerPose(
             serial=self.device.serial,
             frame_id=p.frame_id,

@@ -369,3 +369,17 @@ def test_workspace_is_required_and_every_parameter_is_described():
     d = URRobot.describe()
     assert d["params"]["ip"]["required"] and d["params"]["workspace_min_m"]["required"]
     assert all(v["description"] for v in d["params"].values())
+
+
+def test_an_sdk_error_during_the_checks_is_answered_and_the_id_is_spent(ctl, monkeypatch):
+    stage, _ = robot(ctl)
+
+    def lost(q):
+        raise RuntimeError("RTDE control connection lost")
+
+    monkeypatch.setattr(stage.driver, "forward_kinematics", lost)
+    cmd = RobotCommand(command_id="q", kind="move_j", joints=ctl.q + np.radians([1, 0, 0, 0, 0, 0]))
+    reply = stage.on_request("move", cmd)
+    assert not reply.ok and reply.error == "move_j: RuntimeError: RTDE control connection lost"
+    again = stage.on_request("move", cmd)
+    assert again.duplicate and again.error == reply.error and ctl.move_calls() == []
