@@ -9,10 +9,16 @@ from engine.hookspecs import hookimpl
 @hookimpl
 def vgr_stage_types() -> list[type]:
     from plugins.actions.capture import CaptureAtPose
+    from plugins.actions.ur_robot import URRobot
+    from plugins.sensors.file_camera import FileCamera
+    from plugins.sensors.realsense_camera import RealSenseCamera
+    from plugins.sensors.vive_tracker import ViveTracker
     from plugins.sim.stages.camera import SimCamera
     from plugins.sim.stages.robot import SimRobot
     from plugins.sim.stages.tracker import SimTracker
     from plugins.util.cloud_stages import CloudStats, SyntheticCloud, TransformCloud
     from plugins.util.trigger import Trigger
 
-    return [SyntheticCloud, TransformCloud, CloudStats, Trigger, SimRobot, SimCamera, SimTracker, CaptureAtPose]
+    sim = [SimRobot, SimCamera, SimTracker]
+    devices = [URRobot, ViveTracker, RealSenseCamera, FileCamera]
+    return [SyntheticCloud, TransformCloud, CloudStats, Trigger, *sim, CaptureAtPose, *devices]
