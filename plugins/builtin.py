@@ -11,6 +11,10 @@ def vgr_stage_types() -> list[type]:
     from plugins.actions.capture import CaptureAtPose
     from plugins.actions.docking import Docking, DualDocking
     from plugins.actions.guidance import Guidance
+    from plugins.actions.ur_robot import URRobot
+    from plugins.sensors.file_camera import FileCamera
+    from plugins.sensors.realsense_camera import RealSenseCamera
+    from plugins.sensors.vive_tracker import ViveTracker
     from plugins.sim.stages.camera import SimCamera
     from plugins.sim.stages.evaluation import DockingEvaluator
     from plugins.sim.stages.robot import SimRobot
@@ -19,21 +23,10 @@ def vgr_stage_types() -> list[type]:
     from plugins.util.cloud_stages import CloudStats, SyntheticCloud, TransformCloud
     from plugins.util.trigger import Trigger
 
-    return [
-        SyntheticCloud,
-        TransformCloud,
-        CloudStats,
-        Trigger,
-        SimRobot,
-        SimCamera,
-        SimTracker,
-        DockingEvaluator,
-        CaptureAtPose,
-        Guidance,
-        Docking,
-        DualDocking,
-        Matcher,
-    ]
+    sim = [SimRobot, SimCamera, SimTracker, DockingEvaluator]
+    devices = [URRobot, ViveTracker, RealSenseCamera, FileCamera]
+    actions = [CaptureAtPose, Guidance, Docking, DualDocking]
+    return [SyntheticCloud, TransformCloud, CloudStats, Trigger, *sim, *actions, Matcher, *devices]
 
 
 @hookimpl

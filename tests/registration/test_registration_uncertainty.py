@@ -90,6 +90,15 @@ def test_flat_plate_is_flagged_weak_and_ambiguous():
     assert res.sigma_translation_m[2] < 1e-5  # the normal direction is well determined
 
 
+def test_noise_free_plane_is_still_ambiguous():
+    """Zero residuals make every sigma 0; the geometry test must still refuse the plane."""
+    rng = np.random.default_rng(1)
+    P = np.column_stack([rng.uniform(-0.1, 0.1, (5000, 2)), np.full(5000, 0.5)])
+    res = register_fine(P, P, None, FineParams())
+    assert res.verdict == "ambiguous" and res.T_match is None, res.summary()
+    assert "stiffness ratio" in res.reasons[0]
+
+
 @pytest.mark.parametrize("view_tilt_deg", [0.0, 30.0])
 def test_planar_plate_pins_constrain_the_plane_directions(view_tilt_deg):
     """planar_plate (CAD-model template, 640 x 480 capture): the pins and the contour walls pin down

@@ -45,7 +45,7 @@ class FineParams:
     ``10 * translation_eps_m`` or rotates it by more than ``10 * rotation_eps_rad``; small_gicp
     can stop at its limit while oscillating far below the noise, which is accepted);
     ``ambiguous`` when a per-axis one-sigma at the part centre exceeds ``max_sigma_translation_m`` /
-    ``max_sigma_rotation_rad`` (a direction the
+    ``max_sigma_rotation_rad``, or a stiffness ratio is below ``degenerate_ratio`` (a direction the
     geometry does not determine); weak directions (stiffness ratio < ``weak_ratio``) are always listed.
     """
 
@@ -61,6 +61,7 @@ class FineParams:
     min_fitness: float = 0.5
     min_inliers: int = 30
     weak_ratio: float = 1e-3
+    degenerate_ratio: float = 1e-6
     max_sigma_translation_m: float = 0.2e-3
     max_sigma_rotation_rad: float = float(np.radians(0.2))
     kiss_voxel_m: float | None = None
@@ -145,6 +146,16 @@ def evaluate(
     res.details["residual_sigma_m"] = unc.residual_sigma_m
     res.details["stiffness_ratios"] = unc.eigen_ratios
     res.reasons = [w.describe() for w in unc.weak_directions]
+    degenerate = [w for w in unc.weak_directions if w.ratio < params.degenerate_ratio]
+    if degenerate:  # also when the residuals are all zero and every sigma reads 0
+        res.verdict = "ambiguous"
+        res.reasons.insert(
+            0,
+            f"pose not determined by the geometry: {len(degenerate)} direction(s) with stiffness ratio "
+            f"< {params.degenerate_ratio:.0e} (e.g. a plane that can slide or spin)",
+        )
+        res.details["T_candidate"] = T_match
+        return res
     over_t = unc.sigma_translation_m > params.max_sigma_translation_m
     over_r = unc.sigma_rotation_rad > params.max_sigma_rotation_rad
     if np.any(over_t) or np.any(over_r):
