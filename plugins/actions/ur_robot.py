@@ -43,7 +43,7 @@ from plugins.actions.ur_motion_checks import (
 )
 from plugins.actions.ur_rtde_driver import URConnectionError, URDriver, URState
 from plugins.interfaces import ROBOT_OUTPUTS, ROBOT_SERVICES
-from plugins.sim.stages.params import PoseSpec
+from plugins.params import PoseSpec
 from plugins.util.sdk import import_sdk
 
 # Hard maxima: a recipe cannot configure more than this (well below the UR controller's own limits).
