@@ -8,11 +8,38 @@ from engine.hookspecs import hookimpl
 
 @hookimpl
 def vgr_stage_types() -> list[type]:
+    from plugins.actions.calibration_poses import CalibrationPoses
     from plugins.actions.capture import CaptureAtPose
     from plugins.sim.stages.camera import SimCamera
+    from plugins.sim.stages.point_tracker import SimPointTracker
     from plugins.sim.stages.robot import SimRobot
     from plugins.sim.stages.tracker import SimTracker
+    from plugins.solvers.stages.hand_eye import HandEyeCalibration
+    from plugins.solvers.stages.kinematic import KinematicCalibrationStage
+    from plugins.solvers.stages.result_file import CalibrationFile
+    from plugins.solvers.stages.tcp import TcpCalibration
+    from plugins.solvers.stages.vive import ViveDeskCalibration, ViveToDesktop
     from plugins.util.cloud_stages import CloudStats, SyntheticCloud, TransformCloud
     from plugins.util.trigger import Trigger
 
-    return [SyntheticCloud, TransformCloud, CloudStats, Trigger, SimRobot, SimCamera, SimTracker, CaptureAtPose]
+    calibration = [  # issue 6: data collection in the simulated cell, solver stages, saved results
+        SimPointTracker,
+        CalibrationPoses,
+        HandEyeCalibration,
+        ViveDeskCalibration,
+        ViveToDesktop,
+        TcpCalibration,
+        KinematicCalibrationStage,
+        CalibrationFile,
+    ]
+    return [
+        SyntheticCloud,
+        TransformCloud,
+        CloudStats,
+        Trigger,
+        SimRobot,
+        SimCamera,
+        SimTracker,
+        CaptureAtPose,
+        *calibration,
+    ]
