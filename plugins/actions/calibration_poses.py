@@ -18,7 +18,8 @@ trigger never moves twice), then each sensor named in ``sensors`` is read throug
 ``camera`` (``capture``). Published per sample, all with the stamp of the first sensor reading (else the
 robot's reply): ``joint_state``, ``tcp_pose`` (reported ``T_base_tcp``), ``target`` (the commanded
 ``T_frame_tcp`` in ``frame_id``: for a fixture contact, where the fixture holds the TCP) and the
-sensor readings (``point``, ``tracker_pose``, ``cloud``, with their own stamps). After the last
+sensor readings (``point``, ``tracker_pose``, ``cloud``, with their own stamps, or the sample's
+when the device left its reading unstamped). After the last
 target, ``done`` (a Request ``solve``) tells the solver stage to calibrate.
 
 Safety: a refused move or an unreachable robot raises an ``alarm`` event and stops the sequence at
@@ -29,6 +30,7 @@ that sample with a warning.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any, ClassVar, Literal
 
 import numpy as np
@@ -220,6 +222,7 @@ class CalibrationPoses(Stage):
         if T_frame_tcp is not None:
             self.ctx.publish("target", PoseStamped(T=T_frame_tcp, frame_id=p.frame_id, stamp_ns=stamp))
         for client, port in (("point", "point"), ("tracker", "tracker_pose"), ("camera", "cloud")):
-            if readings[client] is not None:
-                self.ctx.publish(port, readings[client])
+            reading = readings[client]
+            if reading is not None:  # a device that does not stamp its readings gets the sample's stamp
+                self.ctx.publish(port, reading if reading.stamp_ns else replace(reading, stamp_ns=stamp))
         return True

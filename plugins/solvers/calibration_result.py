@@ -26,6 +26,7 @@ Verdict = Literal["ok", "warning", "degenerate", "failed"]
 USABLE_VERDICTS: frozenset[str] = frozenset({"ok", "warning"})
 
 _MM, _DEG = 1e3, float(np.degrees(1.0))
+_DIAGNOSTIC_PREFIXES = ("closed_form_", "initial_")  # estimate entries that document the start, not the result
 _ANGLE_SUFFIXES = ("rx", "ry", "rz", "wx", "wy", "wz", "theta", "alpha", "beta")
 
 
@@ -108,6 +109,8 @@ class CalibrationResult:
         * every remaining covariance parameter gives one row: its value from the estimate (a scalar
           of that name, or its entry in ``estimate["offsets"]``, shown as ``name (change)``), in deg
           when the name ends in an angle (``rx``, ``wz``, ``theta``, ``alpha``, ``beta``), else mm.
+
+        Entries named ``closed_form_*`` / ``initial_*`` (the solver's starting point) are left out.
         """
         std = self.std()
         used: set[str] = set()
@@ -122,6 +125,8 @@ class CalibrationResult:
 
         rows: list[SummaryRow] = []
         for key, value in self.estimate.items():
+            if key.startswith(_DIAGNOSTIC_PREFIXES):
+                continue
             if _is_transform(value):
                 T = np.asarray(value, dtype=float)
                 rv = Rotation.from_matrix(T[:3, :3]).as_rotvec()
