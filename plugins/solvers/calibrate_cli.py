@@ -283,6 +283,13 @@ KINDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Runner]] 
     ),
 }
 
+EPILOG = """\
+DATA: a plain file (.json / .csv, formats in docs/calibration.md) or a vgr recording (.mcap): then
+the samples come from two topics (--*-topic; the defaults match recipes/calibrate_*_sim.yaml),
+paired by stamp (nearest within --max-skew-s) or by order (--pair order).
+Exit codes: 0 usable result (verdict ok / warning), 1 degenerate or failed (do not use it),
+2 bad input (missing or malformed file, NaN, mixed units, too few samples, unpaired samples)."""
+
 BAD_INPUT = (ValueError, KeyError, OSError, RecordingError, json.JSONDecodeError)
 
 
@@ -317,7 +324,9 @@ def run_kind(args: argparse.Namespace) -> int:
 def _add_kinds(parser: argparse.ArgumentParser) -> None:
     kinds = parser.add_subparsers(dest="kind", required=True, metavar="KIND")
     for name, (summary, add_options, _) in KINDS.items():
-        k = kinds.add_parser(name, help=summary, description=summary + ". " + __doc__.split("\n\n")[1])
+        k = kinds.add_parser(
+            name, help=summary, description=summary, epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter
+        )
         k.add_argument("data", type=Path, help="samples: .json / .csv (documented formats) or a vgr .mcap recording")
         add_options(k)
         k.add_argument("--report", type=Path, metavar="DIR", help="write result.json, report.txt, summary.md (+ plots)")
@@ -331,13 +340,24 @@ def _add_kinds(parser: argparse.ArgumentParser) -> None:
 
 def add_verbs(sub: argparse._SubParsersAction) -> None:
     """Add ``vgr calibrate`` to the vgr command line."""
-    p = sub.add_parser("calibrate", help="calibrate from a sample file or a recording (handeye, vive-desk, tcp, ...)")
+    p = sub.add_parser(
+        "calibrate",
+        help="calibrate from a sample file or a recording (handeye, robot-world, vive-desk, tcp, kinematics)",
+        description="Calibrate from a sample file or a vgr recording; `vgr calibrate KIND --help` for each kind.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     _add_kinds(p)
 
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m plugins.solvers.calibrate_cli KIND DATA ...`` (the same as ``vgr calibrate``)."""
-    parser = argparse.ArgumentParser(prog="vgr calibrate", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="vgr calibrate",
+        description=__doc__.split("\n")[0],
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     _add_kinds(parser)
     args = parser.parse_args(argv)
     return int(args.func(args))
