@@ -20,7 +20,8 @@ robot's reply): ``joint_state``, ``tcp_pose`` (reported ``T_base_tcp``), ``targe
 ``T_frame_tcp`` in ``frame_id``: for a fixture contact, where the fixture holds the TCP) and the
 sensor readings (``point``, ``tracker_pose``, ``cloud``, with their own stamps, or the sample's
 when the device left its reading unstamped). After the last
-target, ``done`` (a Request ``solve``) tells the solver stage to calibrate.
+target, ``done`` (a Request ``solve`` with ``args`` ``samples`` of this sequence and
+``total_samples`` so far) tells the solver stage to calibrate once it has that many samples.
 
 Safety: a refused move or an unreachable robot raises an ``alarm`` event and stops the sequence at
 once, without ``done`` (a solver with ``solve_on_finish`` still calibrates from the samples taken
@@ -160,6 +161,7 @@ class CalibrationPoses(Stage):
             self.targets += [("pose", T_from_Rt(C[:3, :3], C[:3, 3] + np.asarray(t))) for t in p.pattern.translations_m]
             self.targets += [("pose", C @ T_from_Rt(_R(o), np.zeros(3))) for o in p.pattern.rotations_rpy_deg]
         self.T_base_frame = p.frame.T()
+        self.total_samples = 0  # samples published over all triggers (``done`` says it)
 
     # -- one sequence per trigger ------------------------------------------------------------
     def on_message(self, port: str, msg: Request) -> None:  # type: ignore[override]
@@ -193,7 +195,9 @@ class CalibrationPoses(Stage):
                 return
             if self._sample(k, reply, T_frame_tcp):
                 n_samples += 1
-        self.ctx.publish("done", Request(command="solve", args={"samples": n_samples, "trigger_seq": msg.seq}))
+        self.total_samples += n_samples
+        done = {"samples": n_samples, "total_samples": self.total_samples, "trigger_seq": msg.seq}
+        self.ctx.publish("done", Request(command="solve", args=done))
 
     def _read(self, client: str, k: int) -> Any:
         p: CalibrationPoses.Params = self.params  # type: ignore[assignment]

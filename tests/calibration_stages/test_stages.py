@@ -172,3 +172,39 @@ def test_calibration_poses_ids_are_deterministic_and_a_refusal_stops_the_sequenc
     assert msgs[("poses", "done")] == []
     (res,) = results(msgs)  # solved at the end of the run from the 7 samples taken: not enough rotation
     assert not res.usable and msgs[("calibrate", "transform")] == []
+
+
+class FakeContext:
+    """Just enough of a StageContext to drive a solver stage by hand (message order chosen by the test)."""
+
+    name, run_id, seed = "calibrate", "t", 5
+
+    def __init__(self) -> None:
+        self.published: list[tuple[str, object]] = []
+
+    def publish(self, port, msg):
+        self.published.append((port, msg))
+
+    def event(self, level, code, message, **details):
+        self.published.append(("events", (level, code, message)))
+
+
+def test_a_solve_that_overtakes_its_samples_waits_for_them():
+    from engine.messages import PoseStamped, Request
+    from plugins.solvers.handeye.io import load_pose_pairs
+    from plugins.solvers.stages.hand_eye import HandEyeCalibration
+
+    s = load_pose_pairs(MOVEIT)
+    ctx = FakeContext()
+    stage = HandEyeCalibration(ctx, HandEyeCalibration.Params(setup="eye_to_hand"))
+    stage.setup()
+    stage.on_message("solve", Request(command="solve", args={"total_samples": 50}, seq=1))  # arrives first
+    for k in range(50):
+        stamp = (k + 1) * 1_000_000_000
+        stage.on_message("robot_pose", PoseStamped(T=s.T_base_tcp[k], frame_id="base", stamp_ns=stamp))
+        assert not [p for p, _ in ctx.published if p == "result"]  # nothing solved from a partial set
+        stage.on_message("target_pose", PoseStamped(T=s.T_cam_target[k], frame_id="camera", stamp_ns=stamp))
+    (result,) = [m for p, m in ctx.published if p == "result"]
+    assert result.verdict == "warning" and json.loads(result.result_json)["metrics"]["n_samples"] == 50
+    stage.finish()  # nothing new since: no second result
+    assert len([p for p, _ in ctx.published if p == "result"]) == 1

@@ -7,6 +7,9 @@ and implements :meth:`CalibrationStage.calibrate` (messages -> CalibrationResult
 * Messages of the data ports are kept in arrival order (per port: publication order).
 * A message on ``solve`` calibrates from everything received so far; so does the end of all inputs
   (``finish``) when ``solve_on_finish`` and samples arrived since the last solve (or none was made).
+  The engine orders messages within a port, not across ports, so a ``solve`` whose ``args`` carry
+  ``total_samples`` (as ``calibration_poses``' ``done`` does) waits until every data port has
+  received that many messages; if some never come (a missed detection), the end of input solves.
 * Output ``result`` (CalibrationResultMsg: verdict, reasons, metrics, the full result as JSON) is
   published every time. Output ``transform`` carries the calibrated transforms **only when the
   verdict is usable** (ok / warning): a degenerate or failed calibration never goes downstream as a
@@ -71,18 +74,30 @@ class CalibrationStage(Stage):
     def setup(self) -> None:
         self.buffers: dict[str, list[Any]] = {p: [] for p in self.DATA_PORTS}
         self._new_samples = False
+        self._waiting: tuple[int, str] | None = None  # a solve waiting for (samples per port, why)
         self.solves = 0
 
     def on_message(self, port: str, msg: Message) -> None:
         if port == SOLVE_PORT:
-            self._solve(f"solve trigger {msg.seq}")
+            why = f"solve trigger {msg.seq}"
+            total = getattr(msg, "args", {}).get("total_samples")
+            if isinstance(total, int) and not self._have(total):
+                self._waiting = (total, why)
+            else:
+                self._solve(why)
             return
         self.buffers[port].append(msg)
         self._new_samples = True
+        if self._waiting is not None and self._have(self._waiting[0]):
+            self._solve(self._waiting[1])
+
+    def _have(self, n: int) -> bool:
+        return all(len(b) >= n for b in self.buffers.values())
 
     def finish(self) -> None:
-        if self.params.solve_on_finish and (self._new_samples or self.solves == 0):  # type: ignore[attr-defined]
-            self._solve("end of input")
+        p: PairingParams = self.params  # type: ignore[assignment]
+        if self._waiting is not None or (p.solve_on_finish and (self._new_samples or self.solves == 0)):
+            self._solve(self._waiting[1] + ", at the end of input" if self._waiting else "end of input")
 
     def pairing(self) -> dict[str, Any]:
         p: PairingParams = self.params  # type: ignore[assignment]
@@ -108,6 +123,7 @@ class CalibrationStage(Stage):
 
     def _solve(self, why: str) -> None:
         self._new_samples = False
+        self._waiting = None
         self.solves += 1
         counts = {p: len(m) for p, m in self.buffers.items()}
         try:
