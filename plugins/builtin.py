@@ -17,6 +17,7 @@ def vgr_stage_types() -> list[type]:
     from plugins.solvers.stages.hand_eye import HandEyeCalibration
     from plugins.solvers.stages.kinematic import KinematicCalibrationStage
     from plugins.solvers.stages.result_file import CalibrationFile
+    from plugins.solvers.stages.target_pose import TargetPose
     from plugins.solvers.stages.tcp import TcpCalibration
     from plugins.solvers.stages.vive import ViveDeskCalibration, ViveToDesktop
     from plugins.util.cloud_stages import CloudStats, SyntheticCloud, TransformCloud
@@ -25,6 +26,7 @@ def vgr_stage_types() -> list[type]:
     calibration = [  # issue 6: data collection in the simulated cell, solver stages, saved results
         SimPointTracker,
         CalibrationPoses,
+        TargetPose,
         HandEyeCalibration,
         ViveDeskCalibration,
         ViveToDesktop,

@@ -4,6 +4,7 @@ gives the stage's answer."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
 from pathlib import Path
 
@@ -184,3 +185,46 @@ def test_tcp_recipe_finds_the_tip_and_the_camera(tmp_path, capsys):
     assert_replays_identically(path)
     assert main(["calibrate", "tcp", str(path), "--camera-sigma-mm", "0.2", "0.2", "0.5", "--no-samples"]) == 0
     assert "p_flange_tcp.z" in capsys.readouterr().out
+
+
+# --------------------------------------------------------------------------- hand-eye (3D camera)
+
+needs_registration = pytest.mark.skipif(
+    importlib.util.find_spec("plugins.solvers.registration") is None,
+    reason="target_pose needs the registration library (plugins.solvers.registration, issue 5)",
+)
+
+
+@needs_registration
+def test_handeye_recipe_recovers_the_camera_mount_within_the_reported_covariance(tmp_path, capsys):
+    path = tmp_path / "he.mcap"
+    summary, msgs = run(RECIPES / "calibrate_handeye_sim.yaml", record=path)
+    assert summary.ok, summary.stop_reason
+    (res,) = results(msgs)
+    assert res.usable, res.reasons
+    assert len(msgs[("target", "pose")]) == 12  # every capture registered against the part's model
+    cam = stage_params(RECIPES / "calibrate_handeye_sim.yaml", "camera")
+    T_tcp_cam = pose(cam["mount"]["pose"])
+    T_base_part = pose(cam["parts"][0]["pose"])
+    err_x = decoupled_error(T_tcp_cam, res.estimate["T_tcp_cam"])
+    err_y = decoupled_error(T_base_part, res.estimate["T_base_target"])
+    assert mahalanobis2(err_x, res.covariance[:6, :6]) < chi2.ppf(0.999, 6)
+    assert np.linalg.norm(err_x[:3]) < 2e-4 and np.degrees(np.linalg.norm(err_x[3:])) < 0.05
+    assert mahalanobis2(np.concatenate([err_x, err_y]), res.covariance) < chi2.ppf(0.999, 12)
+    tfs = msgs[("calibrate", "transform")]
+    assert [(t.frame_id, t.child_frame_id) for t in tfs] == [("tcp", "camera"), ("base", "target")]
+    assert_replays_identically(path)
+    assert main(["calibrate", "handeye", str(path), "--json", str(tmp_path / "r.json"), "--no-samples"]) == 0
+    cli = json.loads((tmp_path / "r.json").read_text())
+    assert np.allclose(cli["estimate"]["T_tcp_cam"], res.estimate["T_tcp_cam"], atol=1e-12)
+    assert "verdict OK" in capsys.readouterr().out or res.verdict == "warning"
+
+
+@needs_registration
+def test_handeye_recipe_with_the_part_not_where_expected_fails_and_publishes_no_transform():
+    wrong = "target.guess_target={xyz_m: [-0.30, 0.10, 0.0]}"  # 26 cm from where the part is
+    summary, msgs = run(RECIPES / "calibrate_handeye_sim.yaml", [wrong])
+    assert len(events(summary, "registration_failed")) == 12 and msgs[("target", "pose")] == []
+    (res,) = results(msgs)
+    assert res.verdict == "failed" and res.reasons[0].startswith("bad input: no target poses")
+    assert msgs[("calibrate", "transform")] == []
