@@ -19,14 +19,15 @@ trigger never moves twice), then each sensor named in ``sensors`` is read throug
 robot's reply): ``joint_state``, ``tcp_pose`` (reported ``T_base_tcp``), ``target`` (the commanded
 ``T_frame_tcp`` in ``frame_id``: for a fixture contact, where the fixture holds the TCP) and the
 sensor readings (``point``, ``tracker_pose``, ``cloud``, with their own stamps, or the sample's
-when the device left its reading unstamped). After the last
-target, ``done`` (a Request ``solve`` with ``args`` ``samples`` of this sequence and
-``total_samples`` so far) tells the solver stage to calibrate once it has that many samples.
+when the device left its reading unstamped). After the last target, ``done`` (a Request ``solve``
+with ``args`` ``samples`` of this sequence and ``total_samples`` so far) tells the solver stage to
+calibrate once it has that many samples.
 
-Safety: a refused move or an unreachable robot raises an ``alarm`` event and stops the sequence at
-once, without ``done`` (a solver with ``solve_on_finish`` still calibrates from the samples taken
-so far when the run ends, and its verdict says whether they suffice); a failed sensor reading skips
-that sample with a warning.
+Safety: a repeated trigger (the robot answers ``duplicate``: it did not move) measures nothing; a
+refused move or an unreachable robot raises an ``alarm`` event and stops the sequence at once,
+without ``done`` (a solver with ``solve_on_finish`` still calibrates from the samples taken so far
+when the run ends, and its verdict says whether they suffice); a failed sensor reading skips that
+sample with a warning.
 """
 
 from __future__ import annotations
@@ -191,11 +192,14 @@ class CalibrationPoses(Stage):
                     command_id=cid,
                 )
                 return
+            if reply.duplicate:  # this trigger was handled before: the robot did not move, measure nothing
+                self.ctx.event("warning", "duplicate_trigger", f"command {cid} was already executed; sequence skipped")
+                return
             if p.settle_s and not self.ctx.sleep(p.settle_s):
                 return
             if self._sample(k, reply, T_frame_tcp):
                 n_samples += 1
-        self.total_samples += n_samples
+                self.total_samples += 1
         done = {"samples": n_samples, "total_samples": self.total_samples, "trigger_seq": msg.seq}
         self.ctx.publish("done", Request(command="solve", args=done))
 

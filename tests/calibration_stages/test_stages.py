@@ -208,3 +208,48 @@ def test_a_solve_that_overtakes_its_samples_waits_for_them():
     assert result.verdict == "warning" and json.loads(result.result_json)["metrics"]["n_samples"] == 50
     stage.finish()  # nothing new since: no second result
     assert len([p for p, _ in ctx.published if p == "result"]) == 1
+
+
+class FakeRobotContext(FakeContext):
+    """A context whose robot executes each command id once (a repeat answers ``duplicate``) and
+    whose point instrument answers at a fixed stamp."""
+
+    name = "poses"
+
+    def __init__(self) -> None:
+        super().__init__()
+        import numpy as np
+
+        self.rng = np.random.default_rng(0)
+        self.seen: set[str] = set()
+
+    def call(self, client, request, timeout_s=10.0):
+        import numpy as np
+
+        from engine.messages import PoseStamped, RobotReply
+
+        if client == "robot":
+            dup = request.command_id in self.seen
+            self.seen.add(request.command_id)
+            return RobotReply(command_id=request.command_id, ok=True, T=np.eye(4), joints=np.zeros(6), duplicate=dup)
+        return PoseStamped(T=np.eye(4), frame_id="tracker", stamp_ns=123)
+
+
+def test_a_repeated_trigger_moves_and_measures_nothing():
+    from engine.messages import Request
+    from plugins.actions.calibration_poses import CalibrationPoses
+
+    ctx = FakeRobotContext()
+    stage = CalibrationPoses(ctx, CalibrationPoses.Params(joints_deg=((0,) * 6, (10,) * 6), sensors=("point",)))
+    stage.setup()
+    stage.on_message("trigger", Request(command="start", seq=1))
+    stage.on_message("trigger", Request(command="start", seq=1))  # the same trigger again (a restart, a replay)
+    ports = [p for p, _ in ctx.published]
+    assert ports.count("point") == 2 and ports.count("done") == 1
+    assert (
+        "events",
+        ("warning", "duplicate_trigger", "command poses-1-0 was already executed; sequence skipped"),
+    ) in ctx.published
+    stage.on_message("trigger", Request(command="start", seq=2))  # a new trigger: new ids, moves again
+    done = [m for p, m in ctx.published if p == "done"]
+    assert [d.args["total_samples"] for d in done] == [2, 4]
