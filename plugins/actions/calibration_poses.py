@@ -33,13 +33,13 @@ sample with a warning.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any, ClassVar, Literal
+from typing import Any, ClassVar, Literal, cast
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy.spatial.transform import Rotation
 
-from engine.messages import JointState, PointCloud, PoseStamped, Request, RobotCommand, TrackerPose
+from engine.messages import JointState, PointCloud, PoseStamped, Request, RobotCommand, RobotReply, TrackerPose
 from engine.stage import ServiceError, ServiceSpec, Stage, StageParams
 from engine.transforms import T_from_Rt
 from plugins.interfaces import CAMERA_CAPTURE, ROBOT_MOVE, TRACKER_SAMPLE
@@ -179,7 +179,7 @@ class CalibrationPoses(Stage):
                     command_id=cid, kind=p.motion, T=self.T_base_frame @ target, speed=p.speed, frame_id="base"
                 )
             try:
-                reply = self.ctx.call("robot", cmd, timeout_s=p.timeout_s)
+                reply = cast(RobotReply, self.ctx.call("robot", cmd, timeout_s=p.timeout_s))
             except ServiceError as exc:
                 self.ctx.event("alarm", "robot_unavailable", f"pose {k}: {exc}; calibration sequence stopped", pose=k)
                 return
@@ -214,7 +214,7 @@ class CalibrationPoses(Stage):
             self.ctx.event("warning", "sensor_failed", f"pose {k}: {client} reading failed ({exc}); sample skipped")
             raise
 
-    def _sample(self, k: int, reply: Any, T_frame_tcp: np.ndarray | None) -> bool:
+    def _sample(self, k: int, reply: RobotReply, T_frame_tcp: np.ndarray | None) -> bool:
         p: CalibrationPoses.Params = self.params  # type: ignore[assignment]
         try:
             readings = {c: self._read(c, k) for c in ("point", "tracker", "camera")}

@@ -228,3 +228,17 @@ def test_handeye_recipe_with_the_part_not_where_expected_fails_and_publishes_no_
     (res,) = results(msgs)
     assert res.verdict == "failed" and res.reasons[0].startswith("bad input: no target poses")
     assert msgs[("calibrate", "transform")] == []
+
+
+@needs_registration
+def test_target_pose_reads_the_model_from_a_mesh_file(tmp_path):
+    import open3d as o3d
+
+    from plugins.sim.workpieces import make_workpiece
+
+    mesh = tmp_path / "part.ply"
+    o3d.io.write_triangle_mesh(str(mesh), make_workpiece("feature_part").mesh)
+    summary, msgs = run(RECIPES / "calibrate_handeye_sim.yaml", ["target.model=null", f"target.mesh_path={mesh}"])
+    assert summary.ok and len(msgs[("target", "pose")]) == 12
+    (res,) = results(msgs)
+    assert res.usable

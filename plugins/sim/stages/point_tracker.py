@@ -19,7 +19,7 @@ Every reading is also published on ``point`` and the noise-free one on ``truth/p
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import ClassVar, cast
 
 import numpy as np
 from pydantic import Field
@@ -65,7 +65,7 @@ class SimPointTracker(Stage):
 
     def _reading(self) -> tuple[PoseStamped, PoseStamped]:
         p: SimPointTracker.Params = self.params  # type: ignore[assignment]
-        reply = self.ctx.call("robot", Request(command="truth"))
+        reply = cast(RobotReply, self.ctx.call("robot", Request(command="truth")))
         if not reply.ok or reply.T is None:
             raise RuntimeError(f"the simulated robot did not give its TCP pose: {reply.error}")
         T_instr_tcp = self.T_instr_world @ np.asarray(reply.T, dtype=float)

@@ -86,7 +86,7 @@ class TargetPose(Stage):
 
             from plugins.sim.workpieces import Workpiece
 
-            mesh = o3d.io.read_triangle_mesh(str(Path(p.mesh_path)))
+            mesh = o3d.io.read_triangle_mesh(Path(p.mesh_path))
             if not mesh.has_triangles():
                 raise ValueError(f"{p.mesh_path}: no triangle mesh could be read")
             wp = Workpiece(Path(p.mesh_path).stem, mesh, {}, {}, {}, False, "")
