@@ -10,6 +10,10 @@ from engine.hookspecs import hookimpl
 def vgr_stage_types() -> list[type]:
     from plugins.actions.calibration_poses import CalibrationPoses
     from plugins.actions.capture import CaptureAtPose
+    from plugins.actions.ur_robot import URRobot
+    from plugins.sensors.file_camera import FileCamera
+    from plugins.sensors.realsense_camera import RealSenseCamera
+    from plugins.sensors.vive_tracker import ViveTracker
     from plugins.sim.stages.camera import SimCamera
     from plugins.sim.stages.point_tracker import SimPointTracker
     from plugins.sim.stages.robot import SimRobot
@@ -23,6 +27,8 @@ def vgr_stage_types() -> list[type]:
     from plugins.util.cloud_stages import CloudStats, SyntheticCloud, TransformCloud
     from plugins.util.trigger import Trigger
 
+    sim = [SimRobot, SimCamera, SimTracker]
+    devices = [URRobot, ViveTracker, RealSenseCamera, FileCamera]
     calibration = [  # issue 6: data collection in the simulated cell, solver stages, saved results
         SimPointTracker,
         CalibrationPoses,
@@ -39,9 +45,8 @@ def vgr_stage_types() -> list[type]:
         TransformCloud,
         CloudStats,
         Trigger,
-        SimRobot,
-        SimCamera,
-        SimTracker,
+        *sim,
         CaptureAtPose,
+        *devices,
         *calibration,
     ]

@@ -1,0 +1,118 @@
+"""Depth image -> organised point cloud in the camera frame (pinhole, optional RealSense distortion).
+
+Camera frame: x right, y down, z forward along the optical axis (metres), as OpenCV, ROS optical
+frames, librealsense and ``plugins.sim.camera``. Pixel (u, v) = (column, row) with integer
+coordinates at pixel centres: ``x = (u - cx) / fx``, ``y = (v - cy) / fy``, point = depth * (x, y, 1).
+
+Distortion (librealsense ``rs2_deproject_pixel_to_point``, coefficients ``k1 k2 p1 p2 k3``):
+``none`` (or all-zero coefficients: the rectified depth stream of D400 cameras), ``brown_conrady``
+and ``inverse_brown_conrady`` (both undone by librealsense's fixed 10-iteration scheme, reproduced
+here vectorised). Fisheye models (``ftheta``, ``kannala_brandt4``) belong to tracking cameras, not
+depth cameras, and are refused with a clear error.
+
+Invalid depth (0, negative, NaN) gives NaN points, so the organised (H, W, 3) layout is kept.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+DistortionModel = Literal["none", "brown_conrady", "inverse_brown_conrady"]
+SUPPORTED_MODELS: tuple[str, ...] = ("none", "brown_conrady", "inverse_brown_conrady")
+UNDISTORT_ITERATIONS = 10  # librealsense's empirically fixed count
+
+
+@dataclass(frozen=True)
+class DepthIntrinsics:
+    """Pinhole intrinsics in pixels plus an optional librealsense distortion model."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    model: str = "none"
+    coeffs: tuple[float, ...] = field(default=(0.0, 0.0, 0.0, 0.0, 0.0))
+
+    def __post_init__(self) -> None:
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f"image size {self.width}x{self.height} must be positive")
+        vals = (self.fx, self.fy, self.cx, self.cy)
+        if not all(np.isfinite(vals)) or self.fx <= 0 or self.fy <= 0:
+            raise ValueError(f"intrinsics fx={self.fx}, fy={self.fy}, cx={self.cx}, cy={self.cy} are not usable")
+        if self.model not in SUPPORTED_MODELS:
+            raise ValueError(
+                f"distortion model {self.model!r} is not supported for depth deprojection "
+                f"(supported: {', '.join(SUPPORTED_MODELS)}); fisheye models are for tracking cameras"
+            )
+        if len(self.coeffs) != 5 or not all(np.isfinite(self.coeffs)):
+            raise ValueError(f"distortion coefficients must be 5 finite numbers (k1 k2 p1 p2 k3), got {self.coeffs}")
+
+    @classmethod
+    def from_K(cls, K: ArrayLike, width: int, height: int) -> DepthIntrinsics:
+        A = np.asarray(K, dtype=float)
+        if A.shape != (3, 3) or not np.all(np.isfinite(A)):
+            raise ValueError(f"K must be a finite 3x3 matrix, got shape {A.shape}")
+        if abs(A[0, 1]) > 1e-9 or np.any(np.abs(A[2] - (0, 0, 1)) > 1e-9) or abs(A[1, 0]) > 1e-9:
+            raise ValueError(f"K must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], got {A.tolist()}")
+        return cls(int(width), int(height), float(A[0, 0]), float(A[1, 1]), float(A[0, 2]), float(A[1, 2]))
+
+    def K(self) -> NDArray[np.float64]:
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def distorted(self) -> bool:
+        return self.model != "none" and any(c != 0.0 for c in self.coeffs)
+
+
+def normalized_rays(intr: DepthIntrinsics) -> NDArray[np.float64]:
+    """(H, W, 2) undistorted normalised image coordinates (x, y) of every pixel."""
+    u = np.arange(intr.width, dtype=float)
+    v = np.arange(intr.height, dtype=float)
+    x0 = np.broadcast_to((u - intr.cx) / intr.fx, (intr.height, intr.width))
+    y0 = np.broadcast_to(((v - intr.cy) / intr.fy)[:, None], (intr.height, intr.width))
+    if not intr.distorted:
+        return np.stack([x0, y0], axis=-1)
+    k1, k2, p1, p2, k3 = intr.coeffs
+    x, y = x0.copy(), y0.copy()
+    for _ in range(UNDISTORT_ITERATIONS):
+        r2 = x * x + y * y
+        icdist = 1.0 / (1.0 + ((k3 * r2 + k2) * r2 + k1) * r2)
+        if intr.model == "inverse_brown_conrady":
+            xq, yq = x / icdist, y / icdist
+        else:  # brown_conrady
+            xq, yq = x, y
+        dx = 2 * p1 * xq * yq + p2 * (r2 + 2 * xq * xq)
+        dy = 2 * p2 * xq * yq + p1 * (r2 + 2 * yq * yq)
+        x, y = (x0 - dx) * icdist, (y0 - dy) * icdist
+    return np.stack([x, y], axis=-1)
+
+
+def deproject_depth(
+    depth_m: ArrayLike, intr: DepthIntrinsics, rays: NDArray[np.float64] | None = None
+) -> NDArray[np.float32]:
+    """Organised (H, W, 3) float32 cloud of a depth image in metres; NaN where depth is invalid.
+
+    *rays* (from :func:`normalized_rays`) may be passed to reuse them across frames.
+    """
+    d = np.asarray(depth_m, dtype=np.float64)
+    if d.shape != (intr.height, intr.width):
+        raise ValueError(f"depth image is {d.shape[::-1]} (w, h) but the intrinsics are {intr.width}x{intr.height}")
+    rays = normalized_rays(intr) if rays is None else rays
+    z = np.where(np.isfinite(d) & (d > 0), d, np.nan)
+    pts = np.empty((intr.height, intr.width, 3), dtype=np.float32)
+    pts[..., 0] = rays[..., 0] * z
+    pts[..., 1] = rays[..., 1] * z
+    pts[..., 2] = z
+    return pts
+
+
+def valid_points(organised: NDArray[np.floating]) -> NDArray[np.floating]:
+    """The finite points of an organised cloud, in row-major pixel order, as (N, 3)."""
+    flat = organised.reshape(-1, 3)
+    return flat[np.all(np.isfinite(flat), axis=1)]

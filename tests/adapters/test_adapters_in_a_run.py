@@ -1,0 +1,246 @@
+"""The adapters inside real vgr runs (Runner, zenoh bus, typed ports, services, recording, replay).
+
+The SDKs are faked at the adapter boundary (fake rtde_*/openvr/pyrealsense2 modules); everything
+from the stage inwards is the engine as it runs on a cell. The recipes use the adapters exactly
+where the simulated twins would be, through the same action stages (capture_at_pose).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from adapter_fixtures import SEEN
+from fake_openvr import FakeDevice, FakeOpenVR
+from fake_openvr import install as install_openvr
+from fake_realsense import FakeCamera, Intrinsics
+from fake_realsense import install as install_realsense
+from fake_ur_rtde import FakeURController
+from fake_ur_rtde import install as install_ur
+from recipe_helpers import graph_from
+
+from engine import transforms as tf
+from engine.recorder import Recorder
+from engine.replay import replay
+from engine.runner import Runner
+
+pytestmark = pytest.mark.timeout(180)
+
+PCL = Path("/work/shared/data/pcl")
+IP = "192.168.56.101"
+WORKSPACE = "workspace_min_m: [-0.8, -0.6, 0.05], workspace_max_m: [0.2, 0.6, 0.8]"
+
+
+def run(text: str, **kw):
+    graph = graph_from(textwrap.dedent(text))
+    return Runner(graph, **kw).run()
+
+
+def photo_pose(ctl: FakeURController, dx: float = 0.01) -> np.ndarray:
+    T = tf.T_from_ur(ctl.tcp_vector())
+    T[0, 3] += dx
+    return T
+
+
+def matrix_yaml(T: np.ndarray) -> str:
+    return json.dumps(np.round(T, 12).tolist())
+
+
+UR_FILES = """
+name: ur_files
+plugins: [adapter_fixtures]
+run_id: {rid}
+clock: sim
+stages:
+  robot:
+    type: ur_robot
+    params: {{ip: {ip}, {workspace}}}
+  camera:
+    type: file_camera
+    params: {{folder: {pcl}, pattern: "*.pcd"}}
+  start: {{type: trigger, params: {{count: 3}}}}
+  capture:
+    type: capture_at_pose
+    inputs: {{trigger: start.out}}
+    uses: {{robot: robot.move, camera: camera.capture}}
+    params: {{photo_pose: {{matrix: {photo}}}}}
+  clouds: {{type: ta_collect_cloud, inputs: {{in: capture.cloud}}}}
+  poses: {{type: ta_collect_pose, inputs: {{in: capture.pose}}}}
+  tcp: {{type: ta_collect_pose, inputs: {{in: robot.tcp_pose}}}}
+  joints: {{type: ta_collect_joints, inputs: {{in: robot.joint_state}}}}
+"""
+
+
+@pytest.mark.skipif(not PCL.is_dir(), reason="shared PCL test data not present")
+def test_capture_at_pose_with_the_ur_adapter_and_the_file_camera(monkeypatch):
+    ctl = FakeURController()
+    install_ur(monkeypatch, ctl)
+    T_photo = photo_pose(ctl)
+    s = run(UR_FILES.format(rid="adp-ur1", ip=IP, workspace=WORKSPACE, pcl=PCL, photo=matrix_yaml(T_photo)))
+    assert s.ok, s.stop_reason
+    seen = SEEN["adp-ur1"]
+    assert [len(c.points) for c in seen["clouds"]] == [397, 361, 13704]
+    assert all(c.frame_id == "camera" for c in seen["clouds"])
+    # one joint move per trigger (ids capture-1..3), each to the photo pose: the first moves 10 mm
+    moves = ctl.move_calls()
+    assert [m[0] for m in moves] == ["moveJ_IK"] * 3
+    for m in moves:
+        np.testing.assert_allclose(m[1][0], tf.ur_from_T(T_photo), atol=1e-9)
+    for p in seen["poses"]:
+        assert p.frame_id == "base" and tf.pose_error(p.T, T_photo)[0] < 1e-6
+    assert len(seen["tcp"]) == 4 and len(seen["joints"]) == 4  # at set-up and after each command
+    assert tf.pose_error(seen["tcp"][0].T, photo_pose(FakeURController(), 0.0))[0] < 1e-9
+    assert ("stopScript", ()) in ctl.calls  # teardown released the controller
+
+
+ROBOT_SCRIPT = """
+name: ur_script
+plugins: [adapter_fixtures]
+run_id: {rid}
+clock: sim
+stages:
+  robot:
+    type: ur_robot
+    params: {{ip: {ip}, {workspace}}}
+  start: {{type: trigger, params: {{count: 1}}}}
+  script:
+    type: ta_robot_script
+    inputs: {{trigger: start.out}}
+    uses: {{robot: robot.move, state: robot.state}}
+    params:
+      steps:
+        - {{id: a, offset_m: [0.01, 0, 0]}}
+        - {{id: a, offset_m: [0.02, 0, 0]}}
+        - {{id: far, offset_m: [0.2, 0, 0]}}
+        - {{id: fast, offset_m: [0.01, 0, 0], speed: 5.0}}
+        - {{id: b, offset_m: [0.0, 0.01, 0], kind: move_j}}
+"""
+
+
+def test_robot_contract_over_the_bus_idempotent_ids_and_refusals(monkeypatch):
+    ctl = FakeURController()
+    install_ur(monkeypatch, ctl)
+    s = run(ROBOT_SCRIPT.format(rid="adp-ur2", ip=IP, workspace=WORKSPACE))
+    assert s.ok, s.stop_reason
+    rows = SEEN["adp-ur2"]["script"]
+    assert rows[0][:2] == ("state", True)
+    (a1, a2, far, fast, b) = rows[1:]
+    assert a1[:3] == ("a", True, False) and a2[:3] == ("a", True, True)  # the repeat is a duplicate
+    np.testing.assert_array_equal(a1[4], a2[4])  # ... with the first reply's pose
+    assert far[:2] == ("far", False) and "step limit" in far[3]
+    assert fast[:2] == ("fast", False) and "speed 5 m/s exceeds" in fast[3]
+    assert b[:3] == ("b", True, False)
+    assert [m[0] for m in ctl.move_calls()] == ["moveL", "moveJ_IK"]
+    refusals = [e for e in s.events if e.code == "robot_refused"]
+    assert {e.details["command_id"] for e in refusals} == {"far", "fast"}
+
+
+def test_an_unreachable_robot_fails_the_run_with_the_ip_and_what_to_check(monkeypatch):
+    ctl = FakeURController(receive_connect_error=RuntimeError("connect: No route to host"))
+    install_ur(monkeypatch, ctl)
+    s = run(ROBOT_SCRIPT.format(rid="adp-ur3", ip=IP, workspace=WORKSPACE))
+    assert not s.ok
+    text = s.stop_reason + " ".join(e.message + e.traceback for e in s.events)
+    assert f"cannot connect to the UR controller at {IP}" in text and f"ping {IP}" in text
+
+
+def test_a_missing_sdk_fails_the_run_naming_the_extra(monkeypatch):
+    monkeypatch.setitem(sys.modules, "rtde_receive", None)
+    s = run(ROBOT_SCRIPT.format(rid="adp-ur4", ip=IP, workspace=WORKSPACE))
+    assert not s.ok
+    text = s.stop_reason + " ".join(e.message + e.traceback for e in s.events)
+    assert "pip install 'vgr[ur]'" in text
+
+
+TRACKER = """
+name: tracker
+plugins: [adapter_fixtures]
+run_id: {rid}
+clock: sim
+stages:
+  tracker:
+    type: vive_tracker
+    params: {{serial: LHR-TRACK01, stream_hz: 10, duration_s: 1.0}}
+  start: {{type: trigger, params: {{count: 2}}}}
+  sampler:
+    type: ta_tracker_sampler
+    inputs: {{trigger: start.out}}
+    uses: {{tracker: tracker.sample}}
+  stream: {{type: ta_collect_tracker, inputs: {{in: tracker.pose}}}}
+"""
+
+
+def test_vive_tracker_streams_and_samples_in_a_run(monkeypatch):
+    T = tf.T_from_rotvec([0.1, 0.2, -0.3], [0.4, 1.1, -1.5])
+    state = FakeOpenVR(devices={3: FakeDevice("LHR-TRACK01", T=T), 0: FakeDevice("HMD", device_class=1)})
+    install_openvr(monkeypatch, state)
+    s = run(TRACKER.format(rid="adp-vive"))
+    assert s.ok, s.stop_reason
+    stream, samples = SEEN["adp-vive"]["stream"], SEEN["adp-vive"]["sampler"]
+    assert len(stream) == 10 and len(samples) == 2
+    for msg in [*stream, *samples]:
+        assert msg.valid and msg.serial == "LHR-TRACK01" and msg.frame_id == "lighthouse"
+        assert tf.pose_error(msg.T, T)[0] < 1e-6 and tf.pose_error(msg.T, T)[1] < 1e-6
+    assert np.all(np.diff([m.stamp_ns for m in stream]) == 100_000_000)
+    assert state.shutdowns == 1 and set(state.universes) == {2}
+
+
+SIM_ROBOT_REALSENSE = """
+name: sim_rs
+plugins: [adapter_fixtures]
+run_id: {rid}
+clock: sim
+stages:
+  robot: {{type: sim_robot, params: {{model: ur5e}}}}
+  camera:
+    type: realsense_camera
+    params: {{width: 80, height: 60, warmup_frames: 2}}
+  start: {{type: trigger, params: {{count: 2}}}}
+  capture:
+    type: capture_at_pose
+    inputs: {{trigger: start.out}}
+    uses: {{robot: robot.move, camera: camera.capture}}
+    params:
+      photo_pose: {{matrix: [[0, 1, 0, -0.49], [1, 0, 0, -0.14], [0, 0, -1, 0.45], [0, 0, 0, 1]]}}
+  clouds: {{type: ta_collect_cloud, inputs: {{in: capture.cloud}}}}
+"""
+
+
+def test_realsense_camera_in_place_of_the_sim_camera(monkeypatch):
+    z16 = np.full((60, 80), 600, np.uint16)
+    z16[:, :10] = 0
+    farther = np.where(z16 > 0, z16 + 100, 0).astype(np.uint16)
+    cam = FakeCamera(frames=[z16, farther], intrinsics=Intrinsics(80, 60, 70.0, 70.0, 39.5, 29.5))
+    install_realsense(monkeypatch, cam)
+    s = run(SIM_ROBOT_REALSENSE.format(rid="adp-rs"))
+    assert s.ok, s.stop_reason
+    clouds = SEEN["adp-rs"]["clouds"]
+    assert [len(c.points) for c in clouds] == [70 * 60, 70 * 60]
+    # warm-up took frames 0, 1; each capture drops the waiting set (0) and takes the next (1: 0.7 m)
+    np.testing.assert_allclose([c.points[0, 2] for c in clouds], [0.7, 0.7], rtol=1e-6)
+    assert cam.stopped == 1
+
+
+@pytest.mark.skipif(not PCL.is_dir(), reason="shared PCL test data not present")
+def test_a_recording_of_the_adapters_replays_without_any_sdk(monkeypatch, tmp_path):
+    ctl = FakeURController()
+    install_ur(monkeypatch, ctl)
+    text = textwrap.dedent(
+        UR_FILES.format(rid="adp-rec", ip=IP, workspace=WORKSPACE, pcl=PCL, photo=matrix_yaml(photo_pose(ctl)))
+    )
+    graph = graph_from(text)
+    path = tmp_path / "cell.mcap"
+    rec = Recorder(path, graph.recipe.record, graph.loaded, ["builtin", "adapter_fixtures"])
+    assert Runner(graph, observers=[rec]).run().ok
+    moves_recorded = len(ctl.move_calls())
+    for module in ("rtde_receive", "rtde_control"):
+        monkeypatch.setitem(sys.modules, module, None)  # as on a CI machine without ur-rtde
+    report, _, _ = replay(path)
+    assert report.ok and not report.failures, report.failures
+    assert "capture" in report.rerun and "robot" not in report.rerun and "camera" not in report.rerun
+    assert all(v.verdict == "identical" for v in (*report.streams, *report.requests))
+    assert len(ctl.move_calls()) == moves_recorded  # replay commanded nothing

@@ -1,0 +1,118 @@
+"""Template store: make / save / load round trips, versioned schema, refusal of damaged files, and a
+stored template used by the matchers (with the photo pose kept)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import registration_scenes as scenes
+
+from engine import transforms as tf
+from plugins.solvers.registration import (
+    FeatureFrameParams,
+    InvalidInputError,
+    PreprocessParams,
+    RoiBox,
+    load_template,
+    make_template,
+    register_feature_frame,
+    register_fine,
+    save_template,
+)
+from plugins.solvers.registration.template import SCHEMA_VERSION
+
+T_PHOTO = tf.T_from_rotvec([0.1, -0.2, 0.3], [0.4, 0.1, 0.6])
+
+
+@pytest.fixture(scope="module")
+def captures():
+    cam = scenes.camera(640, 480)
+    rng = np.random.default_rng(9)
+    tmpl = scenes.capture("feature_part", scenes.nominal_pose("feature_part"), cam, rng)
+    pose = scenes.perturbed_pose("feature_part", rng, max_shift_m=0.005, max_tilt_deg=2, spin_deg=2)
+    return tmpl, scenes.capture("feature_part", pose, cam, rng)
+
+
+def test_cloud_template_round_trip_and_use(tmp_path, captures):
+    tmpl, cur = captures
+    roi = RoiBox.from_bounds([-0.12, -0.1, 0.3], [0.12, 0.1, 0.7])
+    t = make_template(
+        tmpl.points, T_PHOTO, name="part_a", preprocess=PreprocessParams(roi=roi), metadata={"by": "test"}
+    )
+    path = save_template(t, tmp_path)
+    assert path.name == "part_a.vgrtpl" and (path / "points.npy").is_file()
+    doc = json.loads((path / "template.json").read_text())
+    assert doc["schema"] == "vgr.template" and doc["schema_version"] == SCHEMA_VERSION
+    loaded = load_template(path)
+    assert loaded.kind == "cloud" and loaded.name == "part_a" and loaded.metadata == {"by": "test"}
+    assert np.array_equal(loaded.T_base_tcp_photo, t.T_base_tcp_photo)
+    assert np.array_equal(loaded.points, t.points)
+    assert loaded.preprocess["roi"]["extent"] == pytest.approx([0.24, 0.2, 0.4])
+    res = register_fine(cur.points, loaded.prepared(), None)
+    assert res.verdict == "ok", res.summary()
+    err = scenes.match_error(res.T_match, tmpl, cur, "feature_part")
+    assert err[0] < 0.1 and err[1] < 0.05
+
+
+def test_feature_frame_template_round_trip(tmp_path):
+    cam = scenes.camera(1280, 960)
+    rng = np.random.default_rng(2)
+    params = FeatureFrameParams(feature_kind="pin", radius_m=0.0025)
+    cap = scenes.capture("planar_plate", scenes.nominal_pose("planar_plate"), cam, rng)
+    t = make_template(cap.points, T_PHOTO, name="plate", kind="feature_frame", feature_params=params)
+    loaded = load_template(save_template(t, tmp_path))
+    assert loaded.kind == "feature_frame" and loaded.points is None
+    assert np.allclose(loaded.frame.T_cam_frame, t.frame.T_cam_frame)
+    assert loaded.preprocess["feature_params"]["feature_kind"] == "pin"
+    res = register_feature_frame(cap.points, loaded.frame, params)
+    assert res.verdict == "ok" and np.allclose(res.T_match, np.eye(4), atol=1e-3)
+
+
+def test_loader_refuses_damaged_or_foreign_templates(tmp_path, captures):
+    tmpl, _ = captures
+    path = save_template(make_template(tmpl.points, T_PHOTO, name="x"), tmp_path)
+    meta = path / "template.json"
+    doc = json.loads(meta.read_text())
+
+    def write(**changes):
+        meta.write_text(json.dumps({**doc, **changes}))
+
+    write(schema_version=SCHEMA_VERSION + 1)
+    with pytest.raises(InvalidInputError, match="not supported"):
+        load_template(path)
+    write(schema="something.else")
+    with pytest.raises(InvalidInputError, match="schema"):
+        load_template(path)
+    write(T_base_tcp_photo=np.diag([2.0, 1, 1, 1]).tolist())
+    with pytest.raises(InvalidInputError, match="T_base_tcp_photo"):
+        load_template(path)
+    write()
+    np.save(path / "points.npy", np.zeros((10, 3)))
+    with pytest.raises(InvalidInputError, match="checksum"):
+        load_template(path)
+    with pytest.raises(InvalidInputError, match=r"no template\.json"):
+        load_template(tmp_path / "missing")
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"name": ""}, "name"),
+        ({"name": "a/b"}, "name"),
+        ({"name": "ok", "kind": "mesh"}, "kind"),
+    ],
+)
+def test_make_template_rejects_bad_arguments(kwargs, match, captures):
+    tmpl, _ = captures
+    with pytest.raises(InvalidInputError, match=match):
+        make_template(tmpl.points, T_PHOTO, **kwargs)
+
+
+def test_make_template_rejects_bad_photo_pose_and_cloud(captures):
+    tmpl, _ = captures
+    with pytest.raises(InvalidInputError, match="T_base_tcp_photo"):
+        make_template(tmpl.points, np.full((4, 4), np.nan), name="a")
+    with pytest.raises(InvalidInputError, match="empty"):
+        make_template(np.zeros((0, 3)), T_PHOTO, name="a")

@@ -1,0 +1,126 @@
+"""The Hessian-based uncertainty: calibrated where its assumptions hold, a stated lower bound on
+simulated captures, and weak directions flagged (a flat plate slides in its plane)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import registration_scenes as scenes
+
+from engine import transforms as tf
+from plugins.solvers.registration import FineParams, PreprocessParams, prepare_cloud, register_fine
+
+
+def _error_z(res, T_true: np.ndarray) -> np.ndarray:
+    """Estimation error as a twist at the uncertainty centre, in units of the reported sigmas."""
+    xi_origin = tf.log_se3(res.T_match @ tf.inv(T_true))  # T_est = exp(xi) T_true
+    xi_center = tf.adjoint(tf.inv(tf.T_from_Rt(np.eye(3), res.uncertainty_center))) @ xi_origin
+    return xi_center / np.concatenate([res.sigma_translation_m, res.sigma_rotation_rad])
+
+
+def _faceted_surface() -> np.ndarray:
+    """Three faces of a 6 cm box and an oblique face, on a 3 mm grid, 0.5 m from the camera."""
+    u = np.linspace(0.0, 0.06, 20)
+    U, V = (a.ravel() for a in np.meshgrid(u, u))
+    Z = np.zeros_like(U)
+    faces = [np.c_[U, V, Z], np.c_[U, Z, V], np.c_[Z, U, V], np.c_[U, V, 0.06 - 0.5 * U + 0.2 * V]]
+    return np.vstack(faces) + np.array([0.0, 0.0, 0.5])
+
+
+def test_covariance_is_calibrated_when_its_model_holds():
+    """Monte Carlo: i.i.d. Gaussian noise along the normals of a noiseless template, point-to-plane ICP.
+    The errors divided by the reported sigmas must have unit RMS on every axis."""
+    P = _faceted_surface()
+    pp = PreprocessParams(voxel_size_m=0.0, normal_k=12)
+    template = prepare_cloud(P, pp)
+    normals = template.normals()
+    params = FineParams(backend="open3d_plane", preprocess=pp, max_correspondence_m=0.01)
+    rng = np.random.default_rng(7)
+    T_c = tf.T_from_Rt(np.eye(3), P.mean(axis=0))
+    z = []
+    for _ in range(150):
+        T_true = T_c @ tf.exp_se3(np.r_[rng.normal(0, 1e-3, 3), rng.normal(0, 0.01, 3)]) @ tf.inv(T_c)
+        current = tf.transform_points(tf.inv(T_true), P + normals * rng.normal(0.0, 2e-4, (len(P), 1)))
+        res = register_fine(current, template, None, params)
+        assert res.verdict == "ok", res.summary()
+        z.append(_error_z(res, T_true))
+    rms = np.sqrt(np.mean(np.square(z), axis=0))
+    assert np.all((rms > 0.8) & (rms < 1.25)), rms
+
+
+def test_sigma_is_a_lower_bound_on_simulated_captures():
+    """feature_part, two 0.1 mm-noise captures at 1280 x 960, 2 mm voxels: the reported sigma
+    ignores correlated residuals and the different sampling of the two captures, so the actual
+    errors are larger, but by a bounded factor (RMS <= 4 sigma per axis, every error <= 12 sigma).
+    Measured: RMS 0.8-3.3 sigma per axis, worst 9.9 sigma (rotation about the camera's y)."""
+    cam = scenes.camera(1280, 960)
+    rng = np.random.default_rng(3)
+    z = []
+    for _ in range(10):
+        tmpl = scenes.capture("feature_part", scenes.nominal_pose("feature_part"), cam, rng)
+        pose = scenes.perturbed_pose("feature_part", rng, max_shift_m=0.02, max_tilt_deg=10, spin_deg=20)
+        cur = scenes.capture("feature_part", pose, cam, rng)
+        T_true = scenes.true_match(tmpl, cur)
+        T0 = tf.exp_se3(np.r_[rng.normal(0, 1e-3, 3), rng.normal(0, np.radians(0.5), 3)]) @ T_true
+        res = register_fine(cur.points, tmpl.points, T0, FineParams())
+        assert res.verdict == "ok", res.summary()
+        z.append(_error_z(res, T_true))
+    z = np.abs(np.array(z))
+    assert np.all(np.sqrt(np.mean(z**2, axis=0)) <= 4.0), np.sqrt(np.mean(z**2, axis=0))
+    assert z.max() <= 12.0, z.max()
+
+
+def test_flat_plate_is_flagged_weak_and_ambiguous():
+    """A plain 20 x 15 cm plane: it can slide in its plane and spin about its normal."""
+    rng = np.random.default_rng(0)
+    n = 20000
+    P = np.column_stack([rng.uniform(-0.1, 0.1, n), rng.uniform(-0.075, 0.075, n), np.full(n, 0.5)])
+    cur = P + np.column_stack([np.zeros((n, 2)), rng.normal(0.0, 1e-4, n)])
+    res = register_fine(cur, P, None, FineParams())
+    assert res.verdict == "ambiguous", res.summary()
+    assert res.T_match is None and not res.usable
+    kinds = sorted(w.kind for w in res.weak_directions)
+    assert kinds == ["rotation", "translation", "translation"], res.weak_directions
+    for w in res.weak_directions:
+        if w.kind == "translation":
+            assert abs(w.axis[2]) < 0.05  # sliding in the plane (x, y), not along its normal
+        else:
+            assert abs(w.axis[2]) > 0.99  # spinning about the normal
+    assert "not determined" in res.reasons[0]
+    assert res.sigma_translation_m[2] < 1e-5  # the normal direction is well determined
+
+
+def test_noise_free_plane_is_still_ambiguous():
+    """Zero residuals make every sigma 0; the geometry test must still refuse the plane."""
+    rng = np.random.default_rng(1)
+    P = np.column_stack([rng.uniform(-0.1, 0.1, (5000, 2)), np.full(5000, 0.5)])
+    res = register_fine(P, P, None, FineParams())
+    assert res.verdict == "ambiguous" and res.T_match is None, res.summary()
+    assert "stiffness ratio" in res.reasons[0]
+
+
+@pytest.mark.parametrize("view_tilt_deg", [0.0, 30.0])
+def test_planar_plate_pins_constrain_the_plane_directions(view_tilt_deg):
+    """planar_plate (CAD-model template, 640 x 480 capture): the pins and the contour walls pin down
+    the in-plane directions, so the result is usable, and the in-plane sigmas are the largest.
+
+    Seen straight from above the plate's in-plane pose comes only from the pins and from contour
+    points paired with the model's walls; 2 mm voxels bias that edge information (measured 0.18 mm /
+    0.26 deg, about 30 reported sigmas: the sigma does not include such systematic errors), still
+    within seed 004's 0.5 mm / 0.5 deg. An oblique view shows the walls and does much better."""
+    cam = scenes.camera(640, 480)
+    rng = np.random.default_rng(1)
+    pose = scenes.nominal_pose("planar_plate", view_tilt_deg)
+    tmpl = scenes.model_template("planar_plate", pose, 0.0007, rng)
+    cur = scenes.capture("planar_plate", pose @ tf.T_from_rotvec([0, 0, 0.01], [0.001, 0.0, 0.0]), cam, rng)
+    res = register_fine(cur.points, tmpl.points, None, FineParams(backend="open3d_plane"))
+    assert res.verdict == "ok", res.summary()
+    err_mm, err_deg = scenes.match_error(res.T_match, tmpl, cur, "planar_plate")
+    limit = (0.5, 0.5) if view_tilt_deg == 0.0 else (0.1, 0.05)
+    assert err_mm < limit[0] and err_deg < limit[1], (err_mm, err_deg)
+    normal = pose[:3, 2]  # plate normal in the camera frame
+    cov_t = res.covariance_at(res.uncertainty_center)[:3, :3]
+    in_plane = np.linalg.svd(np.eye(3) - np.outer(normal, normal))[0][:, :2]
+    sigma_normal = float(np.sqrt(normal @ cov_t @ normal))
+    sigma_in_plane = np.sqrt(np.diag(in_plane.T @ cov_t @ in_plane))
+    assert np.all(sigma_in_plane > 3.0 * sigma_normal), (sigma_in_plane, sigma_normal)
