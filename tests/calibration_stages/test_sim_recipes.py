@@ -4,7 +4,6 @@ gives the stage's answer."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -189,13 +188,7 @@ def test_tcp_recipe_finds_the_tip_and_the_camera(tmp_path, capsys):
 
 # --------------------------------------------------------------------------- hand-eye (3D camera)
 
-needs_registration = pytest.mark.skipif(
-    importlib.util.find_spec("plugins.solvers.registration") is None,
-    reason="target_pose needs the registration library (plugins.solvers.registration, issue 5)",
-)
 
-
-@needs_registration
 def test_handeye_recipe_recovers_the_camera_mount_within_the_reported_covariance(tmp_path, capsys):
     path = tmp_path / "he.mcap"
     summary, msgs = run(RECIPES / "calibrate_handeye_sim.yaml", record=path)
@@ -220,7 +213,6 @@ def test_handeye_recipe_recovers_the_camera_mount_within_the_reported_covariance
     assert "verdict OK" in capsys.readouterr().out or res.verdict == "warning"
 
 
-@needs_registration
 def test_handeye_recipe_with_the_part_not_where_expected_fails_and_publishes_no_transform():
     wrong = "target.guess_target={xyz_m: [-0.30, 0.10, 0.0]}"  # 26 cm from where the part is
     summary, msgs = run(RECIPES / "calibrate_handeye_sim.yaml", [wrong])
@@ -230,7 +222,6 @@ def test_handeye_recipe_with_the_part_not_where_expected_fails_and_publishes_no_
     assert msgs[("calibrate", "transform")] == []
 
 
-@needs_registration
 def test_target_pose_reads_the_model_from_a_mesh_file(tmp_path):
     import open3d as o3d
 

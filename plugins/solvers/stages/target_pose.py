@@ -38,6 +38,7 @@ from engine.messages import PointCloud, PoseStamped
 from engine.stage import Stage, StageParams
 from engine.transforms import inv
 from plugins.sim.stages.params import PoseSpec
+from plugins.solvers.registration import FineParams, GlobalParams, prepare_cloud, register_fine, register_global
 
 
 class TargetPose(Stage):
@@ -62,11 +63,6 @@ class TargetPose(Stage):
         max_skew_s: float = Field(0.05, ge=0.0, description="largest stamp difference cloud / robot pose")
 
     def setup(self) -> None:
-        try:
-            from plugins.solvers.registration import FineParams, GlobalParams, prepare_cloud
-        except ImportError as exc:  # the registration library (issue 5) is merged separately
-            raise RuntimeError(f"target_pose needs plugins.solvers.registration (issue 5): {exc}") from None
-
         p: TargetPose.Params = self.params  # type: ignore[assignment]
         points, normals = self._model_surface(p)
         if p.visible_min_normal_z is not None:
@@ -119,8 +115,6 @@ class TargetPose(Stage):
             self._register(cloud, np.asarray(robot.T, dtype=float))
 
     def _register(self, cloud: PointCloud, T_base_tcp: np.ndarray) -> None:
-        from plugins.solvers.registration import register_fine, register_global
-
         p: TargetPose.Params = self.params  # type: ignore[assignment]
         points = np.asarray(cloud.points, dtype=float)
         if p.init == "global":
