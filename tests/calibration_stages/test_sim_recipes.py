@@ -213,6 +213,21 @@ def test_handeye_recipe_recovers_the_camera_mount_within_the_reported_covariance
     assert "verdict OK" in capsys.readouterr().out or res.verdict == "warning"
 
 
+@pytest.mark.parametrize("seed", [6, 7, 10, 11])
+def test_handeye_recipe_on_other_seeds_stays_accurate_even_when_samples_are_flagged(seed):
+    """Other noise draws of the same cell: these seeds flag 1 sample each as an outlier (verdict
+    warning; the registration error of a view is anisotropic, the hand-eye camera noise model is
+    not: docs/calibration.md), yet the mount is still recovered within the reported covariance."""
+    summary, msgs = run(RECIPES / "calibrate_handeye_sim.yaml", [f"seed={seed}"])
+    assert summary.ok, summary.stop_reason
+    (res,) = results(msgs)
+    assert res.usable, res.reasons
+    cam = stage_params(RECIPES / "calibrate_handeye_sim.yaml", "camera")
+    err_x = decoupled_error(pose(cam["mount"]["pose"]), res.estimate["T_tcp_cam"])
+    assert mahalanobis2(err_x, res.covariance[:6, :6]) < chi2.ppf(0.999, 6)
+    assert np.linalg.norm(err_x[:3]) < 1e-4 and np.degrees(np.linalg.norm(err_x[3:])) < 0.02
+
+
 def test_handeye_recipe_with_the_part_not_where_expected_fails_and_publishes_no_transform():
     wrong = "target.guess_target={xyz_m: [-0.30, 0.10, 0.0]}"  # 26 cm from where the part is
     summary, msgs = run(RECIPES / "calibrate_handeye_sim.yaml", [wrong])
