@@ -216,8 +216,8 @@ def test_handeye_recipe_recovers_the_camera_mount_within_the_reported_covariance
 @pytest.mark.parametrize("seed", [6, 7, 10, 11])
 def test_handeye_recipe_on_other_seeds_stays_accurate_even_when_samples_are_flagged(seed):
     """Other noise draws of the same cell: these seeds flag 1 sample each as an outlier (verdict
-    warning; the registration error of a view is anisotropic, the hand-eye camera noise model is
-    not: docs/calibration.md), yet the mount is still recovered within the reported covariance."""
+    warning; the registration error depends on the view, the hand-eye camera noise model does not:
+    docs/calibration.md), yet the mount is still recovered within the reported covariance."""
     summary, msgs = run(RECIPES / "calibrate_handeye_sim.yaml", [f"seed={seed}"])
     assert summary.ok, summary.stop_reason
     (res,) = results(msgs)
