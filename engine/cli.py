@@ -234,6 +234,7 @@ def cmd_schemas(args: argparse.Namespace) -> int:
 VERB_MODULES: list[str] = [
     "engine.cli_recording",
     "plugins.solvers.registration.cli",
+    "plugins.solvers.calibrate_cli",
 ]
 
 

@@ -8,6 +8,7 @@ from engine.hookspecs import hookimpl
 
 @hookimpl
 def vgr_stage_types() -> list[type]:
+    from plugins.actions.calibration_poses import CalibrationPoses
     from plugins.actions.capture import CaptureAtPose
     from plugins.actions.docking import Docking, DualDocking
     from plugins.actions.guidance import Guidance
@@ -17,16 +18,34 @@ def vgr_stage_types() -> list[type]:
     from plugins.sensors.vive_tracker import ViveTracker
     from plugins.sim.stages.camera import SimCamera
     from plugins.sim.stages.evaluation import DockingEvaluator
+    from plugins.sim.stages.point_tracker import SimPointTracker
     from plugins.sim.stages.robot import SimRobot
     from plugins.sim.stages.tracker import SimTracker
     from plugins.solvers.registration.stage import Matcher
+    from plugins.solvers.stages.hand_eye import HandEyeCalibration
+    from plugins.solvers.stages.kinematic import KinematicCalibrationStage
+    from plugins.solvers.stages.result_file import CalibrationFile
+    from plugins.solvers.stages.target_pose import TargetPose
+    from plugins.solvers.stages.tcp import TcpCalibration
+    from plugins.solvers.stages.vive import ViveDeskCalibration, ViveToDesktop
     from plugins.util.cloud_stages import CloudStats, SyntheticCloud, TransformCloud
     from plugins.util.trigger import Trigger
 
     sim = [SimRobot, SimCamera, SimTracker, DockingEvaluator]
     devices = [URRobot, ViveTracker, RealSenseCamera, FileCamera]
+    calibration = [  # issue 6: data collection in the simulated cell, solver stages, saved results
+        SimPointTracker,
+        CalibrationPoses,
+        TargetPose,
+        HandEyeCalibration,
+        ViveDeskCalibration,
+        ViveToDesktop,
+        TcpCalibration,
+        KinematicCalibrationStage,
+        CalibrationFile,
+    ]
     actions = [CaptureAtPose, Guidance, Docking, DualDocking]
-    return [SyntheticCloud, TransformCloud, CloudStats, Trigger, *sim, *actions, Matcher, *devices]
+    return [SyntheticCloud, TransformCloud, CloudStats, Trigger, *sim, *actions, Matcher, *devices, *calibration]
 
 
 @hookimpl

@@ -17,12 +17,46 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 Verdict = Literal["ok", "warning", "degenerate", "failed"]
 USABLE_VERDICTS: frozenset[str] = frozenset({"ok", "warning"})
+
+_MM, _DEG = 1e3, float(np.degrees(1.0))
+_DIAGNOSTIC_PREFIXES = ("closed_form_", "initial_")  # estimate entries that document the start, not the result
+_ANGLE_SUFFIXES = ("rx", "ry", "rz", "wx", "wy", "wz", "theta", "alpha", "beta")
+
+
+class SummaryRow(NamedTuple):
+    """One line of a result summary for people: ``value`` and ``sigma`` (1-sigma, None when the
+    result has no covariance for it) in ``unit`` (``mm`` or ``deg``)."""
+
+    name: str
+    value: float
+    sigma: float | None
+    unit: str
+
+
+def _is_transform(v: Any) -> bool:
+    if isinstance(v, str | bytes | dict) or v is None:
+        return False
+    try:
+        a = np.asarray(v, dtype=float)
+    except (TypeError, ValueError):
+        return False
+    return a.shape == (4, 4)
+
+
+def _is_point(v: Any) -> bool:
+    if isinstance(v, str | bytes | dict) or v is None:
+        return False
+    try:
+        return np.asarray(v, dtype=float).shape == (3,)
+    except (TypeError, ValueError):
+        return False
 
 
 @dataclass
@@ -61,6 +95,68 @@ class CalibrationResult:
             return {}
         sd = np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
         return dict(zip(self.param_names, sd.tolist(), strict=True))
+
+    def summary_rows(self) -> list[SummaryRow]:
+        """The estimate for people: rows of name, value, 1-sigma and unit, in mm and degrees.
+
+        * every 4x4 transform ``T_a_b`` of the estimate gives six rows: ``T_a_b.x/y/z`` (translation,
+          mm) and ``T_a_b.rotvec_x/y/z`` (rotation vector, deg). The 1-sigma comes from the
+          covariance parameters ``T_a_b.tx|vx`` ... and ``T_a_b.rx|wx`` ...: for the rotation it is
+          the standard deviation of a small rotation about that axis of frame *a* (the solvers'
+          perturbation), which is what a user compares with a tolerance;
+        * every 3-vector with covariance parameters ``name.x/y/z`` (e.g. ``p_flange_tcp``) gives
+          three rows in mm;
+        * every remaining covariance parameter gives one row: its value from the estimate (a scalar
+          of that name, or its entry in ``estimate["offsets"]``, shown as ``name (change)``), in deg
+          when the name ends in an angle (``rx``, ``wz``, ``theta``, ``alpha``, ``beta``), else mm.
+
+        Entries named ``closed_form_*`` / ``initial_*`` (the solver's starting point) are left out.
+        """
+        std = self.std()
+        used: set[str] = set()
+
+        def sigma(key: str, axis: str, kinds: tuple[str, str], scale: float) -> float | None:
+            for k in kinds:
+                name = f"{key}.{k}{axis}"
+                if name in std:
+                    used.add(name)
+                    return std[name] * scale
+            return None
+
+        rows: list[SummaryRow] = []
+        for key, value in self.estimate.items():
+            if key.startswith(_DIAGNOSTIC_PREFIXES):
+                continue
+            if _is_transform(value):
+                T = np.asarray(value, dtype=float)
+                rv = Rotation.from_matrix(T[:3, :3]).as_rotvec()
+                for i, a in enumerate("xyz"):
+                    rows.append(SummaryRow(f"{key}.{a}", float(T[i, 3] * _MM), sigma(key, a, ("t", "v"), _MM), "mm"))
+                for i, a in enumerate("xyz"):
+                    s = sigma(key, a, ("r", "w"), _DEG)
+                    rows.append(SummaryRow(f"{key}.rotvec_{a}", float(rv[i] * _DEG), s, "deg"))
+            elif _is_point(value) and any(f"{key}.{a}" in std for a in "xyz"):
+                v = np.asarray(value, dtype=float)
+                for i, a in enumerate("xyz"):
+                    s = std.get(f"{key}.{a}")
+                    used.add(f"{key}.{a}")
+                    rows.append(SummaryRow(f"{key}.{a}", float(v[i] * _MM), None if s is None else s * _MM, "mm"))
+        offsets = self.estimate.get("offsets")
+        offsets = offsets if isinstance(offsets, dict) else {}
+        for name in self.param_names:
+            if name in used:
+                continue
+            angle = name.rsplit(".", 1)[-1] in _ANGLE_SUFFIXES
+            scale, unit = (_DEG, "deg") if angle else (_MM, "mm")
+            if name in offsets:
+                label, value = f"{name} (change)", offsets[name]
+            elif np.isscalar(self.estimate.get(name)) and not isinstance(self.estimate.get(name), str):
+                label, value = name, self.estimate[name]
+            else:
+                continue
+            s = std.get(name)
+            rows.append(SummaryRow(label, float(value) * scale, None if s is None else s * scale, unit))
+        return rows
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary (numpy arrays become nested lists)."""

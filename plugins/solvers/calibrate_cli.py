@@ -1,0 +1,367 @@
+"""``vgr calibrate KIND DATA``: every calibration of vgr from a plain file or a vgr recording.
+
+Kinds: ``handeye`` and ``robot-world`` (AX=XB / AX=ZB, docs/handeye.md), ``vive-desk`` and ``tcp``
+(docs/vive_and_tcp.md), ``kinematics`` (docs/kinematic_calibration.md). DATA is one of the plain
+formats those pages document (``.json`` / ``.csv``) or an MCAP recording made by ``vgr run``
+(``.mcap``): then the samples are read from two topics (options ``--*-topic``, defaults matching the
+``recipes/calibrate_*_sim.yaml`` recipes) and paired by stamp (``--pair stamp``, nearest within
+``--max-skew-s``) or by order (``--pair order``); a count or stamp mismatch is an error unless
+``--drop-unmatched``.
+
+Output: the report in mm / degrees (estimate with 1-sigma, residuals, verdict, reasons, advice) on
+stdout; ``--json OUT`` writes the CalibrationResult, ``--report DIR`` writes result.json, report.txt,
+summary.md (and for kinematics convergence.png and before_after.txt). Exit code 0: usable result
+(verdict ok / warning); 1: degenerate or failed (do not use it); 2: bad input (missing or malformed
+file, NaN, mixed units, too few samples, unpaired samples).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from engine.messages import JointState, PoseStamped, TrackerPose
+from engine.recording import Recording, RecordingError
+from plugins.solvers.calibration_inputs import (
+    CalibrationInputError,
+    hand_eye_samples,
+    kinematic_samples,
+    min_kinematic_samples,
+    read_topic,
+    tcp_camera_data,
+    vive_desk_data,
+)
+from plugins.solvers.calibration_report import format_result, kinematic_table, write_kinematic_files, write_report_dir
+from plugins.solvers.calibration_result import CalibrationResult
+
+EXIT_USABLE, EXIT_UNUSABLE, EXIT_BAD_INPUT = 0, 1, 2
+FILE_SUFFIXES = (".json", ".csv", ".mcap")
+
+#: default topics: the stage and port names of recipes/calibrate_*_sim.yaml
+DEFAULT_TOPICS = {
+    "robot": "/poses/tcp_pose",
+    "target": "/target/pose",
+    "contact": "/poses/target",
+    "tracker": "/poses/tracker_pose",
+    "point": "/poses/point",
+    "joints": "/poses/joint_state",
+}
+
+
+@dataclass
+class Outcome:
+    """What a calibration produced for the CLI: the result, notes about the input, extra report text,
+    extra Markdown sections and a writer of extra report files."""
+
+    result: CalibrationResult
+    notes: list[str] = field(default_factory=list)
+    extra_text: str = ""
+    sections: dict[str, str] = field(default_factory=dict)
+    write_files: Callable[[Path], None] | None = None
+
+
+def _suffix(path: Path) -> str:
+    s = path.suffix.lower()
+    if not path.is_file():
+        raise CalibrationInputError(f"{path}: no such file")
+    if s not in FILE_SUFFIXES:
+        raise CalibrationInputError(f"{path}: unsupported file type {s!r} (use {', '.join(FILE_SUFFIXES)})")
+    return s
+
+
+def _recording(path: Path) -> Recording:
+    from engine.recording import load
+
+    return load(path)
+
+
+def _pairing(args: argparse.Namespace) -> dict:
+    return {"mode": args.pair, "max_skew_s": args.max_skew_s, "drop_unmatched": args.drop_unmatched}
+
+
+# --------------------------------------------------------------------------- hand-eye / robot-world
+
+
+def _hand_eye_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--setup", choices=["eye_in_hand", "eye_to_hand"], default=None, help="default: the file's, else eye_in_hand"
+    )
+    p.add_argument("--mm", action="store_true", help="translations in the file are millimetres")
+    p.add_argument("--robot-noise", nargs=2, type=float, metavar=("DEG", "MM"), help="declared robot pose noise")
+    p.add_argument("--camera-noise", nargs=2, type=float, metavar=("DEG", "MM"), help="declared camera pose noise")
+    p.add_argument("--loss", choices=["huber", "cauchy", "linear"], default="huber")
+    p.add_argument("--robot-topic", default=DEFAULT_TOPICS["robot"], help="MCAP: PoseStamped T_base_tcp")
+    p.add_argument("--target-topic", default=DEFAULT_TOPICS["target"], help="MCAP: PoseStamped T_cam_target")
+
+
+def _hand_eye(kind: str) -> Callable[[argparse.Namespace], Outcome]:
+    def run(args: argparse.Namespace) -> Outcome:
+        from plugins.solvers.handeye import NoiseModel, calibrate_hand_eye, calibrate_robot_world, load_pose_pairs
+        from plugins.solvers.handeye.problem import check_setup
+
+        notes: list[str] = []
+        if _suffix(args.data) == ".mcap":
+            if args.mm:
+                raise CalibrationInputError("--mm applies to plain files; recordings are in metres")
+            rec = _recording(args.data)
+            robot = read_topic(rec, args.robot_topic, PoseStamped)
+            target = read_topic(rec, args.target_topic, PoseStamped)
+            samples, notes = hand_eye_samples(robot, target, **_pairing(args))
+        else:
+            samples = load_pose_pairs(args.data, length_unit="mm" if args.mm else None)
+        n = len(samples.T_base_tcp)
+        if n < 3:
+            raise CalibrationInputError(
+                f"{n} pose pair(s): hand-eye calibration needs at least 3 (better 10-15, rotated about different axes)"
+            )
+        setup = check_setup(args.setup or samples.setup or "eye_in_hand")
+        noise = None
+        if args.robot_noise or args.camera_noise:
+            if not args.camera_noise:
+                raise CalibrationInputError("--camera-noise is needed when a noise model is declared")
+            robot_noise = args.robot_noise or (0.0, 0.0)
+            noise = NoiseModel.isotropic(robot_noise[0], robot_noise[1], args.camera_noise[0], args.camera_noise[1])
+        solve = calibrate_robot_world if kind == "robot_world" else calibrate_hand_eye
+        result = solve(samples.T_base_tcp, samples.T_cam_target, setup=setup, noise=noise, loss=args.loss)
+        return Outcome(result, notes)
+
+    return run
+
+
+# --------------------------------------------------------------------------- Vive desk
+
+
+def _vive_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--tracker-sigma-mm", type=float, help="tracker position noise per axis (overrides the file)")
+    p.add_argument("--tracker-sigma-deg", type=float, help="tracker rotation noise (overrides the file)")
+    p.add_argument("--fixture-sigma-deg", type=float, help="fixture orientation scatter (overrides the file)")
+    p.add_argument("--contact-topic", default=DEFAULT_TOPICS["contact"], help="MCAP: PoseStamped T_desktop_tcp")
+    p.add_argument("--tracker-topic", default=DEFAULT_TOPICS["tracker"], help="MCAP: TrackerPose T_base_tracker")
+
+
+def _vive(args: argparse.Namespace) -> Outcome:
+    from plugins.solvers.vive_desk import calibrate_vive_desk, load_vive_csv, load_vive_json
+
+    notes: list[str] = []
+    suffix = _suffix(args.data)
+    if suffix == ".mcap":
+        rec = _recording(args.data)
+        contacts = read_topic(rec, args.contact_topic, PoseStamped)
+        trackers = read_topic(rec, args.tracker_topic, TrackerPose)
+        data, notes = vive_desk_data(contacts, trackers, **_pairing(args))
+    else:
+        data = load_vive_json(args.data) if suffix == ".json" else load_vive_csv(args.data)
+    nz = data.noise
+    over = {
+        "tracker_position_sigma_m": None if args.tracker_sigma_mm is None else args.tracker_sigma_mm * 1e-3,
+        "tracker_rotation_sigma_rad": None if args.tracker_sigma_deg is None else np.radians(args.tracker_sigma_deg),
+        "fixture_rotation_sigma_rad": None if args.fixture_sigma_deg is None else np.radians(args.fixture_sigma_deg),
+    }
+    if any(v is not None for v in over.values()):
+        data = replace(data, noise=replace(nz, **{k: float(v) for k, v in over.items() if v is not None}))
+    return Outcome(calibrate_vive_desk(data), notes)
+
+
+# --------------------------------------------------------------------------- TCP by camera
+
+
+def _tcp_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--camera-sigma-mm", type=float, nargs="+", metavar="MM", help="1 or 3 (per camera axis) values")
+    p.add_argument("--loss", choices=["linear", "soft_l1", "huber", "cauchy"], default="linear")
+    p.add_argument("--robot-topic", default=DEFAULT_TOPICS["robot"], help="MCAP: PoseStamped T_base_flange")
+    p.add_argument("--point-topic", default=DEFAULT_TOPICS["point"], help="MCAP: PoseStamped, TCP point in the camera")
+
+
+def _tcp(args: argparse.Namespace) -> Outcome:
+    from plugins.solvers.tcp_camera import TcpNoiseModel, calibrate_tcp_camera, load_tcp_csv, load_tcp_json
+
+    notes: list[str] = []
+    suffix = _suffix(args.data)
+    sigma = None
+    if args.camera_sigma_mm:
+        if len(args.camera_sigma_mm) not in (1, 3):
+            raise CalibrationInputError("--camera-sigma-mm takes 1 or 3 values")
+        sigma = tuple(np.broadcast_to(np.asarray(args.camera_sigma_mm, float) * 1e-3, (3,)).tolist())
+    if suffix == ".mcap":
+        rec = _recording(args.data)
+        robot = read_topic(rec, args.robot_topic, PoseStamped)
+        points = read_topic(rec, args.point_topic, PoseStamped)
+        noise = TcpNoiseModel(camera_sigma_m=sigma) if sigma else None
+        data, notes = tcp_camera_data(robot, points, noise=noise, **_pairing(args))
+    else:
+        data = load_tcp_json(args.data) if suffix == ".json" else load_tcp_csv(args.data)
+        if sigma:
+            data = replace(data, noise=replace(data.noise, camera_sigma_m=sigma))
+    return Outcome(calibrate_tcp_camera(data, loss=args.loss), notes)
+
+
+# --------------------------------------------------------------------------- kinematics
+
+
+def _kinematics_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--model", default="ur5e", help="nominal robot model: a shipped name or a model file")
+    p.add_argument("--tool-mm", type=float, nargs=3, metavar=("X", "Y", "Z"), help="nominal tool point on the flange")
+    p.add_argument("--parameterisation", choices=["dh", "mdh", "poe"], default=None, help="default: the model's")
+    p.add_argument("--noise-mm", type=float, default=0.05, help="measurement noise per axis (default 0.05)")
+    p.add_argument("--noise-deg", type=float, default=float(np.degrees(1e-4)), help="orientation noise (full pose)")
+    p.add_argument("--trust-noise", action="store_true", help="covariance from the stated noise, not the residuals")
+    p.add_argument("--holdout", type=Path, help="held-out samples (CSV) for the before/after table")
+    p.add_argument("--holdout-fraction", type=float, default=0.25, help="else this share of DATA is held out")
+    p.add_argument("--full-pose", action="store_true", help="MCAP: the measurements carry the tool orientation")
+    p.add_argument("--joints-topic", default=DEFAULT_TOPICS["joints"], help="MCAP: JointState")
+    p.add_argument("--point-topic", default=DEFAULT_TOPICS["point"], help="MCAP: PoseStamped, measured tool point")
+
+
+def _kinematics(args: argparse.Namespace) -> Outcome:
+    from engine.transforms import T_from_Rt
+    from plugins.sim.model_file import load_robot_model
+    from plugins.solvers.kinematic_calibration import KinematicCalibrationConfig, calibrate_kinematics, read_csv
+
+    notes: list[str] = []
+    if _suffix(args.data) == ".mcap":
+        rec = _recording(args.data)
+        joints = read_topic(rec, args.joints_topic, JointState)
+        points = read_topic(rec, args.point_topic, PoseStamped)
+        samples, notes = kinematic_samples(joints, points, full_pose=args.full_pose, **_pairing(args))
+    elif args.data.suffix.lower() == ".csv":
+        samples = read_csv(args.data)
+    else:
+        raise CalibrationInputError(f"{args.data}: kinematic samples are CSV (docs/kinematic_calibration.md) or MCAP")
+    holdout = read_csv(args.holdout) if args.holdout else None
+    try:
+        model = load_robot_model(args.model)
+    except (OSError, KeyError) as exc:
+        raise CalibrationInputError(f"robot model {args.model!r}: {exc}") from None
+    if args.tool_mm:
+        model = model.with_tool(T_from_Rt(np.eye(3), np.asarray(args.tool_mm) * 1e-3))
+    need = min_kinematic_samples(model.dof, samples.full_pose)
+    if samples.n_samples < need:
+        raise CalibrationInputError(
+            f"{samples.n_samples} samples: a {model.dof}-joint {'pose' if samples.full_pose else 'position'} "
+            f"calibration needs at least {need} (more equations than unknowns); 3-5x that is recommended"
+        )
+    if not (0.0 <= args.holdout_fraction < 1.0):
+        raise CalibrationInputError("--holdout-fraction must be in [0, 1)")
+    config = KinematicCalibrationConfig(
+        parameterisation=args.parameterisation,
+        noise_position_m=args.noise_mm * 1e-3,
+        noise_rotation_rad=float(np.radians(args.noise_deg)),
+        trust_noise=args.trust_noise,
+        holdout_fraction=args.holdout_fraction,
+    )
+    cal = calibrate_kinematics(model, samples, holdout=holdout, config=config)
+    text, sections = kinematic_table(cal)
+    return Outcome(cal.result, notes, text, sections, lambda d: write_kinematic_files(cal, d))
+
+
+# --------------------------------------------------------------------------- verbs
+
+Runner = Callable[[argparse.Namespace], Outcome]
+KINDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Runner]] = {
+    "handeye": (
+        "hand-eye AX=XB: T_tcp_cam (eye in hand) or T_base_cam (eye to hand)",
+        _hand_eye_options,
+        _hand_eye("hand_eye"),
+    ),
+    "robot-world": (
+        "robot-world AX=ZB: the hand-eye transform and the target (world) pose jointly",
+        _hand_eye_options,
+        _hand_eye("robot_world"),
+    ),
+    "vive-desk": ("Vive desk: T_base_desktop and T_tracker_tcp from fixture contacts", _vive_options, _vive),
+    "tcp": ("TCP point on the flange (and T_cam_base) with a fixed camera", _tcp_options, _tcp),
+    "kinematics": (
+        "kinematic (DH/MDH/POE) calibration from joint angles and measured tool points",
+        _kinematics_options,
+        _kinematics,
+    ),
+}
+
+EPILOG = """\
+DATA: a plain file (.json / .csv, formats in docs/calibration.md) or a vgr recording (.mcap): then
+the samples come from two topics (--*-topic; the defaults match recipes/calibrate_*_sim.yaml),
+paired by stamp (nearest within --max-skew-s) or by order (--pair order).
+Exit codes: 0 usable result (verdict ok / warning), 1 degenerate or failed (do not use it),
+2 bad input (missing or malformed file, NaN, mixed units, too few samples, unpaired samples)."""
+
+BAD_INPUT = (ValueError, KeyError, OSError, RecordingError, json.JSONDecodeError)
+
+
+def run_kind(args: argparse.Namespace) -> int:
+    """Run one ``vgr calibrate KIND`` invocation; returns the exit code."""
+    _, _, runner = KINDS[args.kind]
+    try:
+        outcome = runner(args)
+    except KeyError as exc:  # a field missing in a JSON file
+        print(f"bad input: {args.data}: missing field {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except BAD_INPUT as exc:
+        print(f"bad input: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    result = outcome.result
+    text = format_result(result, per_sample=not args.no_samples)
+    if outcome.extra_text:
+        text += "\n" + outcome.extra_text
+    if outcome.notes:
+        text = "\n".join(f"note: {n}" for n in outcome.notes) + "\n" + text
+    print(text)
+    if args.json:
+        Path(args.json).write_text(result.to_json(indent=1) + "\n")
+    if args.report:
+        d = write_report_dir(args.report, result, text, outcome.sections)
+        if outcome.write_files is not None:
+            outcome.write_files(d)
+        print(f"report: {d}")
+    return EXIT_USABLE if result.usable else EXIT_UNUSABLE
+
+
+def _add_kinds(parser: argparse.ArgumentParser) -> None:
+    kinds = parser.add_subparsers(dest="kind", required=True, metavar="KIND")
+    for name, (summary, add_options, _) in KINDS.items():
+        k = kinds.add_parser(
+            name, help=summary, description=summary, epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter
+        )
+        k.add_argument("data", type=Path, help="samples: .json / .csv (documented formats) or a vgr .mcap recording")
+        add_options(k)
+        k.add_argument("--report", type=Path, metavar="DIR", help="write result.json, report.txt, summary.md (+ plots)")
+        k.add_argument("--json", type=Path, metavar="OUT", help="write the CalibrationResult as JSON")
+        k.add_argument("--no-samples", action="store_true", help="leave the per-sample table out of the report")
+        k.add_argument("--pair", choices=["stamp", "order"], default="stamp", help="MCAP: how samples are paired")
+        k.add_argument("--max-skew-s", type=float, default=0.05, help="MCAP: largest stamp difference within a pair")
+        k.add_argument("--drop-unmatched", action="store_true", help="MCAP: drop samples without a partner")
+        k.set_defaults(func=run_kind)
+
+
+def add_verbs(sub: argparse._SubParsersAction) -> None:
+    """Add ``vgr calibrate`` to the vgr command line."""
+    p = sub.add_parser(
+        "calibrate",
+        help="calibrate from a sample file or a recording (handeye, robot-world, vive-desk, tcp, kinematics)",
+        description="Calibrate from a sample file or a vgr recording; `vgr calibrate KIND --help` for each kind.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    _add_kinds(p)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m plugins.solvers.calibrate_cli KIND DATA ...`` (the same as ``vgr calibrate``)."""
+    parser = argparse.ArgumentParser(
+        prog="vgr calibrate",
+        description=__doc__.split("\n")[0],
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    _add_kinds(parser)
+    args = parser.parse_args(argv)
+    return int(args.func(args))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

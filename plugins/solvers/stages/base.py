@@ -1,0 +1,165 @@
+"""What every calibration solver stage shares: sample buffers, when to solve, what to publish.
+
+A subclass declares its data ports (``DATA_PORTS``, plus the ``solve`` trigger port every solver has),
+and implements :meth:`CalibrationStage.calibrate` (messages -> CalibrationResult, notes) and
+:meth:`CalibrationStage.transforms` (which estimated transforms go downstream, with frame names).
+
+* Messages of the data ports are kept in arrival order (per port: publication order).
+* A message on ``solve`` calibrates from everything received so far; so does the end of all inputs
+  (``finish``) when ``solve_on_finish`` and samples arrived since the last solve (or none was made).
+  The engine orders messages within a port, not across ports, so a ``solve`` whose ``args`` carry
+  ``total_samples`` (as ``calibration_poses``' ``done`` does) waits until every data port has
+  received that many messages; if some never come (a missed detection), the end of input solves.
+* Output ``result`` (CalibrationResultMsg: verdict, reasons, metrics, the full result as JSON) is
+  published every time. Output ``transform`` carries the calibrated transforms **only when the
+  verdict is usable** (ok / warning): a degenerate or failed calibration never goes downstream as a
+  transform (DESIGN safety rule); it raises a ``warning`` event with the reasons instead.
+* Bad input (unpaired samples, NaN, too few samples, mixed units) does not raise: it becomes a
+  ``failed`` result whose reason starts with "bad input".
+* Results are stamped with the newest sample's stamp, so a replay reproduces them exactly.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar, Literal
+
+import numpy as np
+from pydantic import Field
+
+from engine.messages import CalibrationResultMsg, Message, Transform
+from engine.stage import Stage, StageParams
+from plugins.solvers.calibration_result import CalibrationResult
+
+SOLVE_PORT = "solve"
+
+
+class PairingParams(StageParams):
+    """Parameters every calibration stage has: pairing of its two sample streams, when to solve."""
+
+    pair: Literal["stamp", "order"] = Field("stamp", description="pair samples by nearest stamp or by order")
+    max_skew_s: float | None = Field(0.05, ge=0.0, description="largest stamp difference within a pair")
+    drop_unmatched: bool = Field(True, description="drop samples without a partner (a warning) instead of failing")
+    solve_on_finish: bool = Field(True, description="calibrate when all inputs have ended")
+
+
+def result_message(result: CalibrationResult, stamp_ns: int) -> CalibrationResultMsg:
+    """The wire form of *result*; its named transforms are included only when the result is usable."""
+    transforms = (
+        {k: v for k, v in result.estimate.items() if isinstance(v, np.ndarray) and v.shape == (4, 4)}
+        if result.usable
+        else {}
+    )
+    metrics = {k: float(v) for k, v in result.metrics.items() if isinstance(v, int | float)}
+    return CalibrationResultMsg(
+        kind=result.kind,
+        verdict=result.verdict,
+        method=result.method,
+        reasons=list(result.reasons),
+        transforms=transforms,
+        metrics=metrics,
+        result_json=result.to_json(),
+        stamp_ns=stamp_ns,
+    )
+
+
+class CalibrationStage(Stage):
+    """Base of the calibration solver stages (see the module docstring)."""
+
+    role = "solver"
+    KIND: ClassVar[str] = ""
+    DATA_PORTS: ClassVar[tuple[str, ...]] = ()
+    outputs: ClassVar = {"result": CalibrationResultMsg, "transform": Transform}
+    Params: ClassVar[type[StageParams]] = PairingParams
+
+    def setup(self) -> None:
+        self.buffers: dict[str, list[Any]] = {p: [] for p in self.DATA_PORTS}
+        self._new_samples = False
+        self._waiting: tuple[int, str] | None = None  # a solve waiting for (samples per port, why)
+        self.solves = 0
+
+    def on_message(self, port: str, msg: Message) -> None:
+        if port == SOLVE_PORT:
+            why = f"solve trigger {msg.seq}"
+            total = getattr(msg, "args", {}).get("total_samples")
+            if isinstance(total, int) and not self._have(total):
+                self._waiting = (total, why)
+            else:
+                self._solve(why)
+            return
+        self.buffers[port].append(msg)
+        self._new_samples = True
+        if self._waiting is not None and self._have(self._waiting[0]):
+            self._solve(self._waiting[1])
+
+    def _have(self, n: int) -> bool:
+        return all(len(b) >= n for b in self.buffers.values())
+
+    def finish(self) -> None:
+        p: PairingParams = self.params  # type: ignore[assignment]
+        if self._waiting is not None or (p.solve_on_finish and (self._new_samples or self.solves == 0)):
+            self._solve(self._waiting[1] + ", at the end of input" if self._waiting else "end of input")
+
+    def pairing(self) -> dict[str, Any]:
+        p: PairingParams = self.params  # type: ignore[assignment]
+        return {"mode": p.pair, "max_skew_s": p.max_skew_s, "drop_unmatched": p.drop_unmatched}
+
+    # -- subclass API --------------------------------------------------------------------------
+    def calibrate(self) -> tuple[CalibrationResult, list[str]]:
+        """Calibrate from ``self.buffers``; returns the result and notes about the input.
+        Raise ValueError for bad input (it becomes a failed result)."""
+        raise NotImplementedError
+
+    def transforms(self, result: CalibrationResult) -> list[tuple[np.ndarray, str, str]]:
+        """(T_parent_child, parent frame, child frame) of each transform to publish when usable."""
+        return []
+
+    def extra_outputs(self, result: CalibrationResult, stamp_ns: int) -> None:
+        """Hook for subclass-specific artefacts (reports) after a solve."""
+
+    # -- solving -------------------------------------------------------------------------------
+    def _stamp(self) -> int:
+        stamps = [m.stamp_ns for msgs in self.buffers.values() for m in msgs]
+        return max(stamps, default=0)
+
+    def _solve(self, why: str) -> None:
+        self._new_samples = False
+        self._waiting = None
+        self.solves += 1
+        counts = {p: len(m) for p, m in self.buffers.items()}
+        try:
+            result, notes = self.calibrate()
+        except ValueError as exc:
+            result = CalibrationResult(
+                kind=self.KIND,
+                verdict="failed",
+                reasons=[f"bad input: {exc}"],
+                advice=["check the wiring and the samples (see the reason)"],
+                metrics={f"n_{p}": float(n) for p, n in counts.items()},
+            )
+            notes = []
+        for note in notes:
+            self.ctx.event("warning", "calibration_input", note)
+        stamp = self._stamp()
+        self.ctx.publish("result", result_message(result, stamp))
+        if result.usable:
+            for T, parent, child in self.transforms(result):
+                self.ctx.publish("transform", Transform(frame_id=parent, child_frame_id=child, T=T, stamp_ns=stamp))
+            self.ctx.event(
+                "info",
+                "calibrated",
+                f"{self.KIND} calibration ({why}): verdict {result.verdict}",
+                verdict=result.verdict,
+                samples=counts,
+            )
+        else:
+            self.ctx.event(
+                "warning",
+                "calibration_unusable",
+                f"{self.KIND} calibration ({why}) is {result.verdict}, no transform published: "
+                + "; ".join(result.reasons[:3]),
+                verdict=result.verdict,
+                reasons=result.reasons,
+                advice=result.advice,
+                samples=counts,
+            )
+        self.extra_outputs(result, stamp)

@@ -1,0 +1,70 @@
+"""``handeye_calibration``: hand-eye (AX=XB) or robot-world (AX=ZB) calibration as a solver stage.
+
+Inputs: ``robot_pose`` (PoseStamped ``T_base_tcp`` as the robot reports it), ``target_pose``
+(PoseStamped ``T_cam_target``: the calibration target / known object seen by the camera), ``solve``.
+Samples are paired by stamp (see plugins.solvers.stages.base). Publishes the result and, when
+usable, two transforms: the hand-eye ``X`` (eye in hand: ``tcp -> camera``; eye to hand:
+``base -> camera``) and the other unknown ``Y`` (``base -> target`` or ``tcp -> target``). Frame
+names come from the messages (the robot poses' ``frame_id`` for the base, the target poses'
+``frame_id`` for the camera); ``tcp_frame`` and ``target_frame`` name the others.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar, Literal
+
+import numpy as np
+from pydantic import Field
+
+from engine.messages import PoseStamped, Request
+from plugins.solvers.calibration_inputs import CalibrationInputError, hand_eye_samples
+from plugins.solvers.calibration_result import CalibrationResult
+from plugins.solvers.handeye import NoiseModel, calibrate_hand_eye, calibrate_robot_world
+from plugins.solvers.stages.base import SOLVE_PORT, CalibrationStage, PairingParams
+
+
+class HandEyeCalibration(CalibrationStage):
+    """Hand-eye / robot-world calibration from robot poses and camera target poses (T_tcp_cam or T_base_cam)."""
+
+    type_name = "handeye_calibration"
+    KIND = "hand_eye"
+    DATA_PORTS = ("robot_pose", "target_pose")
+    inputs: ClassVar = {"robot_pose": PoseStamped, "target_pose": PoseStamped, SOLVE_PORT: Request}
+
+    class Params(PairingParams):
+        setup: Literal["eye_in_hand", "eye_to_hand"] = "eye_in_hand"
+        kind: Literal["hand_eye", "robot_world"] = Field("hand_eye", description="AX=XB or AX=ZB (Shah init)")
+        robot_noise_deg_mm: tuple[float, float] | None = Field(None, description="declared robot noise (deg, mm)")
+        camera_noise_deg_mm: tuple[float, float] | None = Field(
+            None, description="declared camera noise (deg, mm); both unset: estimated from the data"
+        )
+        loss: Literal["huber", "cauchy", "linear"] = "huber"
+        tcp_frame: str = "tcp"
+        target_frame: str = "target"
+
+    def calibrate(self) -> tuple[CalibrationResult, list[str]]:
+        p: HandEyeCalibration.Params = self.params  # type: ignore[assignment]
+        samples, notes = hand_eye_samples(self.buffers["robot_pose"], self.buffers["target_pose"], **self.pairing())
+        n = len(samples.T_base_tcp)
+        if n < 3:
+            raise CalibrationInputError(f"{n} pose pair(s): hand-eye calibration needs at least 3 (better 10-15)")
+        noise = None
+        if p.camera_noise_deg_mm is not None:
+            r = p.robot_noise_deg_mm or (0.0, 0.0)
+            noise = NoiseModel.isotropic(r[0], r[1], *p.camera_noise_deg_mm)
+        elif p.robot_noise_deg_mm is not None:
+            raise CalibrationInputError("camera_noise_deg_mm is needed when a noise model is declared")
+        solve = calibrate_robot_world if p.kind == "robot_world" else calibrate_hand_eye
+        result = solve(
+            samples.T_base_tcp, samples.T_cam_target, setup=p.setup, noise=noise, loss=p.loss, seed=self.ctx.seed
+        )
+        return result, notes
+
+    def transforms(self, result: CalibrationResult) -> list[tuple[np.ndarray, str, str]]:
+        p: HandEyeCalibration.Params = self.params  # type: ignore[assignment]
+        base = self.buffers["robot_pose"][0].frame_id or "base"
+        cam = self.buffers["target_pose"][0].frame_id or "camera"
+        e = result.estimate
+        if p.setup == "eye_in_hand":
+            return [(e["T_tcp_cam"], p.tcp_frame, cam), (e["T_base_target"], base, p.target_frame)]
+        return [(e["T_base_cam"], base, cam), (e["T_tcp_target"], p.tcp_frame, p.target_frame)]

@@ -1,0 +1,53 @@
+"""``tcp_calibration``: TCP calibration with a fixed camera (seed 002) as a solver stage.
+
+Inputs: ``robot_pose`` (PoseStamped ``T_base_flange``: the robot's reported pose of the frame the
+TCP offset is calibrated in: the flange when the robot has no tool set, else its nominal TCP),
+``point`` (PoseStamped whose translation is the TCP point seen by the camera, camera frame), and
+``solve``. Publishes the result and, when usable, ``T_base_cam`` (robot frame_id -> the points'
+frame_id) and ``T_flange_tcp`` (``flange_frame`` -> ``tcp_frame``: the calibrated TCP point with
+the flange's orientation; a point calibration does not determine the tool's orientation).
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar, Literal
+
+import numpy as np
+from pydantic import Field
+
+from engine.messages import PoseStamped, Request
+from engine.transforms import T_from_Rt
+from plugins.solvers.calibration_inputs import tcp_camera_data
+from plugins.solvers.calibration_result import CalibrationResult
+from plugins.solvers.stages.base import SOLVE_PORT, CalibrationStage, PairingParams
+from plugins.solvers.tcp_camera import TcpNoiseModel, calibrate_tcp_camera
+
+
+class TcpCalibration(CalibrationStage):
+    """TCP point on the flange (and T_base_cam) from flange poses and the TCP seen by a fixed camera."""
+
+    type_name = "tcp_calibration"
+    KIND = "tcp_camera"
+    DATA_PORTS = ("robot_pose", "point")
+    inputs: ClassVar = {"robot_pose": PoseStamped, "point": PoseStamped, SOLVE_PORT: Request}
+
+    class Params(PairingParams):
+        camera_sigma_m: tuple[float, float, float] = Field((3e-4, 3e-4, 3e-4), description="per camera axis")
+        robot_position_sigma_m: float = Field(0.0, ge=0.0)
+        robot_rotation_sigma_deg: float = Field(0.0, ge=0.0)
+        loss: Literal["linear", "soft_l1", "huber", "cauchy"] = "linear"
+        flange_frame: str = "flange"
+        tcp_frame: str = "tcp_calibrated"
+
+    def calibrate(self) -> tuple[CalibrationResult, list[str]]:
+        p: TcpCalibration.Params = self.params  # type: ignore[assignment]
+        noise = TcpNoiseModel(p.camera_sigma_m, p.robot_position_sigma_m, float(np.radians(p.robot_rotation_sigma_deg)))
+        data, notes = tcp_camera_data(self.buffers["robot_pose"], self.buffers["point"], noise=noise, **self.pairing())
+        return calibrate_tcp_camera(data, loss=p.loss), notes
+
+    def transforms(self, result: CalibrationResult) -> list[tuple[np.ndarray, str, str]]:
+        p: TcpCalibration.Params = self.params  # type: ignore[assignment]
+        base = self.buffers["robot_pose"][0].frame_id or "base"
+        cam = self.buffers["point"][0].frame_id or "camera"
+        T_flange_tcp = T_from_Rt(np.eye(3), result.estimate["p_flange_tcp"])  # the point, flange orientation
+        return [(result.estimate["T_base_cam"], base, cam), (T_flange_tcp, p.flange_frame, p.tcp_frame)]

@@ -1,0 +1,215 @@
+"""`vgr calibrate`: real MoveIt data (hand-eye, robot-world, TCP), simulated files (Vive, kinematics),
+reports, and exit codes: 0 usable, 1 degenerate / failed, 2 bad input with a clear message."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from calib_helpers import MOVEIT, MOVEIT_T_BASE_CAM_M, RECIPES, mahalanobis2, run
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from scipy.stats import chi2
+
+from engine.cli import main
+from engine.transforms import log_so3
+from plugins.solvers.handeye import simulate as he_sim
+from plugins.solvers.handeye.io import load_pose_pairs, write_pose_pairs_json
+from plugins.solvers.kinematic_calibration import write_csv
+from plugins.solvers.tcp_camera import TcpCameraData, TcpNoiseModel, save_tcp_json
+from plugins.solvers.vive_desk import save_vive_csv, save_vive_json
+from plugins.solvers.vive_desk.simulate import (
+    SEED_POINTS_3,
+    SEED_POINTS_4,
+    simulate_contacts,
+    tilted_fixture_orientations,
+)
+
+pytestmark = pytest.mark.timeout(300)
+
+
+def calibrate(*args: object) -> int:
+    return main(["calibrate", *(str(a) for a in args)])
+
+
+def within_one_percent(t: np.ndarray) -> bool:
+    return bool(np.all(np.abs(np.asarray(t) - MOVEIT_T_BASE_CAM_M) <= 0.01 * np.abs(MOVEIT_T_BASE_CAM_M)))
+
+
+# --------------------------------------------------------------------------- real data
+
+
+@pytest.mark.parametrize("kind", ["handeye", "robot-world"])
+def test_moveit_eye_to_hand_within_one_percent_with_report(kind, tmp_path, capsys):
+    out = tmp_path / "report"
+    assert calibrate(kind, MOVEIT, "--setup", "eye_to_hand", "--report", out, "--json", tmp_path / "r.json") == 0
+    text = capsys.readouterr().out
+    assert "verdict WARNING" in text and "pose-chain spread" in text and "per-sample residuals" in text
+    res = json.loads((out / "result.json").read_text())
+    assert res == json.loads((tmp_path / "r.json").read_text())
+    assert within_one_percent(np.asarray(res["estimate"]["T_base_cam"])[:3, 3])
+    md = (out / "summary.md").read_text()
+    assert "**Verdict: warning**" in md and "| T_base_cam.x | 659." in md and "| mm |" in md
+    assert (out / "report.txt").read_text().strip() == text.strip().rsplit("\nreport:", 1)[0].strip()
+
+
+def test_moveit_data_as_tcp_by_camera(tmp_path, capsys):
+    s = load_pose_pairs(MOVEIT)  # the marker origin seen by the fixed camera is the "TCP" point
+    path = tmp_path / "tcp.json"
+    save_tcp_json(
+        TcpCameraData.from_marker_poses(s.T_base_tcp, s.T_cam_target, noise=TcpNoiseModel((2.6e-3,) * 3)), path
+    )
+    assert calibrate("tcp", path, "--json", tmp_path / "r.json") == 0
+    res = json.loads((tmp_path / "r.json").read_text())
+    assert within_one_percent(np.asarray(res["estimate"]["T_base_cam"])[:3, 3])
+    text = capsys.readouterr().out
+    assert "tcp-camera calibration: verdict" in text and "p_flange_tcp.x" in text and "1 sigma" in text
+
+
+# --------------------------------------------------------------------------- simulated files
+
+
+def _vive(points=SEED_POINTS_4, orientations=3, seed=1):
+    R = tilted_fixture_orientations(30.0)[:orientations]
+    P = np.vstack([points] * orientations)
+    return simulate_contacts(P, seed=seed, R_desktop_tcp=np.repeat(R, len(points), axis=0))
+
+
+@pytest.mark.parametrize("fmt", ["json", "csv"])
+def test_vive_desk_from_a_file_recovers_the_truth(fmt, tmp_path, capsys):
+    sim = _vive()
+    path = tmp_path / f"contacts.{fmt}"
+    (save_vive_json if fmt == "json" else save_vive_csv)(sim.data, path)
+    assert calibrate("vive-desk", path, "--json", tmp_path / "r.json") == 0
+    res = json.loads((tmp_path / "r.json").read_text())
+    err = []
+    for name, truth in (("T_base_desktop", sim.T_base_desktop), ("T_tracker_tcp", sim.T_tracker_tcp)):
+        est = np.asarray(res["estimate"][name])
+        err += [*(truth[:3, 3] - est[:3, 3]), *log_so3(truth[:3, :3] @ est[:3, :3].T)]
+    assert mahalanobis2(np.array(err), np.asarray(res["covariance"])) < chi2.ppf(0.999, 12)
+    assert "T_tracker_tcp.rotvec_z" in capsys.readouterr().out
+
+
+def test_kinematics_from_a_csv_with_held_out_file(tmp_path, capsys):
+    from engine.transforms import T_from_Rt
+    from plugins.sim.model_file import load_robot_model
+    from plugins.sim.robot_effects import GeometricErrors
+    from plugins.sim.true_robot import RobotWithEffects
+    from plugins.solvers.kinematic_calibration import KinematicSamples
+
+    nominal = load_robot_model("ur5e")
+    reflector = T_from_Rt(np.eye(3), (0.03, -0.02, 0.12))  # off the last joint's axis, as a real SMR mount
+    truth = RobotWithEffects(
+        nominal.with_tool(reflector), [GeometricErrors(("joint2.a", "joint3.alpha"), (3e-4, 2e-4))]
+    )
+    rng = np.random.default_rng(4)
+
+    def samples(n: int) -> KinematicSamples:
+        q = rng.uniform(-np.pi, np.pi, (n, 6))
+        return KinematicSamples(q, truth.fk(q)[:, :3, 3] + rng.normal(0, 5e-5, (n, 3)))
+
+    write_csv(samples(60), tmp_path / "cal.csv")
+    write_csv(samples(40), tmp_path / "hold.csv")
+    out = tmp_path / "rep"
+    assert calibrate("kinematics", tmp_path / "cal.csv", "--holdout", tmp_path / "hold.csv", "--report", out) == 0
+    text = capsys.readouterr().out
+    assert "kinematic calibration: verdict OK" in text and "held-out" in text
+    res = json.loads((out / "result.json").read_text())
+    assert res["metrics"]["holdout_rms_after_mm"] / math.sqrt(3) < 1.3 * 0.05
+    assert (out / "convergence.png").stat().st_size > 10_000 and (out / "before_after.txt").is_file()
+
+
+# --------------------------------------------------------------------------- exit code 1
+
+
+def test_degenerate_data_exit_one(tmp_path, capsys):
+    scene = he_sim.viewing_scene(np.random.default_rng(30), 12, "eye_in_hand", max_tilt_deg=0.0, max_roll_deg=60.0)
+    write_pose_pairs_json(tmp_path / "rolls.json", scene.T_base_tcp, scene.T_cam_target, setup="eye_in_hand")
+    assert calibrate("handeye", tmp_path / "rolls.json") == 1
+    text = capsys.readouterr().out
+    assert "verdict DEGENERATE" in text and "advice:" in text
+    save_vive_json(_vive(orientations=1).data, tmp_path / "one.json")
+    assert calibrate("vive-desk", tmp_path / "one.json") == 1
+    text = capsys.readouterr().out
+    assert "verdict DEGENERATE (NOT usable" in text and "two more fixture orientations" in text
+    assert calibrate("handeye", MOVEIT, "--setup", "eye_in_hand", "--no-samples") == 1  # wrong set-up: failed
+
+
+# --------------------------------------------------------------------------- exit code 2
+
+
+@pytest.fixture(scope="module")
+def tcp_recording(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("rec") / "tcp.mcap"
+    summary, _ = run(RECIPES / "calibrate_tcp_sim.yaml", record=path)
+    assert summary.ok
+    return path
+
+
+def _write(tmp_path: Path, name: str, text: str) -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def bad_inputs(tmp_path: Path, rec: Path) -> list[tuple[list[object], str]]:
+    sim = _vive(points=SEED_POINTS_3[:2], orientations=1)
+    save_vive_json(sim.data, tmp_path / "two_points.json")
+    write_pose_pairs_json(
+        tmp_path / "two.json", *[load_pose_pairs(MOVEIT).T_base_tcp[:2], load_pose_pairs(MOVEIT).T_cam_target[:2]]
+    )
+    nan = json.loads(MOVEIT.read_text())
+    nan[4][0][1][3] = float("nan")
+    (tmp_path / "nan.json").write_text(json.dumps(nan))
+    header = "q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm\n"
+    rows = "".join(f"{10 * k},{-20 + k},{30},{k},{5 * k},{-k},{400 + k},{100 - k},{300 + 2 * k}\n" for k in range(5))
+    metres = "".join(f"{10 * k},{-20 + k},30,{k},{5 * k},{-k},0.4{k},0.1{k},0.3{k}\n" for k in range(12))
+    garbage = _write(tmp_path, "garbage.mcap", "not an mcap file")
+    return [
+        (["handeye", tmp_path / "missing.json"], "no such file"),
+        (["handeye", _write(tmp_path, "poses.txt", "1 2 3")], "unsupported file type '.txt'"),
+        (["handeye", _write(tmp_path, "wrong.json", '{"format": "something/9"}')], "unknown JSON format"),
+        (["handeye", _write(tmp_path, "cols.csv", "id,x,y\n1,2,3\n")], "missing columns"),
+        (["handeye", tmp_path / "nan.json"], "NaN"),
+        (["handeye", tmp_path / "two.json"], "2 pose pair(s): hand-eye calibration needs at least 3"),
+        (["handeye", MOVEIT, "--setup", "eye_to_hand", "--mm"], "millimetres"),
+        (["vive-desk", tmp_path / "two_points.json"], "at least 3 distinct contact points"),
+        (["vive-desk", _write(tmp_path, "v.json", '{"contacts": [{"label": "P1"}]}')], "missing field 'desk_point'"),
+        (["tcp", _write(tmp_path, "t.json", '{"format": "vgr.tcp_camera/1", "samples": []}')], "no samples"),
+        (["kinematics", _write(tmp_path, "k.csv", header + rows)], "5 samples: a 6-joint position calibration needs at least 10"),
+        (["kinematics", _write(tmp_path, "k.json", "{}")], "CSV"),
+        (["kinematics", _write(tmp_path, "m.csv", header + metres)], "they look like metres"),
+        (["tcp", rec, "--point-topic", "/nope"], "no topic '/nope' (topics with PoseStamped messages: "),
+        (["tcp", rec, "--point-topic", "/poses/joint_state"], "carries JointState messages, not PoseStamped"),
+        (["handeye", rec], "no topic '/target/pose'"),
+        (["tcp", rec, "--point-topic", "/poses/point", "--robot-topic", "/robot/tcp_pose", "--pair", "order"], "pairing by order needs equal counts"),
+        (["tcp", rec, "--robot-topic", "/robot/tcp_pose", "--max-skew-s", "0"], "have no camera points within 0"),
+        (["tcp", garbage], "garbage.mcap"),
+    ]  # fmt: skip
+
+
+def test_bad_input_exits_two_with_a_clear_message(tmp_path, tcp_recording, capsys):
+    for args, message in bad_inputs(tmp_path, tcp_recording):
+        code = calibrate(*args)
+        err = capsys.readouterr().err
+        assert code == 2, (args, err)
+        assert err.startswith("bad input: ") and message in err, (args, err)
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.data())
+def test_nan_or_infinity_anywhere_in_a_file_is_bad_input(tmp_path, capsys, data):
+    s = load_pose_pairs(MOVEIT)
+    path = tmp_path / "tcp.json"
+    save_tcp_json(TcpCameraData.from_arrays(s.T_base_tcp[:12], s.T_cam_target[:12, :3, 3]), path)
+    doc = json.loads(path.read_text())
+    k = data.draw(st.integers(0, 11))
+    field = data.draw(st.sampled_from(["flange_position", "flange_quat_xyzw", "p_cam"]))
+    i = data.draw(st.integers(0, len(doc["samples"][k][field]) - 1))
+    doc["samples"][k][field][i] = data.draw(st.sampled_from([float("nan"), float("inf"), -float("inf")]))
+    path.write_text(json.dumps(doc))
+    assert calibrate("tcp", path) == 2
+    assert "bad input" in capsys.readouterr().err
