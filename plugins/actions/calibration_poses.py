@@ -43,7 +43,7 @@ from engine.messages import JointState, PointCloud, PoseStamped, Request, RobotC
 from engine.stage import ServiceError, ServiceSpec, Stage, StageParams
 from engine.transforms import T_from_Rt
 from plugins.interfaces import CAMERA_CAPTURE, ROBOT_MOVE, TRACKER_SAMPLE
-from plugins.sim.stages.params import PoseSpec
+from plugins.params import PoseSpec
 
 
 class _Strict(BaseModel):

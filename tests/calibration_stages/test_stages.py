@@ -116,7 +116,7 @@ def test_vive_to_desktop_with_a_saved_calibration_tracks_the_tcp_in_the_desk_fra
     poses = live[("desktop", "pose")]
     assert len(poses) == 20  # a reading that arrived before the calibration waited, none lost
     from engine.transforms import inv
-    from plugins.sim.stages.params import PoseSpec
+    from plugins.params import PoseSpec
 
     T_desk_tcp = (
         inv(PoseSpec(xyz_m=(-0.40, 0.05, 0.05), rpy_deg=(0, 0, 180)).T())

@@ -27,7 +27,7 @@ from pydantic import Field
 from engine.messages import PoseStamped, Request, RobotReply
 from engine.stage import ServiceSpec, Stage, StageParams
 from engine.transforms import T_from_Rt, exp_so3, inv
-from plugins.sim.stages.params import PoseSpec
+from plugins.params import PoseSpec
 
 POINT_MEASURE = ServiceSpec(Request, PoseStamped)  # what a stage that uses the instrument declares
 

@@ -37,7 +37,7 @@ from pydantic import Field
 from engine.messages import PointCloud, PoseStamped
 from engine.stage import Stage, StageParams
 from engine.transforms import inv
-from plugins.sim.stages.params import PoseSpec
+from plugins.params import PoseSpec
 from plugins.solvers.registration import FineParams, GlobalParams, prepare_cloud, register_fine, register_global
 
 

@@ -29,7 +29,7 @@ from pydantic import Field
 
 from engine.messages import Blob, CalibrationResultMsg, PoseStamped, Request, TrackerPose
 from engine.stage import Stage, StageParams
-from plugins.sim.stages.params import PoseSpec
+from plugins.params import PoseSpec
 from plugins.solvers.calibration_inputs import vive_desk_data
 from plugins.solvers.calibration_result import CalibrationResult
 from plugins.solvers.stages.base import SOLVE_PORT, CalibrationStage, PairingParams
