@@ -153,12 +153,11 @@ class Runner:
 
     # -- callbacks from runtimes -------------------------------------------------------------
     def note_event(self, ev: Event) -> None:
-        if ev.level in ("warning", "error", "alarm"):
+        if ev.level in ("result", "warning", "error", "alarm"):
             with self._events_lock:
                 self.events.append(ev)
-            logging.getLogger(f"vgr.stage.{ev.stage}").log(
-                logging.WARNING if ev.level == "warning" else logging.ERROR, "[%s] %s", ev.code, ev.message
-            )
+            level = {"result": logging.INFO, "warning": logging.WARNING}.get(ev.level, logging.ERROR)
+            logging.getLogger(f"vgr.stage.{ev.stage}").log(level, "[%s] %s", ev.code, ev.message)
 
     def stage_done(self, rt: StageRuntime) -> None:
         self._progress.set()
@@ -293,7 +292,7 @@ class Runner:
             time.sleep(0.05)
 
     def _local_driven_done(self) -> bool:
-        return all(rt.data_done.is_set() for rt in self.runtimes.values() if rt.driven)
+        return all(rt.data_done.is_set() or rt.waits_only_on_undriven() for rt in self.runtimes.values() if rt.driven)
 
     def _remote_active(self) -> bool:
         if not self.multi_process:

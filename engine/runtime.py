@@ -231,6 +231,15 @@ class StageRuntime(StageContext):
     def driven(self) -> bool:
         return self.name in self.runner.driven
 
+    def waits_only_on_undriven(self) -> bool:
+        """True when every input still open comes from a stage nothing drives (a device's truth
+        stream, say): those end only when the run ends, so this stage must not hold the run open."""
+        pending = set(self.pending_inputs)
+        if not pending:
+            return False
+        srcs = {e.dst_port: e.src for e in self.runner.graph.inputs_of(self.name)}
+        return all(srcs.get(port) not in self.runner.driven for port in pending)
+
     def start_threads(self) -> None:
         for port, box in self.inboxes.items():
             self._spawn(f"{self.name}.{port}", self._input_pump, port, box)
