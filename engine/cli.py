@@ -64,6 +64,11 @@ def _stats_table(stats: Sequence[StageStats], title: str) -> Table:
 def print_summary(summary: RunSummary) -> None:
     out.print(_stats_table(summary.stages, f"run {summary.run_id} ({summary.process}) in {summary.wall_s:.2f} s"))
     for ev in summary.events:
+        if ev.level == "result":  # a stage's report for people: its text, then the files it wrote
+            out.print(f"[bold green]{ev.stage}[/]: {escape(ev.message)}", soft_wrap=True, highlight=False)
+            for label, path in (ev.details.get("files") or {}).items():
+                out.print(f"  {label}: {escape(str(path))}", highlight=False, soft_wrap=True)
+            continue
         colour = "yellow" if ev.level == "warning" else "red"
         out.print(f"[{colour}]{ev.level}[/] {ev.stage}: {escape(f'[{ev.code}] {ev.message}')}", soft_wrap=True)
         if ev.traceback and ev.level in ("error", "alarm"):

@@ -542,7 +542,8 @@ class TrackerPose(Message):
         )
 
 
-EVENT_LEVELS = ("debug", "info", "warning", "error", "alarm")
+# "result": what a person should read at the end of the run (a verdict, a table); kept in the summary
+EVENT_LEVELS = ("debug", "info", "result", "warning", "error", "alarm")
 
 
 @dataclass(kw_only=True, eq=False)

@@ -101,7 +101,10 @@ class StageContext:
         raise NotImplementedError
 
     def event(self, level: str, code: str, message: str, **details: Any) -> None:
-        """Publish an Event (debug/info/warning/error/alarm) on this stage's ``events`` port."""
+        """Publish an Event (debug/info/result/warning/error/alarm) on this stage's ``events`` port.
+
+        ``result`` is the stage's report for people (kept in the run summary, printed by ``vgr run``);
+        ``details["files"]`` may name the files it wrote ({label: path})."""
         raise NotImplementedError
 
     @property

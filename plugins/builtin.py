@@ -12,6 +12,7 @@ def vgr_stage_types() -> list[type]:
     from plugins.actions.capture import CaptureAtPose
     from plugins.actions.docking import Docking, DualDocking
     from plugins.actions.guidance import Guidance
+    from plugins.actions.guidance_report import GuidanceReport
     from plugins.actions.ur_robot import URRobot
     from plugins.sensors.file_camera import FileCamera
     from plugins.sensors.realsense_camera import RealSenseCamera
@@ -44,7 +45,7 @@ def vgr_stage_types() -> list[type]:
         KinematicCalibrationStage,
         CalibrationFile,
     ]
-    actions = [CaptureAtPose, Guidance, Docking, DualDocking]
+    actions = [CaptureAtPose, Guidance, Docking, DualDocking, GuidanceReport]
     return [SyntheticCloud, TransformCloud, CloudStats, Trigger, *sim, *actions, Matcher, *devices, *calibration]
 
 

@@ -73,7 +73,7 @@ class DockingEvaluator(Stage):
             if result.get("error_mm") is not None
             else f"not docked: {result['reason']}"
         )
-        self.ctx.event("info", "docking_evaluation", text, **result)
+        self.ctx.event("result", "docking_evaluation", f"truth: {text}", **result)
 
     def evaluate(self) -> dict[str, object]:
         p: DockingEvaluator.Params = self.params  # type: ignore[assignment]
