@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | sha1sum | cut -c1-12)
 
-.PHONY: install sysdeps demo test lint bench golden clean
+.PHONY: templates install sysdeps demo test lint bench golden clean
 
 install: $(STAMP)
 
@@ -41,6 +41,15 @@ golden: install
 	$(BIN)/vgr run recipes/demo.yaml -p source.n_points=400 -p source.frames=10 --record recordings/demo.mcap --no-progress
 	$(BIN)/vgr run recipes/sim_capture.yaml -p camera.intrinsics.width=160 -p camera.intrinsics.height=120 \
 	  -p camera.publish_depth=false -p start.count=2 --record recordings/sim_capture.mcap --no-progress
+
+# Teach the guidance scenarios: run each teach recipe, make its matcher template from the capture.
+TEACH := eye_in_hand eye_to_hand
+templates: install
+	@mkdir -p runs
+	@for t in $(TEACH); do \
+	  $(BIN)/vgr run recipes/teach/$${t}_teach.yaml --record runs/teach_$$t.mcap --no-progress && \
+	  $(BIN)/vgr template make --from-recording runs/teach_$$t.mcap --name $$t -o recipes/templates || exit 1; \
+	done
 
 bench: install
 	$(BIN)/python benchmarks/engine_overhead.py

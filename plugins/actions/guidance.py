@@ -4,7 +4,8 @@ Per trigger: (optionally) move to the photo pose, record ``T_start``; then look 
 and while the match is not within tolerance, compute the correction step (plugins.actions.
 guidance_math), check it against the limits, move, and look again — at most ``max_iterations``
 moves. The result (``T_start``, ``T_end``, residual per look, verdict) goes out on ``result`` for
-the docking stage.
+the docking stage, then a ``done`` request that can trigger a second guidance stage (dual docking:
+the eye-in-hand look at the target first, then the eye-to-hand look at the gripped part).
 
 Safety (DESIGN.md): no motion from a failed or ambiguous match, a NaN anywhere, a step or a total
 correction beyond the limits, or a refused/unanswered robot; each ends the run with an ``alarm``
@@ -49,7 +50,7 @@ class Guidance(Stage):
     type_name = "guidance"
     role = "action"
     inputs: ClassVar = {"trigger": Request}
-    outputs: ClassVar = {"result": GuidanceResult}
+    outputs: ClassVar = {"result": GuidanceResult, "done": Request}  # done: chains a second guidance (dual)
     uses: ClassVar = {
         "robot": ROBOT_MOVE,
         "state": ServiceSpec(Request, RobotReply, "robot.state (needed when there is no photo_pose)", optional=True),
@@ -143,6 +144,7 @@ class Guidance(Stage):
             result.reasons.append(str(stop))
             self.ctx.event("alarm", stop.code, str(stop), job=job, moves=result.moves)
         self.ctx.publish("result", result)
+        self.ctx.publish("done", Request(command="guidance_done", args={"job": job, "verdict": result.verdict}))
 
     def _run(self, job: int, result: GuidanceResult) -> None:
         p: Guidance.Params = self.params  # type: ignore[assignment]
