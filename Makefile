@@ -28,7 +28,7 @@ $(STAMP): pyproject.toml | sysdeps
 	@rm -f $(VENV)/.installed-* && touch $@
 
 demo: install
-	$(BIN)/vgr run recipes/sim_capture.yaml
+	$(BIN)/vgr run recipes/eye_in_hand_dock.yaml
 
 test: install
 	$(BIN)/python -m pytest
@@ -41,6 +41,8 @@ golden: install
 	$(BIN)/vgr run recipes/demo.yaml -p source.n_points=400 -p source.frames=10 --record recordings/demo.mcap --no-progress
 	$(BIN)/vgr run recipes/sim_capture.yaml -p camera.intrinsics.width=160 -p camera.intrinsics.height=120 \
 	  -p camera.publish_depth=false -p start.count=2 --record recordings/sim_capture.mcap --no-progress
+	@for r in eye_in_hand_dock eye_to_hand_dock dual_dock; do \
+	  $(BIN)/vgr run recipes/$$r.yaml --record recordings/$$r.mcap --no-progress || exit 1; done
 
 # Teach the guidance scenarios: run each teach recipe, make its matcher template from the capture.
 TEACH := eye_in_hand eye_to_hand

@@ -23,7 +23,7 @@ import struct
 from enum import IntEnum
 from typing import NamedTuple
 
-from engine.messages import BUILTIN_MESSAGE_TYPES, Message
+from engine.messages import BUILTIN_MESSAGE_TYPES, WIRE_CACHE, Message
 from engine.schemas import SCHEMA_VERSION, proto_class
 
 __all__ = [
@@ -140,7 +140,8 @@ def _read_varint(buf: memoryview, pos: int) -> tuple[int, int]:
 
 def encode_payload(msg: Message) -> bytes:
     """Protobuf bytes of *msg* (bulk array appended as its length-delimited field)."""
-    pb, bulk = msg.to_proto()
+    wire = msg.__dict__.get(WIRE_CACHE)  # a published message carries the protobuf it was rebuilt from
+    pb, bulk = wire if wire is not None else msg.to_proto()
     head = pb.SerializeToString(deterministic=True)
     if bulk is None or msg.BULK is None:
         return head

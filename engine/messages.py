@@ -78,6 +78,10 @@ class Message:
     TYPE: ClassVar[str] = "Message"
     SCHEMA: ClassVar[str] = ""
     BULK: ClassVar[int | None] = None  # protobuf field number carrying the bulk array, if any
+    # True when from_proto(to_proto(m)) reproduces m bit for bit (raw arrays, strings, JSON): publish
+    # then hands the object over as is. False (poses travel as quaternions, which round by an ulp):
+    # publish hands over the wire form, so a local consumer, a remote one and a replay see the same.
+    WIRE_EXACT: ClassVar[bool] = False
 
     stamp_ns: int = 0
     seq: int = 0
@@ -101,6 +105,23 @@ class Message:
         return pb_cls()
 
 
+WIRE_CACHE = "_wire"  # attribute holding (protobuf, bulk) of a canonical message; see canonical()
+
+
+def canonical(msg: Message) -> Message:
+    """*msg* as a receiver on the wire (or a replay of the recording) sees it: for types that are
+    not ``WIRE_EXACT``, rebuilt from its protobuf form (no serialisation; the bulk buffer is shared)."""
+    if msg.WIRE_EXACT:
+        return msg
+    pb, bulk = msg.to_proto()
+    new = type(msg).from_proto(pb, bulk)
+    new.seq = msg.seq
+    # the wire form itself travels along: a quaternion -> matrix -> quaternion round trip is not
+    # always a fixed point, so re-encoding `new` could give other bytes than the ones it came from
+    new.__dict__[WIRE_CACHE] = (pb, bulk)
+    return new
+
+
 def freeze(msg: Message) -> Message:
     """Make *msg* safe to hand to several consumers: its numpy arrays become read-only.
 
@@ -112,6 +133,7 @@ def freeze(msg: Message) -> Message:
     if msg.seq:
         new = object.__new__(type(msg))
         new.__dict__.update(msg.__dict__)
+        new.__dict__.pop(WIRE_CACHE, None)  # a re-published message may have been changed: encode it anew
         msg = new
     for v in msg.__dict__.values():
         if isinstance(v, np.ndarray) and v.flags.writeable:
@@ -128,6 +150,7 @@ class PointCloud(Message):
     ``normals`` (N, 3) of the same dtype and ``colors`` (N, 3) uint8. Schema foxglove.PointCloud."""
 
     TYPE: ClassVar[str] = "PointCloud"
+    WIRE_EXACT: ClassVar[bool] = True
     SCHEMA: ClassVar[str] = "foxglove.PointCloud"
     BULK: ClassVar[int | None] = 6
 
@@ -235,6 +258,7 @@ class Image(Message):
     invalid pixels. Schema foxglove.RawImage."""
 
     TYPE: ClassVar[str] = "Image"
+    WIRE_EXACT: ClassVar[bool] = True
     SCHEMA: ClassVar[str] = "foxglove.RawImage"
     BULK: ClassVar[int | None] = 6
 
@@ -484,6 +508,7 @@ class Blob(Message):
     """Opaque bytes (transport benchmarks, file contents). Schema vgr.v1.Blob."""
 
     TYPE: ClassVar[str] = "Blob"
+    WIRE_EXACT: ClassVar[bool] = True
     SCHEMA: ClassVar[str] = "vgr.v1.Blob"
     BULK: ClassVar[int | None] = 4
 
@@ -777,6 +802,7 @@ class Request(Message):
     """A generic service request: a command word and JSON arguments."""
 
     TYPE: ClassVar[str] = "Request"
+    WIRE_EXACT: ClassVar[bool] = True
     SCHEMA: ClassVar[str] = "vgr.v1.Request"
 
     command: str = ""

@@ -27,7 +27,7 @@ from engine import codec
 from engine.clock import SimClock
 from engine.diff import DIFFERENT, StreamVerdict, compare_stream
 from engine.graph import Graph, StageNode, build_graph
-from engine.messages import Event, Message, freeze
+from engine.messages import Event, Message, canonical, freeze
 from engine.plugin_manager import Registry, load_registry
 from engine.recipe import load_recipe
 from engine.recorder import topic_of
@@ -65,6 +65,21 @@ class ReplayReport:
         return all(v.verdict != DIFFERENT for v in (*self.streams, *self.requests))
 
 
+def _find_recipe_dir(recipe_file: str, recording: Path) -> Path | None:
+    """Folder of the recorded recipe file (relative parameter paths such as templates start there).
+
+    A relative path is tried from the working directory, then from each folder above the recording
+    (a golden recording in ``recordings/`` finds ``recipes/...`` of its checkout, wherever it is)."""
+    if not recipe_file:
+        return None
+    rel = Path(recipe_file)
+    candidates = [rel] if rel.is_absolute() else [rel, *(d / rel for d in Path(recording).resolve().parents)]
+    for c in candidates:
+        if c.is_file():
+            return c.resolve().parent
+    return None
+
+
 class _ReplayContext(StageContext):
     def __init__(self, replayer: Replayer, node: StageNode) -> None:
         self.replayer = replayer
@@ -76,7 +91,7 @@ class _ReplayContext(StageContext):
         self.clock = replayer.clock
         self.log = logging.getLogger(f"vgr.replay.{node.name}")
         recipe_file = replayer.rec.metadata.get("vgr.run", {}).get("recipe_file", "")
-        self.recipe_dir = Path(recipe_file).resolve().parent if recipe_file and Path(recipe_file).is_file() else None
+        self.recipe_dir = _find_recipe_dir(recipe_file, replayer.rec.path)
         self.seq: dict[str, int] = defaultdict(int)
         self.causal_stamp = 0
         self.failed = False
@@ -95,11 +110,13 @@ class _ReplayContext(StageContext):
             raise ValueError(f"stage {self.name!r} has no output port {port!r}")
         if not isinstance(msg, outs[port]):
             raise TypeError(f"stage {self.name!r}: port {port!r} carries {outs[port].TYPE}, got {type(msg).__name__}")
+        stamp = msg.stamp_ns or self.causal_stamp or self.clock.now_ns()
         msg = freeze(msg)
+        if msg.stamp_ns != stamp:
+            msg.stamp_ns = stamp
+        msg = canonical(msg)
         self.seq[port] += 1
         msg.seq = self.seq[port]
-        if not msg.stamp_ns:
-            msg.stamp_ns = self.causal_stamp or self.clock.now_ns()
         out = Output(msg.seq, msg.stamp_ns, msg.TYPE, codec.encode_payload(msg), msg)
         self.replayer.outputs[topic_of(self.name, port)].append(out)
 
@@ -165,11 +182,11 @@ class Replayer:
         ctx = self.contexts[provider]
         stage = self.stages[provider]
         ctx.causal_stamp = request.stamp_ns
-        try:
-            reply = stage.on_request(service, request)
+        try:  # live, both travel as bytes: the provider and the caller see their wire forms
+            reply = stage.on_request(service, canonical(request))
             if not reply.stamp_ns:
                 reply.stamp_ns = request.stamp_ns or self.clock.now_ns()
-            return reply
+            return canonical(reply)
         except Exception as exc:
             error = f"{type(exc).__name__}: {exc}"
             ctx.event("error", "service_exception", f"{service}: {error}")

@@ -30,7 +30,7 @@ from engine.bus import data_key, service_key
 from engine.codec import CodecError, Envelope, Kind
 from engine.graph import StageNode
 from engine.inbox import LOCAL, REMOTE, STOP, PortInbox
-from engine.messages import Event, Message, freeze
+from engine.messages import Event, Message, canonical, freeze
 from engine.stage import EVENTS_PORT, ServiceError, ServiceTimeoutError, Stage, StageContext, stage_rng
 
 if TYPE_CHECKING:
@@ -145,15 +145,17 @@ class StageRuntime(StageContext):
             raise ValueError(f"stage {self.name!r} has no output port {port!r} (outputs: {outs})")
         if not isinstance(msg, out.type):
             raise TypeError(f"stage {self.name!r}: port {port!r} carries {out.type.TYPE}, got {type(msg).__name__}")
+        stamp = msg.stamp_ns or getattr(self._causal, "stamp", 0) or self.clock.now_ns()
         msg = freeze(msg)
+        if msg.stamp_ns != stamp:
+            msg.stamp_ns = stamp
+        msg = canonical(msg)  # what a remote consumer and a replay will see (stamp included)
         observers = self.runner.observers
         with out.lock:
             if out.closed:
                 raise RuntimeError(f"stage {self.name!r}: port {port!r} has already ended")
             out.seq += 1
             msg.seq = out.seq
-            if not msg.stamp_ns:
-                msg.stamp_ns = getattr(self._causal, "stamp", 0) or self.clock.now_ns()
             env = Envelope(Kind.DATA, msg.seq, msg.stamp_ns, msg.TYPE)
             if out.needs_bytes(observers):
                 payload, att = codec.encode_payload(msg), codec.encode_envelope(env)

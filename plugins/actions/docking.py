@@ -130,10 +130,12 @@ class Docking(_DockingBase):
             self._refuse(msg.job, "guidance_not_usable", problem)
             return
         T_install = p.install_pose.T()
-        if p.mode == "eye_in_hand":
-            T_corrected = gm.dock_eye_in_hand(msg.T_start, msg.T_end, T_install)
-        else:
-            T_corrected = gm.dock_eye_to_hand(msg.T_start, msg.T_end, T_install)
+        formula = gm.dock_eye_in_hand if p.mode == "eye_in_hand" else gm.dock_eye_to_hand
+        try:
+            T_corrected = formula(msg.T_start, msg.T_end, T_install)
+        except ValueError as exc:  # NaN or a non-rigid pose in the guidance result
+            self._refuse(msg.job, "nan" if "NaN" in str(exc) else "invalid_pose", f"cannot correct: {exc}")
+            return
         self._dock(msg.job, T_corrected)
 
 
@@ -155,7 +157,11 @@ class DualDocking(_DockingBase):
                 self._refuse(g2.job, "guidance_not_usable", problem)
                 continue
             p: DualDocking.Params = self.params  # type: ignore[assignment]
-            T_corrected = gm.dock_dual(g1.T_start, g1.T_end, p.install_pose.T(), g2.T_start, g2.T_end)
+            try:
+                T_corrected = gm.dock_dual(g1.T_start, g1.T_end, p.install_pose.T(), g2.T_start, g2.T_end)
+            except ValueError as exc:  # NaN or a non-rigid pose in a guidance result
+                self._refuse(g2.job, "nan" if "NaN" in str(exc) else "invalid_pose", f"cannot correct: {exc}")
+                continue
             self._dock(g2.job, T_corrected)
 
     def finish(self) -> None:
