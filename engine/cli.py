@@ -240,6 +240,7 @@ VERB_MODULES: list[str] = [
     "engine.cli_recording",
     "plugins.solvers.registration.cli",
     "plugins.solvers.calibrate_cli",
+    "plugins.actions.teach_cli",
 ]
 
 

@@ -1,0 +1,194 @@
+"""``vgr teach photo|install RECIPE``: store the robot's current pose as the recipe's taught pose.
+
+The technician jogs the robot to the photo (or install) pose and runs the verb. It starts the
+recipe's robot stage alone (the stage wired to the guidance's ``robot`` client, or ``--robot``),
+asks its ``state`` service for ``T_base_tcp`` and writes it into the recipe in place: the value of
+``vars.photo_pose`` / ``vars.install_pose`` if the recipe has that variable, else the
+``photo_pose`` / ``install_pose`` parameter of the guidance / docking stage. Only that value's text
+changes; comments and layout are kept, and the old value is printed. ``--pose x,y,z,rx,ry,rz``
+(m, rotation vector rad; the UR pendant's notation) stores a pose read elsewhere instead.
+
+Teaching a new photo pose invalidates the matcher template (captured at the old one): the verb
+says so. Nothing moves the robot.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from rich.console import Console
+
+from engine.clock import SimClock
+from engine.errors import RecipeError
+from engine.messages import Event, Message, Request
+from engine.plugin_manager import load_registry
+from engine.recipe import load_recipe
+from engine.stage import StageContext, stage_rng
+from engine.transforms import T_from_ur, as_transform
+
+out = Console()
+EXIT_OK, EXIT_FAILED, EXIT_INVALID = 0, 1, 2
+WHAT = {"photo": ("photo_pose", "guidance"), "install": ("install_pose", ("docking", "dual_docking"))}
+
+
+class TeachError(Exception):
+    """The pose cannot be taught (bad recipe, no robot, robot did not answer)."""
+
+
+class _QuietContext(StageContext):
+    """Enough engine for one device stage answering ``state``: no bus, publications dropped."""
+
+    def __init__(self, name: str, seed: int, recipe_dir: Path) -> None:
+        self.name, self.run_id, self.seed = name, "teach", seed
+        self.rng = stage_rng(seed, name)
+        self.clock = SimClock()
+        self.log = logging.getLogger(f"vgr.teach.{name}")
+        self.recipe_dir = recipe_dir
+
+    def publish(self, port: str, msg: Message) -> None:
+        pass
+
+    def event(self, level: str, code: str, message: str, **details: Any) -> None:
+        if level in ("warning", "error", "alarm"):
+            out.print(f"[yellow]{level}[/] {self.name}: {Event(message=message).message}", highlight=False)
+
+    def call(self, client: str, request: Message, timeout_s: float = 10.0) -> Message:
+        raise TeachError(f"the robot stage {self.name!r} needs service {client!r} to report its state")
+
+    def has_client(self, client: str) -> bool:
+        return False
+
+    @property
+    def stopping(self) -> bool:
+        return False
+
+    def sleep(self, seconds: float) -> bool:
+        return self.clock.sleep(seconds)
+
+
+def _stage_of(doc: dict[str, Any], types: str | tuple[str, ...]) -> str | None:
+    wanted = (types,) if isinstance(types, str) else types
+    names = [n for n, s in (doc.get("stages") or {}).items() if isinstance(s, dict) and s.get("type") in wanted]
+    if len(names) > 1:
+        raise TeachError(f"several {'/'.join(wanted)} stages ({', '.join(names)}): say which with --stage")
+    return names[0] if names else None
+
+
+def robot_pose(recipe: Path, robot: str | None) -> np.ndarray:
+    """T_base_tcp reported by the recipe's robot stage (started alone, then closed)."""
+    loaded = load_recipe(str(recipe))
+    doc = loaded.recipe
+    if robot is None:
+        users = [s for s in doc.stages.values() if "robot" in s.uses]
+        if not users:
+            raise TeachError("no stage uses a robot: name the robot stage with --robot")
+        robot = users[0].uses["robot"].split(".")[0]
+    if robot not in doc.stages:
+        raise TeachError(f"no stage {robot!r} in {recipe} (stages: {', '.join(doc.stages)})")
+    spec = doc.stages[robot]
+    cls = load_registry(doc.plugins).stage(spec.type)
+    if "state" not in cls.services:
+        raise TeachError(f"stage {robot!r} ({spec.type}) has no state service")
+    stage = cls(_QuietContext(robot, doc.seed, recipe.resolve().parent), cls.Params(**spec.params))
+    stage.setup()
+    try:
+        reply = stage.on_request("state", Request(command="teach"))
+    finally:
+        stage.teardown()
+    if not getattr(reply, "ok", False) or reply.T is None:
+        raise TeachError(f"the robot did not report its pose: {getattr(reply, 'error', '')}")
+    return as_transform(reply.T, name="T_base_tcp")
+
+
+def _value_node(root: yaml.Node, path: list[str]) -> yaml.Node | None:
+    node = root
+    for key in path:
+        if not isinstance(node, yaml.MappingNode):
+            return None
+        node = next((v for k, v in node.value if isinstance(k, yaml.ScalarNode) and k.value == key), None)
+        if node is None:
+            return None
+    return node
+
+
+def pose_text(T: np.ndarray) -> str:
+    """Flow-style ``{matrix: ...}``: rotation to 1e-9 (stays orthonormal within the recipe check),
+    translation to 1 um."""
+
+    def num(v: float, digits: int) -> str:
+        return repr(round(float(v), digits) + 0.0)  # + 0.0: no "-0.0"
+
+    rows = []
+    for i, row in enumerate(np.asarray(T, dtype=float)):
+        cells = [num(v, 6 if (j == 3 and i < 3) else 9) for j, v in enumerate(row)]
+        rows.append("[" + ", ".join(c[:-2] if c.endswith(".0") else c for c in cells) + "]")
+    return "{matrix: [" + ", ".join(rows) + "]}"
+
+
+def write_pose(recipe: Path, what: str, T: np.ndarray, stage: str | None) -> tuple[str, str]:
+    """Replace the taught pose's value text in *recipe*; returns (where, old text)."""
+    key, types = WHAT[what]
+    text = recipe.read_text()
+    root = yaml.compose(text)
+    candidates: list[list[str]] = [["vars", key]]
+    doc = yaml.safe_load(text) or {}
+    name = stage or _stage_of(doc, types)
+    if name:
+        candidates.append(["stages", name, "params", key])
+    for path in candidates:
+        node = _value_node(root, path)
+        if node is None:
+            continue
+        if isinstance(node, yaml.ScalarNode) and "${" in str(node.value):
+            continue  # the stage parameter refers to a variable: that variable was tried first
+        start, end = node.start_mark.index, node.end_mark.index
+        old = text[start:end]
+        recipe.write_text(text[:start] + pose_text(T) + text[end:])
+        return ".".join(path), old
+    raise TeachError(
+        f"{recipe} has no vars.{key} and no {key} parameter of a {'/'.join(np.atleast_1d(types))} stage to write to"
+    )
+
+
+def cmd_teach(args: argparse.Namespace) -> int:
+    recipe = Path(args.recipe)
+    try:
+        if not recipe.is_file():
+            raise TeachError(f"no such recipe: {recipe}")
+        if args.pose:
+            vals = [float(v) for v in args.pose.split(",")]
+            if len(vals) != 6 or not np.all(np.isfinite(vals)):
+                raise TeachError("--pose must be 6 finite numbers x,y,z,rx,ry,rz (m, rotation vector rad)")
+            T = T_from_ur(vals)
+        else:
+            T = robot_pose(recipe, args.robot)
+        where, old = write_pose(recipe, args.what, T, args.stage)
+        load_recipe(str(recipe))  # the recipe must still be valid
+    except (TeachError, RecipeError, ValueError, OSError, yaml.YAMLError) as exc:
+        out.print(f"[red]cannot teach[/]: {exc}", highlight=False, soft_wrap=True)
+        return EXIT_INVALID
+    out.print(f"taught {args.what} pose written to {recipe} at {where}", highlight=False)
+    out.print(f"  was: {old}", highlight=False, soft_wrap=True)
+    out.print(f"  now: {pose_text(T)}", highlight=False, soft_wrap=True)
+    if args.what == "photo":
+        out.print(
+            "[yellow]the matcher template was taught at the old photo pose: teach it again[/] "
+            "(run the teach recipe, then `vgr template make`)",
+            highlight=False,
+        )
+    return EXIT_OK
+
+
+def add_verbs(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser("teach", help="store the robot's current pose as the recipe's photo or install pose")
+    p.add_argument("what", choices=sorted(WHAT))
+    p.add_argument("recipe")
+    p.add_argument("--robot", help="robot stage to ask (default: the one the guidance uses)")
+    p.add_argument("--stage", help="guidance/docking stage whose parameter to write, if the recipe has several")
+    p.add_argument("--pose", help="store this pose instead: x,y,z,rx,ry,rz (m, rotation vector rad)")
+    p.set_defaults(func=cmd_teach)

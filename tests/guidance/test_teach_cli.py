@@ -1,0 +1,95 @@
+"""`vgr teach photo|install`: the robot's pose goes into the recipe, in place, comments kept."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from engine.cli import main
+from engine.recipe import load_recipe
+from engine.transforms import T_from_ur
+from plugins.actions.teach_cli import pose_text, robot_pose
+
+RECIPES = Path(__file__).resolve().parents[2] / "recipes"
+
+
+@pytest.fixture
+def recipe(tmp_path: Path) -> Path:
+    shutil.copytree(RECIPES / "templates", tmp_path / "templates")
+    dst = tmp_path / "eye_in_hand_dock.yaml"
+    shutil.copy(RECIPES / "eye_in_hand_dock.yaml", dst)
+    return dst
+
+
+def vars_of(path: Path) -> dict:
+    return load_recipe(str(path)).recipe.model_dump()["vars"]
+
+
+def test_photo_pose_comes_from_the_robot_state(recipe: Path) -> None:
+    before = recipe.read_text()
+    assert main(["teach", "photo", str(recipe)]) == 0
+    after = recipe.read_text()
+    T = np.array(vars_of(recipe)["photo_pose"]["matrix"])
+    assert np.allclose(T, robot_pose(recipe, None), atol=1e-6)  # the simulated robot's home pose
+    changed = [(a, b) for a, b in zip(before.splitlines(), after.splitlines(), strict=True) if a != b]
+    assert len(changed) == 1 and "photo_pose" in changed[0][0]  # one line, comments untouched
+
+
+def test_install_pose_from_a_pendant_reading(recipe: Path) -> None:
+    ur = [0.4, 0.1, 0.3, 3.0, 0.2, -0.1]
+    assert main(["teach", "install", str(recipe), "--pose", ",".join(map(str, ur))]) == 0
+    T = np.array(vars_of(recipe)["install_pose"]["matrix"])
+    assert np.allclose(T, T_from_ur(ur), atol=2e-6)
+
+
+def test_stage_parameter_when_there_is_no_variable(tmp_path: Path) -> None:
+    text = (
+        (RECIPES / "eye_to_hand_dock.yaml")
+        .read_text()
+        .replace('photo_pose: "${photo_pose}"', "photo_pose: {xyz_m: [0, 0, 0.5]}")
+    )
+    path = tmp_path / "r.yaml"
+    path.write_text(text.replace("  photo_pose: {matrix:", "  unused_photo: {matrix:"))
+    shutil.copytree(RECIPES / "templates", tmp_path / "templates")
+    assert main(["teach", "photo", str(path), "--pose", "0.1,0.2,0.3,0,0,0"]) == 0
+    params = load_recipe(str(path)).recipe.stages["guidance"].params
+    assert np.allclose(np.array(params["photo_pose"]["matrix"])[:3, 3], [0.1, 0.2, 0.3])
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["teach", "photo", "no/such/recipe.yaml"],
+        ["teach", "photo", str(RECIPES / "demo.yaml"), "--pose", "0,0,0,0,0,0"],
+        ["teach", "install", "RECIPE", "--pose", "1,2,3"],
+        ["teach", "install", "RECIPE", "--pose", "1,2,3,nan,0,0"],
+        ["teach", "photo", "RECIPE", "--robot", "camera"],
+        ["teach", "photo", "RECIPE", "--robot", "nobody"],
+    ],
+)
+def test_bad_input_is_refused_and_the_recipe_is_left_alone(recipe: Path, argv: list[str]) -> None:
+    argv = [str(recipe) if a == "RECIPE" else a for a in argv]
+    before = recipe.read_text()
+    assert main(argv) == 2
+    assert recipe.read_text() == before
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.lists(st.floats(-2, 2), min_size=3, max_size=3),
+    st.lists(st.floats(-3.1, 3.1), min_size=3, max_size=3),
+)
+def test_written_pose_text_is_a_valid_rigid_transform_within_a_micrometre(t: list[float], r: list[float]) -> None:
+    import yaml
+
+    from engine.transforms import as_transform, pose_error
+
+    T = T_from_ur([*t, *r])
+    back = as_transform(np.array(yaml.safe_load(pose_text(T))["matrix"], dtype=float))
+    dt, dr = pose_error(back, T)
+    assert dt < 1e-6 and dr < 1e-8
