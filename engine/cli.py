@@ -235,13 +235,18 @@ def cmd_schemas(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------- parser
 
-# Modules that add verbs: each has ``add_verbs(subparsers)``; add a line per capability.
-VERB_MODULES: list[str] = [
-    "engine.cli_recording",
-    "plugins.solvers.registration.cli",
-    "plugins.solvers.calibrate_cli",
-    "plugins.actions.teach_cli",
-]
+# Verbs other modules add: verb -> (module with ``add_verbs(subparsers)``, one-line help). A module is
+# imported only when one of its verbs runs, so `vgr --help` and `vgr run` do not pay for the heavy
+# libraries of every capability (and a Ctrl-C right after start lands in a running engine). Add a
+# line per verb.
+VERB_MODULES: dict[str, tuple[str, str]] = {
+    "replay": ("engine.cli_recording", "re-run a recording's solver/action stages and diff their outputs"),
+    "inspect": ("engine.cli_recording", "topics, counts, rates, time span, recipe and versions of a recording"),
+    "recover": ("engine.cli_recording", "rebuild the index of a recording cut short (e.g. kill -9)"),
+    "template": ("plugins.solvers.registration.cli", "make or show a matcher template"),
+    "calibrate": ("plugins.solvers.calibrate_cli", "hand-eye, robot-world, Vive desk, TCP or kinematic calibration"),
+    "teach": ("plugins.actions.teach_cli", "store the robot's current pose as the recipe's photo or install pose"),
+}
 
 
 def _add_recipe_args(p: argparse.ArgumentParser) -> None:
@@ -255,7 +260,8 @@ def _add_recipe_args(p: argparse.ArgumentParser) -> None:
     )
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
+    """The parser; *verb* (the one being run) has its module imported and its full options."""
     parser = argparse.ArgumentParser(prog="vgr", description="3D-vision-guided robot correction")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv for debug)")
     sub = parser.add_subparsers(dest="verb", required=True)
@@ -293,13 +299,25 @@ def build_parser() -> argparse.ArgumentParser:
 
     import importlib
 
-    for name in VERB_MODULES:
-        importlib.import_module(name).add_verbs(sub)
+    if verb in VERB_MODULES:
+        importlib.import_module(VERB_MODULES[verb][0]).add_verbs(sub)
+    for name, (_, text) in VERB_MODULES.items():
+        if name not in sub.choices:  # a placeholder: listed in --help, its module loads when it runs
+            sub.add_parser(name, help=text, add_help=False)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    try:
+        return _main(list(sys.argv[1:] if argv is None else argv))
+    except KeyboardInterrupt:  # before the run started (imports, parsing): nothing to stop yet
+        console.print("[yellow]interrupted (Ctrl-C) before the run started[/]")
+        return EXIT_INTERRUPTED
+
+
+def _main(argv: list[str]) -> int:
+    verb = next((a for a in argv if not a.startswith("-")), None)
+    parser = build_parser(verb)
     args = parser.parse_args(argv)
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
@@ -314,7 +332,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         console.print(f"[red]error[/]: {escape(str(exc))}", highlight=False, soft_wrap=True)
         return EXIT_INVALID
     except KeyboardInterrupt:
-        console.print("[yellow]interrupted[/]")
+        console.print("[yellow]interrupted (Ctrl-C)[/]")
         return EXIT_INTERRUPTED
 
 

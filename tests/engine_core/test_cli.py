@@ -53,3 +53,17 @@ def test_run_demo_with_override_and_json_summary(capsys):
 @pytest.mark.parametrize("argv", [["run", "nope.yaml"], ["run", "recipes/demo.yaml", "-p", "bogus.x=1"]])
 def test_run_refuses_bad_input_with_exit_2(argv, capsys):
     assert main([*argv, "--no-progress"]) == 2
+
+
+def test_every_lazily_loaded_verb_is_defined_by_its_module(capsys):
+    """VERB_MODULES names each verb's module: loading it must define that verb (not a placeholder)."""
+    from engine.cli import VERB_MODULES, build_parser
+
+    for verb in VERB_MODULES:
+        parser = build_parser(verb)
+        sub = next(a for a in parser._actions if a.dest == "verb")
+        assert sub.choices[verb].add_help, f"{verb}: {VERB_MODULES[verb][0]} does not define it"
+        with pytest.raises(SystemExit) as e:
+            parser.parse_args([verb, "--help"])
+        assert e.value.code == 0
+        assert f"vgr {verb}" in capsys.readouterr().out
