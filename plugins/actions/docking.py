@@ -22,10 +22,11 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import Field
 
-from engine.messages import Correction, RobotCommand
-from engine.stage import ServiceError, Stage, StageParams
+from engine.messages import Correction
+from engine.stage import Stage, StageParams
 from engine.transforms import T_from_Rt
 from plugins.actions import guidance_math as gm
+from plugins.actions import robot_moves
 from plugins.actions.messages import GuidanceResult
 from plugins.interfaces import ROBOT_MOVE
 from plugins.params import PoseSpec
@@ -59,13 +60,9 @@ class _DockingBase(Stage):
             self._refuse(job, "nan", "the corrected install pose contains NaN")
             return
         t, r = gm.correction_between(T_install, T_corrected)
-        if t * 1e3 > p.max_correction_mm or np.degrees(r) > p.max_correction_deg:
-            self._refuse(
-                job,
-                "correction_limit",
-                f"install correction {t * 1e3:.2f} mm / {np.degrees(r):.2f} deg "
-                f"exceeds {p.max_correction_mm} mm / {p.max_correction_deg} deg",
-            )
+        problem = gm.over_limit(T_install, T_corrected, p.max_correction_mm, p.max_correction_deg, "install correction")
+        if problem:
+            self._refuse(job, "correction_limit", problem)
             return
         if p.execute:
             try:
@@ -75,7 +72,7 @@ class _DockingBase(Stage):
                     self._move(job, "dock", T_corrected, "move_l")
                 else:
                     self._move(job, "dock", T_corrected, p.motion)
-            except _Refused as exc:
+            except robot_moves.MoveRefused as exc:
                 self._refuse(job, exc.code, str(exc))
                 return
         self.ctx.event(
@@ -92,13 +89,7 @@ class _DockingBase(Stage):
 
     def _move(self, job: int, k: str, T: np.ndarray, kind: str) -> None:
         p: _DockingBase.Params = self.params  # type: ignore[assignment]
-        cmd = RobotCommand(command_id=f"{self.ctx.name}-{job}-{k}", kind=kind, T=T, speed=p.speed, frame_id="base")
-        try:
-            reply = self.ctx.call("robot", cmd, timeout_s=p.timeout_s)
-        except ServiceError as exc:
-            raise _Refused("robot_unavailable", str(exc)) from None
-        if not reply.ok:
-            raise _Refused("robot_refused", f"move {cmd.command_id} refused: {reply.error}")
+        robot_moves.move(self.ctx, f"{self.ctx.name}-{job}-{k}", T, kind, speed=p.speed, timeout_s=p.timeout_s)
 
     def _usable(self, g: GuidanceResult, mode: str) -> str | None:
         if g.mode != mode:
@@ -106,12 +97,6 @@ class _DockingBase(Stage):
         if not g.converged:
             return f"guidance job {g.job} did not converge ({g.verdict}: {'; '.join(g.reasons) or 'no reason'})"
         return None
-
-
-class _Refused(Exception):  # noqa: N818 - internal signal, never escapes the stage
-    def __init__(self, code: str, message: str) -> None:
-        super().__init__(message)
-        self.code = code
 
 
 class Docking(_DockingBase):

@@ -23,10 +23,11 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import Field
 
-from engine.messages import PointCloud, Request, RobotCommand, RobotReply
+from engine.messages import PointCloud, Request, RobotReply
 from engine.stage import ServiceError, ServiceSpec, Stage, StageParams
 from engine.transforms import as_transform
 from plugins.actions import guidance_math as gm
+from plugins.actions import robot_moves
 from plugins.actions.messages import GuidanceResult
 from plugins.interfaces import CAMERA_CAPTURE, ROBOT_MOVE
 from plugins.params import PoseSpec
@@ -99,14 +100,13 @@ class Guidance(Stage):
     # -- services ------------------------------------------------------------------------------
     def _move(self, job: int, k: str, T: np.ndarray, kind: str) -> RobotReply:
         p: Guidance.Params = self.params  # type: ignore[assignment]
-        cmd = RobotCommand(command_id=f"{self.ctx.name}-{job}-{k}", kind=kind, T=T, speed=p.speed, frame_id="base")
         try:
-            reply = self.ctx.call("robot", cmd, timeout_s=p.timeout_s)
-        except ServiceError as exc:
-            raise GuidanceStopError("failed", "robot_unavailable", str(exc)) from None
-        if not reply.ok or reply.T is None:
-            raise GuidanceStopError("refused", "robot_refused", f"move {cmd.command_id} refused: {reply.error}")
-        return reply
+            return robot_moves.move(
+                self.ctx, f"{self.ctx.name}-{job}-{k}", T, kind, speed=p.speed, timeout_s=p.timeout_s
+            )
+        except robot_moves.MoveRefused as exc:
+            verdict = "failed" if exc.code == "robot_unavailable" else "refused"
+            raise GuidanceStopError(verdict, exc.code, str(exc)) from None
 
     def _where_is_the_robot(self) -> np.ndarray:
         p: Guidance.Params = self.params  # type: ignore[assignment]
@@ -199,19 +199,8 @@ class Guidance(Stage):
         p: Guidance.Params = self.params  # type: ignore[assignment]
         if not np.all(np.isfinite(T_next)):
             raise GuidanceStopError("refused", "nan", "the correction contains NaN")
-        st, sr = gm.correction_between(T_cur, T_next)
-        if st * 1e3 > p.max_step_mm or np.degrees(sr) > p.max_step_deg:
-            raise GuidanceStopError(
-                "refused",
-                "correction_limit",
-                f"step {st * 1e3:.2f} mm / {np.degrees(sr):.2f} deg exceeds the limit "
-                f"{p.max_step_mm} mm / {p.max_step_deg} deg",
-            )
-        tt, tr = gm.correction_between(T_start, T_next)
-        if tt * 1e3 > p.max_total_mm or np.degrees(tr) > p.max_total_deg:
-            raise GuidanceStopError(
-                "refused",
-                "correction_limit",
-                f"total correction {tt * 1e3:.2f} mm / {np.degrees(tr):.2f} deg exceeds the limit "
-                f"{p.max_total_mm} mm / {p.max_total_deg} deg",
-            )
+        problem = gm.over_limit(T_cur, T_next, p.max_step_mm, p.max_step_deg, "step") or gm.over_limit(
+            T_start, T_next, p.max_total_mm, p.max_total_deg, "total correction"
+        )
+        if problem:
+            raise GuidanceStopError("refused", "correction_limit", problem)

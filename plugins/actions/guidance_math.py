@@ -91,3 +91,11 @@ def converged(T_match: F64, translation_m: float, rotation_rad: float) -> bool:
 def correction_between(T_from: F64, T_to: F64) -> tuple[float, float]:
     """How far a correction moves the TCP: (translation m, rotation rad) of ``T_from^-1 T_to``."""
     return size_of(inv(np.asarray(T_from, dtype=float)) @ np.asarray(T_to, dtype=float))
+
+
+def over_limit(T_from: F64, T_to: F64, max_mm: float, max_deg: float, what: str) -> str | None:
+    """Why the motion T_from -> T_to breaks the limit (a sentence naming *what*), or None if within."""
+    t, r = correction_between(T_from, T_to)
+    if t * 1e3 > max_mm or np.degrees(r) > max_deg:
+        return f"{what} {t * 1e3:.2f} mm / {np.degrees(r):.2f} deg exceeds the limit {max_mm} mm / {max_deg} deg"
+    return None
