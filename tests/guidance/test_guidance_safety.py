@@ -230,3 +230,27 @@ def test_docking_refuses_nan_and_robot_refusal_is_an_alarm() -> None:
     dock2.on_message("guidance", converged(PHOTO, PHOTO))
     (corr,) = ctx2.published["correction"]
     assert corr.verdict == "refused" and ctx2.alarms() == ["robot_refused"]
+
+
+def _calibration_file(tmp_path, verdict: str, name: str = "T_tcp_cam") -> str:
+    from plugins.solvers.calibration_result import CalibrationResult
+
+    result = CalibrationResult(kind="handeye", verdict=verdict, method="ml", estimate={name: X})
+    path = tmp_path / "result.json"
+    path.write_text(result.to_json())
+    return str(path)
+
+
+def test_hand_eye_comes_from_a_calibration_result_file(tmp_path) -> None:
+    ctx = ScriptedContext({"robot": Robot(), "camera": camera, "match": matches(ok(0.01, 0.001))})
+    stage = Guidance(ctx, Guidance.Params(hand_eye_file=_calibration_file(tmp_path, "ok")))
+    stage.setup()
+    assert np.array_equal(stage.X, X)
+
+
+@pytest.mark.parametrize(("verdict", "name"), [("failed", "T_tcp_cam"), ("ok", "T_base_cam")])
+def test_a_failed_or_wrong_calibration_file_is_refused_at_setup(tmp_path, verdict: str, name: str) -> None:
+    ctx = ScriptedContext({})
+    stage = Guidance(ctx, Guidance.Params(hand_eye_file=_calibration_file(tmp_path, verdict, name)))
+    with pytest.raises(ValueError, match="may not drive a robot|no T_tcp_cam"):
+        stage.setup()
