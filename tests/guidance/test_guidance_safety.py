@@ -252,5 +252,5 @@ def test_hand_eye_comes_from_a_calibration_result_file(tmp_path) -> None:
 def test_a_failed_or_wrong_calibration_file_is_refused_at_setup(tmp_path, verdict: str, name: str) -> None:
     ctx = ScriptedContext({})
     stage = Guidance(ctx, Guidance.Params(hand_eye_file=_calibration_file(tmp_path, verdict, name)))
-    with pytest.raises(ValueError, match="may not drive a robot|no T_tcp_cam"):
+    with pytest.raises(ValueError, match=r"may not drive a robot|no T_tcp_cam"):
         stage.setup()
