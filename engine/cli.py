@@ -233,6 +233,7 @@ def cmd_schemas(args: argparse.Namespace) -> int:
 # Modules that add verbs: each has ``add_verbs(subparsers)``; add a line per capability.
 VERB_MODULES: list[str] = [
     "engine.cli_recording",
+    "plugins.solvers.model_gap.cli",
 ]
 
 
