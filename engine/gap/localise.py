@@ -1,17 +1,19 @@
 """Where the gap concentrates: residuals binned along each feature (joint angle, torque, time ...).
 
 For a feature the samples are split into bins (quantiles for continuous features, the values for
-categorical ones such as an approach direction). Two statistics compare the bins, both chi-square
-distributed if the residuals are pure noise matching the specification (whitened, unit variance):
+categorical ones such as an approach direction). Two statistics compare the bins with each other
+(not with the noise specification: a gap inflates the residuals everywhere, and the question here is
+*where* it is larger). With ``s2`` the mean squared whitened residual component over all samples:
 
-* **mean shift** ``S = sum_b n_b |mean_b(w)|^2 ~ chi2(m B)``: the residual has a systematic part
-  that changes along the feature (backlash flips with the direction, compliance grows with the
-  torque, drift with time);
-* **spread** ``T = sum_b n_b (mean_b(|w|^2) - m)^2 / (2 m) ~ chi2(B)`` (approximately): the residual's
-  size changes along the feature without a consistent direction (latency grows with speed).
+* **mean shift** ``S = sum_b n_b |mean_b(w) - mean(w)|^2 / s2 ~ chi2(m (B - 1))``: the residual has a
+  systematic part that changes along the feature (backlash flips with the direction, compliance
+  grows with the torque, drift with time);
+* **spread** ``T = sum_b n_b (mean_b(|w|^2) - mean(|w|^2))^2 / var(|w|^2) ~ chi2(B - 1)``
+  (approximately): the residual's size changes along the feature without a consistent direction
+  (latency grows with speed).
 
-Features are ranked by the smaller p-value; each bin reports its sample count, range and 3-D RMS
-and mean residual in physical units, so a reader sees *where* the model disagrees.
+Features are ranked by the stronger statistic's normal score; each bin reports its sample count,
+range and 3-D RMS and mean residual in physical units, so a reader sees *where* the model disagrees.
 """
 
 from __future__ import annotations
@@ -71,6 +73,10 @@ def localise(lin: Linearisation, features: list[Feature], n_bins: int = 4, min_b
     w = lin.residual
     phys = lin.physical_residual()
     m = w.shape[1]
+    w_mean = w.mean(axis=0)
+    s2 = max(float(np.mean((w - w_mean) ** 2)), 1e-300)
+    sq = np.sum(w**2, axis=1)
+    sq_var = max(float(np.var(sq, ddof=1)) if sq.size > 1 else 0.0, 1e-300)
     out = []
     for f in features:
         if f.values.shape != (w.shape[0],) or not np.all(np.isfinite(f.values)):
@@ -82,9 +88,9 @@ def localise(lin: Linearisation, features: list[Feature], n_bins: int = 4, min_b
         bins = []
         for lab, mask in groups:
             n = int(mask.sum())
-            mean_w = w[mask].mean(axis=0)
-            S += n * float(mean_w @ mean_w)
-            T += n * (float(np.mean(np.sum(w[mask] ** 2, axis=1))) - m) ** 2 / (2 * m)
+            d = w[mask].mean(axis=0) - w_mean
+            S += n * float(d @ d) / s2
+            T += n * (float(sq[mask].mean()) - float(sq.mean())) ** 2 / sq_var
             bins.append(
                 BinSummary(
                     lab,
@@ -94,7 +100,8 @@ def localise(lin: Linearisation, features: list[Feature], n_bins: int = 4, min_b
                 )
             )
         B = len(groups)
-        log_s, log_t = float(stats.chi2.logsf(S, m * B)), float(stats.chi2.logsf(T, B))
+        k_s, k_t = m * (B - 1), B - 1
+        log_s, log_t = float(stats.chi2.logsf(S, k_s)), float(stats.chi2.logsf(T, k_t))
         out.append(
             FeatureGap(
                 f.name,
@@ -105,7 +112,7 @@ def localise(lin: Linearisation, features: list[Feature], n_bins: int = 4, min_b
                 T,
                 float(np.exp(log_t)),
                 min(log_s, log_t) / np.log(10.0),
-                max(_wilson_hilferty(S, m * B), _wilson_hilferty(T, B)),
+                max(_wilson_hilferty(S, k_s), _wilson_hilferty(T, k_t)),
                 bins,
             )
         )

@@ -7,7 +7,7 @@ JSON (``format: vgr.gap_report/1``), lengths in the problem's report unit (mm fo
   p_value_corrected, independent_fraction, iteration, config}]`` (params SI, with their units);
 * ``rms_before_mm`` / ``rms_after_mm``: held-out (k-fold cross-validated) 3-D RMS of the model as given
   (after its baseline calibration) and of the final augmented model; ``noise_floor_mm``: the 3-D RMS
-  the stated noise alone gives;
+  the stated noise alone gives; ``noise_source``: ``given`` | ``data column sigma_mm`` | ``estimated``;
 * ``before`` / ``after``: in-sample RMS, max, per axis, chi-square test;
 * ``iterations``: per round the comparison, where the gap concentrates, every candidate's scores and
   the decision; ``absorbed`` and ``not_testable`` candidates with the reason; ``decision_rule``;
@@ -139,6 +139,7 @@ def report_dict(result: GapResult) -> dict[str, Any]:
         f"rms_before_{u}": result.before.cv_rms * s,
         f"rms_after_{u}": result.after.cv_rms * s,
         f"noise_floor_{u}": result.before.noise_rms * s,
+        "noise_source": result.problem.get("noise_source", "given"),
         "unit": u,
         "before": _comparison(result.before, s),
         "after": _comparison(result.after, s),
@@ -235,6 +236,11 @@ def render(result: GapResult, console: Console, *, top: int = 8) -> None:
     t.add_row("chi2 / dof", f"{b.chi2 / b.dof:.3f}", f"{a.chi2 / a.dof:.3f}", "1")
     t.add_row("consistent with noise", str(b.consistent), str(a.consistent), "")
     console.print(t)
+    if result.problem.get("noise_source") == "estimated":
+        console.print(
+            "[yellow]noise not given: estimated from the data (residual of every candidate fitted at once); "
+            "a gap outside the catalog would be counted as noise. Give --noise-mm for a real test.[/]"
+        )
     first = result.iterations[0]
     if first.localisation:
         t = Table(title="where the gap concentrates (first model)", title_justify="left")

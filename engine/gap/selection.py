@@ -240,7 +240,7 @@ class Scorer:
                 continue
             Bp = _perp(self.Q, B)
             frac = np.linalg.norm(Bp, axis=0) / norms
-            U, s, Vt = np.linalg.svd(Bp / norms, full_matrices=False)
+            s = np.linalg.svd(Bp / norms, compute_uv=False)
             k_eff = int(np.sum(s > self.cfg.absorbed_tol))
             beta, *_ = np.linalg.lstsq(Bp, self.w_perp, rcond=self.cfg.absorbed_tol)
             rss = float(np.sum((self.w_perp - Bp @ beta) ** 2))

@@ -139,7 +139,7 @@ def _check_size(lin: Linearisation, candidates: list[Candidate], cfg: GapConfig)
             f"{k_max} more, and {folds}-fold cross-validation must leave >= {cfg.min_residual_dof} residual "
             f"degrees of freedom: give at least {need} samples"
         )
-    if M <= p:
+    if p >= M:
         raise GapInputError(f"{M} residuals for {p} calibration parameters: add samples")
 
 

@@ -11,6 +11,7 @@ from rich.console import Console
 
 from engine.gap import GapConfig, GapInputError, GapResult, run_gap
 from engine.gap.files import write_report
+from engine.gap.noise import estimate_noise_scale
 from engine.gap.report import render
 from engine.gap.workflow import collect_candidates
 from plugins.sim.kinematics import RobotModel
@@ -46,6 +47,16 @@ def load_gap_model(model: str | Path | RobotModel) -> tuple[RobotModel, list[dic
     return load_robot_model(model), []
 
 
+def estimate_noise(robot: RobotModel, data: GapData, calibrate: tuple[str, ...], families: list[Any]) -> float:
+    """Per-axis noise sigma (m) estimated from the data (:func:`engine.gap.noise.estimate_noise_scale`)."""
+    provisional = 1e-3
+    problem = KinematicGapProblem(robot, data, ProblemConfig(calibrate, noise_m=provisional))
+    scale, _ = estimate_noise_scale(problem.linearise(), collect_candidates(problem, families), problem)
+    if not scale > 0:
+        raise GapInputError("the data fit the model exactly: cannot estimate the noise, give --noise-mm")
+    return provisional * scale
+
+
 def analyse_gap(
     model: str | Path | RobotModel,
     data: str | Path | GapData,
@@ -58,18 +69,29 @@ def analyse_gap(
     console: Console | None = None,
     data_options: dict[str, Any] | None = None,
 ) -> GapResult:
-    """Run the model-gap workflow; write ``report_dir`` (JSON, figures, model files) if given."""
+    """Run the model-gap workflow; write ``report_dir`` (JSON, figures, model files) if given.
+
+    ``noise_mm`` (per-axis 1-sigma): when neither it nor a ``sigma_mm`` data column is given, the noise
+    is estimated from the data (:func:`estimate_noise`) and the report says so.
+    """
     robot, initial = load_gap_model(model)
     gap_data = data if isinstance(data, GapData) else load_gap_data(data, **(data_options or {}))
-    noise_m = None if noise_mm is None else float(noise_mm) / 1e3
-    problem = KinematicGapProblem(robot, gap_data, ProblemConfig(tuple(calibrate), noise_m=noise_m))
     fams = families if families is not None else families_from_registry()
+    if noise_mm is None and gap_data.sigma_m is None:
+        noise_m, source = estimate_noise(robot, gap_data, tuple(calibrate), fams), "estimated"
+    else:
+        noise_m, source = (None if noise_mm is None else float(noise_mm) / 1e3), "given"
+    problem = KinematicGapProblem(
+        robot, gap_data, ProblemConfig(tuple(calibrate), noise_m=noise_m, noise_source=source)
+    )
     if initial:
         by_label = {(c.name, c.where): c for c in collect_candidates(problem, fams) if not c.unavailable}
         for e in initial:
             cand = by_label.get((e.get("name"), e.get("where")))
             if cand is None:
-                raise GapInputError(f"the model's effect {e.get('name')}@{e.get('where')} cannot be applied to these data")
+                raise GapInputError(
+                    f"the model's effect {e.get('name')}@{e.get('where')} cannot be applied to these data"
+                )
             problem.add_effect(cand, np.array([float(e["params"][p]) for p in cand.param_names]))
     result = run_gap(problem, fams, config, model_dir=report_dir)
     if report_dir is not None:

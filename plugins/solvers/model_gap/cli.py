@@ -30,7 +30,7 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--noise-mm",
         type=float,
-        help="measurement noise, 1 sigma per axis in mm (required unless the CSV has a sigma_mm column)",
+        help="measurement noise, 1 sigma per axis in mm (default: the CSV's sigma_mm column, else estimated)",
     )
     p.add_argument(
         "--calibrate",
@@ -66,7 +66,9 @@ def cmd_gap(args: argparse.Namespace) -> int:
         raise ValueError(f"--folds must be >= 2, got {args.folds}")
     if args.max_effects < 0:
         raise ValueError("--max-effects must be >= 0")
-    cfg = GapConfig(SelectionConfig(alpha=args.alpha, cv_folds=args.folds, seed=args.seed), max_effects=args.max_effects)
+    cfg = GapConfig(
+        SelectionConfig(alpha=args.alpha, cv_folds=args.folds, seed=args.seed), max_effects=args.max_effects
+    )
     console = None if args.json else Console(width=None if sys.stdout.isatty() else 160)
     opts = {"joint_topic": args.joint_topic, "measurement_topic": args.measurement_topic, "sensor": args.sensor}
     result = analyse_gap(

@@ -228,7 +228,9 @@ class JointOffsetFamily(_Family):
     description = "zero offset of a joint (its encoder reads a constant off)"
 
     def _candidates(self, problem):
-        return _per_joint(self.name, problem, lambda j: JointOffset((j,), (0.0,)), ("offset_joint{j}",), ("rad",), "q{j}")
+        return _per_joint(
+            self.name, problem, lambda j: JointOffset((j,), (0.0,)), ("offset_joint{j}",), ("rad",), "q{j}"
+        )
 
 
 class LinkLengthFamily(_Family):
@@ -237,7 +239,9 @@ class LinkLengthFamily(_Family):
 
     def _candidates(self, problem):
         if problem.model.convention not in ("dh", "mdh"):
-            return [self._unavailable(problem, f"needs a dh/mdh model, {problem.model.name} is {problem.model.convention}")]
+            return [
+                self._unavailable(problem, f"needs a dh/mdh model, {problem.model.name} is {problem.model.convention}")
+            ]
         values = dict(zip(problem.model.param_names, problem.model.param_values, strict=True))
         out = _per_joint(self.name, problem, lambda j: LinkLength((j,), (0.0,)), ("length_joint{j}",), ("m",), "q{j}")
         for c in out:
@@ -253,7 +257,14 @@ class JointComplianceFamily(_Family):
         if problem.model.links is None:
             return [self._unavailable(problem, f"needs link masses in the model ({problem.model.name} has none)")]
         tau = problem.gravity_torque()
-        out = _per_joint(self.name, problem, lambda j: JointCompliance((j,), (0.0,)), ("compliance_joint{j}",), ("rad/(N m)",), "tau{j}")
+        out = _per_joint(
+            self.name,
+            problem,
+            lambda j: JointCompliance((j,), (0.0,)),
+            ("compliance_joint{j}",),
+            ("rad/(N m)",),
+            "tau{j}",
+        )
         return [c for c in out if np.ptp(tau[:, c.joint - 1]) > 1e-6 or np.abs(tau[:, c.joint - 1]).max() > 1e-6]
 
 
@@ -263,7 +274,16 @@ class BacklashFamily(_Family):
     requires = ("direction",)
 
     def _candidates(self, problem):
-        return _per_joint(self.name, problem, lambda j: Backlash((j,), (0.0,)), ("backlash_joint{j}",), ("rad",), "dir{j}", lower=0.0, jac_floor=np.array([2e-6]))
+        return _per_joint(
+            self.name,
+            problem,
+            lambda j: Backlash((j,), (0.0,)),
+            ("backlash_joint{j}",),
+            ("rad",),
+            "dir{j}",
+            lower=0.0,
+            jac_floor=np.array([2e-6]),
+        )
 
 
 class EncoderEccentricityFamily(_Family):
@@ -271,7 +291,14 @@ class EncoderEccentricityFamily(_Family):
     description = "once-per-revolution joint error a sin(q) + b cos(q)"
 
     def _candidates(self, problem):
-        return _per_joint(self.name, problem, lambda j: EncoderEccentricity((j,), (0.0,), (0.0,)), ("ecc_sin_joint{j}", "ecc_cos_joint{j}"), ("rad", "rad"), "q{j}")
+        return _per_joint(
+            self.name,
+            problem,
+            lambda j: EncoderEccentricity((j,), (0.0,), (0.0,)),
+            ("ecc_sin_joint{j}", "ecc_cos_joint{j}"),
+            ("rad", "rad"),
+            "q{j}",
+        )
 
 
 class ThermalDriftFamily(_Family):

@@ -60,6 +60,7 @@ class ProblemConfig:
 
     calibrate: tuple[str, ...] = ("frame", "tool")
     noise_m: float | None = None  # per-axis 1-sigma; None: the data's sigma column
+    noise_source: str = "given"  # given | data column | estimated (see engine.gap.noise)
     parameterisation: str | None = None  # for "joints": dh | mdh | poe (default: the model's)
     max_nfev: int = 100
 
@@ -278,7 +279,9 @@ class KinematicGapProblem:
             return -(J / s[:, :, None]).reshape(-1, x.size)
 
         if x0.size:
-            sol = least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale="jac", method="trf", max_nfev=self.cfg.max_nfev)
+            sol = least_squares(
+                fun, x0, jac=jac, bounds=(lo, hi), x_scale="jac", method="trf", max_nfev=self.cfg.max_nfev
+            )
             x = sol.x
         else:
             x = x0
@@ -301,7 +304,7 @@ class KinematicGapProblem:
 
     def add_effect(self, candidate: Candidate, values: F64) -> FittedEffect:
         self.accepted.append((candidate, np.asarray(values, dtype=float).copy()))
-        cov, s2, _ = self.refit()
+        cov, _, _ = self.refit()
         nb = len(self.base_names)
         k = nb
         for c, v in self.accepted:
@@ -345,7 +348,7 @@ class KinematicGapProblem:
         _, meas = self._split(self.accepted)
         if "depth_scale" not in meas and "depth_bias" not in meas:
             return np.broadcast_to(np.eye(3), (self.n_samples, 3, 3))
-        q, qa, va = self.current_state()
+        _, qa, va = self.current_state()
         p = self.model.fk(qa, va)[:, :3, 3]
         return range_distortion_jacobian(p, meas.get("depth_scale", 0.0), meas.get("depth_bias", 0.0))
 
@@ -360,7 +363,7 @@ class KinematicGapProblem:
 
     def measurement_columns(self, name: str) -> F64:
         """Whitened ``(N, 3, 1)`` column of a measurement-side effect at the current state."""
-        q, qa, va = self.current_state()
+        _, qa, va = self.current_state()
         if name == "time_latency":
             _, Jq = self.model.chain.screw_jacobian(qa, va)
             col = self._output_jacobian() @ (-np.einsum("nij,nj->ni", Jq[:, :3, :], self.qd))[:, :, None]
@@ -433,6 +436,7 @@ class KinematicGapProblem:
                 "warnings": d.warnings + d.samples.check(),
             },
             "noise_sigma_mm": float(np.median(self.sigma) * 1e3),
+            "noise_source": self.cfg.noise_source if self.cfg.noise_m is not None else "data column sigma_mm",
             "calibration": {
                 "levels": list(self.cfg.calibrate),
                 "parameters": list(self.base_names),

@@ -153,7 +153,9 @@ def _unit_effect(e: HiddenEffect, model: RobotModel, rng: np.random.Generator) -
     if e.name == "thermal_drift":
         return ThermalDrift.linear_expansion(model, 1.0, expansion_per_k=sign * u, time_constant_s=1800.0), {}
     if e.name == "base_frame":
-        return BaseFrameError(offsets=tuple(np.concatenate([u * _random_unit(rng), u * _random_unit(rng)]).tolist())), {}
+        return BaseFrameError(
+            offsets=tuple(np.concatenate([u * _random_unit(rng), u * _random_unit(rng)]).tolist())
+        ), {}
     if e.name == "tool_offset":
         return ToolOffsetError(("tx", "ty", "tz"), tuple((u * _random_unit(rng)).tolist())), {}
     if e.name == "time_latency":  # the measurement stream lags the joint stream
@@ -306,7 +308,11 @@ def suite(full: bool = True, seed: int = 0, seeds_per_single: int = 3, noise_con
     tracker_names = [n for n in EFFECT_NAMES if n not in KNOWN_FRAME_EFFECTS]
     pairs = list(combinations(tracker_names, 2))
     if not full:
-        pairs = [("joint_compliance", "backlash"), ("encoder_eccentricity", "time_latency"), ("link_length", "depth_scale")]
+        pairs = [
+            ("joint_compliance", "backlash"),
+            ("encoder_eccentricity", "time_latency"),
+            ("link_length", "depth_scale"),
+        ]
     for a, b in pairs:
         for level in ("low", "high") if full else ("high",):
             s = int(rng.integers(1 << 31))
@@ -318,7 +324,10 @@ def suite(full: bool = True, seed: int = 0, seeds_per_single: int = 3, noise_con
     if full:
         for level in ("low", "high"):
             s = int(rng.integers(1 << 31))
-            effs = (HiddenEffect("base_frame", "base", LEVELS[level]), HiddenEffect("tool_offset", "tool", LEVELS[level]))
+            effs = (
+                HiddenEffect("base_frame", "base", LEVELS[level]),
+                HiddenEffect("tool_offset", "tool", LEVELS[level]),
+            )
             cases.append(HiddenCase(f"base_frame@base+tool_offset@tool-{level}", "pair", level, "known", effs, s))
     n_noise = noise_controls if full else 4
     for i in range(n_noise):
