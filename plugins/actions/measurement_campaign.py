@@ -15,7 +15,7 @@ from typing import ClassVar
 import numpy as np
 from pydantic import Field, model_validator
 
-from engine.messages import Request, RobotCommand, TrackerPose
+from engine.messages import JointState, Request, RobotCommand, TrackerPose
 from engine.stage import ServiceError, Stage, StageParams
 from plugins.interfaces import ROBOT_MOVE, TRACKER_SAMPLE
 
@@ -26,7 +26,7 @@ class MeasurementCampaign(Stage):
     type_name = "measurement_campaign"
     role = "action"
     inputs: ClassVar = {"trigger": Request}
-    outputs: ClassVar = {"measurement": TrackerPose}
+    outputs: ClassVar = {"measurement": TrackerPose, "joint_state": JointState}
     uses: ClassVar = {"robot": ROBOT_MOVE, "tracker": TRACKER_SAMPLE}
 
     class Params(StageParams):
@@ -62,6 +62,7 @@ class MeasurementCampaign(Stage):
     def on_message(self, port: str, msg: Request) -> None:  # type: ignore[override]
         p: MeasurementCampaign.Params = self.params  # type: ignore[assignment]
         measured = 0
+        last_stamp = 0
         for i, q in enumerate(self._poses()):
             cmd = RobotCommand(command_id=f"{self.ctx.name}-{msg.seq}-{i}", kind="move_j", joints=q, speed=p.speed)
             try:
@@ -75,10 +76,20 @@ class MeasurementCampaign(Stage):
             reading = self.ctx.call("tracker", Request(command="sample"), timeout_s=p.timeout_s)
             if not reading.valid:
                 continue
-            stamp = reading.stamp_ns or self.ctx.clock.now_ns()  # the reading's own time, else its arrival
+            # the reading's own time, else the robot's or ours; strictly increasing (>= 1 ms apart) so the
+            # joints and the reading of one pose pair one to one even when the clocks did not move
+            stamp = max(reading.stamp_ns or 0, reply.stamp_ns or 0, self.ctx.clock.now_ns(), last_stamp + 1_000_000)
+            last_stamp = stamp
             self.ctx.publish(
                 "measurement",
                 TrackerPose(stamp_ns=stamp, frame_id=reading.frame_id, serial=reading.serial, T=np.array(reading.T)),
             )
+            if reply.joints is not None:
+                joints = np.asarray(reply.joints, dtype=float)
+                names = [f"joint{j + 1}" for j in range(joints.size)]
+                self.ctx.publish(
+                    "joint_state",
+                    JointState(names=names, positions=joints, velocities=np.zeros_like(joints), stamp_ns=stamp),
+                )
             measured += 1
         self.ctx.event("info", "campaign_done", f"{measured} measurements", n=measured)

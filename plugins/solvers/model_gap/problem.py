@@ -52,6 +52,7 @@ from .data import GapData
 F64 = NDArray[np.float64]
 CALIBRATION_LEVELS = ("frame", "tool", "joints")
 GAP_MODEL_FORMAT = 1
+MIN_SAMPLES = 6  # below this the rigid frame fit is degenerate; the workflow asks for more (engine.gap)
 
 
 @dataclass
@@ -78,6 +79,11 @@ class KinematicGapProblem:
         bad = [c for c in cfg.calibrate if c not in CALIBRATION_LEVELS]
         if bad:
             raise GapInputError(f"unknown calibration level(s) {bad}; use some of {', '.join(CALIBRATION_LEVELS)}")
+        if data.n_samples < MIN_SAMPLES:
+            raise GapInputError(
+                f"{data.n_samples} samples are too few: even the baseline calibration (measurement frame, tool "
+                f"point) needs {MIN_SAMPLES}, and naming an effect with cross-validation needs a few dozen"
+            )
         if data.n_joints != model.dof:
             raise GapInputError(f"the data have {data.n_joints} joints but model {model.name!r} has {model.dof}")
         if cfg.noise_m is not None:
