@@ -31,11 +31,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from engine.gap import GapConfig, run_gap  # noqa: E402
-from engine.gap.sparse import sparse_library, stlsq_named  # noqa: E402
-from engine.gap.workflow import collect_candidates  # noqa: E402
-from plugins.solvers.model_gap import KinematicGapProblem, ProblemConfig, families_from_registry  # noqa: E402
-from plugins.solvers.model_gap.simulate import HiddenCase, make_case, suite  # noqa: E402
+from engine.gap import GapConfig, run_gap
+from engine.gap.sparse import sparse_library, stlsq_named
+from engine.gap.workflow import collect_candidates
+from plugins.solvers.model_gap import KinematicGapProblem, ProblemConfig, families_from_registry
+from plugins.solvers.model_gap.simulate import HiddenCase, make_case, suite
 
 THRESHOLDS = (2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 12.0)
 RIDGE = 0.05
