@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from model_gap_helpers import case, run
+from model_gap_helpers import case, families, run
 
-from plugins.solvers.model_gap.simulate import KNOWN_FRAME_EFFECTS
+from engine.gap import GapConfig, SelectionConfig
+from plugins.solvers.model_gap import analyse_gap
+from plugins.solvers.model_gap.simulate import KNOWN_FRAME_EFFECTS, make_case
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -97,3 +99,20 @@ def test_fitted_values_match_the_hidden_ones():
     b = fitted["backlash"]
     assert abs(b.params["backlash_joint3"] - b_true) < 4 * b.param_std["backlash_joint3"] + 1e-3 * abs(b_true)
     assert b.param_std["backlash_joint3"] < 0.1 * b_true  # and well determined (physical units: rad)
+
+
+@pytest.mark.parametrize("seed", [41, 42])
+def test_an_effect_outside_the_catalog_is_unexplained_not_misnamed(seed):
+    """A lateral sensor distortion quadratic in the image coordinates (no catalog effect has it)."""
+    c = case([], seed=seed)
+    camp = make_case(c)
+    p = camp.data.samples.positions
+    u, v = p[:, 0] / p[:, 2], p[:, 1] / p[:, 2]
+    d = np.column_stack([(u**2 - np.mean(u**2)) * p[:, 2], (u * v - np.mean(u * v)) * p[:, 2], np.zeros(len(p))])
+    d *= 2.5e-4 / np.sqrt(np.mean(np.sum(d**2, axis=1)))  # 0.25 mm RMS: about 3x the noise floor
+    camp.data.samples.positions = p + d
+    camp.data.range_m = np.linalg.norm(camp.data.samples.positions, axis=1)
+    res = analyse_gap(camp.model, camp.data, noise_mm=0.05, calibrate=c.calibrate, families=families(),
+                      config=GapConfig(SelectionConfig(cv_folds=4)))  # fmt: skip
+    assert res.verdict == "unexplained" and res.named == [], res.reason
+    assert not res.after.consistent and res.after.cv_rms > 2 * res.before.noise_rms

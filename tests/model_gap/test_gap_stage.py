@@ -56,3 +56,17 @@ def test_too_few_poses_fail_with_a_reason_not_an_exception():
     assert summary.ok, summary.stop_reason
     (res,) = results
     assert res.verdict == "failed" and "too few" in res.reasons[0]
+
+
+def test_vgr_gap_reads_the_recording_of_the_recipe(tmp_path, capsys):
+    """`vgr run` records the campaign; `vgr gap` on the MCAP picks the campaign's joints + readings."""
+    from engine.cli import main
+
+    rec = tmp_path / "run.mcap"
+    assert main(["run", str(RECIPE), "--record", str(rec), "-p", "campaign.n_poses=60"]) == 0
+    capsys.readouterr()
+    assert main(["gap", "--model", "ur5e", "--data", str(rec), "--noise-mm", "0.05", "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert "/campaign/joint_state" in rep["problem"]["data"]["source"]
+    assert [(e["name"], e["where"]) for e in rep["effects_added"]] == [("joint_compliance", "joint2")]
+    assert rep["rms_after_mm"] <= 1.2 * rep["noise_floor_mm"]

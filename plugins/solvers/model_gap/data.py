@@ -328,6 +328,16 @@ def read_gap_mcap(
     types = {t: meta.get("type", "") for t, meta in rec.channels.items()}
     joints = [t for t, ty in types.items() if ty == "JointState"]
     meas = [t for t, ty in types.items() if ty in ("TrackerPose", "PoseStamped") and "/truth/" not in t]
+    if joint_topic is None and len(joints) > 1:  # prefer the joints published next to the measurements
+        # (a measurement_campaign publishes both: the joints on arrival and the tracker reading)
+        trackers = [t for t in meas if types[t] == "TrackerPose"]
+        stage_of = {t: t.strip("/").split("/")[0] for t in joints + trackers}
+        paired = [t for t in joints if any(stage_of[m] == stage_of[t] for m in trackers)]
+        if len(paired) == 1:
+            joint_topic = paired[0]
+            if measurement_topic is None:
+                same = [m for m in trackers if stage_of[m] == stage_of[joint_topic]]
+                measurement_topic = same[0] if len(same) == 1 else None
     if joint_topic is None:
         if len(joints) != 1:
             raise GapDataError(f"{path}: {len(joints)} JointState topics {joints}: name one with --joint-topic")
@@ -336,7 +346,7 @@ def read_gap_mcap(
         close = difflib.get_close_matches(joint_topic, list(types), n=1)
         raise GapDataError(f"{path}: no topic {joint_topic!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
     robot_stage = joint_topic.strip("/").split("/")[0]
-    if measurement_topic is None:
+    if measurement_topic is None:  # a measurement from another stage than the joints' (a tracker, a camera)
         others = [t for t in meas if t.strip("/").split("/")[0] != robot_stage]
         if len(others) != 1:
             raise GapDataError(
