@@ -116,3 +116,16 @@ def test_an_effect_outside_the_catalog_is_unexplained_not_misnamed(seed):
                       config=GapConfig(SelectionConfig(cv_folds=4)))  # fmt: skip
     assert res.verdict == "unexplained" and res.named == [], res.reason
     assert not res.after.consistent and res.after.cv_rms > 2 * res.before.noise_rms
+
+
+@pytest.mark.parametrize("effects", [[("backlash", "joint3")], []], ids=["backlash@joint3", "noise-only"])
+def test_the_other_shipped_robot_abb_irb120(effects):
+    from plugins.solvers.model_gap.simulate import LEVELS, HiddenEffect, simulate_campaign
+
+    hidden = tuple(HiddenEffect(n, w, LEVELS["high"]) for n, w in effects)
+    camp = simulate_campaign(hidden, n_samples=160, seed=2, robot="abb_irb120")
+    res = analyse_gap(camp.model, camp.data, noise_mm=0.05, calibrate=("frame", "tool"), families=families(),
+                      config=GapConfig(SelectionConfig(cv_folds=4)))  # fmt: skip
+    assert res.named == [tuple(e) for e in effects], res.reason
+    assert res.verdict == ("explained" if effects else "no_gap")
+    assert res.after.cv_rms <= 1.2 * res.before.noise_rms
