@@ -246,6 +246,10 @@ VERB_MODULES: dict[str, tuple[str, str]] = {
     "template": ("plugins.solvers.registration.cli", "make or show a matcher template"),
     "calibrate": ("plugins.solvers.calibrate_cli", "hand-eye, robot-world, Vive desk, TCP or kinematic calibration"),
     "teach": ("plugins.actions.teach_cli", "store the robot's current pose as the recipe's photo or install pose"),
+    "gap": (
+        "plugins.solvers.model_gap.cli",
+        "compare a robot model with measurements, name the missing effect, add it",
+    ),
 }
 
 

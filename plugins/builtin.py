@@ -13,6 +13,7 @@ def vgr_stage_types() -> list[type]:
     from plugins.actions.docking import Docking, DualDocking
     from plugins.actions.guidance import Guidance
     from plugins.actions.guidance_report import GuidanceReport
+    from plugins.actions.measurement_campaign import MeasurementCampaign
     from plugins.actions.ur_robot import URRobot
     from plugins.sensors.file_camera import FileCamera
     from plugins.sensors.realsense_camera import RealSenseCamera
@@ -22,6 +23,7 @@ def vgr_stage_types() -> list[type]:
     from plugins.sim.stages.point_tracker import SimPointTracker
     from plugins.sim.stages.robot import SimRobot
     from plugins.sim.stages.tracker import SimTracker
+    from plugins.solvers.model_gap.stage import ModelGap
     from plugins.solvers.registration.stage import Matcher
     from plugins.solvers.stages.hand_eye import HandEyeCalibration
     from plugins.solvers.stages.kinematic import KinematicCalibrationStage
@@ -46,7 +48,19 @@ def vgr_stage_types() -> list[type]:
         CalibrationFile,
     ]
     actions = [CaptureAtPose, Guidance, Docking, DualDocking, GuidanceReport]
-    return [SyntheticCloud, TransformCloud, CloudStats, Trigger, *sim, *actions, Matcher, *devices, *calibration]
+    model_gap = [MeasurementCampaign, ModelGap]  # issue 8
+    return [
+        SyntheticCloud,
+        TransformCloud,
+        CloudStats,
+        Trigger,
+        *sim,
+        *actions,
+        Matcher,
+        *devices,
+        *calibration,
+        *model_gap,
+    ]
 
 
 @hookimpl
@@ -55,3 +69,10 @@ def vgr_message_types() -> list[type]:
     from plugins.solvers.registration.messages import MatchResult
 
     return [MatchResult, GuidanceResult]
+
+
+@hookimpl
+def vgr_model_effects() -> list[type]:
+    from plugins.solvers.model_gap.effects import FAMILIES
+
+    return list(FAMILIES)

@@ -1,0 +1,153 @@
+"""Model-gap figures (PNG, matplotlib Agg): the gap before / after, and each effect's signature.
+
+* ``gap_histograms.png``: whitened residual components of the model as given and of the augmented
+  model against the unit normal the noise specification predicts, and the 3-D error norms;
+* ``gap_rounds.png``: held-out RMS after each round against the noise floor, and the RMS per bin of
+  the features where the gap concentrated most (first model vs augmented model);
+* ``gap_effect_<n>_<name>_<where>.png``: for each added effect, the residual expressed in the
+  effect's own quantity (e.g. joint error in urad) against its regressor (gravity torque, approach
+  direction, time, speed, range ...), before and after adding it, with the fitted effect.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+from .interfaces import Feature
+from .report import display
+from .workflow import GapResult, Iteration
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_histograms(result: GapResult, path: Path) -> Path:
+    plt = _plt()
+    s, u = result.report_scale, result.report_unit
+    first, last = result.iterations[0], result.iterations[-1]
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    ax = axes[0]
+    lim = max(4.0, float(np.percentile(np.abs(first.whitened), 99.5)))
+    bins = np.linspace(-lim, lim, 61)
+    ax.hist(first.whitened.ravel(), bins, density=True, alpha=0.5, label="model as given (+ calibration)")
+    ax.hist(last.whitened.ravel(), bins, density=True, alpha=0.5, label="augmented model")
+    x = np.linspace(-lim, lim, 300)
+    ax.plot(x, stats.norm.pdf(x), "k--", label="noise spec N(0, 1)")
+    ax.set_xlabel("residual / noise sigma (per axis)")
+    ax.set_ylabel("density")
+    ax.legend(fontsize=8)
+    ax.set_title("whitened residuals")
+    ax = axes[1]
+    n0 = np.linalg.norm(first.residual, axis=1) * s
+    n1 = np.linalg.norm(last.residual, axis=1) * s
+    hi = float(np.percentile(n0, 99.5)) * 1.05
+    bins = np.linspace(0, hi, 50)
+    ax.hist(n0, bins, alpha=0.5, label=f"before: RMS {first.comparison.rms * s:.3f} {u}")
+    ax.hist(n1, bins, alpha=0.5, label=f"after: RMS {last.comparison.rms * s:.3f} {u}")
+    sig = first.comparison.noise_rms / np.sqrt(first.residual.shape[1]) * s
+    xx = np.linspace(0, hi, 300)
+    ax.plot(xx, stats.chi.pdf(xx / sig, first.residual.shape[1]) / sig * len(n0) * (bins[1] - bins[0]), "k--",
+            label="noise alone")  # fmt: skip
+    ax.set_xlabel(f"3-D error ({u})")
+    ax.set_ylabel("samples")
+    ax.legend(fontsize=8)
+    ax.set_title("error per sample")
+    fig.suptitle(f"vgr gap: {result.verdict}", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def plot_rounds(result: GapResult, features: list[Feature], path: Path) -> Path:
+    plt = _plt()
+    s, u = result.report_scale, result.report_unit
+    first, last = result.iterations[0], result.iterations[-1]
+    top = first.localisation[:3]
+    fig, axes = plt.subplots(1, 1 + len(top), figsize=(4 * (1 + len(top)), 3.6))
+    axes = np.atleast_1d(axes)
+    ax = axes[0]
+    labels = ["as given"] + [f"+{it.added.name}@{it.added.where}" for it in result.iterations if it.added]
+    vals = [it.comparison.cv_rms * s for it in result.iterations][: len(labels)]
+    ax.bar(range(len(vals)), vals, color="tab:blue")
+    ax.axhline(first.comparison.noise_rms * s, color="k", ls="--", label="noise floor")
+    ax.axhline(1.2 * first.comparison.noise_rms * s, color="grey", ls=":", label="1.2 x floor")
+    ax.set_xticks(range(len(vals)), labels, rotation=20, ha="right", fontsize=7)
+    ax.set_ylabel(f"held-out RMS ({u})")
+    ax.legend(fontsize=7)
+    by_name = {f.name: f for f in features}
+    for ax, g in zip(axes[1:], top, strict=False):
+        f = by_name.get(g.name)
+        if f is None:
+            continue
+        masks = _masks(f, [b.label for b in g.bins])
+        before = [np.sqrt(np.mean(np.sum(first.residual[m] ** 2, axis=1))) * s for m in masks]
+        after = [np.sqrt(np.mean(np.sum(last.residual[m] ** 2, axis=1))) * s for m in masks]
+        xb = np.arange(len(masks))
+        ax.bar(xb - 0.2, before, 0.4, label="as given")
+        ax.bar(xb + 0.2, after, 0.4, label="augmented")
+        ax.axhline(first.comparison.noise_rms * s, color="k", ls="--")
+        ax.set_xticks(xb, [b.label for b in g.bins], rotation=20, ha="right", fontsize=7)
+        ax.set_title(f"{g.label} ({g.unit})" if g.unit else g.label, fontsize=9)
+        ax.set_ylabel(f"RMS ({u})")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def _masks(f: Feature, labels: list[str]) -> list[np.ndarray]:
+    v = f.values
+    out = []
+    for lab in labels:
+        if ".." in lab and not f.categorical:
+            lo, hi = (float(x) for x in lab.split(".."))
+            out.append((v >= lo) & (v <= hi))
+        else:
+            out.append(np.isclose(v, float(lab)))
+    return out
+
+
+def plot_effect(result: GapResult, it: Iteration, path: Path) -> Path | None:
+    """Residual vs the effect's regressor, before (this round) and after (final model)."""
+    sig, c = it.signature, it.contribution
+    if sig is None or c is None or it.added is None:
+        return None
+    plt = _plt()
+    basis = sig.basis if sig.basis is not None else c
+    unit = sig.y_unit if sig.basis is not None else ""
+    norm2 = np.sum(basis**2, axis=1)
+    ok = norm2 > 0.05 * np.median(norm2)  # samples where the effect has leverage
+
+    def y(r: np.ndarray) -> np.ndarray:
+        return np.sum(basis * r, axis=1) / np.where(ok, norm2, 1.0)
+
+    f, dunit = display(1.0, unit) if unit else (1.0, "fraction of the fitted effect")
+    x = sig.x.copy()
+    if np.unique(x).size <= 3:
+        x = x + np.random.default_rng(0).uniform(-0.08, 0.08, x.size) * max(1.0, np.ptp(x))
+    last = result.iterations[-1]
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    ax.plot(x[ok], y(it.residual)[ok] * f, ".", color="tab:orange", alpha=0.6, label="before adding it")
+    ax.plot(x[ok], y(last.residual)[ok] * f, ".", color="tab:blue", alpha=0.6, label="final model")
+    order = np.argsort(sig.x[ok])
+    ax.plot(sig.x[ok][order], (y(c)[ok] * f)[order], "k-", lw=1.5, label="fitted effect")
+    ax.axhline(0, color="grey", lw=0.5)
+    ax.set_xlabel(sig.x_label)
+    ax.set_ylabel(f"{sig.y_label or 'residual along the effect'} ({dunit})")
+    ax.set_title(f"{it.added.name}@{it.added.where}: residual against its regressor", fontsize=10)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

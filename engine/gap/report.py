@@ -1,0 +1,287 @@
+"""The model-gap report: ``gap_report.json`` and the terminal (rich) view of a :class:`GapResult`.
+
+JSON (``format: vgr.gap_report/1``), lengths in the problem's report unit (mm for robot data):
+
+* ``verdict`` (``explained`` | ``unexplained`` | ``no_gap``) and ``reason``;
+* ``effects_added``: ``[{name, where, params, param_std, units, cv_rms_gain_mm, delta_bic,
+  p_value_corrected, independent_fraction, iteration, config}]`` (params SI, with their units);
+* ``rms_before_mm`` / ``rms_after_mm``: held-out (k-fold cross-validated) 3-D RMS of the model as given
+  (after its baseline calibration) and of the final augmented model; ``noise_floor_mm``: the 3-D RMS
+  the stated noise alone gives; ``noise_source``: ``given`` | ``data column sigma_mm`` | ``estimated``;
+* ``before`` / ``after``: in-sample RMS, max, per axis, chi-square test;
+* ``iterations``: per round the comparison, where the gap concentrates, every candidate's scores and
+  the decision; ``absorbed`` and ``not_testable`` candidates with the reason; ``decision_rule``;
+  ``problem`` (model, data, baseline calibration); ``files`` (plots, model files).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from .localise import FeatureGap
+from .selection import CandidateScore
+from .workflow import Comparison, GapResult
+
+REPORT_FORMAT = "vgr.gap_report/1"
+
+_DISPLAY = {  # SI unit -> (factor, display unit)
+    "rad": (1e6, "urad"),
+    "m": (1e3, "mm"),
+    "rad/(N m)": (1e6, "urad/(N m)"),
+    "1": (1e6, "ppm"),
+}
+
+
+def display(value: float, unit: str) -> tuple[float, str]:
+    """A parameter in the unit people read (urad, mm, ms, ppm)."""
+    if unit == "s":
+        return (value * 1e3, "ms") if abs(value) < 1.0 else (value, "s")
+    f, u = _DISPLAY.get(unit, (1.0, unit))
+    return value * f, u
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def _comparison(c: Comparison, s: float) -> dict[str, Any]:
+    return {
+        "rms": c.rms * s,
+        "max": c.max * s,
+        "rms_axis": [v * s for v in c.rms_axis],
+        "mean_axis": [v * s for v in c.mean_axis],
+        "held_out_rms": c.cv_rms * s,
+        "noise_rms": c.noise_rms * s,
+        "ratio_to_noise": c.ratio_to_noise,
+        "chi2": c.chi2,
+        "chi2_dof": c.dof,
+        "chi2_p": c.chi2_p,
+        "consistent_with_noise": c.consistent,
+    }
+
+
+def _score(sc: CandidateScore, s: float) -> dict[str, Any]:
+    return {
+        "name": sc.name,
+        "where": sc.where,
+        "k": sc.k,
+        "k_shape": sc.k_shape,
+        "independent_fraction": sc.independent_fraction,
+        "confounded_with": [{"param": n, "coef": c} for n, c in sc.confounded_with],
+        "absorbed": sc.absorbed,
+        "unavailable": sc.unavailable,
+        "delta_rss": sc.delta_rss,
+        "delta_bic": _finite(sc.delta_bic),
+        "f_stat": _finite(sc.f_stat),
+        "p_value": sc.p_value,
+        "p_value_corrected": sc.p_adjusted,
+        "cv_rms": _finite(sc.cv_rms * s),
+        "cv_gain": sc.cv_gain * s,
+        "cv_z": sc.cv_z,
+        "shape": sc.shape,
+        "eligible": sc.eligible,
+        "reasons": sc.reasons,
+    }
+
+
+def _feature(g: FeatureGap, s: float) -> dict[str, Any]:
+    return {
+        "feature": g.name,
+        "label": g.label,
+        "unit": g.unit,
+        "mean_chi2": g.mean_chi2,
+        "mean_p": g.mean_p,
+        "spread_chi2": g.spread_chi2,
+        "spread_p": g.spread_p,
+        "log10_p": g.log10_p,
+        "z": g.z,
+        "bins": [{"range": b.label, "n": b.n, "rms": b.rms * s, "mean": [v * s for v in b.mean]} for b in g.bins],
+    }
+
+
+def report_dict(result: GapResult) -> dict[str, Any]:
+    """The JSON-ready report (see the module docstring)."""
+    s, u = result.report_scale, result.report_unit
+    sel = result.config.selection
+    first = result.iterations[0]
+    effects = []
+    for it in result.iterations:
+        if it.added is None or it.added_score is None:
+            continue
+        sc = it.added_score
+        effects.append(
+            {
+                "name": it.added.name,
+                "where": it.added.where,
+                "params": it.added.params,
+                "param_std": it.added.param_std,
+                "units": it.added.units,
+                f"cv_rms_gain_{u}": sc.cv_gain * s,
+                "delta_bic": sc.delta_bic,
+                "p_value_corrected": sc.p_adjusted,
+                "independent_fraction": sc.independent_fraction,
+                "iteration": it.index,
+                "config": it.added.config,
+            }
+        )
+    return {
+        "format": REPORT_FORMAT,
+        "verdict": result.verdict,
+        "reason": result.reason,
+        "effects_added": effects,
+        f"rms_before_{u}": result.before.cv_rms * s,
+        f"rms_after_{u}": result.after.cv_rms * s,
+        f"noise_floor_{u}": result.before.noise_rms * s,
+        "noise_source": result.problem.get("noise_source", "given"),
+        "unit": u,
+        "before": _comparison(result.before, s),
+        "after": _comparison(result.after, s),
+        "absorbed": [
+            {"name": c.name, "where": c.where, "acts_like": [n for n, _ in c.confounded_with]}
+            for c in first.scores
+            if c.absorbed
+        ],
+        "not_testable": [
+            {"name": c.name, "where": c.where, "reason": c.unavailable} for c in first.scores if c.unavailable
+        ],
+        "decision_rule": {
+            "alpha_familywise": sel.alpha,
+            "bic_margin": sel.bic_margin,
+            "cv_folds": sel.cv_folds,
+            "cv_z": sel.cv_z,
+            "absorbed_tol": sel.absorbed_tol,
+            "chi2_alpha": result.config.chi2_alpha,
+            "max_effects": result.config.max_effects,
+            "seed": sel.seed,
+        },
+        "problem": result.problem,
+        "iterations": [
+            {
+                "index": it.index,
+                "comparison": _comparison(it.comparison, s),
+                "localisation": [_feature(g, s) for g in it.localisation],
+                "candidates": [_score(c, s) for c in sorted(it.scores, key=_rank)],
+                "decision": {
+                    "status": it.decision.status,
+                    "reason": it.decision.reason,
+                    "winner": it.decision.winner.label if it.decision.winner else None,
+                    "contenders": [{"label": lab, "delta_bic_given": g} for lab, g in it.decision.contenders],
+                },
+                "added": None if it.added is None else f"{it.added.name}@{it.added.where}",
+                "model_file": it.model_file,
+            }
+            for it in result.iterations
+        ],
+        "files": result.files,
+    }
+
+
+def _rank(c: CandidateScore) -> tuple:
+    return (not c.testable, -(c.delta_bic if np.isfinite(c.delta_bic) else -1e300))
+
+
+def write_json(result: GapResult, path: str | Path) -> Path:
+    path = Path(path)
+    path.write_text(json.dumps(_jsonable(report_dict(result)), indent=2), encoding="utf-8")
+    return path
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, float) and not np.isfinite(x):
+        return None
+    return x
+
+
+# --------------------------------------------------------------------------- terminal
+
+
+def _fmt_params(params: dict[str, float], std: dict[str, float], units: dict[str, str]) -> str:
+    parts = []
+    for k, v in params.items():
+        val, unit = display(v, units.get(k, ""))
+        sd, _ = display(std.get(k, float("nan")), units.get(k, ""))
+        parts.append(f"{k} = {val:.4g} ± {sd:.2g} {unit}")
+    return "; ".join(parts)
+
+
+def render(result: GapResult, console: Console, *, top: int = 8) -> None:
+    """Print the report: verdict, before/after table, localisation, candidates, effects, files."""
+    s, u = result.report_scale, result.report_unit
+    colour = {"explained": "green", "no_gap": "green", "unexplained": "yellow"}[result.verdict]
+    console.print(f"[bold {colour}]{result.verdict}[/]: {escape(result.reason)}", soft_wrap=True)
+    b, a = result.before, result.after
+    t = Table(title=f"gap before / after ({u})", title_justify="left")
+    for col in ("", "model as given + calibration", "augmented model", "noise floor"):
+        t.add_column(col, justify="right" if col else "left")
+    t.add_row("held-out RMS (k-fold)", f"{b.cv_rms * s:.4f}", f"{a.cv_rms * s:.4f}", f"{b.noise_rms * s:.4f}")
+    t.add_row("in-sample RMS", f"{b.rms * s:.4f}", f"{a.rms * s:.4f}", f"{b.noise_rms * s:.4f}")
+    t.add_row("max", f"{b.max * s:.4f}", f"{a.max * s:.4f}", "")
+    for i, ax in enumerate(("x", "y", "z")[: len(b.rms_axis)]):
+        t.add_row(f"RMS {ax}", f"{b.rms_axis[i] * s:.4f}", f"{a.rms_axis[i] * s:.4f}", "")
+    t.add_row("chi2 / dof", f"{b.chi2 / b.dof:.3f}", f"{a.chi2 / a.dof:.3f}", "1")
+    t.add_row("consistent with noise", str(b.consistent), str(a.consistent), "")
+    console.print(t)
+    if result.problem.get("noise_source") == "estimated":
+        console.print(
+            "[yellow]noise not given: estimated from the data (residual of every candidate fitted at once); "
+            "a gap outside the catalog would be counted as noise. Give --noise-mm for a real test.[/]"
+        )
+    first = result.iterations[0]
+    if first.localisation:
+        t = Table(title="where the gap concentrates (first model)", title_justify="left")
+        for col in ("feature", "z", f"RMS per bin ({u})"):
+            t.add_column(col)
+        for g in first.localisation[:5]:
+            bins = ", ".join(f"{bn.label}: {bn.rms * s:.3f}" for bn in g.bins)
+            t.add_row(f"{g.label} ({g.unit})" if g.unit else g.label, f"{g.z:.1f}", bins)
+        console.print(t)
+    for it in result.iterations:
+        t = Table(title=f"round {it.index + 1}: candidates ({it.decision.status})", title_justify="left")
+        for col in ("effect", "k", "indep.", "dBIC", "p corr.", f"CV gain {u}", "verdict"):
+            t.add_column(col, justify="left" if col in ("effect", "verdict") else "right")
+        ranked = [c for c in sorted(it.scores, key=_rank) if c.testable][:top]
+        for c in ranked:
+            mark = "[green]named[/]" if it.decision.winner is c and it.added else ("eligible" if c.eligible else "")
+            if not c.eligible and c.reasons:
+                mark = escape(c.reasons[0])
+            t.add_row(
+                c.label,
+                str(c.k + c.k_shape),
+                f"{c.independent_fraction:.2f}",
+                f"{c.delta_bic:.1f}",
+                f"{c.p_adjusted:.2g}",
+                f"{c.cv_gain * s:+.4f}",
+                mark,
+            )
+        console.print(t)
+        console.print(f"  {escape(it.decision.reason)}", soft_wrap=True)
+    if result.effects:
+        t = Table(title="effects added (SI values shown in urad, mm, ms, ppm)", title_justify="left")
+        for col in ("effect", "parameters ± 1 sigma", f"held-out gain {u}"):
+            t.add_column(col)
+        for fe, sc in result.effects:
+            t.add_row(f"{fe.name}@{fe.where}", _fmt_params(fe.params, fe.param_std, fe.units), f"{sc.cv_gain * s:.4f}")
+        console.print(t)
+    absorbed = [c.label for c in first.scores if c.absorbed]
+    if absorbed:
+        console.print(f"absorbed by the calibration (cannot be told apart from it): {', '.join(absorbed)}")
+    missing = sorted({f"{c.name} ({c.unavailable})" for c in first.scores if c.unavailable})
+    if missing:
+        console.print("not testable on these data: " + "; ".join(missing), soft_wrap=True)
+    for name, path in result.files.items():
+        console.print(f"{name}: {escape(path)}", highlight=False, soft_wrap=True)

@@ -1,0 +1,87 @@
+"""``vgr gap``: the model-gap workflow from the command line (a verb module of :mod:`engine.cli`).
+
+    vgr gap --model MODEL --data DATA [--report DIR] [--noise-mm SIGMA] [--calibrate frame,tool]
+
+MODEL is a shipped robot (``ur5e``, ``abb_irb120``), a robot model file, or an augmented model a
+previous run wrote; DATA a CSV (docs/model_gap.md) or a vgr recording (.mcap). Exit codes: 0 the
+gap is explained or there is none, 1 a gap remains unexplained, 2 bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from rich.console import Console
+
+EXIT_OK, EXIT_UNEXPLAINED = 0, 1
+
+
+def add_verbs(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "gap",
+        help="compare a robot model with measurements, name the missing effect, add it (model-gap workflow)",
+        description=__doc__.split("\n\n")[0],
+    )
+    p.add_argument("--model", required=True, help="shipped robot name, robot model file or augmented model file")
+    p.add_argument("--data", required=True, help="CSV (q1_deg.., x_mm, y_mm, z_mm, ...) or a .mcap recording")
+    p.add_argument("--report", metavar="DIR", help="write gap_report.json, figures and model files to DIR")
+    p.add_argument(
+        "--noise-mm",
+        type=float,
+        help="measurement noise, 1 sigma per axis in mm (default: the CSV's sigma_mm column, else estimated)",
+    )
+    p.add_argument(
+        "--calibrate",
+        default="frame,tool",
+        help="baseline calibration before any effect: frame,tool (default), frame, tool, frame,tool,joints or none",
+    )
+    p.add_argument("--max-effects", type=int, default=4, help="at most this many effects are added (default 4)")
+    p.add_argument("--alpha", type=float, default=1e-3, help="family-wise false-positive rate per round (1e-3)")
+    p.add_argument("--folds", type=int, default=5, help="cross-validation folds (5)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the cross-validation folds")
+    p.add_argument("--joint-topic", help="recordings: the JointState topic (default: the only one)")
+    p.add_argument("--measurement-topic", help="recordings: the TrackerPose/PoseStamped topic of the measurements")
+    p.add_argument("--sensor", default="sensor", help="CSV: the name of the measuring sensor (where latency acts)")
+    p.add_argument("--json", action="store_true", help="print gap_report.json to stdout instead of tables")
+    p.add_argument("--plugin", action="append", metavar="MODULE", help="also load effects from this plugin module")
+    p.set_defaults(func=cmd_gap)
+
+
+def _levels(text: str) -> tuple[str, ...]:
+    parts = tuple(x.strip() for x in text.split(",") if x.strip())
+    return () if parts in ((), ("none",)) else parts
+
+
+def cmd_gap(args: argparse.Namespace) -> int:
+    from engine.gap import GapConfig, SelectionConfig
+    from engine.gap.report import _jsonable, report_dict
+
+    from .analyse import analyse_gap, families_from_registry
+
+    if not (0 < args.alpha < 0.5):
+        raise ValueError(f"--alpha must be in (0, 0.5), got {args.alpha}")
+    if args.folds < 2:
+        raise ValueError(f"--folds must be >= 2, got {args.folds}")
+    if args.max_effects < 0:
+        raise ValueError("--max-effects must be >= 0")
+    cfg = GapConfig(
+        SelectionConfig(alpha=args.alpha, cv_folds=args.folds, seed=args.seed), max_effects=args.max_effects
+    )
+    console = None if args.json else Console(width=None if sys.stdout.isatty() else 160)
+    opts = {"joint_topic": args.joint_topic, "measurement_topic": args.measurement_topic, "sensor": args.sensor}
+    result = analyse_gap(
+        args.model,
+        args.data,
+        noise_mm=args.noise_mm,
+        calibrate=_levels(args.calibrate),
+        report_dir=args.report,
+        config=cfg,
+        families=families_from_registry(tuple(args.plugin or ())),
+        console=console,
+        data_options={k: v for k, v in opts.items() if v is not None},
+    )
+    if args.json:
+        print(json.dumps(_jsonable(report_dict(result)), indent=2))
+    return EXIT_UNEXPLAINED if result.verdict == "unexplained" else EXIT_OK

@@ -1,0 +1,426 @@
+"""The model-gap catalog: effect families (registered through ``vgr_model_effects``) and their candidates.
+
+A family is one catalog effect; on a problem it yields one candidate per place the effect can act.
+Robot-side candidates wrap the fittable effects of :mod:`plugins.sim.robot_effects` (their
+Jacobians come from :meth:`RobotWithEffects.effect_jacobian`); measurement-side ones those of
+:mod:`plugins.sim.measurement_effects`.
+
+| family | where | parameters (SI) | needs |
+| --- | --- | --- | --- |
+| ``joint_offset`` | ``jointN`` | zero offset (rad) | |
+| ``link_length`` | ``jointN`` | length error of the joint's longer DH length, a or d (m) | dh/mdh model |
+| ``joint_compliance`` | ``jointN`` | deflection per N m of gravity torque (rad/(N m)) | link masses |
+| ``backlash`` | ``jointN`` | total play (rad, >= 0) | ``dir1..dirN`` |
+| ``encoder_eccentricity`` | ``jointN`` | sin and cos amplitudes (rad) | |
+| ``thermal_drift`` | ``robot`` | strain of every link length at equilibrium (1), time constant (s) | ``t_s`` |
+| ``thermal_drift`` | ``base`` | base height growth at equilibrium (m), time constant (s) | ``t_s`` |
+| ``base_frame`` | ``base`` | base pose error tx ty tz (m) rx ry rz (rad) | |
+| ``tool_offset`` | ``tool`` | tool point error tx ty tz (m, flange frame) | |
+| ``time_latency`` | sensor | latency of the measurement stream (s) | ``qdN_deg_s`` |
+| ``depth_scale`` | sensor | relative range error (1) | ``range_mm`` |
+| ``depth_bias`` | sensor | range offset (m) | ``range_mm`` |
+
+Candidates the baseline calibration already explains (a joint offset of joint 1 when the measurement
+frame is fitted, the base frame itself ...) are scored as *absorbed* by the workflow, not hidden.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from engine.gap.interfaces import Design, Signature
+from plugins.sim.measurement_effects import MEASUREMENT_CATALOG
+from plugins.sim.robot_effects import (
+    Backlash,
+    BaseFrameError,
+    EncoderEccentricity,
+    JointCompliance,
+    JointOffset,
+    LinkLength,
+    RobotEffect,
+    ThermalDrift,
+    ToolOffsetError,
+)
+
+from .problem import KinematicGapProblem, effect_config
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(eq=False)
+class RobotCandidate:
+    """A robot-side effect at one place; ``values`` map to the effect's vector by ``param_map``."""
+
+    name: str
+    where: str
+    prototype: RobotEffect
+    param_names: tuple[str, ...]
+    units: tuple[str, ...]
+    param_map: F64  # (effect vector size, len(param_names))
+    lower: F64
+    upper: F64
+    shape_names: tuple[str, ...] = ()
+    shape_grid: tuple[float, ...] = ()
+    shape_lower: tuple[float, ...] = ()
+    shape_upper: tuple[float, ...] = ()
+    regressor: str = ""  # feature plotted against (q2, tau2, dir2, t_s ...)
+    joint: int | None = None  # joint-space effects: the joint, for the signature's basis
+    jac_floor: F64 | None = None  # lowest values at which the effect can be differentiated
+    unavailable: str | None = None
+    side: ClassVar[str] = "robot"
+
+    @property
+    def n_linear(self) -> int:
+        return len(self.param_names) - len(self.shape_names)
+
+    def effect(self, values: F64) -> RobotEffect:
+        return self.prototype.unpack(self.param_map @ np.asarray(values, dtype=float))
+
+    def jac_values(self, values: F64) -> F64:
+        v = np.asarray(values, dtype=float)
+        return v if self.jac_floor is None else np.maximum(v, self.jac_floor)
+
+    def bounds(self) -> tuple[F64, F64]:
+        return (
+            np.concatenate([self.lower, np.asarray(self.shape_lower, float)]),
+            np.concatenate([self.upper, np.asarray(self.shape_upper, float)]),
+        )
+
+    def config(self, values: F64) -> dict[str, Any]:
+        return {self.prototype.catalog_name: effect_config(self.effect(values))}
+
+    def designs(self, problem: KinematicGapProblem) -> list[Design]:
+        zeros = np.zeros(self.n_linear)
+        if not self.shape_names:
+            return [Design(problem.robot_columns(self, zeros))]
+        out = []
+        for s in self.shape_grid:
+            cols = problem.robot_columns(self, np.concatenate([zeros, [s]]))[:, :, : self.n_linear]
+            out.append(Design(cols, {self.shape_names[0]: float(s)}))
+        return out
+
+    def signature(self, problem: KinematicGapProblem) -> Signature | None:
+        feats = {f.name: f for f in problem.features()}
+        x = feats.get(self.regressor)
+        if x is None:
+            return None
+        if self.joint is not None:
+            basis = problem.joint_position_jacobian()[:, :, self.joint - 1]
+            return Signature(x.values, f"{x.label} ({x.unit})" if x.unit else x.label, basis, "joint error", "rad")
+        if self.n_linear == 1:
+            v = np.zeros(len(self.param_names))
+            if self.shape_names:
+                v[-1] = self.shape_grid[len(self.shape_grid) // 2]
+            basis = problem.robot_columns(self, v)[:, :, 0] * problem.sigma[:, None]
+            return Signature(x.values, f"{x.label} ({x.unit})", basis, self.param_names[0], self.units[0])
+        return Signature(x.values, f"{x.label} ({x.unit})", None, "", "")  # type: ignore[arg-type]
+
+
+@dataclass(eq=False)
+class MeasurementCandidate:
+    """A measurement-side effect (latency, range scale / bias) at the data's sensor."""
+
+    name: str
+    where: str
+    unavailable: str | None = None
+    param_names: tuple[str, ...] = ()
+    units: tuple[str, ...] = ()
+    shape_names: tuple[str, ...] = ()
+    lower: F64 = field(default_factory=lambda: np.array([-np.inf]))
+    upper: F64 = field(default_factory=lambda: np.array([np.inf]))
+    side: ClassVar[str] = "measurement"
+
+    def __post_init__(self) -> None:
+        cls = MEASUREMENT_CATALOG[self.name]
+        self.param_names = (cls.field_name,)
+        self.units = (cls.unit,)
+
+    def effect(self, values: F64):
+        return MEASUREMENT_CATALOG[self.name](sensor=self.where, **{self.param_names[0]: float(values[0])})
+
+    def jac_values(self, values: F64) -> F64:
+        return np.asarray(values, dtype=float)
+
+    def bounds(self) -> tuple[F64, F64]:
+        return self.lower, self.upper
+
+    def config(self, values: F64) -> dict[str, Any]:
+        return {self.name: {"sensor": self.where, self.param_names[0]: float(values[0])}}
+
+    def designs(self, problem: KinematicGapProblem) -> list[Design]:
+        return [Design(problem.measurement_columns(self.name))]
+
+    def signature(self, problem: KinematicGapProblem) -> Signature | None:
+        feats = {f.name: f for f in problem.features()}
+        key = "speed" if self.name == "time_latency" else "range"
+        x = feats.get(key)
+        if x is None:
+            return None
+        basis = problem.measurement_columns(self.name)[:, :, 0] * problem.sigma[:, None]
+        return Signature(x.values, f"{x.label} ({x.unit})", basis, self.param_names[0], self.units[0])
+
+
+# --------------------------------------------------------------------------- families
+
+
+def _missing(problem: KinematicGapProblem, needs: tuple[str, ...]) -> str | None:
+    have = problem.data.columns
+    names = {
+        "direction": "dir1..dirN",
+        "t_s": "t_s",
+        "qd": "qd1_deg_s..qdN_deg_s",
+        "range": "range_mm",
+        "payload_kg": "payload_kg",
+    }
+    miss = [names.get(n, n) for n in needs if n not in have]
+    return f"needs the data column(s) {', '.join(miss)}" if miss else None
+
+
+class _Family:
+    name: ClassVar[str] = ""
+    description: ClassVar[str] = ""
+    requires: ClassVar[tuple[str, ...]] = ()
+
+    def candidates(self, problem: Any) -> list:
+        if getattr(problem, "kind", None) != "kinematic":
+            return []
+        missing = _missing(problem, self.requires)
+        if missing:
+            return [self._unavailable(problem, missing)]
+        return self._candidates(problem)
+
+    def _unavailable(self, problem: KinematicGapProblem, reason: str):
+        return RobotCandidate(self.name, "*", JointOffset(), (), (), np.zeros((0, 0)), np.zeros(0), np.zeros(0),
+                              unavailable=reason)  # fmt: skip
+
+    def _candidates(self, problem: KinematicGapProblem) -> list:
+        raise NotImplementedError
+
+
+def _per_joint(name, problem, make, params, units, regressor, lower=None, jac_floor=None) -> list[RobotCandidate]:
+    out = []
+    k = len(params)
+    for j in range(1, problem.model.dof + 1):
+        out.append(
+            RobotCandidate(
+                name,
+                f"joint{j}",
+                make(j),
+                tuple(p.format(j=j) for p in params),
+                units,
+                np.eye(k),
+                np.full(k, -np.inf) if lower is None else np.full(k, lower),
+                np.full(k, np.inf),
+                regressor=regressor.format(j=j),
+                joint=j,
+                jac_floor=jac_floor,
+            )
+        )
+    return out
+
+
+class JointOffsetFamily(_Family):
+    name = "joint_offset"
+    description = "zero offset of a joint (its encoder reads a constant off)"
+
+    def _candidates(self, problem):
+        return _per_joint(
+            self.name, problem, lambda j: JointOffset((j,), (0.0,)), ("offset_joint{j}",), ("rad",), "q{j}"
+        )
+
+
+class LinkLengthFamily(_Family):
+    name = "link_length"
+    description = "length error of a link (the joint's longer DH length, a or d)"
+
+    def _candidates(self, problem):
+        if problem.model.convention not in ("dh", "mdh"):
+            return [
+                self._unavailable(problem, f"needs a dh/mdh model, {problem.model.name} is {problem.model.convention}")
+            ]
+        values = dict(zip(problem.model.param_names, problem.model.param_values, strict=True))
+        out = _per_joint(self.name, problem, lambda j: LinkLength((j,), (0.0,)), ("length_joint{j}",), ("m",), "q{j}")
+        for c in out:
+            c.joint = None  # a length, not a joint angle: the signature uses the effect's own column
+        return [c for c in out if max(abs(values[f"{c.where}.a"]), abs(values[f"{c.where}.d"])) >= 1e-6]
+
+
+class JointComplianceFamily(_Family):
+    name = "joint_compliance"
+    description = "joint deflection proportional to the gravity torque (payload included)"
+
+    def _candidates(self, problem):
+        if problem.model.links is None:
+            return [self._unavailable(problem, f"needs link masses in the model ({problem.model.name} has none)")]
+        tau = problem.gravity_torque()
+        out = _per_joint(
+            self.name,
+            problem,
+            lambda j: JointCompliance((j,), (0.0,)),
+            ("compliance_joint{j}",),
+            ("rad/(N m)",),
+            "tau{j}",
+        )
+        return [c for c in out if np.ptp(tau[:, c.joint - 1]) > 1e-6 or np.abs(tau[:, c.joint - 1]).max() > 1e-6]
+
+
+class BacklashFamily(_Family):
+    name = "backlash"
+    description = "gear play: the joint lags half the backlash behind its approach direction"
+    requires = ("direction",)
+
+    def _candidates(self, problem):
+        return _per_joint(
+            self.name,
+            problem,
+            lambda j: Backlash((j,), (0.0,)),
+            ("backlash_joint{j}",),
+            ("rad",),
+            "dir{j}",
+            lower=0.0,
+            jac_floor=np.array([2e-6]),
+        )
+
+
+class EncoderEccentricityFamily(_Family):
+    name = "encoder_eccentricity"
+    description = "once-per-revolution joint error a sin(q) + b cos(q)"
+
+    def _candidates(self, problem):
+        return _per_joint(
+            self.name,
+            problem,
+            lambda j: EncoderEccentricity((j,), (0.0,), (0.0,)),
+            ("ecc_sin_joint{j}", "ecc_cos_joint{j}"),
+            ("rad", "rad"),
+            "q{j}",
+        )
+
+
+class ThermalDriftFamily(_Family):
+    name = "thermal_drift"
+    description = "first-order warm-up drift of the link lengths (robot) or of the base height (base)"
+    requires = ("t_s",)
+    n_grid: ClassVar[int] = 12
+
+    def _candidates(self, problem):
+        t = problem.data.samples.t_s
+        span = float(np.ptp(t))
+        if span <= 0:
+            return [self._unavailable(problem, "t_s does not vary")]
+        # A time constant shorter than the first samples' spacing is a constant, not a drift (and a
+        # constant length change is link_length / depth_scale): the grid starts where 10 % of the
+        # samples have been taken.
+        tau_min = max(1.0, span / 100.0, float(np.quantile(t - t.min(), 0.1)))
+        grid = tuple(np.geomspace(tau_min, 2.0 * span, self.n_grid).tolist())
+        bounds = dict(shape_grid=grid, shape_lower=(1.0,), shape_upper=(50.0 * span,))
+        model = problem.model
+        names, lengths = [], []
+        for n, v in zip(model.param_names, problem.nominal.param_values, strict=True):
+            if n.startswith("joint") and n.rsplit(".", 1)[-1] in ("a", "d") and abs(v) > 1e-9:
+                names.append(n)
+                lengths.append(float(v))
+        k = len(names)
+        robot_map = np.zeros((k + 1, 2))
+        robot_map[:k, 0] = lengths
+        robot_map[k, 1] = 1.0
+        out = []
+        if k:
+            out.append(
+                RobotCandidate(
+                    self.name, "robot", ThermalDrift(tuple(names), (0.0,) * k, 1800.0), ("strain", "time_constant"),
+                    ("1", "s"), robot_map, np.array([-np.inf]), np.array([np.inf]), ("time_constant",), regressor="t_s",
+                    **bounds,
+                )
+            )  # fmt: skip
+        out.append(
+            RobotCandidate(
+                self.name, "base", ThermalDrift(("base.tz",), (0.0,), 1800.0), ("drift_base_tz", "time_constant"),
+                ("m", "s"), np.eye(2), np.array([-np.inf]), np.array([np.inf]), ("time_constant",), regressor="t_s",
+                **bounds,
+            )
+        )  # fmt: skip
+        return out
+
+
+class BaseFrameFamily(_Family):
+    name = "base_frame"
+    description = "the robot base is not where the model puts it (6-DOF pose error)"
+
+    def _candidates(self, problem):
+        names = tuple(f"base.{c}" for c in ("tx", "ty", "tz", "rx", "ry", "rz"))
+        return [
+            RobotCandidate(
+                self.name, "base", BaseFrameError(), names, ("m", "m", "m", "rad", "rad", "rad"), np.eye(6),
+                np.full(6, -np.inf), np.full(6, np.inf), regressor="reach",
+            )
+        ]  # fmt: skip
+
+
+class ToolOffsetFamily(_Family):
+    name = "tool_offset"
+    description = "the measured tool point is not where the model puts it (flange frame)"
+
+    def _candidates(self, problem):
+        comps = ("tx", "ty", "tz")
+        return [
+            RobotCandidate(
+                self.name, "tool", ToolOffsetError(comps, (0.0,) * 3), tuple(f"tool.{c}" for c in comps), ("m",) * 3,
+                np.eye(3), np.full(3, -np.inf), np.full(3, np.inf), regressor="reach",
+            )
+        ]  # fmt: skip
+
+
+class _MeasurementFamily(_Family):
+    def _unavailable(self, problem, reason):
+        return MeasurementCandidate(self.name, problem.data.sensor, unavailable=reason)
+
+    def _candidates(self, problem):
+        return [MeasurementCandidate(self.name, problem.data.sensor)]
+
+
+class TimeLatencyFamily(_MeasurementFamily):
+    name = "time_latency"
+    description = "the measurement stream lags the joint stream (moving robot)"
+    requires = ("qd",)
+
+    def _candidates(self, problem):
+        if not np.any(np.abs(problem.data.qd) > 1e-9):
+            return [self._unavailable(problem, "the robot never moves at a measurement (all qd = 0)")]
+        return super()._candidates(problem)
+
+
+class DepthScaleFamily(_MeasurementFamily):
+    name = "depth_scale"
+    description = "the ranging sensor's distances are scaled"
+    requires = ("range",)
+
+
+class DepthBiasFamily(_MeasurementFamily):
+    name = "depth_bias"
+    description = "the ranging sensor's distances are offset"
+    requires = ("range",)
+
+
+FAMILIES: tuple[type[_Family], ...] = (
+    JointOffsetFamily,
+    LinkLengthFamily,
+    JointComplianceFamily,
+    BacklashFamily,
+    EncoderEccentricityFamily,
+    ThermalDriftFamily,
+    BaseFrameFamily,
+    ToolOffsetFamily,
+    TimeLatencyFamily,
+    DepthScaleFamily,
+    DepthBiasFamily,
+)
+
+
+def builtin_families() -> list[_Family]:
+    """One instance of every built-in family (what ``vgr_model_effects`` returns)."""
+    return [cls() for cls in FAMILIES]

@@ -1,0 +1,507 @@
+"""The robot-kinematics model-gap problem: a robot model, its baseline calibration, measured tool points.
+
+Prediction of the measured point for sample *i* (commanded joints ``q``, context: time, approach
+direction, payload; joint velocities ``qd``)::
+
+    q_seen  = q - L qd                                    (time_latency, if added)
+    T       = RobotWithEffects(model, robot effects).fk(q_seen, context)
+    p       = T[:3, 3]                                    (measurement frame = the model's world)
+    p_meas  = p (1 + e + b / |p|)                         (depth_scale e, depth_bias b, if added)
+
+The model's ``T_world_base`` is the measurement frame ``T_meas_base``. The **baseline calibration**
+(``calibrate``) decides what is fitted before any effect is tried, reusing the kinematic
+calibration (:mod:`plugins.solvers.kinematic_calibration`):
+
+* ``frame``: the measurement frame (``base.tx .. base.rz``), started from a rigid fit;
+* ``tool``: the measured point on the flange (``tool.tx ty tz``), started from a linear fit;
+* ``joints``: the identifiable DH / MDH / POE joint parameters (a full kinematic calibration);
+* ``none`` (empty): the model's frames are trusted as they are.
+
+Parameters that are not identifiable from the data are fixed (identifiability analysis of the
+kinematic calibration). Every added effect is refitted together with the baseline (scipy
+``least_squares``, analytic chain Jacobians, :meth:`RobotWithEffects.effect_jacobian` for the
+effects), so an effect never takes credit for what the calibration explains.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from numpy.typing import NDArray
+from scipy.optimize import least_squares
+
+from engine.gap.interfaces import Candidate, Feature, FittedEffect, GapInputError, Linearisation
+from plugins.sim.kinematics import RobotModel
+from plugins.sim.measurement_effects import apply_range_distortion, range_distortion_jacobian
+from plugins.sim.model_file import model_to_dict
+from plugins.sim.true_robot import RobotWithEffects
+from plugins.solvers.kinematic_calibration import (
+    KinematicCalibrationConfig,
+    analyse,
+    calibrate_kinematics,
+    candidate_parameters,
+)
+from plugins.solvers.kinematic_calibration.calibrate import initial_frames
+
+from .data import GapData
+
+F64 = NDArray[np.float64]
+CALIBRATION_LEVELS = ("frame", "tool", "joints")
+GAP_MODEL_FORMAT = 1
+MIN_SAMPLES = 6  # below this the rigid frame fit is degenerate; the workflow asks for more (engine.gap)
+
+
+@dataclass
+class ProblemConfig:
+    """How the baseline is calibrated and what the noise is."""
+
+    calibrate: tuple[str, ...] = ("frame", "tool")
+    noise_m: float | None = None  # per-axis 1-sigma; None: the data's sigma column
+    noise_source: str = "given"  # given | data column | estimated (see engine.gap.noise)
+    parameterisation: str | None = None  # for "joints": dh | mdh | poe (default: the model's)
+    max_nfev: int = 100
+
+
+class KinematicGapProblem:
+    """See the module docstring. Implements :class:`engine.gap.interfaces.GapProblem`."""
+
+    kind = "kinematic"
+    axis_names = ("x", "y", "z")
+    report_unit = "mm"
+    report_scale = 1e3
+
+    def __init__(self, model: RobotModel, data: GapData, config: ProblemConfig | None = None) -> None:
+        cfg = config or ProblemConfig()
+        bad = [c for c in cfg.calibrate if c not in CALIBRATION_LEVELS]
+        if bad:
+            raise GapInputError(f"unknown calibration level(s) {bad}; use some of {', '.join(CALIBRATION_LEVELS)}")
+        if data.n_samples < MIN_SAMPLES:
+            raise GapInputError(
+                f"{data.n_samples} samples are too few: even the baseline calibration (measurement frame, tool "
+                f"point) needs {MIN_SAMPLES}, and naming an effect with cross-validation needs a few dozen"
+            )
+        if data.n_joints != model.dof:
+            raise GapInputError(f"the data have {data.n_joints} joints but model {model.name!r} has {model.dof}")
+        if cfg.noise_m is not None:
+            if not (np.isfinite(cfg.noise_m) and cfg.noise_m > 0):
+                raise GapInputError(f"the noise sigma must be a positive number, got {cfg.noise_m}")
+            sigma = np.full(data.n_samples, float(cfg.noise_m))
+        elif data.sigma_m is not None:
+            sigma = data.sigma_m.copy()
+        else:
+            raise GapInputError(
+                "the measurement noise is needed to tell a gap from noise: give --noise-mm SIGMA (per-axis "
+                "1-sigma, e.g. 0.05 for a laser tracker, 0.3 for a Vive tracker) or a sigma_mm column"
+            )
+        reach = model.chain.reach_bound(skip_groups=("base",))
+        spread = float(np.ptp(data.samples.positions, axis=0).max())
+        if spread > 20.0 * reach:
+            raise GapInputError(
+                f"the measured points spread over {spread:.1f} m but {model.name} reaches {reach:.2f} m: "
+                "millimetres given as metres?"
+            )
+        if data.n_samples > 3 and spread < 1e-3 * reach:
+            raise GapInputError(f"the measured points span only {spread * 1e3:.3f} mm: metres given as millimetres?")
+        self.cfg = cfg
+        self.data = data
+        self.nominal = model
+        self.sigma = sigma
+        self.n_samples = data.n_samples
+        self.ctx = data.samples.context()
+        self.q = data.samples.q
+        self.qd = data.qd
+        self.accepted: list[tuple[Any, F64]] = []  # (candidate, values)
+        self.calibration_notes: list[str] = []
+        self._calibrate_baseline()
+
+    # ----------------------------------------------------------------------------- baseline
+
+    def _calibrate_baseline(self) -> None:
+        cfg, samples = self.cfg, self.data.samples
+        frame, tool = "frame" in cfg.calibrate, "tool" in cfg.calibrate
+        kc = KinematicCalibrationConfig(
+            parameterisation=cfg.parameterisation,  # type: ignore[arg-type]
+            estimate_base=frame,
+            estimate_tool=tool,
+            noise_position_m=float(np.median(self.sigma)),
+            holdout_fraction=0.0,
+        )
+        if "joints" in cfg.calibrate:
+            cal = calibrate_kinematics(self.nominal, samples, config=kc)
+            self.model = self._gravity_follows_base(cal.model)
+            names = list(cal.result.param_names)
+            self.calibration_notes += [r for r in cal.result.reasons if "not identifiable" in r]
+        else:
+            model = initial_frames(self.nominal, samples, frame, tool) if (frame or tool) else self.nominal
+            self.model = self._gravity_follows_base(model)
+            names = [n for n in candidate_parameters(self.model, False, kc) if not n.startswith("joint")]
+        self.base_names: list[str] = []
+        if names:
+            J = self._predict(jacobian=True, base_names=names)[1] / self.sigma[:, None, None]
+            ident = analyse(J.reshape(-1, len(names)), names)
+            self.base_names = ident.kept
+            if ident.dropped:
+                self.calibration_notes.append(
+                    "not identifiable from these data, kept at their current values: "
+                    + "; ".join(ident.describe_dropped())
+                )
+        self.refit()
+
+    def _gravity_follows_base(self, model: RobotModel) -> RobotModel:
+        """``model`` with gravity expressed in its world frame (the measurement frame once fitted).
+
+        The nominal model's gravity is given in the nominal world; moving the base to the measurement
+        frame moves the world, so gravity (hence the gravity torque of ``joint_compliance``) turns along.
+        """
+        R = model.T_world_base[:3, :3] @ self.nominal.T_world_base[:3, :3].T
+        g = R @ self.nominal.gravity_world
+        if np.allclose(g, model.gravity_world, rtol=0, atol=1e-12):
+            return model
+        return RobotModel(
+            model.name,
+            model.convention,
+            model.chain,
+            model.joints,
+            links=model.links,
+            gravity_world=g,
+            description=model.description,
+            sources=model.sources,
+            home=model.home,
+        )
+
+    # ----------------------------------------------------------------------------- prediction
+
+    def _split(self, accepted):
+        robot = [(c, v) for c, v in accepted if c.side == "robot"]
+        meas = {c.name: float(v[0]) for c, v in accepted if c.side == "measurement"}
+        return robot, meas
+
+    def _predict(
+        self,
+        model: RobotModel | None = None,
+        accepted: list[tuple[Any, F64]] | None = None,
+        *,
+        jacobian: bool = False,
+        base_names: list[str] | None = None,
+    ) -> tuple[F64, F64 | None]:
+        """Predicted measurements ``(N, 3)`` and (optionally) their Jacobian ``(N, 3, P)`` (SI, unwhitened).
+
+        Jacobian columns: the ``base_names`` chain parameters, then every accepted effect's values.
+        """
+        model = self.model if model is None else model
+        accepted = self.accepted if accepted is None else accepted
+        names = self.base_names if base_names is None else base_names
+        robot, meas = self._split(accepted)
+        lat = meas.get("time_latency", 0.0)
+        q = self.q - lat * self.qd if (lat and self.qd is not None) else self.q
+        effects = [c.effect(v) for c, v in robot]
+        rw = RobotWithEffects(model, effects)
+        qa, va = rw.actual_state(q, self.ctx)
+        T = model.fk(qa, va)
+        p = T[:, :3, 3]
+        e, b = meas.get("depth_scale", 0.0), meas.get("depth_bias", 0.0)
+        depth = any(c.name in ("depth_scale", "depth_bias") for c, _ in accepted)
+        pm = apply_range_distortion(p, e, b) if depth else p
+        if not jacobian:
+            return pm, None
+        cols = []
+        if names:
+            idx = [model.chain.index(n) for n in names]
+            _, Jp = model.chain.screw_jacobian(qa, va, columns="params")
+            cols.append(Jp[:, :3, idx])
+        if robot:  # differentiated at values inside the effects' domains (linear effects: same columns)
+            rw_j = RobotWithEffects(model, [c.effect(c.jac_values(v)) for c, v in robot])
+            for i, (c, _v) in enumerate(robot):
+                cols.append(rw_j.effect_jacobian(i, q, self.ctx)[:, :3, :] @ c.param_map)
+        for c, _v in accepted:
+            if c.side != "measurement":
+                continue
+            if c.name == "time_latency":
+                _, Jq = model.chain.screw_jacobian(qa, va)
+                cols.append(-np.einsum("nij,nj->ni", Jq[:, :3, :], self.qd)[:, :, None])
+            elif c.name == "depth_scale":
+                cols.append(np.zeros((self.n_samples, 3, 1)))  # filled after the distortion below
+            else:
+                cols.append(np.zeros((self.n_samples, 3, 1)))
+        J = np.concatenate(cols, axis=2) if cols else np.zeros((self.n_samples, 3, 0))
+        if depth:
+            J = range_distortion_jacobian(p, e, b) @ J
+            k = len(names) + sum(len(c.param_names) for c, _ in robot)
+            for c, _v in accepted:
+                if c.side != "measurement":
+                    continue
+                if c.name == "depth_scale":
+                    J[:, :, k] = p
+                elif c.name == "depth_bias":
+                    J[:, :, k] = p / np.linalg.norm(p, axis=1, keepdims=True)
+                k += 1
+        return pm, J
+
+    def _reorder_accepted_columns(self) -> list[str]:
+        robot = [(c, v) for c, v in self.accepted if c.side == "robot"]
+        meas = [(c, v) for c, v in self.accepted if c.side == "measurement"]
+        self.accepted = robot + meas  # the Jacobian's column order
+        return [f"{c.name}@{c.where}.{p}" for c, _ in self.accepted for p in c.param_names]
+
+    # ----------------------------------------------------------------------------- fitting
+
+    def _unpack_state(self, x: F64) -> tuple[RobotModel, list[tuple[Any, F64]]]:
+        nb = len(self.base_names)
+        v = self.model.param_values.copy()
+        if nb:
+            v[[self.model.chain.index(n) for n in self.base_names]] += x[:nb]
+        model = self._gravity_follows_base(self.model.with_values(v))
+        accepted, k = [], nb
+        for c, val in self.accepted:
+            accepted.append((c, x[k : k + val.size].copy()))
+            k += val.size
+        return model, accepted
+
+    def refit(self) -> tuple[F64, float, int]:
+        """Nonlinear least squares of the baseline parameters and every accepted effect together.
+
+        Returns ``(covariance of the full state, a-posteriori variance factor, dof)``.
+        """
+        self._reorder_accepted_columns()
+        nb = len(self.base_names)
+        x0 = np.concatenate([np.zeros(nb)] + [v for _, v in self.accepted])
+        lo = np.concatenate([np.full(nb, -np.inf)] + [c.bounds()[0] for c, _ in self.accepted])
+        hi = np.concatenate([np.full(nb, np.inf)] + [c.bounds()[1] for c, _ in self.accepted])
+        x0 = np.clip(x0, lo, hi)
+        meas = self.data.samples.positions
+        s = self.sigma[:, None]
+
+        def fun(x: F64) -> F64:
+            model, acc = self._unpack_state(x)
+            return ((meas - self._predict(model, acc)[0]) / s).ravel()
+
+        def jac(x: F64) -> F64:
+            model, acc = self._unpack_state(x)
+            J = self._predict(model, acc, jacobian=True)[1]
+            return -(J / s[:, :, None]).reshape(-1, x.size)
+
+        if x0.size:
+            sol = least_squares(
+                fun, x0, jac=jac, bounds=(lo, hi), x_scale="jac", method="trf", max_nfev=self.cfg.max_nfev
+            )
+            x = sol.x
+        else:
+            x = x0
+        self.model, self.accepted = self._unpack_state(x)
+        pred, J = self._predict(jacobian=True)
+        r = ((meas - pred) / s).ravel()
+        Jw = (J / s[:, :, None]).reshape(r.size, -1)
+        dof = max(1, r.size - x.size)
+        s2 = float(r @ r) / dof
+        cov = s2 * np.linalg.pinv(Jw.T @ Jw, rcond=1e-12) if x.size else np.zeros((0, 0))
+        return cov, s2, dof
+
+    # ----------------------------------------------------------------------------- GapProblem API
+
+    def linearise(self) -> Linearisation:
+        names = list(self.base_names) + self._reorder_accepted_columns()
+        pred, J = self._predict(jacobian=True)
+        s = self.sigma[:, None]
+        return Linearisation((self.data.samples.positions - pred) / s, J / s[:, :, None], names, self.sigma.copy())
+
+    def add_effect(self, candidate: Candidate, values: F64) -> FittedEffect:
+        self.accepted.append((candidate, np.asarray(values, dtype=float).copy()))
+        cov, _, _ = self.refit()
+        nb = len(self.base_names)
+        k = nb
+        for c, v in self.accepted:
+            if c is candidate:
+                std = np.sqrt(np.clip(np.diag(cov)[k : k + v.size], 0, None))
+                fitted = v
+                break
+            k += v.size
+        return FittedEffect(
+            candidate.name,
+            candidate.where,
+            {p: float(x) for p, x in zip(candidate.param_names, fitted, strict=True)},
+            {p: float(x) for p, x in zip(candidate.param_names, std, strict=True)},
+            dict(zip(candidate.param_names, candidate.units, strict=True)),
+            candidate.config(fitted),
+        )
+
+    def effect_std(self) -> dict[str, dict[str, float]]:
+        """One-sigma uncertainty of every accepted effect's parameters at the current state."""
+        cov, _, _ = self.refit()
+        out, k = {}, len(self.base_names)
+        for c, v in self.accepted:
+            sd = np.sqrt(np.clip(np.diag(cov)[k : k + v.size], 0, None))
+            out[f"{c.name}@{c.where}"] = dict(zip(c.param_names, sd.tolist(), strict=True))
+            k += v.size
+        return out
+
+    # -- helpers the candidates use ------------------------------------------------------------
+
+    def current_state(self) -> tuple[F64, F64, F64]:
+        """``(q_seen, q_actual, values_actual)`` of the current model for every sample."""
+        robot, meas = self._split(self.accepted)
+        lat = meas.get("time_latency", 0.0)
+        q = self.q - lat * self.qd if (lat and self.qd is not None) else self.q
+        rw = RobotWithEffects(self.model, [c.effect(v) for c, v in robot])
+        qa, va = rw.actual_state(q, self.ctx)
+        return q, qa, va
+
+    def _output_jacobian(self) -> F64:
+        """``(N, 3, 3)``: derivative of the measured point w.r.t. the true point (range effects)."""
+        _, meas = self._split(self.accepted)
+        if "depth_scale" not in meas and "depth_bias" not in meas:
+            return np.broadcast_to(np.eye(3), (self.n_samples, 3, 3))
+        _, qa, va = self.current_state()
+        p = self.model.fk(qa, va)[:, :3, 3]
+        return range_distortion_jacobian(p, meas.get("depth_scale", 0.0), meas.get("depth_bias", 0.0))
+
+    def robot_columns(self, candidate, values: F64) -> F64:
+        """Whitened ``(N, 3, k)`` derivative of the measurements w.r.t. a robot candidate's values."""
+        robot, _ = self._split(self.accepted)
+        q, _, _ = self.current_state()
+        effects = [c.effect(c.jac_values(v)) for c, v in robot] + [candidate.effect(candidate.jac_values(values))]
+        rw = RobotWithEffects(self.model, effects)
+        J = rw.effect_jacobian(len(effects) - 1, q, self.ctx)[:, :3, :] @ candidate.param_map
+        return (self._output_jacobian() @ J) / self.sigma[:, None, None]
+
+    def measurement_columns(self, name: str) -> F64:
+        """Whitened ``(N, 3, 1)`` column of a measurement-side effect at the current state."""
+        _, qa, va = self.current_state()
+        if name == "time_latency":
+            _, Jq = self.model.chain.screw_jacobian(qa, va)
+            col = self._output_jacobian() @ (-np.einsum("nij,nj->ni", Jq[:, :3, :], self.qd))[:, :, None]
+        else:
+            p = self.model.fk(qa, va)[:, :3, 3]
+            col = (p if name == "depth_scale" else p / np.linalg.norm(p, axis=1, keepdims=True))[:, :, None]
+        return col / self.sigma[:, None, None]
+
+    def joint_position_jacobian(self) -> F64:
+        """``(N, 3, n)`` derivative of the measured point w.r.t. each joint angle (SI)."""
+        _, qa, va = self.current_state()
+        _, Jq = self.model.chain.screw_jacobian(qa, va)
+        return self._output_jacobian() @ Jq[:, :3, :]
+
+    def gravity_torque(self) -> F64 | None:
+        if self.model.links is None:
+            return None
+        payload = 0.0 if self.ctx.payload_kg is None else self.ctx.payload_kg
+        return self.nominal.gravity_torque(self.q, payload_kg=payload)
+
+    # ----------------------------------------------------------------------------- features
+
+    def features(self) -> list[Feature]:
+        s = self.data.samples
+        out = [
+            Feature(f"q{j + 1}", f"joint {j + 1} angle", "deg", np.degrees(self.q[:, j])) for j in range(self.model.dof)
+        ]
+        tau = self.gravity_torque()
+        if tau is not None:
+            for j in range(self.model.dof):
+                if np.ptp(tau[:, j]) > 1e-6:
+                    out.append(Feature(f"tau{j + 1}", f"gravity torque joint {j + 1}", "N m", tau[:, j]))
+        if s.direction is not None:
+            for j in range(self.model.dof):
+                out.append(Feature(f"dir{j + 1}", f"approach direction joint {j + 1}", "", s.direction[:, j], True))
+        for name, label, unit, v in (
+            ("t_s", "time", "s", s.t_s),
+            ("temp_c", "temperature", "deg C", s.temp_c),
+            ("payload_kg", "payload", "kg", s.payload_kg),
+        ):
+            if v is not None and np.ptp(v) > 0:
+                out.append(Feature(name, label, unit, np.asarray(v, dtype=float), bool(np.unique(v).size <= 3)))
+        if self.qd is not None:
+            speed = np.linalg.norm(np.einsum("nij,nj->ni", self.joint_position_jacobian(), self.qd), axis=1)
+            out.append(Feature("speed", "tool speed", "mm/s", speed * 1e3))
+        if self.data.range_m is not None:
+            out.append(Feature("range", "range (depth)", "mm", self.data.range_m * 1e3))
+        p_base = self.nominal.fk(self.q, frame="base")[:, :3, 3] * 1e3
+        for i, ax in enumerate("xyz"):
+            out.append(Feature(f"work_{ax}", f"workspace {ax} (robot base)", "mm", p_base[:, i]))
+        out.append(Feature("reach", "distance from the base axis", "mm", np.linalg.norm(p_base[:, :2], axis=1)))
+        return out
+
+    # ----------------------------------------------------------------------------- reporting
+
+    def describe(self) -> dict[str, Any]:
+        T = self.model.T_world_base
+        d = self.data
+        values = dict(zip(self.model.param_names, self.model.param_values, strict=True))
+        nominal = dict(zip(self.nominal.param_names, self.nominal.param_values, strict=True))
+        return {
+            "kind": self.kind,
+            "model": self.nominal.name,
+            "convention": self.model.convention,
+            "data": {
+                "source": d.source,
+                "n_samples": d.n_samples,
+                "columns": sorted(d.columns),
+                "sensor": d.sensor,
+                "warnings": d.warnings + d.samples.check(),
+            },
+            "noise_sigma_mm": float(np.median(self.sigma) * 1e3),
+            "noise_source": self.cfg.noise_source if self.cfg.noise_m is not None else "data column sigma_mm",
+            "calibration": {
+                "levels": list(self.cfg.calibrate),
+                "parameters": list(self.base_names),
+                "notes": self.calibration_notes,
+                "T_meas_base": T.tolist(),
+                "tool_point_flange_mm": (self.model.T_flange_tcp[:3, 3] * 1e3).tolist(),
+                "joint_parameter_changes": {
+                    n: values[n] - nominal.get(n, 0.0)
+                    for n in self.base_names
+                    if n.startswith("joint") and n in values and n in nominal
+                },
+            },
+        }
+
+    def gap_model_dict(self) -> dict[str, Any]:
+        """The augmented model as a mapping (see :func:`save_model`)."""
+        std = self.effect_std() if self.accepted else {}
+        effects = []
+        for c, v in self.accepted:
+            label = f"{c.name}@{c.where}"
+            effects.append(
+                {
+                    "name": c.name,
+                    "where": c.where,
+                    "side": c.side,
+                    "params": {p: float(x) for p, x in zip(c.param_names, v, strict=True)},
+                    "param_std": std.get(label, {}),
+                    "units": dict(zip(c.param_names, c.units, strict=True)),
+                    "config": c.config(v),
+                }
+            )
+        return {
+            "vgr_gap_model": GAP_MODEL_FORMAT,
+            "description": "robot model augmented by `vgr gap`: calibrated geometry (base = the measurement "
+            "frame) and the effects the data needed, with one-sigma uncertainties (SI units)",
+            "robot": model_to_dict(self.model),
+            "effects": effects,
+            "noise_sigma_m": float(np.median(self.sigma)),
+            "calibration": {"levels": list(self.cfg.calibrate), "parameters": list(self.base_names)},
+        }
+
+    def save_model(self, path: Path) -> Path:
+        path = Path(path)
+        path.write_text(yaml.safe_dump(_plain(self.gap_model_dict()), sort_keys=False), encoding="utf-8")
+        return path
+
+
+def _plain(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _plain(x.tolist())
+    if isinstance(x, np.generic):
+        return x.item()
+    return x
+
+
+def effect_config(effect: Any) -> dict[str, Any]:
+    """A catalog effect as the plain mapping ``effects_from_config`` reads (lists for tuples)."""
+    return _plain(asdict(effect))

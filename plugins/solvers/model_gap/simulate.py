@@ -1,0 +1,336 @@
+"""Hidden-effect datasets from the simulated cell, for the model-gap tests and benchmark.
+
+A measurement campaign on the simulated cell: the simulated controller
+(:class:`plugins.sim.controller.SimRobotController`) drives the *true* robot (nominal model + hidden
+robot effects, :class:`RobotWithEffects`) through joint moves to random configurations, with a
+random payload per move, from a cold start over three hours with samples denser during the warm-up
+(sample *i* of *n* near ``3 h (i / n)^2``: half of them in the first 45 minutes).
+A ranging sensor ("camera": a 3-D camera or laser tracker) 1.6 m away measures the tool point while
+the robot moves, with its hidden measurement effects (stream latency: the reading at ``t`` shows the
+truth at ``t - L``, the tracker's law; range scale / bias: the depth camera's law) and isotropic
+Gaussian noise. The dataset carries what a real campaign logs: commanded joints, joint velocities,
+approach directions, time, payload, range. The hidden effects are known only to the caller.
+
+Scenarios: ``tracker`` (the sensor's pose and the tool point are unknown: the workflow calibrates
+``frame`` and ``tool`` first) and ``known`` (both known, e.g. a registered sensor frame and a
+measured TCP: nothing is calibrated, so a base or tool error is observable at all).
+
+:func:`suite` lists the cases of the issue: every catalog effect alone at two magnitudes, pairs of
+effects at two magnitudes, and noise-only controls; ``full=False`` gives the CI-sized subset.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from itertools import combinations
+
+import numpy as np
+
+from engine.transforms import inv
+from plugins.sim.camera import look_at
+from plugins.sim.clock import SimClock
+from plugins.sim.controller import SimRobotController
+from plugins.sim.kinematics import RobotModel
+from plugins.sim.measurement_effects import apply_range_distortion
+from plugins.sim.model_file import load_robot_model
+from plugins.sim.robot_effects import (
+    Backlash,
+    BaseFrameError,
+    EncoderEccentricity,
+    JointCompliance,
+    JointOffset,
+    LinkLength,
+    RobotEffect,
+    SampleContext,
+    ThermalDrift,
+    ToolOffsetError,
+)
+from plugins.sim.sensor_effects import CameraEffects, TrackerEffects
+from plugins.sim.true_robot import RobotWithEffects
+from plugins.solvers.kinematic_calibration import KinematicSamples
+
+from .data import GapData
+
+NOISE_M = 5e-5  # 0.05 mm per axis (laser-tracker class)
+SENSOR = "camera"
+T_WORLD_SENSOR = look_at((1.3, -0.9, 0.9), (0.0, 0.0, 0.25))
+TOOL_TRUE = (0.03, -0.02, 0.12)  # measured point on the flange (m)
+TOOL_GUESS = (0.0, 0.0, 0.1)  # what the user's model says in the tracker scenario
+CAMPAIGN_S = 3 * 3600.0
+
+# Hidden magnitudes: the RMS (3-D, over the campaign) of the part of the effect's displacement of the
+# measured point that the scenario's baseline calibration cannot absorb -- the gap the effect leaves.
+# Noise alone gives a 3-D RMS of sqrt(3) x 0.05 = 0.087 mm: "low" raises the RMS by 15 %, "high" doubles it.
+LEVELS: dict[str, float] = {"low": 50e-6, "high": 150e-6}
+EFFECT_NAMES = (
+    "joint_offset",
+    "link_length",
+    "joint_compliance",
+    "backlash",
+    "encoder_eccentricity",
+    "thermal_drift",
+    "base_frame",
+    "tool_offset",
+    "time_latency",
+    "depth_scale",
+    "depth_bias",
+)
+# where each effect is hidden (joints whose effect the baseline calibration does not absorb)
+PLACES: dict[str, tuple[str, ...]] = {
+    "joint_offset": ("joint2", "joint3", "joint4", "joint5"),
+    "link_length": ("joint2", "joint3", "joint4", "joint5"),
+    "joint_compliance": ("joint2", "joint3"),
+    "backlash": ("joint1", "joint2", "joint3", "joint4", "joint5"),
+    "encoder_eccentricity": ("joint1", "joint2", "joint3", "joint4", "joint5"),
+    "thermal_drift": ("robot",),
+    "base_frame": ("base",),
+    "tool_offset": ("tool",),
+    "time_latency": (SENSOR,),
+    "depth_scale": (SENSOR,),
+    "depth_bias": (SENSOR,),
+}
+KNOWN_FRAME_EFFECTS = ("base_frame", "tool_offset")
+SCENARIO_CALIBRATION = {"tracker": ("frame", "tool"), "known": ()}
+
+
+@dataclass(frozen=True)
+class HiddenEffect:
+    name: str
+    where: str
+    gap_m: float  # RMS gap the effect leaves after the baseline calibration (m), see LEVELS
+
+
+@dataclass(frozen=True)
+class HiddenCase:
+    case_id: str
+    kind: str  # single | pair | noise
+    level: str  # low | high | none
+    scenario: str  # tracker | known
+    effects: tuple[HiddenEffect, ...]
+    seed: int
+    n_samples: int = 200
+    noise_m: float = NOISE_M
+
+    @property
+    def calibrate(self) -> tuple[str, ...]:
+        return SCENARIO_CALIBRATION[self.scenario]
+
+    @property
+    def expected(self) -> set[tuple[str, str]]:
+        return {(e.name, e.where) for e in self.effects}
+
+
+@dataclass
+class SimulatedCampaign:
+    data: GapData
+    model: RobotModel  # the nominal model the user gives to `vgr gap`
+    truth: RobotWithEffects
+    camera: CameraEffects
+    tracker: TrackerEffects
+
+
+def _random_unit(rng: np.random.Generator, n: int = 3) -> np.ndarray:
+    v = rng.normal(size=n)
+    return v / np.linalg.norm(v)
+
+
+def _unit_effect(e: HiddenEffect, model: RobotModel, rng: np.random.Generator) -> tuple[RobotEffect | None, dict]:
+    """The hidden effect at a unit-ish size with a random sign / direction / phase (scaled later)."""
+    sign = float(rng.choice((-1.0, 1.0)))
+    j = int(e.where[5:]) if e.where.startswith("joint") else 0
+    u = 1e-4
+    if e.name == "joint_offset":
+        return JointOffset((j,), (sign * u,)), {}
+    if e.name == "link_length":
+        return LinkLength((j,), (sign * u,)), {}
+    if e.name == "joint_compliance":
+        return JointCompliance((j,), (1e-6,)), {}
+    if e.name == "backlash":
+        return Backlash((j,), (u,)), {}
+    if e.name == "encoder_eccentricity":
+        phase = rng.uniform(0, 2 * np.pi)
+        return EncoderEccentricity((j,), (u * np.cos(phase),), (u * np.sin(phase),)), {}
+    if e.name == "thermal_drift":
+        return ThermalDrift.linear_expansion(model, 1.0, expansion_per_k=sign * u, time_constant_s=1800.0), {}
+    if e.name == "base_frame":
+        return BaseFrameError(
+            offsets=tuple(np.concatenate([u * _random_unit(rng), u * _random_unit(rng)]).tolist())
+        ), {}
+    if e.name == "tool_offset":
+        return ToolOffsetError(("tx", "ty", "tz"), tuple((u * _random_unit(rng)).tolist())), {}
+    if e.name == "time_latency":  # the measurement stream lags the joint stream
+        return None, {e.name: 1e-3}
+    if e.name in _MEASUREMENT:
+        return None, {e.name: sign * u}
+    raise ValueError(f"unknown effect {e.name!r}")
+
+
+def _scaled(effect: RobotEffect, factor: float) -> RobotEffect:
+    return effect.unpack(effect.pack() * factor)
+
+
+def simulate_campaign(
+    effects: tuple[HiddenEffect, ...],
+    *,
+    scenario: str = "tracker",
+    n_samples: int = 200,
+    noise_m: float = NOISE_M,
+    seed: int = 0,
+    robot: str = "ur5e",
+) -> SimulatedCampaign:
+    """Run a measurement campaign on the simulated cell with the given hidden effects."""
+    if scenario not in SCENARIO_CALIBRATION:
+        raise ValueError(f"unknown scenario {scenario!r}")
+    rng = np.random.default_rng(seed)
+    nominal = load_robot_model(robot)
+    T_meas_world = inv(T_WORLD_SENSOR)
+    true_model = nominal.with_tool(_translation(TOOL_TRUE))
+
+    # 1. the motion: the controller plans it (the effects do not change what it commands)
+    clock = SimClock()
+    ctl = SimRobotController(true_model, clock, warmup_start_s=0.0)
+    lo, hi = np.maximum(nominal.lower, -np.pi), np.minimum(nominal.upper, np.pi)
+    q, qd, d, t, pay = [], [], [], [], []
+    for i in range(n_samples):
+        ctl.set_payload(float(rng.choice((0.0, 2.5))))
+        target = lo + rng.random(nominal.dof) * (hi - lo)
+        res = ctl.move_j(f"m{i}", target, speed=float(rng.uniform(0.5, 1.05)), accel=1.4)
+        if not res.accepted:
+            raise RuntimeError(f"simulated move refused: {res.reason}")
+        t_meas = res.start_s + rng.uniform(0.2, 0.8) * res.duration_s
+        st = ctl.state(t_meas)
+        q.append(st.q)
+        qd.append(st.qd)
+        d.append(st.approach_direction)
+        t.append(t_meas)
+        pay.append(ctl.payload_kg)
+        # from a cold start, measured densely during the warm-up: the i-th sample near T (i / n)^2
+        clock.advance_to(max(res.end_s, CAMPAIGN_S * ((i + 1) / n_samples) ** 2))
+    Q, QD, T_s, PAY = np.array(q), np.array(qd), np.array(t), np.array(pay)
+    ctx = SampleContext(t_s=T_s, direction=np.array(d), payload_kg=PAY)
+
+    # 2. every hidden effect scaled so that the gap it leaves after the calibration has the RMS asked
+    def measured(robot_effects, meas: dict) -> np.ndarray:
+        lat = meas.get("time_latency", 0.0)
+        p_w = RobotWithEffects(true_model, robot_effects).fk(Q - lat * QD, ctx)[:, :3, 3]
+        p = p_w @ T_meas_world[:3, :3].T + T_meas_world[:3, 3]
+        return apply_range_distortion(p, meas.get("depth_scale", 0.0), meas.get("depth_bias", 0.0))
+
+    base = measured([], {})
+    C = _calibration_columns(true_model, Q, T_meas_world, scenario)
+    robot_effects, meas = [], {}
+    for e in effects:
+        unit, unit_meas = _unit_effect(e, nominal, rng)
+        disp = measured([unit] if unit else [], unit_meas) - base
+        if C.shape[1]:
+            disp = disp - (C @ np.linalg.lstsq(C, disp.reshape(-1), rcond=None)[0]).reshape(disp.shape)
+        factor = e.gap_m / float(np.sqrt(np.mean(np.sum(disp**2, axis=1))))
+        if unit is not None:
+            robot_effects.append(_scaled(unit, factor))
+        for k, v in unit_meas.items():
+            meas[k] = v * factor
+    truth = RobotWithEffects(true_model, robot_effects)
+    latency = meas.get("time_latency", 0.0)
+    camera = CameraEffects(depth_scale=1.0 + meas.get("depth_scale", 0.0), depth_bias_m=meas.get("depth_bias", 0.0))
+    tracker = TrackerEffects(latency_s=latency)
+
+    # 3. what the sensor reports: the truth at t - L (the controller's state then), ranged, noisy
+    seen = [ctl.state(ti - latency) for ti in T_s]
+    ctx_seen = SampleContext(
+        t_s=T_s - latency, direction=np.array([s_.approach_direction for s_ in seen]), payload_kg=PAY
+    )
+    p_world = truth.fk(np.array([s_.q for s_ in seen]), ctx_seen)[:, :3, 3]
+    p_true = p_world @ T_meas_world[:3, :3].T + T_meas_world[:3, 3]
+    p = apply_range_distortion(p_true, camera.depth_scale - 1.0, camera.depth_bias_m)
+    p = p + rng.normal(0.0, noise_m, p.shape)
+    samples = KinematicSamples(Q, p, None, T_s, np.array(d), None, PAY)
+    data = GapData(samples, qd=QD, range_m=np.linalg.norm(p, axis=1), sensor=SENSOR, source="simulated")
+    if scenario == "known":  # the model's world is the sensor frame: so is its gravity vector
+        model = _with_gravity(
+            nominal.with_base(T_meas_world).with_tool(_translation(TOOL_TRUE)),
+            T_meas_world[:3, :3] @ nominal.gravity_world,
+        )
+    else:
+        model = nominal.with_tool(_translation(TOOL_GUESS))
+    return SimulatedCampaign(data, model, truth, camera, tracker)
+
+
+def _calibration_columns(model: RobotModel, Q: np.ndarray, T_meas_world: np.ndarray, scenario: str) -> np.ndarray:
+    """Position columns ``(3N, k)`` of what the scenario's baseline calibration fits (frame, tool point)."""
+    if not SCENARIO_CALIBRATION[scenario]:
+        return np.zeros((3 * len(Q), 0))
+    names = [f"base.{c}" for c in ("tx", "ty", "tz", "rx", "ry", "rz")] + [f"tool.{c}" for c in ("tx", "ty", "tz")]
+    m = model.with_base(T_meas_world)
+    _, J = m.param_jacobian(Q)
+    return J[:, :3, [m.chain.index(n) for n in names]].reshape(3 * len(Q), -1)
+
+
+_MEASUREMENT = ("time_latency", "depth_scale", "depth_bias")
+
+
+def _with_gravity(model: RobotModel, g: np.ndarray) -> RobotModel:
+    return RobotModel(model.name, model.convention, model.chain, model.joints, links=model.links, gravity_world=g,
+                      description=model.description, sources=model.sources, home=model.home)  # fmt: skip
+
+
+def _translation(xyz) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, 3] = xyz
+    return T
+
+
+def make_case(case: HiddenCase) -> SimulatedCampaign:
+    return simulate_campaign(
+        case.effects, scenario=case.scenario, n_samples=case.n_samples, noise_m=case.noise_m, seed=case.seed
+    )
+
+
+def _pick(name: str, rng: np.random.Generator) -> str:
+    return str(rng.choice(PLACES[name]))
+
+
+def suite(full: bool = True, seed: int = 0, seeds_per_single: int = 3, noise_controls: int = 24) -> list[HiddenCase]:
+    """The hidden-effect suite (see the module docstring). ``full=False``: the CI subset."""
+    rng = np.random.default_rng(seed)
+    cases: list[HiddenCase] = []
+    reps = seeds_per_single if full else 1
+    ci_low = ("joint_compliance", "backlash", "time_latency", "depth_bias")
+    for name in EFFECT_NAMES:
+        scenario = "known" if name in KNOWN_FRAME_EFFECTS else "tracker"
+        for level in ("low", "high"):
+            if not full and level == "low" and name not in ci_low:
+                continue
+            for r in range(reps):
+                s = int(rng.integers(1 << 31))
+                where = _pick(name, rng)
+                e = HiddenEffect(name, where, LEVELS[level])
+                cases.append(HiddenCase(f"{name}@{where}-{level}-{r}", "single", level, scenario, (e,), s))
+    tracker_names = [n for n in EFFECT_NAMES if n not in KNOWN_FRAME_EFFECTS]
+    pairs = list(combinations(tracker_names, 2))
+    if not full:
+        pairs = [
+            ("joint_compliance", "backlash"),
+            ("encoder_eccentricity", "time_latency"),
+            ("link_length", "depth_scale"),
+        ]
+    for a, b in pairs:
+        for level in ("low", "high") if full else ("high",):
+            s = int(rng.integers(1 << 31))
+            wa, wb = _pick(a, rng), _pick(b, rng)
+            if wa == wb and a in ("joint_offset", "link_length") and b in ("joint_offset", "link_length"):
+                wb = next(w for w in PLACES[b] if w != wa)
+            effs = (HiddenEffect(a, wa, LEVELS[level]), HiddenEffect(b, wb, LEVELS[level]))
+            cases.append(HiddenCase(f"{a}@{wa}+{b}@{wb}-{level}", "pair", level, "tracker", effs, s))
+    if full:
+        for level in ("low", "high"):
+            s = int(rng.integers(1 << 31))
+            effs = (
+                HiddenEffect("base_frame", "base", LEVELS[level]),
+                HiddenEffect("tool_offset", "tool", LEVELS[level]),
+            )
+            cases.append(HiddenCase(f"base_frame@base+tool_offset@tool-{level}", "pair", level, "known", effs, s))
+    n_noise = noise_controls if full else 4
+    for i in range(n_noise):
+        scenario = "known" if i % 4 == 3 else "tracker"
+        cases.append(HiddenCase(f"noise-{scenario}-{i}", "noise", "none", scenario, (), int(rng.integers(1 << 31))))
+    return cases

@@ -1,0 +1,80 @@
+"""``vgr gap`` end to end on CSV: the report file, the figures, the terminal table, the exit codes."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from model_gap_helpers import N_SAMPLES, case
+
+from engine.cli import main
+from plugins.solvers.model_gap import write_gap_csv
+from plugins.solvers.model_gap.simulate import make_case
+
+pytestmark = pytest.mark.timeout(300)
+
+
+def test_vgr_gap_on_csv_writes_the_report_plots_and_table(tmp_path, capsys):
+    camp = make_case(case([("backlash", "joint3")], seed=2))
+    data = write_gap_csv(camp.data, tmp_path / "x.csv")
+    out = tmp_path / "rep"
+    rc = main(["gap", "--model", "ur5e", "--data", str(data), "--report", str(out), "--noise-mm", "0.05"])
+    assert rc == 0
+    rep = json.loads((out / "gap_report.json").read_text(encoding="utf-8"))
+    assert rep["verdict"] == "explained"
+    (eff,) = rep["effects_added"]
+    assert (eff["name"], eff["where"]) == ("backlash", "joint3")
+    assert set(eff) >= {"name", "where", "params", "param_std", "cv_rms_gain_mm"}
+    assert eff["param_std"]["backlash_joint3"] > 0 and eff["cv_rms_gain_mm"] > 0.05
+    assert rep["noise_floor_mm"] == pytest.approx(0.05 * 3**0.5)
+    assert rep["rms_before_mm"] > 1.5 * rep["noise_floor_mm"]
+    assert rep["rms_after_mm"] <= 1.2 * rep["noise_floor_mm"]
+    assert rep["problem"]["data"]["n_samples"] == N_SAMPLES
+    for name in ("gap_histograms.png", "gap_rounds.png", "gap_effect_1_backlash_joint3.png", "augmented_model.yaml"):
+        assert (out / name).stat().st_size > 1000, name
+        assert (out / name).read_bytes()[:4] == b"\x89PNG" or name.endswith(".yaml")
+    text = capsys.readouterr().out
+    assert "gap before / after (mm)" in text and "backlash@joint3" in text and "explained" in text
+    # the augmented model, given back with the same data, leaves no gap
+    rc = main(["gap", "--model", str(out / "augmented_model.yaml"), "--data", str(data), "--noise-mm", "0.05",
+               "--report", str(tmp_path / "again")])  # fmt: skip
+    assert rc == 0
+    again = json.loads((tmp_path / "again" / "gap_report.json").read_text(encoding="utf-8"))
+    assert again["verdict"] == "no_gap" and again["effects_added"] == []
+
+
+def test_without_a_noise_spec_the_noise_is_estimated_and_said_so(tmp_path, capsys):
+    camp = make_case(case([("joint_compliance", "joint2")], seed=4))
+    data = write_gap_csv(camp.data, tmp_path / "x.csv")
+    rc = main(["gap", "--model", "plugins/sim/robots/ur5e.yaml", "--data", str(data), "--report", str(tmp_path / "r")])
+    assert rc == 0
+    rep = json.loads((tmp_path / "r" / "gap_report.json").read_text(encoding="utf-8"))
+    assert rep["noise_source"] == "estimated"
+    assert rep["noise_floor_mm"] == pytest.approx(0.05 * 3**0.5, rel=0.15)  # the truth: 0.0866 mm
+    assert [(e["name"], e["where"]) for e in rep["effects_added"]] == [("joint_compliance", "joint2")]
+    assert "estimated" in capsys.readouterr().out
+
+
+def test_exit_code_1_when_a_gap_is_left_unexplained(tmp_path, capsys):
+    camp = make_case(case([("backlash", "joint3")], seed=2))
+    data = write_gap_csv(camp.data, tmp_path / "x.csv")
+    rc = main(["gap", "--model", "ur5e", "--data", str(data), "--noise-mm", "0.05", "--max-effects", "0", "--json"])
+    assert rc == 1
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["verdict"] == "unexplained" and rep["effects_added"] == []
+
+
+def test_noise_only_csv_exits_0_with_no_gap(tmp_path, capsys):
+    camp = make_case(case([], seed=30))
+    data = write_gap_csv(camp.data, tmp_path / "x.csv")
+    assert main(["gap", "--model", "ur5e", "--data", str(data), "--noise-mm", "0.05", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["verdict"] == "no_gap"
+
+
+def test_bad_options_exit_2(tmp_path):
+    camp = make_case(case([], seed=30))
+    data = str(write_gap_csv(camp.data, tmp_path / "x.csv"))
+    base = ["gap", "--model", "ur5e", "--data", data, "--noise-mm", "0.05"]
+    assert main([*base, "--folds", "1"]) == 2
+    assert main([*base, "--alpha", "0.9"]) == 2
+    assert main([*base, "--calibrate", "frame,elbow"]) == 2
