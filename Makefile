@@ -24,7 +24,7 @@ sysdeps:
 $(STAMP): pyproject.toml | sysdeps
 	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e ".[dev]"
+	$(BIN)/python -m pip install -q -e ".[dev,realsense]"
 	@rm -f $(VENV)/.installed-* && touch $@
 
 demo: install

@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 import sys
 import textwrap
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,6 +21,7 @@ from fake_realsense import install as install_realsense
 from fake_ur_rtde import FakeURController
 from fake_ur_rtde import install as install_ur
 from recipe_helpers import graph_from
+from shared_data import SHARED
 
 from engine import transforms as tf
 from engine.recorder import Recorder
@@ -30,7 +30,7 @@ from engine.runner import Runner
 
 pytestmark = pytest.mark.timeout(180)
 
-PCL = Path("/work/shared/data/pcl")
+PCL = SHARED / "pcl"
 IP = "192.168.56.101"
 WORKSPACE = "workspace_min_m: [-0.8, -0.6, 0.05], workspace_max_m: [0.2, 0.6, 0.8]"
 
@@ -75,7 +75,6 @@ stages:
 """
 
 
-@pytest.mark.skipif(not PCL.is_dir(), reason="shared PCL test data not present")
 def test_capture_at_pose_with_the_ur_adapter_and_the_file_camera(monkeypatch):
     ctl = FakeURController()
     install_ur(monkeypatch, ctl)
@@ -225,7 +224,6 @@ def test_realsense_camera_in_place_of_the_sim_camera(monkeypatch):
     assert cam.stopped == 1
 
 
-@pytest.mark.skipif(not PCL.is_dir(), reason="shared PCL test data not present")
 def test_a_recording_of_the_adapters_replays_without_any_sdk(monkeypatch, tmp_path):
     ctl = FakeURController()
     install_ur(monkeypatch, ctl)

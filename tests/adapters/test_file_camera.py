@@ -3,22 +3,20 @@
 from __future__ import annotations
 
 import shutil
-from pathlib import Path
 
 import numpy as np
 import open3d as o3d
 import pytest
 from adapter_context import make_stage
 from depth_scenes import INTR, plane_depth, plane_residual_m
+from shared_data import SHARED
 
 from engine.messages import Request
 from plugins.sensors.file_camera import FileCamera
 from plugins.sensors.frame_files import FrameFileError, load_frame
 
-PCL = Path("/work/shared/data/pcl")
+PCL = SHARED / "pcl"
 PCL_FILES = {"bun0.pcd": 397, "bun4.pcd": 361, "milk.pcd": 13704, "sac_plane_test.pcd": 3283}  # README counts
-
-needs_pcl = pytest.mark.skipif(not PCL.is_dir(), reason="shared PCL test data not present")
 
 
 def file_camera(**params):
@@ -31,7 +29,6 @@ def capture(stage):
     return stage.on_request("capture", Request())
 
 
-@needs_pcl
 def test_plays_the_real_pcl_scans_in_name_order_with_their_normals():
     stage, ctx = file_camera(folder=str(PCL), pattern="*.pcd")
     clouds = [capture(stage) for _ in PCL_FILES]
@@ -47,7 +44,6 @@ def test_plays_the_real_pcl_scans_in_name_order_with_their_normals():
         capture(stage)
 
 
-@needs_pcl
 def test_binary_compressed_pcd_matches_open3d_and_loop_starts_over():
     stage, _ = file_camera(folder=str(PCL), pattern="milk.pcd", loop=True)
     first, second = capture(stage), capture(stage)

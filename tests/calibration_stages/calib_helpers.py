@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from shared_data import SHARED
 
 from engine import codec
 from engine.graph import build_graph
@@ -21,7 +22,7 @@ from plugins.solvers.calibration_result import CalibrationResult
 
 ROOT = Path(__file__).resolve().parents[2]
 RECIPES = ROOT / "recipes"
-MOVEIT = Path("/work/shared/data/moveit_calibration/pose_samples.json")
+MOVEIT = SHARED / "moveit_calibration" / "pose_samples.json"
 MOVEIT_T_BASE_CAM_M = np.array([0.659, -0.249, 0.830])  # MoveIt's asserted answer (1 % tolerance)
 
 

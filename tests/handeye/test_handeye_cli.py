@@ -3,9 +3,11 @@
 import json
 from pathlib import Path
 
+from shared_data import SHARED
+
 from plugins.solvers.handeye.cli import main
 
-DATA = "/work/shared/data/moveit_calibration/pose_samples.json"
+DATA = str(SHARED / "moveit_calibration" / "pose_samples.json")
 
 
 def test_cli_reports_and_writes_the_result(tmp_path: Path, capsys):

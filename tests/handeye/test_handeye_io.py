@@ -6,12 +6,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from shared_data import SHARED
 
 from plugins.solvers.handeye import HandEyeInputError
 from plugins.solvers.handeye import simulate as sim
 from plugins.solvers.handeye.io import VGR_FORMAT, load_pose_pairs, write_pose_pairs_json
 
-MOVEIT = Path("/work/shared/data/moveit_calibration/pose_samples.json")
+MOVEIT = SHARED / "moveit_calibration" / "pose_samples.json"
 SCENE = sim.viewing_scene(np.random.default_rng(50), 6, "eye_in_hand")
 
 

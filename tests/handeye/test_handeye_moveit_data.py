@@ -5,17 +5,16 @@ Eigen ``eulerAngles(0, 1, 2)`` = (0.230, -2.540, 1.950) rad, each with Eigen's `
 (``|a - b| <= 0.01 * min(|a|, |b|)``).
 """
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from shared_data import SHARED
 
 from plugins.solvers.handeye import CLOSED_FORM_METHODS, calibrate_hand_eye, closed_form
 from plugins.solvers.handeye.io import load_pose_pairs
 from plugins.solvers.handeye.report import format_report
 
-DATA = Path("/work/shared/data/moveit_calibration/pose_samples.json")
+DATA = SHARED / "moveit_calibration" / "pose_samples.json"
 T_REF = np.array([0.659, -0.249, 0.830])
 EULER_REF = np.array([0.230, -2.540, 1.950])
 

@@ -18,13 +18,13 @@ Errors are measured at the bun0 centroid (translation) and as the rotation angle
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 import open3d as o3d
 import pytest
 from scipy.spatial.transform import Rotation
+from shared_data import SHARED
 
 from engine import transforms as tf
 from plugins.solvers.registration import (
@@ -37,7 +37,7 @@ from plugins.solvers.registration import (
     register_global,
 )
 
-DATA = Path(os.environ.get("VGR_SHARED_DATA", Path(__file__).resolve().parents[3] / "shared" / "data"))
+DATA = SHARED
 
 T_BUN4_BUN0_PCL = np.array(
     [[0.825336, 0, -0.564642, 0.037267], [0, 1, 0, 0], [0.564642, 0, 0.825336, 0.038325], [0, 0, 0, 1]]

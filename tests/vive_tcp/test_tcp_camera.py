@@ -2,7 +2,6 @@
 MoveIt hand-eye data (marker origin as the observed TCP point)."""
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,6 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
+from shared_data import SHARED
 
 from engine.transforms import T_from_Rt, inv, log_so3, pose_error
 from plugins.solvers.tcp_camera import (
@@ -24,7 +24,7 @@ from plugins.solvers.tcp_camera import (
 from plugins.solvers.tcp_camera.simulate import TRUE_P_FLANGE_TCP, simulate_tcp_camera, true_T_base_cam
 from plugins.solvers.tcp_camera.solver import cramer_rao_bound
 
-MOVEIT = Path("/work/shared/data/moveit_calibration/pose_samples.json")
+MOVEIT = SHARED / "moveit_calibration" / "pose_samples.json"
 
 
 def err9(res, sim):
