@@ -77,12 +77,15 @@ def surface_scene(workpiece: Workpiece, T: np.ndarray | None = None) -> o3d.t.ge
 
 
 def on_surface_distance(workpiece: Workpiece, points: np.ndarray, T: np.ndarray | None = None) -> np.ndarray:
-    """Distance (m) of points near the surface of the workpiece moved by T, to its facet planes.
+    """Distance (m) of points near the surface of the workpiece moved by T, to the mesh, in float64.
 
     Open3D's ``compute_distance`` runs in float32 and is off by up to ~0.1 mm on the long, thin
     triangles that large planar faces are made of, so this takes only the *facet* from Open3D's
-    closest-point query and measures the point-to-plane distance in float64.  Exact for points on
-    or very near the surface; use ``compute_distance`` for points far from it.
+    closest-point query and measures the point-to-plane distance in float64.  Near an edge the
+    float32 query can name the neighbouring facet (a point 1e-7 m from one face read 5.7e-6 m from
+    the plane of the face next to it), so a point not on its named facet's plane is measured again,
+    exactly, against every triangle that shares a vertex with that facet.  Exact for points on or
+    very near the surface; use ``compute_distance`` for points far from it.
     """
     T = np.eye(4) if T is None else np.asarray(T, dtype=float)
     V = np.asarray(workpiece.mesh.vertices, dtype=float) @ T[:3, :3].T + T[:3, 3]
@@ -93,4 +96,26 @@ def on_surface_distance(workpiece: Workpiece, points: np.ndarray, T: np.ndarray 
     a, b, c = V[F[tri, 0]], V[F[tri, 1]], V[F[tri, 2]]
     n = np.cross(b - a, c - a)
     n /= np.linalg.norm(n, axis=1, keepdims=True)
-    return np.abs(np.einsum("ij,ij->i", P - a, n))
+    d = np.abs(np.einsum("ij,ij->i", P - a, n))
+    for i in np.flatnonzero(d > 1e-7):
+        near = np.flatnonzero(np.isin(F, F[tri[i]]).any(axis=1))
+        d[i] = min(d[i], point_triangle_distance(P[i], V[F[near]]).min())
+    return d
+
+
+def point_triangle_distance(p: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """Exact distance (float64) from point p (3,) to each triangle of tris (k, 3, 3)."""
+    a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
+    n = np.cross(b - a, c - a)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    plane = np.einsum("ij,ij->i", p - a, n)
+    q = p - plane[:, None] * n  # projection onto each triangle's plane
+    inside = np.ones(len(tris), dtype=bool)
+    for u, v in ((a, b), (b, c), (c, a)):
+        inside &= np.einsum("ij,ij->i", np.cross(v - u, q - u), n) >= 0
+    edge = np.full(len(tris), np.inf)
+    for u, v in ((a, b), (b, c), (c, a)):
+        e = v - u
+        t = np.clip(np.einsum("ij,ij->i", p - u, e) / np.einsum("ij,ij->i", e, e), 0.0, 1.0)
+        edge = np.minimum(edge, np.linalg.norm(p - (u + t[:, None] * e), axis=1))
+    return np.where(inside, np.abs(plane), edge)
