@@ -6,6 +6,11 @@ and calls :func:`publish_frame`: the cloud (camera frame, metres) goes out on ``
 invalid) and ``camera_info`` go out too. ``camera_info`` carries the pinhole K; ``D`` holds the
 librealsense coefficients (k1 k2 p1 p2 k3) with ``distortion_model`` ``plumb_bob`` for none and
 brown_conrady (OpenCV's forward model), ``inverse_brown_conrady`` for RealSense's inverse model.
+
+Where the camera is (:class:`CameraMountParams`): ``T_parent_cam`` in ``parent_frame`` (``world``
+for a fixed camera, ``tcp`` for one on the flange: the hand-eye transform), published on ``frames``
+at set-up and with every capture so that a recording shows the cloud in the cell's 3D view. The
+default, identity in ``world``, says "not given" and puts the camera at the world origin.
 """
 
 from __future__ import annotations
@@ -14,10 +19,37 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import Field, model_validator
 
-from engine.messages import CameraInfo, Image, PointCloud
-from engine.stage import StageContext
+from engine.messages import CameraInfo, FrameTransforms, Image, PointCloud, Transform
+from engine.stage import StageContext, StageParams
+from plugins.params import PoseSpec
 from plugins.sensors.depth_projection import DepthIntrinsics
+
+
+class CameraMountParams(StageParams):
+    """The camera's mount, shared by the depth-camera adapters (published on ``frames``)."""
+
+    parent_frame: str = Field(
+        "world", min_length=1, description="frame the camera is mounted in (world: fixed; tcp: on the flange)"
+    )
+    T_parent_cam: PoseSpec = Field(
+        default_factory=PoseSpec, description="camera pose in parent_frame (mount or hand-eye), published on frames"
+    )
+
+    @model_validator(mode="after")
+    def _mount_frames(self) -> CameraMountParams:
+        frame_id = getattr(self, "frame_id", "camera")
+        if self.parent_frame == frame_id:
+            raise ValueError(f"parent_frame must differ from the camera frame {frame_id!r}")
+        return self
+
+
+def publish_mount(ctx: StageContext, params: CameraMountParams, frame_id: str) -> None:
+    """Publish ``parent_frame -> frame_id`` (``T_parent_cam``) on ``frames``, stamped now."""
+    now = ctx.clock.now_ns()
+    edge = Transform(frame_id=params.parent_frame, child_frame_id=frame_id, T=params.T_parent_cam.T(), stamp_ns=now)
+    ctx.publish("frames", FrameTransforms(stamp_ns=now, transforms=[edge]))
 
 
 @dataclass

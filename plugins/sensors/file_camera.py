@@ -4,7 +4,9 @@ Each ``capture`` returns the next file's cloud in the camera frame (metres) and 
 ``cloud``; NPZ frames with ``depth`` and ``K`` also publish ``depth`` and ``camera_info`` (file
 format: :mod:`plugins.sensors.frame_files`). After the last file it starts over when ``loop`` is
 set, otherwise ``capture`` fails saying that every frame was played. A recipe switches between
-this stage, ``sim_camera`` and ``realsense_camera`` by ``type:`` and parameters only.
+this stage, ``sim_camera`` and ``realsense_camera`` by ``type:`` and parameters only. ``frames``
+carries the mount, ``parent_frame -> frame_id`` = ``T_parent_cam`` (default: identity in ``world``),
+at set-up and with every capture (:mod:`plugins.sensors.camera_output`).
 """
 
 from __future__ import annotations
@@ -13,14 +15,14 @@ from typing import Any, ClassVar
 
 from pydantic import Field
 
-from engine.messages import PointCloud
-from engine.stage import Stage, StageParams
+from engine.messages import FrameTransforms, PointCloud
+from engine.stage import Stage
 from plugins.interfaces import CAMERA_OUTPUTS, CAMERA_SERVICES
-from plugins.sensors.camera_output import keep_every, publish_frame
+from plugins.sensors.camera_output import CameraMountParams, keep_every, publish_frame, publish_mount
 from plugins.sensors.frame_files import FrameFileError, list_frame_files, load_frame
 
 
-class FileCameraParams(StageParams):
+class FileCameraParams(CameraMountParams):
     """Parameters of ``file_camera``."""
 
     folder: str = Field(description="folder holding the frame files (.ply, .pcd, .npz)")
@@ -39,7 +41,7 @@ class FileCamera(Stage):
     type_name = "file_camera"
     role = "sensor"
     services: ClassVar = CAMERA_SERVICES
-    outputs: ClassVar = CAMERA_OUTPUTS
+    outputs: ClassVar = {**CAMERA_OUTPUTS, "frames": FrameTransforms}
     Params = FileCameraParams
 
     def setup(self) -> None:
@@ -47,6 +49,7 @@ class FileCamera(Stage):
         self.files = list_frame_files(p.folder, p.pattern)
         self.next_index = 0
         self.ctx.event("info", "frames_found", f"{len(self.files)} frame files in {p.folder}", count=len(self.files))
+        publish_mount(self.ctx, p, p.frame_id)
 
     def on_request(self, service: str, request: Any) -> PointCloud:
         p: FileCameraParams = self.params  # type: ignore[assignment]
@@ -59,6 +62,7 @@ class FileCamera(Stage):
         path = self.files[self.next_index]
         self.next_index += 1
         frame = keep_every(load_frame(path, p.unit_scale_m), p.decimate)
+        publish_mount(self.ctx, p, p.frame_id)
         return publish_frame(
             self.ctx, frame, frame_id=p.frame_id, publish_cloud=p.publish_cloud, publish_depth=p.publish_depth
         )

@@ -5,7 +5,8 @@ the device depth scale, deprojects it with the stream intrinsics (:mod:`plugins.
 into an organised cloud, and replies with its valid points in the camera frame (``camera``: the
 depth camera, or the colour camera when ``color`` aligns depth to it; x right, y down, z forward).
 It also publishes ``depth`` (32FC1, metres, NaN invalid), ``camera_info`` and ``cloud``, like
-``sim_camera`` and ``file_camera``.
+``sim_camera`` and ``file_camera``, and ``frames``: the mount ``parent_frame -> frame_id`` =
+``T_parent_cam`` (default: identity in ``world``) at set-up and with every capture.
 
 pyrealsense2 is an optional extra (``pip install 'vgr[realsense]'``), imported at set-up only.
 """
@@ -17,20 +18,22 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import Field, model_validator
 
-from engine.messages import PointCloud
-from engine.stage import Stage, StageParams
+from engine.messages import FrameTransforms, PointCloud
+from engine.stage import Stage
 from plugins.interfaces import CAMERA_OUTPUTS, CAMERA_SERVICES
-from plugins.sensors.camera_output import CameraFrame, keep_every, publish_frame
+from plugins.sensors.camera_output import CameraFrame, CameraMountParams, keep_every, publish_frame, publish_mount
 from plugins.sensors.depth_projection import deproject_depth, normalized_rays
 from plugins.sensors.realsense_device import RealSenseConfig, RealSenseDevice
 from plugins.util.sdk import import_sdk
 
 
-class RealSenseCameraParams(StageParams):
+class RealSenseCameraParams(CameraMountParams):
     """Parameters of ``realsense_camera`` (units in names: m, s, Hz)."""
 
     serial: str | None = Field(None, description="camera serial number; None = the first camera found")
-    recording: str | None = Field(None, description="play this .bag/.db3 recording instead of a live camera")
+    recording: str | None = Field(
+        None, description="play this .db3 (or ROS1 .bag: untested with the real SDK) recording instead of a live camera"
+    )
     loop: bool = Field(False, description="recording: start over after the last frame (else capture fails)")
     width: int = Field(848, ge=16, le=4096, description="live depth stream width, pixels")
     height: int = Field(480, ge=16, le=4096, description="live depth stream height, pixels")
@@ -59,7 +62,7 @@ class RealSenseCamera(Stage):
     type_name = "realsense_camera"
     role = "sensor"
     services: ClassVar = CAMERA_SERVICES
-    outputs: ClassVar = CAMERA_OUTPUTS
+    outputs: ClassVar = {**CAMERA_OUTPUTS, "frames": FrameTransforms}
     Params = RealSenseCameraParams
 
     device: RealSenseDevice | None = None
@@ -90,6 +93,7 @@ class RealSenseCamera(Stage):
             depth_scale_m=self.device.depth_scale,
             model=intr.model,
         )
+        publish_mount(self.ctx, p, p.frame_id)
 
     def teardown(self) -> None:
         if self.device is not None:
@@ -113,6 +117,7 @@ class RealSenseCamera(Stage):
             source=f"frame {shot.frame_number}",
         )
         frame = keep_every(frame, p.decimate)
+        publish_mount(self.ctx, p, p.frame_id)
         return publish_frame(
             self.ctx, frame, frame_id=p.frame_id, publish_cloud=p.publish_cloud, publish_depth=p.publish_depth
         )

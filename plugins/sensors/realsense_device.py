@@ -13,7 +13,8 @@ opened as a playback device (``rs.context().load_device``; the same reader as
 ``rs.config.enable_device_from_file``), switched to non-real-time *before* any sensor starts, and its
 depth (and colour) sensors stream into an ``rs.syncer``: one frame set per capture, every frame, in
 file order. (Through ``rs.pipeline`` the playback starts in real time before it can be switched,
-and frames are lost or delivered stale: measured with pyrealsense2 2.59.)
+and frames are lost or delivered stale: measured with pyrealsense2 2.59.) Only ``.db3`` playback is
+tested with the real SDK; a valid ``.bag`` never was (2.59.1 cannot write one; see docs/adapters.md).
 
 The SDK module is passed in (imported lazily by the stage), so tests can hand in a fake.
 """

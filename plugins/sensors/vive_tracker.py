@@ -8,6 +8,12 @@ rigid matrix) and ``tracking_result`` (OpenVR's name, or ``Disconnected``); an e
 tracking is lost or regained. Readings are stamped by the run's clock when they are read, not with
 OpenVR's own timing (use ``predict_s`` to ask OpenVR for the pose a little ahead).
 
+Frames (``frames``, for the 3D view): ``parent_frame -> frame_id`` (``T_parent_lighthouse``: where
+the tracking universe sits in the cell; default identity in ``world``, i.e. not given) at set-up,
+and with every published or sampled reading, that edge and ``frame_id -> tracker_frame`` (the
+reading; left out when it is invalid). A sampled reading goes on ``frames`` only while the stream
+runs: the engine ends a streaming stage's outputs when its stream ends (at once for ``stream_hz: 0``).
+
 Lifecycle: ``openvr.init(VRApplication_Other)`` at set-up (SteamVR must be running), the device found
 by serial (``Prop_SerialNumber_String``) within ``wait_for_device_s``, ``openvr.shutdown()`` at
 teardown. The SDK (PyPI ``openvr``) is imported at set-up, not when vgr is imported.
@@ -19,11 +25,12 @@ import threading
 from typing import Any, ClassVar, Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 
-from engine.messages import TrackerPose
+from engine.messages import FrameTransforms, TrackerPose, Transform
 from engine.stage import Stage, StageParams
 from plugins.interfaces import TRACKER_OUTPUTS, TRACKER_SERVICES
+from plugins.params import PoseSpec
 from plugins.sensors.openvr_poses import (
     UNIVERSES,
     DeviceInfo,
@@ -66,6 +73,20 @@ class ViveTrackerParams(StageParams):
     wait_for_device_s: float = Field(5.0, ge=0.0, description="at set-up, wait this long for the device, s")
     publish_invalid: bool = Field(True, description="publish invalid readings too (valid=false) instead of skipping")
     frame_id: str = Field("lighthouse", description="frame name of the tracking universe in messages")
+    tracker_frame: str = Field("tracker", min_length=1, description="frame of the tracked device on frames")
+    parent_frame: str = Field("world", min_length=1, description="frame the tracking universe is placed in")
+    T_parent_lighthouse: PoseSpec = Field(
+        default_factory=PoseSpec, description="the tracking universe in parent_frame, published on frames"
+    )
+
+    @model_validator(mode="after")
+    def _distinct_frames(self) -> ViveTrackerParams:
+        if len({self.parent_frame, self.frame_id, self.tracker_frame}) != 3:
+            raise ValueError(
+                f"parent_frame, frame_id and tracker_frame must differ, got "
+                f"{self.parent_frame!r}, {self.frame_id!r}, {self.tracker_frame!r}"
+            )
+        return self
 
 
 class ViveTracker(Stage):
@@ -74,7 +95,7 @@ class ViveTracker(Stage):
     type_name = "vive_tracker"
     role = "sensor"
     services: ClassVar = TRACKER_SERVICES
-    outputs: ClassVar = TRACKER_OUTPUTS
+    outputs: ClassVar = {**TRACKER_OUTPUTS, "frames": FrameTransforms}
     Params = ViveTrackerParams
 
     openvr: Any = None
@@ -83,6 +104,8 @@ class ViveTracker(Stage):
     def setup(self) -> None:
         p: ViveTrackerParams = self.params  # type: ignore[assignment]
         self._lock = threading.Lock()
+        self._frames_lock = threading.Lock()  # frames are published until the stream (run) ends
+        self._frames_open = True
         self._last_valid: bool | None = None
         self._last_scan_s = -np.inf
         openvr = import_sdk("openvr", stage_type=self.type_name, extra="vive", package="openvr")
@@ -95,6 +118,7 @@ class ViveTracker(Stage):
         self._universe = UNIVERSES[p.universe]
         self.device = self._find_device(p.wait_for_device_s)
         self.ctx.event("info", "tracker_found", f"following {self.device.serial} (OpenVR index {self.device.index})")
+        self._publish_frames(None)
 
     def _find_device(self, wait_s: float) -> DeviceInfo:
         p: ViveTrackerParams = self.params  # type: ignore[assignment]
@@ -153,10 +177,31 @@ class ViveTracker(Stage):
             tracking_result=reading.tracking_result,
         )
 
+    def _publish_frames(self, reading: TrackerPose | None) -> None:
+        p: ViveTrackerParams = self.params  # type: ignore[assignment]
+        now = self.ctx.clock.now_ns()
+        tree = [
+            Transform(frame_id=p.parent_frame, child_frame_id=p.frame_id, T=p.T_parent_lighthouse.T(), stamp_ns=now)
+        ]
+        if reading is not None and reading.valid:
+            tree.append(Transform(frame_id=p.frame_id, child_frame_id=p.tracker_frame, T=reading.T, stamp_ns=now))
+        with self._frames_lock:
+            if self._frames_open:
+                self.ctx.publish("frames", FrameTransforms(stamp_ns=now, transforms=tree))
+
     def on_request(self, service: str, request: Any) -> TrackerPose:
-        return self._message()
+        msg = self._message()
+        self._publish_frames(msg)
+        return msg
 
     def run(self) -> None:
+        try:
+            self._stream()
+        finally:
+            with self._frames_lock:  # the engine ends the outputs when run() returns
+                self._frames_open = False
+
+    def _stream(self) -> None:
         p: ViveTrackerParams = self.params  # type: ignore[assignment]
         if p.stream_hz <= 0:
             return
@@ -167,6 +212,7 @@ class ViveTracker(Stage):
             msg = self._message()
             if msg.valid or p.publish_invalid:
                 self.ctx.publish("pose", msg)
+                self._publish_frames(msg)
             i += 1
             # sleep to the next tick of a fixed grid, so the time spent reading does not lower the rate
             next_ns = t0_ns + round(i * 1e9 / p.stream_hz)

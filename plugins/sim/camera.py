@@ -30,8 +30,10 @@ This module owns the sensor model of the simulated 3D camera (structured light /
   range along the ray, ``r_meas = depth_scale * (r_true + noise) + depth_bias_m``, so a scale error
   grows linearly with distance and a bias is a constant shift along each ray.
 
-Everything is vectorised over pixels; the per-frame cost is the BVH build, the ray cast and a few
-array operations on the hit pixels.  The same generator gives the same frame (Open3D's ray casting is
+Everything is vectorised over pixels; the per-frame cost is the BVH build, the ray cast (only rays
+inside the parts' projected bounding boxes; for a full scene most of the time, see docs/sim_sensors.md)
+and a few array operations on the hit pixels; the organised cloud, normals, pixel coordinates and
+per-point truth are assembled only when read.  The same generator gives the same frame (Open3D's ray casting is
 deterministic; all random draws come from the caller's ``numpy.random.Generator``).
 """
 
@@ -40,6 +42,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 import open3d as o3d
@@ -180,36 +183,86 @@ class DepthNoiseModel:
         return cls(sigma_const_m=1.0e-3, sigma_quad_per_m=1.5e-3, grazing_dropout_deg=70.0, dropout_prob=0.02)
 
 
-@dataclass
+@dataclass(eq=False)
 class DepthCapture:
-    """One depth frame: image, organised cloud and the valid points (camera frame, metres)."""
+    """One depth frame: image, organised cloud and the valid points (camera frame, metres).
+
+    ``organized``, ``normals`` and ``pixels`` are assembled from the valid points on first use and
+    then kept: a stage that only publishes the depth image and the cloud does not pay for them.
+    """
 
     depth: np.ndarray  # (H, W) float32 metres along the optical axis, NaN where invalid
     points: np.ndarray  # (N, 3) float64 valid points in the camera frame (m)
-    organized: np.ndarray  # (H, W, 3) float32, NaN where invalid
-    normals: np.ndarray | None  # (N, 3) true surface normals of the valid points, camera frame
     intrinsics: PinholeIntrinsics
-    pixels: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int32))  # (N, 2) (u, v)
+    pixel_index: np.ndarray  # (N,) flat pixel index v * width + u of each valid point
     stamp_ns: int = 0  # time stamp the sensor puts on the frame
+    # (normals of the cast rays as Open3D returned them (float32), index of each valid point in them)
+    cast_normals: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
 
     @property
     def valid_mask(self) -> np.ndarray:
         """(H, W) bool, True where the depth is valid."""
         return np.isfinite(self.depth)
 
+    @cached_property
+    def organized(self) -> np.ndarray:
+        """(H, W, 3) float32 organised cloud, NaN where invalid."""
+        k = self.intrinsics
+        organized = np.full((k.width * k.height, 3), np.nan, dtype=np.float32)
+        organized[self.pixel_index] = self.points
+        return organized.reshape(k.height, k.width, 3)
 
-@dataclass
+    @cached_property
+    def normals(self) -> np.ndarray | None:
+        """(N, 3) true surface normals of the valid points, camera frame (float64)."""
+        if self.cast_normals is None:
+            return None
+        normals, index = self.cast_normals
+        return normals[index].astype(float)
+
+    @cached_property
+    def pixels(self) -> np.ndarray:
+        """(N, 2) int32 pixel (u, v) of each valid point."""
+        v, u = np.divmod(self.pixel_index.astype(np.int32), np.int32(self.intrinsics.width))
+        return np.column_stack((u, v))
+
+
+@dataclass(eq=False)
 class RenderTruth:
-    """What the renderer knows and a solver must not: per valid point, noise-free data."""
+    """What the renderer knows and a solver must not: per valid point, noise-free data.
 
-    points_true: np.ndarray  # (N, 3) exact surface points hit by the rays, camera frame
-    part_index: np.ndarray  # (N,) index into the ``parts`` sequence of the part each point lies on
+    ``points_true``, ``part_index`` and ``incidence_rad`` are computed on first use.
+    """
+
     T_cam_parts: list[np.ndarray]  # pose of each part in the camera frame
     sigma_m: np.ndarray  # (N,) standard deviation of each point's range error
-    incidence_rad: np.ndarray  # (N,) angle between ray and surface normal
+    z_true: np.ndarray  # (N,) true depth of each valid point (m)
+    ray_xy: tuple[np.ndarray, np.ndarray] = field(repr=False)  # x and y of the unit-z ray directions
+    cos_incidence: np.ndarray = field(repr=False)  # (N,) cosine of the incidence angle
+    geometry_ids: np.ndarray = field(repr=False)  # (N,) Open3D geometry id of each hit
+    part_of_geometry: np.ndarray = field(repr=False)  # geometry id -> part index
+
+    @cached_property
+    def points_true(self) -> np.ndarray:
+        """(N, 3) exact surface points hit by the rays, camera frame."""
+        dx, dy = self.ray_xy
+        return np.column_stack((dx, dy, np.ones_like(dx))) * self.z_true[:, None]
+
+    @cached_property
+    def part_index(self) -> np.ndarray:
+        """(N,) index into the ``parts`` sequence of the part each point lies on."""
+        return self.part_of_geometry[self.geometry_ids.astype(np.int64)]
+
+    @cached_property
+    def incidence_rad(self) -> np.ndarray:
+        """(N,) angle between ray and surface normal."""
+        return np.arccos(np.clip(self.cos_incidence, -1.0, 1.0))
 
 
 PartLike = o3d.geometry.TriangleMesh | Workpiece
+
+CULL_MARGIN_PX = 1.0  # rays within this distance of a projected bounding box are cast too (pixels)
+CAST_ALL_FRACTION = 0.85  # cast every ray when more than this fraction of the image are candidates
 
 
 def _mesh_arrays(part: PartLike) -> tuple[np.ndarray, np.ndarray]:
@@ -248,8 +301,9 @@ class DepthCameraModel:
         self._dx = dirs[:, 0].astype(np.float32)
         self._dy = dirs[:, 1].astype(np.float32)
         self._dir_norm = np.linalg.norm(dirs, axis=1).astype(np.float32)
+        # the same float32 values widened to float64 (exact), gathered for the valid points
+        self._dx64, self._dy64, self._dir_norm64 = (a.astype(float) for a in (self._dx, self._dy, self._dir_norm))
         self._rays_np = np.concatenate((np.zeros_like(dirs), dirs), axis=1).astype(np.float32)
-        self._rays = o3d.core.Tensor(self._rays_np)
 
     def render(
         self,
@@ -312,12 +366,12 @@ class DepthCameraModel:
         if bool(scene.compute_occupancy(origin, nsamples=3).numpy()[0] > 0.5):
             raise ValueError("the camera is inside a part: its centre lies within a closed mesh")
 
-        cand, rays = self._candidate_rays(boxes)
+        cand, rays, d_norm = self._candidate_rays(boxes)
         hits = scene.cast_rays(rays)
         t_hit = hits["t_hit"].numpy()
         nrm = hits["primitive_normals"].numpy()  # zero for rays that hit nothing
-        dx, dy, d_norm = self._ray_dirs(cand)
-        cos_inc = -(nrm[:, 0] * dx + nrm[:, 1] * dy + nrm[:, 2]) / d_norm
+        ray_dirs = rays.numpy()  # (x, y, 1) directions in columns 3-5, float32 as cast
+        cos_inc = -(nrm[:, 0] * ray_dirs[:, 3] + nrm[:, 1] * ray_dirs[:, 4] + nrm[:, 2]) / d_norm
         # Back faces: Embree's fast (non-watertight) intersection lets about one ray in a million slip
         # through a shared edge onto the inside of the far wall; such pixels are dropped.  Many of
         # them mean the camera is inside a part or a mesh faces inwards.
@@ -330,12 +384,13 @@ class DepthCameraModel:
         noise = self.noise
         ok = (t_hit >= self.min_range_m) & (t_hit <= self.max_range_m)
         ok &= cos_inc >= math.cos(math.radians(noise.grazing_dropout_deg))
-        sub = np.flatnonzero(ok)
+        sub = np.flatnonzero(ok)  # into the cast rays, in pixel order
         if noise.dropout_prob > 0.0:
             sub = sub[rng.random(len(sub)) >= noise.dropout_prob]
 
+        idx = sub if cand is None else cand[sub]  # flat pixel index
         z_true = t_hit[sub].astype(float)
-        dx, dy, d_norm, cos_inc = (a[sub].astype(float) for a in (dx, dy, d_norm, cos_inc))
+        dx, dy, d_norm = self._dx64[idx], self._dy64[idx], self._dir_norm64[idx]
         sigma = noise.sigma(z_true)
         range_meas = z_true * d_norm
         if np.any(sigma > 0):
@@ -344,9 +399,7 @@ class DepthCameraModel:
         z_meas = range_meas / d_norm
         if np.any(z_meas <= 0.0):  # a huge negative bias pushed points behind the camera: drop them
             ki = np.flatnonzero(z_meas > 0.0)
-            sub, dx, dy, cos_inc, z_true, sigma, z_meas = (a[ki] for a in (sub, dx, dy, cos_inc, z_true, sigma, z_meas))
-        idx = sub if cand is None else cand[sub]
-        n = np.take(nrm, sub, axis=0).astype(float)
+            sub, idx, dx, dy, z_true, sigma, z_meas = (a[ki] for a in (sub, idx, dx, dy, z_true, sigma, z_meas))
         points = np.empty((len(sub), 3))
         np.multiply(dx, z_meas, out=points[:, 0])
         np.multiply(dy, z_meas, out=points[:, 1])
@@ -355,61 +408,104 @@ class DepthCameraModel:
         k = self.intrinsics
         depth = np.full(k.width * k.height, np.nan, dtype=np.float32)
         depth[idx] = z_meas
-        organized = np.full((k.width * k.height, 3), np.nan, dtype=np.float32)
-        organized[idx] = points
-        pixels = np.column_stack((idx % k.width, idx // k.width)).astype(np.int32)
         capture = DepthCapture(
             depth=depth.reshape(k.height, k.width),
             points=points,
-            organized=organized.reshape(k.height, k.width, 3),
-            normals=n,
             intrinsics=k,
-            pixels=pixels,
+            pixel_index=idx,
             stamp_ns=int(stamp_ns),
+            cast_normals=(nrm.copy(), sub),  # a copy: no view keeps Open3D's buffers alive
         )
         if not want_truth:
             return capture, None
         part_of_geometry = np.full(max(geometry_ids) + 1, -1, dtype=np.int64)
         part_of_geometry[geometry_ids] = np.arange(len(geometry_ids))
-        part_index = part_of_geometry[hits["geometry_ids"].numpy()[sub].astype(np.int64)]
         truth = RenderTruth(
-            points_true=np.column_stack((dx, dy, np.ones_like(dx))) * z_true[:, None],
-            part_index=part_index,
             T_cam_parts=T_cam_parts,
             sigma_m=sigma,
-            incidence_rad=np.arccos(np.clip(cos_inc, -1.0, 1.0)),
+            z_true=z_true,
+            ray_xy=(dx, dy),
+            cos_incidence=cos_inc[sub].astype(float),
+            geometry_ids=hits["geometry_ids"].numpy()[sub],
+            part_of_geometry=part_of_geometry,
         )
         return capture, truth
 
-    def _ray_dirs(self, cand: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """x and y of the unit-z ray directions and their norms (float32), for all or some pixels."""
-        if cand is None:
-            return self._dx, self._dy, self._dir_norm
-        return self._dx[cand], self._dy[cand], self._dir_norm[cand]
+    def _candidate_rays(self, boxes: list[np.ndarray]) -> tuple[np.ndarray | None, o3d.core.Tensor, np.ndarray]:
+        """Rays through the pixels inside the projection of some part's bounding box.
 
-    def _candidate_rays(self, boxes: list[np.ndarray]) -> tuple[np.ndarray | None, o3d.core.Tensor]:
-        """Rays through the image rectangle that contains every part's projected bounding box.
-
-        Returns (flat pixel indices of those rays or ``None`` for all pixels, the rays).  Every ray is
-        cast when a box reaches behind the camera or the rectangle covers most of the image; otherwise
-        only rays that can hit something are cast, which is most of the cost for a small part.
+        Returns (flat pixel indices of those rays in ascending order, or ``None`` for all pixels; the
+        rays; the norms of their unit-z directions, float32).  A ray through a pixel centre outside
+        every projected box cannot hit anything, yet costs a fraction of a hit to cast (Open3D's
+        per-ray overhead), so only the others are cast: each box projects to the convex polygon of
+        its 8 projected corners, taken row by row (:func:`_box_row_spans`) with a margin of
+        ``CULL_MARGIN_PX``.  Every ray is cast when a box reaches behind the camera or the candidates
+        are most of the image (selecting them would cost more than it saves).  Which rays are cast
+        does not change any result.
         """
         k = self.intrinsics
-        lo = np.array([np.inf, np.inf])
-        hi = -lo
+        # Tensors wrap the numpy rays (no copy) for one cast only: a Tensor that Open3D allocated and
+        # that lives to the end of the process makes Open3D report a leak and exit with status 1
+        everything = None, o3d.core.Tensor.from_numpy(self._rays_np), self._dir_norm
+        spans = []
         for corners in boxes:
             if np.any(corners[:, 2] <= 1e-6):
-                return None, self._rays
-            uv = k.project(corners)
-            lo = np.minimum(lo, uv.min(axis=0))
-            hi = np.maximum(hi, uv.max(axis=0))
-        u0, v0 = (max(int(x), 0) for x in np.floor(lo) - 1)
-        u1, v1 = (min(int(x), m) for x, m in zip(np.ceil(hi) + 2, (k.width, k.height), strict=True))
-        if u1 <= u0 or v1 <= v0:
-            return np.zeros(0, dtype=np.int64), self._rays[:0]
-        if (u1 - u0) * (v1 - v0) > 0.5 * k.width * k.height:
-            return None, self._rays
-        rows, cols = np.mgrid[v0:v1, u0:u1]
-        cand = (rows * k.width + cols).ravel()
-        rays = self._rays_np.reshape(k.height, k.width, 6)[v0:v1, u0:u1].reshape(-1, 6)
-        return cand, o3d.core.Tensor.from_numpy(np.ascontiguousarray(rays))
+                return everything
+            span = _box_row_spans(k.project(corners), k.height, k.width, CULL_MARGIN_PX)
+            if span is not None:
+                spans.append(span)
+        if not spans:
+            return np.zeros(0, dtype=np.int64), o3d.core.Tensor.from_numpy(self._rays_np[:0]), self._dir_norm[:0]
+        r0 = min(v0 for v0, _, _ in spans)
+        r1 = max(v0 + len(c0) for v0, c0, _ in spans)
+        # +1 where a span starts, -1 after it ends; a running sum > 0 marks the union of the spans
+        steps = np.zeros((r1 - r0, k.width + 1), dtype=np.int16)
+        for v0, c0, c1 in spans:
+            rows = np.arange(v0 - r0, v0 - r0 + len(c0))
+            np.add.at(steps, (rows, c0), 1)
+            np.add.at(steps, (rows, c1 + 1), -1)
+        mask = (np.cumsum(steps, axis=1, dtype=np.int16)[:, : k.width] > 0).ravel()
+        if np.count_nonzero(mask) > CAST_ALL_FRACTION * k.width * k.height:
+            return everything
+        band = slice(r0 * k.width, r1 * k.width)
+        cand = np.flatnonzero(mask) + r0 * k.width
+        rays = np.compress(mask, self._rays_np[band], axis=0)
+        return cand, o3d.core.Tensor.from_numpy(rays), np.compress(mask, self._dir_norm[band])
+
+
+# corner i of a box is (x, y, z) = (lo or hi by bits 2, 1, 0 of i); its 12 edges join corners one bit apart
+_BOX_EDGES = np.array([(i, i | b) for b in (1, 2, 4) for i in range(8) if not i & b])
+
+
+def _box_row_spans(uv: np.ndarray, height: int, width: int, margin: float) -> tuple[int, np.ndarray, np.ndarray] | None:
+    """Pixel rows and, per row, the first and last pixel column inside the projected box (+ margin).
+
+    ``uv`` are the 8 projected corners (all in front of the camera), so the box's image is their
+    convex polygon, whose outline is made of projected box edges.  Row ``v`` keeps the columns whose
+    centres lie within ``margin`` of the polygon's part between heights ``v - margin`` and
+    ``v + margin``: its left end is the smallest of the edges' crossings at the two heights (clipped
+    to the polygon) and of the corners in between (the outline is convex), the right end the largest.
+    Returns ``(first row, first columns, last columns)`` (int, inclusive, within the image; a row
+    with nothing to keep has last < first), or ``None`` when no row of the image is touched.
+    """
+    y_min, y_max = float(uv[:, 1].min()), float(uv[:, 1].max())
+    v0, v1 = max(0, math.ceil(y_min - margin)), min(height - 1, math.floor(y_max + margin))
+    if v1 < v0:
+        return None
+    v = np.arange(v0, v1 + 1, dtype=float)
+    ys = np.stack((np.clip(v - margin, y_min, y_max), np.clip(v + margin, y_min, y_max)))  # (2, rows)
+    P, Q = uv[_BOX_EDGES[:, 0]], uv[_BOX_EDGES[:, 1]]
+    dy = (Q[:, 1] - P[:, 1])[:, None, None]
+    with np.errstate(divide="ignore", invalid="ignore"):  # horizontal edges: their corners count below
+        t = (ys[None] - P[:, 1, None, None]) / dy
+    on_edge = (t >= 0.0) & (t <= 1.0)
+    u = P[:, 0, None, None] + t * (Q[:, 0] - P[:, 0])[:, None, None]
+    lo = np.where(on_edge, u, np.inf).min(axis=(0, 1))
+    hi = np.where(on_edge, u, -np.inf).max(axis=(0, 1))
+    in_band = np.abs(uv[:, 1, None] - v) <= margin  # (8, rows)
+    lo = np.minimum(lo, np.where(in_band, uv[:, 0, None], np.inf).min(axis=0)) - margin
+    hi = np.maximum(hi, np.where(in_band, uv[:, 0, None], -np.inf).max(axis=0)) + margin
+    c0 = np.ceil(np.clip(lo, 0, width)).astype(np.int64)
+    c1 = np.floor(np.clip(hi, -1, width - 1)).astype(np.int64)
+    c1 = np.maximum(c1, c0 - 1)  # empty rows: nothing to keep
+    return v0, c0, c1

@@ -1,4 +1,8 @@
-"""Each real adapter offers exactly its device contract, as its simulated twin does; no SDK at import."""
+"""Each real adapter offers exactly its device contract, as its simulated twin does; no SDK at import.
+
+Every device also publishes its frames (``frames``, FrameTransforms) for the 3D view: the robot
+contract has the port; cameras and trackers add it to theirs (see test_frame_tree.py).
+"""
 
 from __future__ import annotations
 
@@ -10,6 +14,7 @@ from pathlib import Path
 import pytest
 from recipe_helpers import graph_from
 
+from engine.messages import FrameTransforms
 from engine.plugin_manager import load_registry
 from plugins.actions.ur_robot import URRobot
 from plugins.interfaces import (
@@ -40,12 +45,12 @@ PAIRS = [
 )
 def test_adapter_offers_exactly_the_contract_and_the_twin_offers_it_too(adapter, twin, services, outputs, role):
     assert dict(adapter.services) == dict(services)
-    assert dict(adapter.outputs) == dict(outputs)
+    assert dict(adapter.outputs) == {**outputs, "frames": FrameTransforms}
     assert adapter.role == twin.role == role
     assert adapter.inputs == {} and adapter.uses == {}  # a device needs nothing from the recipe
     for name, spec in services.items():
         assert twin.services[name] == spec
-    for name, msg in outputs.items():
+    for name, msg in {**outputs, "frames": FrameTransforms}.items():
         assert twin.outputs[name] is msg
 
 

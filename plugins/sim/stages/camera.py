@@ -6,6 +6,9 @@ a part is in the gripper, renders the scene with the noise model and the sensor 
 scale/bias, latency, hand-eye error, placement offsets), and replies with the cloud in the camera
 frame. It also publishes the depth image, the intrinsics, the nominal frame tree, the workpiece
 meshes (once) and, on ``truth/part_poses``, where the parts and the camera truly were.
+
+The camera's frame is ``frame_id`` (``camera`` by default) on every message and on ``frames``; give
+each camera of a cell its own (e.g. ``fixed_camera``) so that the frame tree stays a tree.
 """
 
 from __future__ import annotations
@@ -97,6 +100,7 @@ class SimCamera(Stage):
         publish_cloud: bool = Field(True, description="also publish each capture on the cloud port")
         publish_depth: bool = Field(True, description="publish the depth image of each capture")
         decimate: int = Field(1, ge=1, le=16, description="keep every n-th valid point (smaller clouds)")
+        frame_id: str = Field("camera", min_length=1, description="the camera's frame on its messages and frames")
 
     def setup(self) -> None:
         p: SimCamera.Params = self.params  # type: ignore[assignment]
@@ -148,16 +152,17 @@ class SimCamera(Stage):
         t = self.ctx.clock.now_s()
         cap, truth = self.cell.capture(T_world_tcp, self.ctx.rng, t)
         stamp = round(t * 1e9)  # the sensor's own time stamp of the frame
-        cloud = PointCloud(points=cap.points[:: p.decimate].astype(np.float32), frame_id="camera", stamp_ns=stamp)
+        cloud = PointCloud(points=cap.points[:: p.decimate].astype(np.float32), frame_id=p.frame_id, stamp_ns=stamp)
         if p.publish_depth:
-            self.ctx.publish("depth", Image(data=cap.depth, encoding="32FC1", frame_id="camera", stamp_ns=stamp))
+            self.ctx.publish("depth", Image(data=cap.depth, encoding="32FC1", frame_id=p.frame_id, stamp_ns=stamp))
             intr = self.intrinsics
-            info = CameraInfo(width=intr.width, height=intr.height, K=intr.K(), frame_id="camera", stamp_ns=stamp)
+            info = CameraInfo(width=intr.width, height=intr.height, K=intr.K(), frame_id=p.frame_id, stamp_ns=stamp)
             self.ctx.publish("camera_info", info)
         if p.publish_cloud:
             self.ctx.publish("cloud", cloud)
+        own = {"camera": p.frame_id}  # SimCell names its camera "camera"
         frames = [
-            Transform(frame_id=f.parent, child_frame_id=f.child, T=f.T_parent_child, stamp_ns=stamp)
+            Transform(frame_id=f.parent, child_frame_id=own.get(f.child, f.child), T=f.T_parent_child, stamp_ns=stamp)
             for f in self.cell.frames(T_world_tcp, t)
             if f.child not in ("base", "tcp")  # the robot publishes those
         ]
@@ -166,7 +171,7 @@ class SimCamera(Stage):
             Transform(frame_id="world", child_frame_id=name, T=T, stamp_ns=stamp)
             for name, T in truth.T_world_parts.items()
         ]
-        truth_tf.append(Transform(frame_id="world", child_frame_id="camera", T=truth.T_world_cam, stamp_ns=stamp))
+        truth_tf.append(Transform(frame_id="world", child_frame_id=p.frame_id, T=truth.T_world_cam, stamp_ns=stamp))
         if truth.T_world_tcp is not None:
             truth_tf.append(Transform(frame_id="world", child_frame_id="tcp", T=truth.T_world_tcp, stamp_ns=stamp))
         self.ctx.publish("truth/part_poses", FrameTransforms(stamp_ns=stamp, transforms=truth_tf))

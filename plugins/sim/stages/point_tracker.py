@@ -14,7 +14,9 @@ robot effects such as DH errors show up in the measurement). Service ``measure``
 PoseStamped): one reading now, stamped with the instrument's time, frame ``frame_id``. The pose's
 translation is the measured point; its rotation is the identity unless ``measure_orientation``
 (then the measured tool orientation, with ``rotation_sigma_deg`` noise: a 6-DoF tracker probe).
-Every reading is also published on ``point`` and the noise-free one on ``truth/point``.
+Every reading is also published on ``point`` and the noise-free one on ``truth/point``. ``frames``
+(for the 3D view) carries ``world -> frame_id`` (``T_world_instrument``), at set-up and with every
+reading.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from typing import ClassVar, cast
 import numpy as np
 from pydantic import Field
 
-from engine.messages import PoseStamped, Request, RobotReply
+from engine.messages import FrameTransforms, PoseStamped, Request, RobotReply, Transform
 from engine.stage import ServiceSpec, Stage, StageParams
 from engine.transforms import T_from_Rt, exp_so3, inv
 from plugins.params import PoseSpec
@@ -40,7 +42,7 @@ class SimPointTracker(Stage):
     services: ClassVar = {
         "measure": ServiceSpec(Request, PoseStamped, "one reading: the tool point in the instrument frame")
     }
-    outputs: ClassVar = {"point": PoseStamped, "truth/point": PoseStamped}
+    outputs: ClassVar = {"point": PoseStamped, "frames": FrameTransforms, "truth/point": PoseStamped}
     uses: ClassVar = {"robot": ServiceSpec(Request, RobotReply, "sim_robot.truth: where the TCP truly is")}
 
     class Params(StageParams):
@@ -62,6 +64,14 @@ class SimPointTracker(Stage):
             raise ValueError(f"sigma_m must be finite and >= 0, got {p.sigma_m}")
         self.T_instr_world = inv(p.T_world_instrument.T())
         self.point = np.asarray(p.point_tcp_m, dtype=float)
+        self._publish_frames(self.ctx.clock.now_ns())
+
+    def _publish_frames(self, stamp_ns: int) -> None:
+        p: SimPointTracker.Params = self.params  # type: ignore[assignment]
+        if p.frame_id == "world":
+            return  # the instrument frame is the world itself
+        edge = Transform(frame_id="world", child_frame_id=p.frame_id, T=p.T_world_instrument.T(), stamp_ns=stamp_ns)
+        self.ctx.publish("frames", FrameTransforms(stamp_ns=stamp_ns, transforms=[edge]))
 
     def _reading(self) -> tuple[PoseStamped, PoseStamped]:
         p: SimPointTracker.Params = self.params  # type: ignore[assignment]
@@ -83,6 +93,7 @@ class SimPointTracker(Stage):
 
     def on_request(self, service: str, request: Request) -> PoseStamped:  # type: ignore[override]
         meas, truth = self._reading()
+        self._publish_frames(meas.stamp_ns)
         self.ctx.publish("point", meas)
         self.ctx.publish("truth/point", truth)
         return meas

@@ -5,10 +5,20 @@ clock sleeps through them: instantly on the ``sim`` clock, really on the ``wall`
 reported pose is the nominal model's, as a real controller reports from its encoders; where the
 TCP truly is (robot effects: DH errors, compliance, backlash, eccentricity, thermal drift, TCP
 offset) is given only by the ``truth`` service and the ``truth/tcp_pose`` port.
+
+State streams (``joint_state``, ``tcp_pose``, ``frames`` and ``truth/tcp_pose``, one message each
+per sample): at set-up, during every move at ``state_rate_hz`` of the run's clock, and once at rest
+after the move. The samples of a move fall at ``t0 + k / state_rate_hz`` (``t0`` = when the
+command was accepted, integer ns; ``k = 1, 2, ...`` while the robot is still moving) and each is
+the controller's motion profile evaluated at its stamp, so a move of ``d`` seconds publishes
+``ceil(d * state_rate_hz)`` samples including the one at rest (on the ``sim`` clock exactly; on the
+``wall`` clock a late wake-up samples later, at the time it reads). ``state_rate_hz: 0`` publishes
+at set-up and at rest only.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar
 
 import numpy as np
@@ -48,6 +58,9 @@ class SimRobot(Stage):
         move_l_accel_m_s2: float = Field(ctl.MOVEL_ACCEL, gt=0.0, le=20.0)
         move_j_speed_rad_s: float = Field(ctl.MOVEJ_SPEED, gt=0.0, le=6.0)
         move_j_accel_rad_s2: float = Field(ctl.MOVEJ_ACCEL, gt=0.0, le=40.0)
+        state_rate_hz: float = Field(
+            25.0, ge=0.0, le=1000.0, description="state samples per second during a move (run clock); 0 = at rest only"
+        )
 
     def setup(self) -> None:
         p: SimRobot.Params = self.params  # type: ignore[assignment]
@@ -82,6 +95,7 @@ class SimRobot(Stage):
 
     def _move(self, cmd: RobotCommand) -> RobotReply:
         p: SimRobot.Params = self.params  # type: ignore[assignment]
+        t0_ns = self.ctx.clock.now_ns()
         if cmd.kind == "stop" or cmd.kind == "state":
             state = self.ctl.state()
             return RobotReply(command_id=cmd.command_id, ok=True, frame_id="base", T=state.T_base_tcp, joints=state.q)
@@ -111,7 +125,8 @@ class SimRobot(Stage):
         else:
             return self._refused(cmd, "move_j needs joints or a target pose T")
         if res.accepted and not res.duplicate:
-            self.ctx.sleep(max(0.0, res.end_s - self.ctx.clock.now_s()))  # the motion takes (simulated) time
+            self._follow(t0_ns, res.duration_s)  # the motion takes (simulated) time
+            self._arrive(res.end_s)
         state = self.ctl.state()
         if res.accepted and not res.duplicate:
             self._publish_state()
@@ -133,11 +148,36 @@ class SimRobot(Stage):
             command_id=cmd.command_id, ok=False, error=reason, frame_id="base", T=state.T_base_tcp, joints=state.q
         )
 
+    def _arrive(self, end_s: float) -> None:
+        """Sleep until the move has ended. The controller's times are float64 seconds since the
+        clock's epoch (~0.2 us apart at today's epoch), so the clock may land a step short of the
+        end: it is then moved on by a microsecond, at most a few times."""
+        self.ctx.sleep(max(0.0, end_s - self.ctx.clock.now_s()))
+        for _ in range(5):
+            if not self.ctl.is_moving() or not self.ctx.sleep(1e-6):
+                return
+
     # -- streams -------------------------------------------------------------------------------
-    def _publish_state(self) -> None:
+    def _follow(self, t0_ns: int, duration_s: float) -> None:
+        """Publish the state along a move at ``state_rate_hz``, sleeping from sample to sample."""
+        rate = self.params.state_rate_hz  # type: ignore[attr-defined]
+        if rate <= 0:
+            return
+        end_ns = t0_ns + round(duration_s * 1e9)
+        k = 1
+        while (tick_ns := t0_ns + round(k * 1e9 / rate)) < end_ns:
+            if not self.ctx.sleep(max(0, tick_ns - self.ctx.clock.now_ns()) / 1e9):
+                return  # the run is stopping
+            now_ns = self.ctx.clock.now_ns()
+            if now_ns >= end_ns:
+                return
+            self._publish_state(now_ns)
+            k = max(k + 1, math.floor((now_ns - t0_ns) * rate / 1e9) + 1)  # a late wake-up skips samples
+
+    def _publish_state(self, stamp_ns: int | None = None) -> None:
         """State streams, stamped with the time of the state (a device reports measurements)."""
-        s = self.ctl.state()
-        now = self.ctx.clock.now_ns()
+        now = self.ctx.clock.now_ns() if stamp_ns is None else stamp_ns
+        s = self.ctl.state(now / 1_000_000_000)  # int / int: the clock's own now_s(), correctly rounded
         names = [f"joint{i + 1}" for i in range(len(s.q))]
         self.ctx.publish("joint_state", JointState(names=names, positions=s.q, velocities=s.qd, stamp_ns=now))
         self.ctx.publish("tcp_pose", PoseStamped(T=s.T_base_tcp, frame_id="base", stamp_ns=now))

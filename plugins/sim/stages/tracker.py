@@ -6,6 +6,14 @@ The tracker sits on the TCP (``T_tcp_tracker``) and is seen by a base station at
 ``sample`` answers with one reading; with ``stream_hz > 0`` the stage also publishes readings at
 that rate for ``duration_s`` (on the ``sim`` clock, do not combine streaming with other stages that
 move time, e.g. a moving sim_robot: both would advance the one simulated clock).
+
+Frames (``frames``, for the 3D view): ``world -> lighthouse`` (``T_world_lighthouse``) at set-up, and
+with every reading, ``world -> lighthouse`` and ``lighthouse -> <tracker_frame>`` (the reported pose;
+left out when the reading is invalid). A sampled reading goes on ``frames`` only while the stream
+runs: the engine ends a streaming stage's outputs when its stream ends, at once for
+``stream_hz: 0`` (such readings are in the recording as the service's replies only). As for
+``sim_camera``'s mount, the base station's placement is the simulated cell's geometry: solvers
+that estimate it (the Vive desk calibration) take the tracker readings, never ``frames``.
 """
 
 from __future__ import annotations
@@ -17,7 +25,7 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import Field
 
-from engine.messages import PoseStamped, Request, RobotReply, TrackerPose
+from engine.messages import FrameTransforms, PoseStamped, Request, RobotReply, TrackerPose, Transform
 from engine.stage import ServiceSpec, Stage, StageParams
 from engine.transforms import inv
 from plugins.interfaces import TRACKER_OUTPUTS, TRACKER_SERVICES
@@ -32,7 +40,7 @@ class SimTracker(Stage):
     type_name = "sim_tracker"
     role = "sensor"
     services: ClassVar = TRACKER_SERVICES
-    outputs: ClassVar = {**TRACKER_OUTPUTS, "truth/pose": PoseStamped}
+    outputs: ClassVar = {**TRACKER_OUTPUTS, "frames": FrameTransforms, "truth/pose": PoseStamped}
     uses: ClassVar = {"robot": ServiceSpec(Request, RobotReply, "sim_robot.truth", optional=True)}
 
     class Params(StageParams):
@@ -45,10 +53,15 @@ class SimTracker(Stage):
         effects: dict[str, Any] = Field(default_factory=dict, description="tracker effects (latency_s, ...)")
         stream_hz: float = Field(0.0, ge=0.0, le=1000.0, description="0 = readings on request only")
         duration_s: float = Field(1.0, gt=0.0)
+        tracker_frame: str = Field("tracker", min_length=1, description="frame of the tracker on frames")
 
     def setup(self) -> None:
         p: SimTracker.Params = self.params  # type: ignore[assignment]
+        if p.tracker_frame in ("world", "lighthouse"):
+            raise ValueError(f"tracker_frame must differ from 'world' and 'lighthouse', got {p.tracker_frame!r}")
         self._lock = threading.Lock()
+        self._frames_lock = threading.Lock()  # frames are published until the stream (run) ends
+        self._frames_open = True
         self._tcp_now: np.ndarray | None = None
         self.T_lh_world = inv(p.T_world_lighthouse.T())
         self.T_tcp_tracker = p.T_tcp_tracker.T()
@@ -58,6 +71,8 @@ class SimTracker(Stage):
             rotation_sigma_rad=math.radians(p.rotation_sigma_deg),
         )
         self.tracker = SimulatedViveTracker(self._true_lighthouse_tracker, model, TrackerEffects.from_dict(p.effects))
+        self.T_world_lighthouse = p.T_world_lighthouse.T()
+        self._publish_frames(None, self.ctx.clock.now_ns())
 
     def _tcp(self) -> np.ndarray | None:
         p: SimTracker.Params = self.params  # type: ignore[assignment]
@@ -76,8 +91,10 @@ class SimTracker(Stage):
         p: SimTracker.Params = self.params  # type: ignore[assignment]
         with self._lock:
             self._tcp_now = self._tcp()
-            sample, truth = self.tracker.sample(self.ctx.clock.now_s(), self.ctx.rng)
+            stamp_ns = self.ctx.clock.now_ns()
+            sample, truth = self.tracker.sample(stamp_ns / 1_000_000_000, self.ctx.rng)
         T = sample.T_lighthouse_tracker
+        self._publish_frames(T, stamp_ns)
         reading = TrackerPose(
             serial=p.serial,
             frame_id="lighthouse",
@@ -87,10 +104,35 @@ class SimTracker(Stage):
         )
         return reading, truth.T_lighthouse_tracker_at_stamp
 
+    def _publish_frames(self, T_lighthouse_tracker: np.ndarray | None, stamp_ns: int) -> None:
+        with self._frames_lock:
+            if self._frames_open:
+                self.ctx.publish(
+                    "frames", FrameTransforms(stamp_ns=stamp_ns, transforms=self._tree(T_lighthouse_tracker, stamp_ns))
+                )
+
+    def _tree(self, T_lighthouse_tracker: np.ndarray | None, stamp_ns: int) -> list[Transform]:
+        p: SimTracker.Params = self.params  # type: ignore[assignment]
+        tree = [Transform(frame_id="world", child_frame_id="lighthouse", T=self.T_world_lighthouse, stamp_ns=stamp_ns)]
+        if T_lighthouse_tracker is not None:
+            tree.append(
+                Transform(
+                    frame_id="lighthouse", child_frame_id=p.tracker_frame, T=T_lighthouse_tracker, stamp_ns=stamp_ns
+                )
+            )
+        return tree
+
     def on_request(self, service: str, request: Any) -> TrackerPose:
         return self._reading()[0]
 
     def run(self) -> None:
+        try:
+            self._stream()
+        finally:
+            with self._frames_lock:  # the engine ends the outputs when run() returns
+                self._frames_open = False
+
+    def _stream(self) -> None:
         p: SimTracker.Params = self.params  # type: ignore[assignment]
         if p.stream_hz <= 0:
             return

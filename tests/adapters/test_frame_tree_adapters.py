@@ -1,0 +1,174 @@
+"""The real adapters publish their frames: a recording of a cell shows it in 3D, as the simulated one does.
+
+Recorded runs with the SDKs faked at the adapter boundary: the UR robot (world -> base -> tcp), a
+file camera on the flange (tcp -> camera: ``T_parent_cam``), a Vive tracker (world -> lighthouse ->
+tracker) and a RealSense camera fixed in the cell (world -> camera). The transforms on the
+``frames`` ports form one tree under ``world`` that holds every frame any message names.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from fake_openvr import FakeDevice, FakeOpenVR
+from fake_openvr import install as install_openvr
+from fake_realsense import FakeCamera, Intrinsics
+from fake_realsense import install as install_realsense
+from fake_ur_rtde import FakeURController
+from fake_ur_rtde import install as install_ur
+from frame_tree_helpers import frame_tree
+from recipe_helpers import graph_from
+from shared_data import SHARED
+
+from engine import codec
+from engine import transforms as tf
+from engine.recorder import Recorder
+from engine.recording import load
+from engine.runner import Runner
+
+pytestmark = pytest.mark.timeout(180)
+
+IP = "192.168.56.101"
+WORKSPACE = "workspace_min_m: [-0.8, -0.6, 0.05], workspace_max_m: [0.2, 0.6, 0.8]"
+
+
+def photo_matrix(ctl: FakeURController) -> str:
+    """A photo pose 10 mm from where the fake robot stands, as recipe YAML."""
+    T = tf.T_from_ur(ctl.tcp_vector())
+    T[0, 3] += 0.01
+    return json.dumps(np.round(T, 12).tolist())
+
+
+UR_CELL = """
+name: ur_cell
+plugins: [adapter_fixtures]
+run_id: adp-frames
+clock: sim
+stages:
+  robot:
+    type: ur_robot
+    params: {{ip: {ip}, {workspace}, T_world_base: {{xyz_m: [0.1, 0.2, 0.8]}}}}
+  camera:
+    type: file_camera
+    params: {{folder: {pcl}, pattern: "*.pcd", parent_frame: tcp, T_parent_cam: {{xyz_m: [0.0, 0.06, 0.03]}}}}
+  tracker:
+    type: vive_tracker
+    params:
+      serial: LHR-TRACK01
+      stream_hz: 10
+      duration_s: 0.5
+      T_parent_lighthouse: {{xyz_m: [1.0, -0.5, 2.0], rpy_deg: [90, 0, 0]}}
+  start: {{type: trigger, params: {{count: 2}}}}
+  capture:
+    type: capture_at_pose
+    inputs: {{trigger: start.out}}
+    uses: {{robot: robot.move, camera: camera.capture}}
+    params: {{photo_pose: {{matrix: {photo}}}}}
+  sampler:
+    type: ta_tracker_sampler
+    inputs: {{trigger: start.out}}
+    uses: {{tracker: tracker.sample}}
+"""
+
+SIM_ROBOT_REALSENSE = """
+name: sim_rs_frames
+plugins: [adapter_fixtures]
+clock: sim
+stages:
+  robot: {type: sim_robot, params: {model: ur5e}}
+  camera:
+    type: realsense_camera
+    params:
+      width: 80
+      height: 60
+      warmup_frames: 2
+      frame_id: fixed_camera
+      T_parent_cam: {xyz_m: [-0.5, -0.1, 1.2], rpy_deg: [180, 0, 0]}
+  start: {type: trigger, params: {count: 1}}
+  capture:
+    type: capture_at_pose
+    inputs: {trigger: start.out}
+    uses: {robot: robot.move, camera: camera.capture}
+    params:
+      photo_pose: {matrix: [[0, 1, 0, -0.49], [1, 0, 0, -0.14], [0, 0, -1, 0.45], [0, 0, 0, 1]]}
+"""
+
+
+def record(text: str, path):
+    graph = graph_from(text)
+    summary = Runner(
+        graph, observers=[Recorder(path, graph.recipe.record, graph.loaded, ["builtin", "adapter_fixtures"])]
+    ).run()
+    assert summary.ok, summary.stop_reason
+    return path
+
+
+def edges(path, stage: str) -> list[tuple[str, str, np.ndarray]]:
+    rec = load(path)
+    out = []
+    for m in rec.messages():
+        if (m.stage, m.port) == (stage, "frames"):
+            msg = codec.decode_payload(codec.registry.get(m.type_name), m.payload)
+            out += [(t.frame_id, t.child_frame_id, t.T) for t in msg.transforms]
+    return out
+
+
+def test_ur_robot_file_camera_on_the_flange_and_vive_tracker_make_one_tree(monkeypatch, tmp_path):
+    ctl = FakeURController()
+    install_ur(monkeypatch, ctl)
+    T_lh_tracker = tf.T_from_rotvec([0.1, 0.2, -0.3], [0.4, 1.1, -1.5])
+    install_openvr(monkeypatch, FakeOpenVR(devices={3: FakeDevice("LHR-TRACK01", T=T_lh_tracker)}))
+    text = UR_CELL.format(ip=IP, workspace=WORKSPACE, pcl=SHARED / "pcl", photo=photo_matrix(ctl))
+    path = record(text, tmp_path / "ur_cell.mcap")
+    tree = frame_tree(path)
+    assert not tree.problems(), "\n".join(tree.problems())
+    assert {c: next(iter(p)) for c, p in tree.parents.items()} == {
+        "base": "world",
+        "tcp": "base",
+        "camera": "tcp",
+        "lighthouse": "world",
+        "tracker": "lighthouse",
+    }
+    cam = edges(path, "camera")
+    assert len(cam) == 3  # at set-up and with each of the 2 captures
+    for parent, child, T in cam:
+        assert (parent, child) == ("tcp", "camera")
+        np.testing.assert_allclose(T, tf.T_from_Rt(np.eye(3), [0.0, 0.06, 0.03]), atol=1e-12)
+    tracker = [e for e in edges(path, "tracker") if e[1] == "tracker"]
+    assert len(tracker) >= 5  # every streamed reading (samples after the stream are replies only)
+    for _, _, T in tracker:
+        assert tf.pose_error(T, T_lh_tracker)[0] < 1e-6
+
+
+def test_realsense_camera_fixed_in_the_cell(monkeypatch, tmp_path):
+    z16 = np.full((60, 80), 600, np.uint16)
+    cam = FakeCamera(frames=[z16, z16], intrinsics=Intrinsics(80, 60, 70.0, 70.0, 39.5, 29.5))
+    install_realsense(monkeypatch, cam)
+    path = record(SIM_ROBOT_REALSENSE, tmp_path / "rs.mcap")
+    tree = frame_tree(path)
+    assert not tree.problems(), "\n".join(tree.problems())
+    assert {c: next(iter(p)) for c, p in tree.parents.items()} == {
+        "base": "world",
+        "tcp": "base",
+        "fixed_camera": "world",
+    }
+    assert "fixed_camera" in tree.named_by and any("cloud" in t or "srv" in t for t in tree.named_by["fixed_camera"])
+
+
+@pytest.mark.parametrize(
+    ("cls", "params", "expect"),
+    [
+        ("file_camera", {"folder": "/tmp", "parent_frame": "camera"}, "parent_frame must differ"),
+        ("realsense_camera", {"frame_id": "world"}, "parent_frame must differ"),
+        ("vive_tracker", {"tracker_frame": "lighthouse"}, "must differ"),
+    ],
+)
+def test_a_frame_cannot_be_its_own_parent(cls, params, expect):
+    from pydantic import ValidationError
+
+    from engine.plugin_manager import load_registry
+
+    with pytest.raises(ValidationError, match=expect):
+        load_registry().stages[cls].Params(**params)

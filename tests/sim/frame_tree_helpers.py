@@ -1,0 +1,86 @@
+"""Read the frame tree a recording shows in a 3D view, and every frame id its messages name.
+
+The tree is made of the transforms published on ports named ``frames`` (FrameTransforms); ``truth/``
+ports are ground truth (alternative poses of the same frames) and not part of it. Every message
+(streams and service requests/replies) that names a frame counts: its ``frame_id``, and a
+transform's parent and child.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from engine import codec
+from engine.messages import FrameTransforms, Message, Transform
+from engine.plugin_manager import load_registry
+from engine.recording import load
+
+ROOT = "world"
+
+
+@dataclass
+class FrameTree:
+    parents: dict[str, set[str]] = field(default_factory=lambda: defaultdict(set))  # child -> parents
+    named_by: dict[str, set[str]] = field(default_factory=lambda: defaultdict(set))  # frame -> topics
+    edges_by: dict[tuple[str, str], set[str]] = field(default_factory=lambda: defaultdict(set))
+
+    def path_to_root(self, frame: str) -> list[str]:
+        """``frame``, its parent, ... up to the root, or up to where the chain breaks."""
+        chain = [frame]
+        while chain[-1] != ROOT and len(self.parents.get(chain[-1], ())) == 1 and len(chain) < 64:
+            (parent,) = self.parents[chain[-1]]
+            if parent in chain:
+                break
+            chain.append(parent)
+        return chain
+
+    def problems(self) -> list[str]:
+        """What keeps the published frames from being one tree rooted at ``world``."""
+        out = []
+        for child, parents in sorted(self.parents.items()):
+            if len(parents) > 1:
+                out.append(f"frame {child!r} has {len(parents)} parents {sorted(parents)}")
+        for frame, topics in sorted(self.named_by.items()):
+            chain = self.path_to_root(frame)
+            if chain[-1] != ROOT:
+                out.append(f"frame {frame!r} (named on {sorted(topics)}) does not reach {ROOT!r}: {' -> '.join(chain)}")
+        return out
+
+
+def _names(msg: Message) -> tuple[list[str], list[tuple[str, str]]]:
+    transforms: list[Transform] = []
+    if isinstance(msg, FrameTransforms):
+        transforms = list(msg.transforms)
+    elif isinstance(msg, Transform):
+        transforms = [msg]
+    names = [msg.frame_id] if getattr(msg, "frame_id", "") else []
+    edges = [(t.frame_id, t.child_frame_id) for t in transforms]
+    return names + [f for e in edges for f in e], edges
+
+
+def frame_tree(path: str | Path) -> FrameTree:
+    tree = FrameTree()
+    rec = load(path)
+    load_registry()  # the stages' own message types (e.g. MatchResult) register with their plugins
+    for r in rec.records:
+        if r[0] == "msg":
+            m = r[1]
+            msgs = [(m.topic, m.port, codec.decode_payload(codec.registry.get(m.type_name), m.payload))]
+        elif r[0] == "svc":
+            ex, topic = r[1], f"/{r[1].provider}/srv/{r[1].service}"
+            msgs = [(topic, "", codec.decode_payload(codec.registry.get(ex.request_type), ex.request))]
+            if not ex.error:
+                msgs.append((topic, "", codec.decode_payload(codec.registry.get(ex.reply_type), ex.reply)))
+        else:
+            continue
+        for topic, port, msg in msgs:
+            names, edges = _names(msg)
+            for name in names:
+                tree.named_by[name].add(topic)
+            if port == "frames":
+                for parent, child in edges:
+                    tree.parents[child].add(parent)
+                    tree.edges_by[(parent, child)].add(topic)
+    return tree
