@@ -27,4 +27,10 @@ class VgrSpecs:
 
     @hookspec
     def vgr_model_effects(self) -> list[Any]:  # type: ignore[empty-body]
-        """Return model-effect classes for the model-gap workflow's catalog."""
+        """Return model-effect families for the model-gap workflow's catalog (``vgr gap``).
+
+        Each item is an effect family (:class:`engine.gap.interfaces.EffectFamily`) or a class
+        instantiated without arguments: ``name`` (unique across all plugins: a duplicate is an error),
+        ``description``, ``requires`` and ``candidates(problem)`` returning one candidate per place the
+        effect can act (``docs/model_gap.md``).
+        """

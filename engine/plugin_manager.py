@@ -2,7 +2,8 @@
 
 ``load_registry()`` builds a pluggy PluginManager, loads every entry point of group ``vgr``
 (including vgr's own ``plugins.builtin``) plus any extra modules a recipe names, and collects what
-the hooks return. Two plugins claiming one stage type name is an error that names both.
+the hooks return. Two plugins claiming one stage type name, or one model-effect name, is an error
+that names both.
 """
 
 from __future__ import annotations
@@ -30,7 +31,8 @@ class Registry:
 
     stages: dict[str, type[Stage]] = field(default_factory=dict)
     stage_origin: dict[str, str] = field(default_factory=dict)
-    effects: dict[str, Any] = field(default_factory=dict)
+    effects: dict[str, Any] = field(default_factory=dict)  # model-gap effect families by name
+    effect_origin: dict[str, str] = field(default_factory=dict)
     plugins: list[str] = field(default_factory=list)
 
     def stage(self, type_name: str) -> type[Stage]:
@@ -85,6 +87,18 @@ def load_registry(extra_modules: Iterable[str] = (), *, entry_points: bool = Tru
             reg.stage_origin[cls.type_name] = impl.plugin_name
     for impl in pm.hook.vgr_model_effects.get_hookimpls():
         for eff in impl.function() or []:
-            name = getattr(eff, "name", None) or getattr(eff, "__name__", str(eff))
+            name = getattr(eff, "name", None)
+            if not (isinstance(name, str) and name and callable(getattr(eff, "candidates", None))):
+                raise PluginError(
+                    f"plugin {impl.plugin_name} returned {eff!r} as a model effect: an effect family needs a "
+                    "non-empty `name` and a `candidates(problem)` method (engine.gap.interfaces.EffectFamily)"
+                )
+            prev = reg.effect_origin.get(name)
+            if prev is not None and reg.effects[name] is not eff:
+                raise PluginError(
+                    f"model effect {name!r} is provided twice: by plugin {prev} and by {impl.plugin_name} "
+                    "(effect names must be unique: rename one)"
+                )
             reg.effects[name] = eff
+            reg.effect_origin[name] = impl.plugin_name
     return reg

@@ -13,7 +13,9 @@ residuals:
   with respect to its *linear* parameters (``(N, m, k)``); effects with a nonlinear *shape*
   parameter (a time constant) give one design per value of a grid;
 * :meth:`GapProblem.add_effect` adds the chosen candidate to the model and refits everything
-  (nonlinear least squares), returning the effect's parameters with their standard deviations.
+  (nonlinear least squares), returning the effect's parameters with their standard deviations;
+  :meth:`GapProblem.fitted_effects` gives every added effect at the current (final) joint refit;
+  :meth:`GapProblem.remove_effect` takes one out again and refits (the loop's backward check).
 
 Effect plugins return :class:`EffectFamily` objects from ``vgr_model_effects``; a family turns a
 problem into its candidates (one per place the effect can act: ``joint2``, ``camera`` ...), or
@@ -148,6 +150,10 @@ class GapProblem(Protocol):
     def features(self) -> list[Feature]: ...
 
     def add_effect(self, candidate: Candidate, values: F64) -> FittedEffect: ...
+
+    def fitted_effects(self) -> list[FittedEffect]: ...
+
+    def remove_effect(self, candidate: Candidate) -> None: ...
 
     def describe(self) -> dict[str, Any]: ...
 

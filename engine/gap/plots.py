@@ -4,13 +4,15 @@
   model against the unit normal the noise specification predicts, and the 3-D error norms;
 * ``gap_rounds.png``: held-out RMS after each round against the noise floor, and the RMS per bin of
   the features where the gap concentrated most (first model vs augmented model);
-* ``gap_effect_<n>_<name>_<where>.png``: for each added effect, the residual expressed in the
-  effect's own quantity (e.g. joint error in urad) against its regressor (gravity torque, approach
-  direction, time, speed, range ...), before and after adding it, with the fitted effect.
+* ``gap_effect_<n>_<name>_<where>.png``: for each added effect, the calibrated residual expressed in
+  the effect's own quantity (e.g. joint error in urad) against its regressor (gravity torque, approach
+  direction, time, speed, range ...), before and after adding it, with the part of the fitted effect
+  the calibration cannot absorb (the part the residuals can show; :class:`EffectSeries`).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -118,14 +120,40 @@ def _masks(f: Feature, labels: list[str]) -> list[np.ndarray]:
     return out
 
 
-def plot_effect(result: GapResult, it: Iteration, path: Path) -> Path | None:
-    """Residual vs the effect's regressor, before (this round) and after (final model)."""
-    sig, c = it.signature, it.contribution
-    if sig is None or c is None or it.added is None:
+@dataclass
+class EffectSeries:
+    """What ``gap_effect_*.png`` draws for one added effect (every array per sample, display units).
+
+    ``y_*`` are residuals expressed in the effect's own quantity (see :class:`Signature`): before the
+    effect was added (that round's calibrated model), with the final model, and the fitted effect's
+    *identifiable part* -- its contribution with the span of the model before it projected out, i.e.
+    what the calibrated residuals can show. The full contribution (``y_full``) is not drawn: most of
+    an effect like ``depth_scale`` is absorbed by the frame calibration, and a line at the full effect
+    would sit far from the residuals it is meant to explain. ``identifiable_share`` is the RMS of the
+    identifiable part over the RMS of the full contribution.
+    """
+
+    x: np.ndarray
+    x_label: str
+    y_before: np.ndarray
+    y_final: np.ndarray
+    y_fitted: np.ndarray
+    y_full: np.ndarray
+    y_label: str
+    unit: str
+    mask: np.ndarray  # samples where the effect has leverage (plotted)
+    identifiable_share: float
+
+
+def effect_series(result: GapResult, it: Iteration) -> EffectSeries | None:
+    """The series of :func:`plot_effect` for the effect added in round ``it`` (None: nothing to plot)."""
+    sig, c, ci = it.signature, it.contribution, it.identifiable
+    if sig is None or c is None or ci is None or it.added is None:
         return None
-    plt = _plt()
-    basis = sig.basis if sig.basis is not None else c
-    unit = sig.y_unit if sig.basis is not None else ""
+    if sig.basis is not None:
+        basis, unit, label = sig.basis, sig.y_unit, sig.y_label or "residual along the effect"
+    else:  # several parameters, no scalar quantity: the fraction of the fitted (identifiable) effect
+        basis, unit, label = ci, "", "residual along the fitted effect"
     norm2 = np.sum(basis**2, axis=1)
     ok = norm2 > 0.05 * np.median(norm2)  # samples where the effect has leverage
 
@@ -133,19 +161,45 @@ def plot_effect(result: GapResult, it: Iteration, path: Path) -> Path | None:
         return np.sum(basis * r, axis=1) / np.where(ok, norm2, 1.0)
 
     f, dunit = display(1.0, unit) if unit else (1.0, "fraction of the fitted effect")
-    x = sig.x.copy()
-    if np.unique(x).size <= 3:
-        x = x + np.random.default_rng(0).uniform(-0.08, 0.08, x.size) * max(1.0, np.ptp(x))
+    full = float(np.sqrt(np.mean(np.sum(c**2, axis=1))))
+    share = float(np.sqrt(np.mean(np.sum(ci**2, axis=1))) / full) if full > 0 else 0.0
     last = result.iterations[-1]
+    return EffectSeries(
+        sig.x.copy(),
+        sig.x_label,
+        y(it.residual) * f,
+        y(last.residual) * f,
+        y(ci) * f,
+        y(c) * f,
+        label,
+        dunit,
+        ok,
+        share,
+    )
+
+
+def plot_effect(result: GapResult, it: Iteration, path: Path) -> Path | None:
+    """Residual vs the effect's regressor, before (this round) and after (final model), with the part
+    of the fitted effect the residuals can show (:class:`EffectSeries`)."""
+    es = effect_series(result, it)
+    if es is None or it.added is None:
+        return None
+    plt = _plt()
+    ok = es.mask
+    x = es.x.copy()
+    if np.unique(x).size <= 3:  # categorical (approach direction): jitter
+        x = x + np.random.default_rng(0).uniform(-0.08, 0.08, x.size) * max(1.0, np.ptp(x))
     fig, ax = plt.subplots(figsize=(7, 4.2))
-    ax.plot(x[ok], y(it.residual)[ok] * f, ".", color="tab:orange", alpha=0.6, label="before adding it")
-    ax.plot(x[ok], y(last.residual)[ok] * f, ".", color="tab:blue", alpha=0.6, label="final model")
-    order = np.argsort(sig.x[ok])
-    ax.plot(sig.x[ok][order], (y(c)[ok] * f)[order], "k-", lw=1.5, label="fitted effect")
+    ax.plot(x[ok], es.y_before[ok], ".", color="tab:orange", alpha=0.6, label="before adding it")
+    ax.plot(x[ok], es.y_final[ok], ".", color="tab:blue", alpha=0.6, label="final model")
+    fitted = "fitted effect"
+    if es.identifiable_share < 0.95:
+        fitted += f": the part the calibration cannot absorb ({100 * es.identifiable_share:.0f} % of its RMS)"
+    ax.plot(x[ok], es.y_fitted[ok], "k.", ms=3, label=fitted)
     ax.axhline(0, color="grey", lw=0.5)
-    ax.set_xlabel(sig.x_label)
-    ax.set_ylabel(f"{sig.y_label or 'residual along the effect'} ({dunit})")
-    ax.set_title(f"{it.added.name}@{it.added.where}: residual against its regressor", fontsize=10)
+    ax.set_xlabel(es.x_label)
+    ax.set_ylabel(f"{es.y_label} ({es.unit})")
+    ax.set_title(f"{it.added.name}@{it.added.where}: calibrated residual against its regressor", fontsize=10)
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=100)

@@ -4,11 +4,15 @@ JSON (``format: vgr.gap_report/1``), lengths in the problem's report unit (mm fo
 
 * ``verdict`` (``explained`` | ``unexplained`` | ``no_gap``) and ``reason``;
 * ``effects_added``: ``[{name, where, params, param_std, units, cv_rms_gain_mm, delta_bic,
-  p_value_corrected, independent_fraction, iteration, config}]`` (params SI, with their units);
+  p_value_corrected, independent_fraction, iteration, config}]`` (params SI, with their units):
+  ``params`` / ``param_std`` / ``config`` are those of the *final* joint refit of every effect with
+  the baseline (the augmented model file has the same); the scores are from the round that added it;
 * ``rms_before_mm`` / ``rms_after_mm``: held-out (k-fold cross-validated) 3-D RMS of the model as given
   (after its baseline calibration) and of the final augmented model; ``noise_floor_mm``: the 3-D RMS
   the stated noise alone gives; ``noise_source``: ``given`` | ``data column sigma_mm`` | ``estimated``;
 * ``before`` / ``after``: in-sample RMS, max, per axis, chi-square test;
+* ``effects_removed``: effects named in an earlier round and dropped by the backward check once the
+  later ones explained them (``delta_bic_given_others < 0``);
 * ``iterations``: per round the comparison, where the gap concentrates, every candidate's scores and
   the decision; ``absorbed`` and ``not_testable`` candidates with the reason; ``decision_rule``;
   ``problem`` (model, data, baseline calibration); ``files`` (plots, model files).
@@ -111,24 +115,22 @@ def report_dict(result: GapResult) -> dict[str, Any]:
     s, u = result.report_scale, result.report_unit
     sel = result.config.selection
     first = result.iterations[0]
+    round_of = {id(it.added_score): it.index for it in result.iterations if it.added_score is not None}
     effects = []
-    for it in result.iterations:
-        if it.added is None or it.added_score is None:
-            continue
-        sc = it.added_score
+    for fe, sc in result.effects:  # values and sigmas of the final joint refit
         effects.append(
             {
-                "name": it.added.name,
-                "where": it.added.where,
-                "params": it.added.params,
-                "param_std": it.added.param_std,
-                "units": it.added.units,
+                "name": fe.name,
+                "where": fe.where,
+                "params": fe.params,
+                "param_std": fe.param_std,
+                "units": fe.units,
                 f"cv_rms_gain_{u}": sc.cv_gain * s,
                 "delta_bic": sc.delta_bic,
                 "p_value_corrected": sc.p_adjusted,
                 "independent_fraction": sc.independent_fraction,
-                "iteration": it.index,
-                "config": it.added.config,
+                "iteration": round_of.get(id(sc)),
+                "config": fe.config,
             }
         )
     return {
@@ -136,6 +138,11 @@ def report_dict(result: GapResult) -> dict[str, Any]:
         "verdict": result.verdict,
         "reason": result.reason,
         "effects_added": effects,
+        "effects_removed": [
+            {"effect": lab, "iteration": it.index, "delta_bic_given_others": g}
+            for it in result.iterations
+            for lab, g in it.removed
+        ],
         f"rms_before_{u}": result.before.cv_rms * s,
         f"rms_after_{u}": result.after.cv_rms * s,
         f"noise_floor_{u}": result.before.noise_rms * s,
@@ -175,6 +182,7 @@ def report_dict(result: GapResult) -> dict[str, Any]:
                     "contenders": [{"label": lab, "delta_bic_given": g} for lab, g in it.decision.contenders],
                 },
                 "added": None if it.added is None else f"{it.added.name}@{it.added.where}",
+                "removed": [lab for lab, _ in it.removed],
                 "model_file": it.model_file,
             }
             for it in result.iterations
@@ -270,6 +278,8 @@ def render(result: GapResult, console: Console, *, top: int = 8) -> None:
             )
         console.print(t)
         console.print(f"  {escape(it.decision.reason)}", soft_wrap=True)
+        for lab, g in it.removed:
+            console.print(f"  removed again: {escape(lab)} (the later effects explain it: dBIC given them {g:.1f})")
     if result.effects:
         t = Table(title="effects added (SI values shown in urad, mm, ms, ppm)", title_justify="left")
         for col in ("effect", "parameters ± 1 sigma", f"held-out gain {u}"):

@@ -21,12 +21,17 @@ projected out). For each candidate:
   chosen inside each training fold): held-out RMS in physical units, and a paired one-sided z-test of
   the per-sample held-out squared errors against the current model's.
 
-The decision rule (:func:`decide`; ``docs/model_gap.md`` explains why) names the candidate with the
-largest ``dBIC`` among those that (1) pass the corrected F-test at the family-wise level ``alpha``,
-(2) have ``dBIC > 0``, (3) improve the held-out error (``z >= cv_z``) and (4) have physically valid
-fitted values; and only if it is *decisive* over every close contender ``r``
-(``dBIC_r > dBIC_w - margin``): the winner must still gain ``>= margin`` in BIC when added on top of
-``r`` (else the two explain the same gap and the verdict is ambiguous).
+The decision rule (:func:`decide`; ``docs/model_gap.md`` explains why) considers the candidates that
+(1) pass the corrected F-test at the family-wise level ``alpha``, (2) have ``dBIC > 0``, (3) improve
+the held-out error (``z >= cv_z``) and (4) have physically valid fitted values, in order of
+decreasing ``dBIC``, and names the first that is *decisive* over every other candidate ``r``: either
+``dBIC_r <= dBIC_w - margin`` (as single explanations the data prefer the winner by a Bayes factor of
+~150), or the winner still gains ``>= margin`` in BIC when added on top of ``r`` (the close
+*contenders*; else the two explain the same part of the gap). When no eligible candidate is decisive
+the round is ambiguous.
+
+:func:`gain_given_others` is the backward check of the loop: the BIC an added effect still gains
+given every other effect of the current model.
 """
 
 from __future__ import annotations
@@ -275,6 +280,15 @@ class Scorer:
         sc.cv_z = float(np.mean(d_i) / (sd / np.sqrt(self.N))) if sd > 0 else 0.0
         return sc
 
+    def identifiable_part(self, design: Design, beta: F64) -> F64:
+        """``(N, m)`` whitened contribution ``B beta`` with the current model's span projected out.
+
+        What the residuals of the current (calibrated) model can show of the effect: the projected-out
+        part is what the calibration parameters absorb when the effect is fitted jointly with them.
+        """
+        c = design.columns.reshape(self.M, -1) @ beta
+        return _perp(self.Q, c).reshape(self.N, self.m)
+
     def rss_together(self, designs: list[Design]) -> float:
         """RSS of the current model plus several candidate designs at once."""
         B = np.concatenate([d.columns.reshape(self.M, -1) for d in designs], axis=1)
@@ -307,32 +321,82 @@ def score_all(
     return scorer, scorer.baseline, scores
 
 
+def _contenders(scorer: Scorer, c: CandidateScore, scores: list[CandidateScore], margin: float):
+    """``(contenders, ambiguous)`` of candidate ``c``: every other testable candidate within ``margin`` of
+    its dBIC or above it, with the BIC ``c`` still gains when added on top of it; those where the gain
+    is below ``margin`` explain the same part of the gap as ``c``."""
+    contenders: list[tuple[str, float]] = []
+    ambiguous: list[str] = []
+    for r in scores:
+        # a candidate whose dBIC is ``margin`` below c's is no rival: as the explanation of the gap the
+        # data prefer c over it by a Bayes factor of ~150 (even when c adds little on top of it: then c
+        # is the simpler explanation of the same part, e.g. a constant range scale vs a fast drift)
+        if r is c or not r.testable or not np.isfinite(r.delta_bic) or r.delta_bic <= c.delta_bic - margin:
+            continue
+        assert c.design is not None and r.design is not None
+        rss_both = scorer.rss_together([r.design, c.design])
+        gain = scorer.M * np.log(r.rss / rss_both) - (c.k + c.k_shape) * np.log(scorer.M)
+        contenders.append((r.label, float(gain)))
+        if gain < margin:
+            ambiguous.append(r.label)
+    return contenders, ambiguous
+
+
 def decide(scorer: Scorer, scores: list[CandidateScore], cfg: SelectionConfig) -> Decision:
-    """The naming rule of the module docstring."""
+    """The naming rule of the module docstring.
+
+    The eligible candidates are tried in order of decreasing dBIC; the first that is decisive over
+    every close contender (every candidate within the margin below it, and every one above it) is
+    named. A candidate that is not decisive is skipped, not named: an ambiguous pair (two effects that
+    explain the same part of the gap) must not stop a different effect, decisively present, from being
+    added -- removing its signal is what may let the next round separate the pair. When no eligible
+    candidate is decisive the round is ``ambiguous`` (the largest-dBIC one and its rivals are reported).
+    """
     eligible = sorted((s for s in scores if s.eligible), key=lambda s: -s.delta_bic)
     if not eligible:
         return Decision("none", None, "no candidate passes the significance, BIC and held-out tests")
-    w = eligible[0]
-    close = [
-        s
-        for s in scores
-        if s is not w and s.testable and np.isfinite(s.delta_bic) and s.delta_bic > w.delta_bic - cfg.bic_margin
-    ]
-    contenders: list[tuple[str, float]] = []
-    ambiguous: list[str] = []
-    for r in close:
-        assert w.design is not None and r.design is not None
-        rss_both = scorer.rss_together([r.design, w.design])
-        gain = scorer.M * np.log(r.rss / rss_both) - (w.k + w.k_shape) * np.log(scorer.M)
-        contenders.append((r.label, float(gain)))
-        if gain < cfg.bic_margin:
-            ambiguous.append(r.label)
-    if ambiguous:
-        return Decision(
-            "ambiguous",
-            w,
-            f"{w.label} and {', '.join(ambiguous)} explain the same part of the gap (BIC margin < "
-            f"{cfg.bic_margin:g}): collect data that separates them",
-            contenders,
-        )
-    return Decision("named", w, f"{w.label}: dBIC {w.delta_bic:.1f}, decisive over every contender", contenders)
+    skipped: list[tuple[CandidateScore, list[str], list[tuple[str, float]]]] = []
+    for w in eligible:
+        contenders, ambiguous = _contenders(scorer, w, scores, cfg.bic_margin)
+        if ambiguous:
+            skipped.append((w, ambiguous, contenders))
+            continue
+        reason = f"{w.label}: dBIC {w.delta_bic:.1f}, decisive over every contender"
+        if skipped:
+            top, amb, _ = skipped[0]
+            reason += (
+                f" (ranked higher but not decisive: {top.label} and {', '.join(amb)} explain the same part of the "
+                "gap; tested again next round)"
+            )
+        return Decision("named", w, reason, contenders)
+    w, ambiguous, contenders = skipped[0]
+    return Decision(
+        "ambiguous",
+        w,
+        f"{w.label} and {', '.join(ambiguous)} explain the same part of the gap (BIC margin < "
+        f"{cfg.bic_margin:g}): collect data that separates them",
+        contenders,
+    )
+
+
+def gain_given_others(lin: Linearisation, label: str, n_linear: int, values: F64) -> float:
+    """BIC gain of one added effect given everything else the current model fits (linearised).
+
+    ``label`` (``name@where``) selects the effect's columns in ``lin`` (``lin.names`` start with
+    ``label + "."``: linear parameters first, then shape parameters); ``values`` are its current
+    linear parameters. Without the effect its prediction shifts by ``-A_e values`` (exact for the
+    linear effects) and the rest is refitted:
+    ``gain = M ln(RSS_without / RSS_with) - k ln M`` with ``k`` the effect's parameter count.
+    """
+    M = lin.residual.size
+    A = lin.jacobian.reshape(M, -1)
+    w = lin.residual.reshape(-1)
+    cols = [i for i, n in enumerate(lin.names) if n.startswith(label + ".")]
+    if not cols:
+        raise ValueError(f"{label} is not part of the current model")
+    rest = [i for i in range(A.shape[1]) if i not in cols]
+    y = w + A[:, cols[:n_linear]] @ np.asarray(values, dtype=float)[:n_linear]
+    r_without = _perp(_basis(A[:, rest]), y)
+    r_with = _perp(_basis(A), w)
+    rss_with = max(float(r_with @ r_with), 1e-300)
+    return float(M * np.log(float(r_without @ r_without) / rss_with) - len(cols) * np.log(M))

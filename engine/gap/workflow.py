@@ -5,8 +5,13 @@
 2. **Name**: score every candidate effect from the plugins' catalog (:mod:`engine.gap.selection`)
    and apply the decision rule.
 3. **Add**: the problem adds the named effect and refits everything (nonlinear least squares); the
-   augmented model is written as a new model file when a report directory is given.
-4. Repeat while a candidate is named (at most ``max_effects``).
+   augmented model is written as a new model file when a report directory is given. The effects of
+   the result carry the values and uncertainties of the *final* joint refit (an effect added early
+   moves when later ones join); each round keeps the values it added.
+4. Backward check: an earlier effect that the later ones now explain (BIC gain given all the others
+   below 0) is removed again (:func:`_prune`).
+5. Repeat while a candidate is named (at most ``max_effects``): the loop stops when no decisive
+   candidate is left. The chi-square test does not stop the loop; it decides the verdict.
 
 Verdict: ``no_gap`` when nothing was added, no candidate is significant and the residuals are
 consistent with the noise (chi-square test at ``chi2_alpha``); ``explained`` when effects were added
@@ -25,7 +30,7 @@ from scipy import stats
 
 from .interfaces import Candidate, EffectFamily, FittedEffect, GapInputError, GapProblem, Linearisation, Signature
 from .localise import FeatureGap, localise
-from .selection import BaselineScore, CandidateScore, Decision, SelectionConfig, decide, score_all
+from .selection import BaselineScore, CandidateScore, Decision, SelectionConfig, decide, gain_given_others, score_all
 
 
 @dataclass
@@ -67,11 +72,17 @@ class Iteration:
     decision: Decision
     residual: np.ndarray  # (N, m) physical residuals of this iteration's model
     whitened: np.ndarray
-    added: FittedEffect | None = None
+    added: FittedEffect | None = None  # as fitted in this round (the result's effects: final values)
     added_score: CandidateScore | None = None
     signature: Signature | None = None
-    contribution: np.ndarray | None = None  # (N, m) physical contribution of the added effect (linearised)
+    # (N, m) physical contribution of the added effect (linearised, this round's fit): in full, and the
+    # part the model before it (baseline calibration + earlier effects) cannot absorb -- what the
+    # residuals can show, since the calibration takes the rest
+    contribution: np.ndarray | None = None
+    identifiable: np.ndarray | None = None
     model_file: str | None = None
+    # earlier effects dropped after this round's addition: (label, BIC gain given the others < 0)
+    removed: list[tuple[str, float]] = field(default_factory=list)
 
 
 @dataclass
@@ -189,16 +200,52 @@ def run_gap(
         assert w is not None and w.design is not None
         it.signature = w.candidate.signature(problem)
         it.contribution = (w.design.columns @ w.beta) * lin.sigma[:, None]
+        it.identifiable = scorer.identifiable_part(w.design, w.beta) * lin.sigma[:, None]
         it.added = problem.add_effect(w.candidate, w.values)
         it.added_score = w
         effects.append((it.added, w))
-        added_labels.add((w.name, w.where))
+        added_labels.add((w.name, w.where))  # never tested again, even if pruned below (no cycles)
+        it.removed = _prune(problem, effects)
         if out_dir is not None:
             it.model_file = str(problem.save_model(out_dir / f"model_{index + 1}_{w.name}_{w.where}.yaml"))
+    # the effects as the final joint refit has them (values and sigmas move when later effects are added)
+    final = {(fe.name, fe.where): fe for fe in problem.fitted_effects()}
+    effects = [(final.get((fe.name, fe.where), fe), sc) for fe, sc in effects]
     verdict, reason = _verdict(iterations, effects, cfg)
     scale = float(getattr(problem, "report_scale", 1.0))
     unit = str(getattr(problem, "report_unit", ""))
     return GapResult(verdict, reason, iterations, effects, problem.describe(), cfg, unit, scale, files)
+
+
+def _prune(problem: GapProblem, effects: list[tuple[FittedEffect, CandidateScore]]) -> list[tuple[str, float]]:
+    """Backward check after an addition: drop an earlier effect the others now explain.
+
+    Forward selection compares single effects; with two effects hidden, the first one named can be
+    a stand-in that mimics parts of both (a range scale for a range bias plus a tool offset). After
+    each addition every *earlier* effect is scored given all the others (:func:`gain_given_others`);
+    while the worst has a BIC gain below 0 (the evidence favours the model without it) it is removed
+    and the model refitted. Entering needs a gain of ``bic_margin``, staying only ``> 0``: the band
+    between is hysteresis, and a removed effect is not tested again, so the loop cannot cycle.
+    """
+    removed: list[tuple[str, float]] = []
+    while len(effects) > 1:
+        lin = problem.linearise()
+        final = {(fe.name, fe.where): fe for fe in problem.fitted_effects()}
+        worst: tuple[float, int] | None = None
+        for i, (fe, sc) in enumerate(effects[:-1]):
+            cand = sc.candidate
+            n_lin = len(cand.param_names) - len(cand.shape_names)
+            now = final[(fe.name, fe.where)]
+            values = np.array([now.params[p] for p in cand.param_names[:n_lin]])
+            gain = gain_given_others(lin, f"{fe.name}@{fe.where}", n_lin, values)
+            if worst is None or gain < worst[0]:
+                worst = (gain, i)
+        if worst is None or worst[0] >= 0.0:
+            break
+        fe, sc = effects.pop(worst[1])
+        problem.remove_effect(sc.candidate)
+        removed.append((f"{fe.name}@{fe.where}", worst[0]))
+    return removed
 
 
 def _verdict(iterations: list[Iteration], effects: list, cfg: GapConfig) -> tuple[str, str]:

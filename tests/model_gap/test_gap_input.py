@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from model_gap_helpers import case, families
 
 from engine.cli import main
-from engine.gap import GapInputError
+from engine.gap import GapConfig, GapInputError, SelectionConfig
 from plugins.solvers.model_gap import GapDataError, analyse_gap, read_gap_csv, write_gap_csv
 from plugins.solvers.model_gap.simulate import make_case
 
@@ -147,3 +147,42 @@ def test_millimetres_given_as_metres_are_caught(tmp_path):
     p = _write(tmp_path, header2, [r[:k] + r[k + 1 :] for r in rows])
     with pytest.raises((GapDataError, GapInputError), match="look like metres"):
         analyse_gap("ur5e", p, noise_mm=0.05, families=families())
+
+
+def _messages(data, frame_id: str):
+    """A campaign as the streams a recording holds: JointState + TrackerPose at the same stamps."""
+    from engine.messages import JointState, TrackerPose
+
+    s = data.samples
+    stamps = np.round(s.t_s * 1e9).astype(np.int64) + 1_000_000_000
+    joints = [
+        JointState(stamp_ns=int(t), positions=q, velocities=qd) for t, q, qd in zip(stamps, s.q, data.qd, strict=True)
+    ]
+    meas = []
+    for t, p in zip(stamps, s.positions, strict=True):
+        T = np.eye(4)
+        T[:3, 3] = p
+        meas.append(TrackerPose(stamp_ns=int(t), frame_id=frame_id, T=T))
+    return joints, meas
+
+
+def test_recorded_streams_give_the_range_so_depth_effects_are_testable():
+    """pair_streams (the MCAP reader and the stage) derives |p| in the instrument's frame."""
+    from plugins.solvers.model_gap import pair_streams
+
+    camp = make_case(case([("depth_scale", "camera")], seed=8))
+    paired = pair_streams(*_messages(camp.data, "lighthouse"))
+    np.testing.assert_allclose(paired.range_m, camp.data.range_m, rtol=1e-12)
+    np.testing.assert_allclose(paired.samples.q, camp.data.samples.q, atol=1e-12)
+    res = analyse_gap(
+        camp.model, paired, noise_mm=0.05, families=families(), config=GapConfig(SelectionConfig(cv_folds=4))
+    )
+    assert res.named == [("depth_scale", "sensor")], res.reason
+    # points in a world / robot frame: no range (its origin is not the instrument's centre), said so
+    world = pair_streams(*_messages(camp.data, "world"))
+    assert world.range_m is None and any("no range derived" in w for w in world.warnings)
+    res = analyse_gap(
+        camp.model, world, noise_mm=0.05, families=families(), config=GapConfig(SelectionConfig(cv_folds=4))
+    )
+    not_testable = {c.name for c in res.iterations[0].scores if c.unavailable}
+    assert {"depth_scale", "depth_bias"} <= not_testable

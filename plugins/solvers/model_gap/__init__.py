@@ -21,6 +21,7 @@ _EXPORTS = {
     "GapData": "data",
     "GapDataError": "data",
     "load_gap_data": "data",
+    "pair_streams": "data",
     "read_gap_csv": "data",
     "read_gap_mcap": "data",
     "write_gap_csv": "data",

@@ -19,7 +19,8 @@ Recordings (MCAP written by ``vgr run``): the joints come from a ``JointState`` 
 of the measured point in the sensor frame, metres), e.g. ``/tracker/pose``. Each measurement is paired
 with the joint state interpolated at its stamp; the joint velocities come from the JointState (or its
 finite differences), the approach direction from the sign of each joint's last motion, ``t_s`` from
-the first joint state. Inside the code everything is SI.
+the first joint state, the range (depth effects) from ``|p|`` when the measurements are in the
+instrument's own frame (see :func:`pair_streams`). Inside the code everything is SI.
 """
 
 from __future__ import annotations
@@ -44,6 +45,10 @@ _PATTERNS = {
     "dir": re.compile(r"^dir(\d+)$"),
     "qd": re.compile(r"^qd(\d+)_deg_s$"),
 }
+
+
+# frames whose origin is not a measuring instrument's centre: no range is derived from points in them
+NOT_SENSOR_FRAMES = frozenset({"", "world", "map", "odom", "base", "base_link", "robot", "tcp", "flange", "tool0"})
 
 
 class GapDataError(ValueError):
@@ -373,7 +378,10 @@ def pair_streams(joint_states: list, measurements: list, *, max_interp_gap_s: fl
     """Pair measurement messages (TrackerPose / PoseStamped) with JointState messages by stamp.
 
     Each measurement gets the joint state interpolated (linearly) at its stamp; measurements outside
-    the joint stream's time span or marked invalid are skipped (with a warning).
+    the joint stream's time span or marked invalid are skipped (with a warning). The range is
+    ``|p|`` when every measurement is in one frame that is not a robot-side or world frame
+    (:data:`NOT_SENSOR_FRAMES`): a TrackerPose or a point instrument's PoseStamped is in the
+    instrument's own frame (``lighthouse``, ``tracker``, ``camera`` ...), whose origin is its centre.
     """
     if not joint_states or not measurements:
         raise GapDataError(f"{len(joint_states)} joint states and {len(measurements)} measurements: need both")
@@ -398,6 +406,15 @@ def pair_streams(joint_states: list, measurements: list, *, max_interp_gap_s: fl
     t_m, p_m = t_m[inside], p_m[inside]
     if t_m.size == 0:
         raise GapDataError("no measurement falls within the joint stream's time span")
+    frames = {str(getattr(m, "frame_id", "") or "") for m, ok in zip(valid, inside, strict=True) if ok}
+    range_m = None
+    if len(frames) == 1 and not (frames & NOT_SENSOR_FRAMES) and np.all(np.linalg.norm(p_m, axis=1) > 0):
+        range_m = np.linalg.norm(p_m, axis=1)  # the instrument's own frame: its centre is the origin
+    else:
+        warnings.append(
+            f"no range derived (depth_scale / depth_bias not testable): the measurements are in frame(s) "
+            f"{sorted(frames)}, not one instrument frame"
+        )
     k = np.clip(np.searchsorted(t_j, t_m, side="right") - 1, 0, len(t_j) - 1)
     k1 = np.minimum(k + 1, len(t_j) - 1)
     span = (t_j[k1] - t_j[k]).astype(float)
@@ -417,7 +434,7 @@ def pair_streams(joint_states: list, measurements: list, *, max_interp_gap_s: fl
     t_s = (t_m - t_j[0]) / 1e9
     try:
         samples = KinematicSamples(q, p_m, None, t_s, direction)
-        return GapData(samples, qd=qd, warnings=warnings)
+        return GapData(samples, qd=qd, range_m=range_m, warnings=warnings)
     except ValueError as e:
         raise GapDataError(f"paired samples are unusable: {e}") from None
 

@@ -292,12 +292,31 @@ class KinematicGapProblem:
         else:
             x = x0
         self.model, self.accepted = self._unpack_state(x)
+        return self.covariance()
+
+    def covariance(self) -> tuple[F64, float, int]:
+        """``(covariance, a-posteriori variance factor s^2, dof)`` of the full state at the current values.
+
+        ``s^2 (J^T J)^+`` with the whitened Jacobian (Gauss-Newton); no refit, so every report of the
+        same state (``gap_report.json``, the model files) shows the same uncertainties.
+        """
+        meas = self.data.samples.positions
+        s = self.sigma[:, None]
         pred, J = self._predict(jacobian=True)
         r = ((meas - pred) / s).ravel()
         Jw = (J / s[:, :, None]).reshape(r.size, -1)
-        dof = max(1, r.size - x.size)
+        n = Jw.shape[1]
+        dof = max(1, r.size - n)
         s2 = float(r @ r) / dof
-        cov = s2 * np.linalg.pinv(Jw.T @ Jw, rcond=1e-12) if x.size else np.zeros((0, 0))
+        if not n:
+            return np.zeros((0, 0)), s2, dof
+        # columns scaled to unit norm first: the parameters' units differ by many orders of magnitude
+        # (rad, m, a time constant in s), and a pseudo-inverse of the raw normal matrix would truncate
+        # the small-scaled directions (reporting a near-zero sigma for a time constant, say)
+        d = np.linalg.norm(Jw, axis=0)
+        d = np.where(d > 0, d, 1.0)
+        Js = Jw / d
+        cov = s2 * np.linalg.pinv(Js.T @ Js, rcond=1e-12) / np.outer(d, d)
         return cov, s2, dof
 
     # ----------------------------------------------------------------------------- GapProblem API
@@ -309,34 +328,47 @@ class KinematicGapProblem:
         return Linearisation((self.data.samples.positions - pred) / s, J / s[:, :, None], names, self.sigma.copy())
 
     def add_effect(self, candidate: Candidate, values: F64) -> FittedEffect:
+        """Add the candidate and refit everything; the effect's values and sigmas right after this refit."""
         self.accepted.append((candidate, np.asarray(values, dtype=float).copy()))
-        cov, _, _ = self.refit()
-        nb = len(self.base_names)
-        k = nb
+        self.refit()
+        return next(fe for (c, _), fe in zip(self.accepted, self.fitted_effects(), strict=True) if c is candidate)
+
+    def remove_effect(self, candidate: Candidate) -> None:
+        """Take an added effect out of the model again and refit the rest."""
+        kept = [(c, v) for c, v in self.accepted if c is not candidate]
+        if len(kept) == len(self.accepted):
+            raise ValueError(f"{candidate.name}@{candidate.where} is not part of the model")
+        self.accepted = kept
+        self.refit()
+
+    def fitted_effects(self) -> list[FittedEffect]:
+        """Every accepted effect at the current (jointly refitted) state, with one-sigma uncertainties.
+
+        The values and sigmas of an effect change when later effects are added (the joint refit moves
+        it, the residual variance factor shrinks): the final report takes them from here, not from
+        the round in which the effect was added.
+        """
+        cov, _, _ = self.covariance()
+        sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+        out, k = [], len(self.base_names)
         for c, v in self.accepted:
-            if c is candidate:
-                std = np.sqrt(np.clip(np.diag(cov)[k : k + v.size], 0, None))
-                fitted = v
-                break
+            std = sd[k : k + v.size]
             k += v.size
-        return FittedEffect(
-            candidate.name,
-            candidate.where,
-            {p: float(x) for p, x in zip(candidate.param_names, fitted, strict=True)},
-            {p: float(x) for p, x in zip(candidate.param_names, std, strict=True)},
-            dict(zip(candidate.param_names, candidate.units, strict=True)),
-            candidate.config(fitted),
-        )
+            out.append(
+                FittedEffect(
+                    c.name,
+                    c.where,
+                    {p: float(x) for p, x in zip(c.param_names, v, strict=True)},
+                    {p: float(x) for p, x in zip(c.param_names, std, strict=True)},
+                    dict(zip(c.param_names, c.units, strict=True)),
+                    c.config(v),
+                )
+            )
+        return out
 
     def effect_std(self) -> dict[str, dict[str, float]]:
         """One-sigma uncertainty of every accepted effect's parameters at the current state."""
-        cov, _, _ = self.refit()
-        out, k = {}, len(self.base_names)
-        for c, v in self.accepted:
-            sd = np.sqrt(np.clip(np.diag(cov)[k : k + v.size], 0, None))
-            out[f"{c.name}@{c.where}"] = dict(zip(c.param_names, sd.tolist(), strict=True))
-            k += v.size
-        return out
+        return {f"{fe.name}@{fe.where}": fe.param_std for fe in self.fitted_effects()}
 
     # -- helpers the candidates use ------------------------------------------------------------
 

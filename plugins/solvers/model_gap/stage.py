@@ -19,9 +19,10 @@ from pydantic import Field
 from engine.gap import GapConfig, GapInputError, SelectionConfig
 from engine.gap.report import _jsonable, report_dict
 from engine.messages import CalibrationResultMsg, JointState, TrackerPose
+from engine.plugin_manager import PluginError
 from engine.stage import Stage, StageParams
 
-from .analyse import analyse_gap
+from .analyse import analyse_gap, families_from_registry
 from .data import GapDataError, pair_streams
 
 
@@ -41,6 +42,9 @@ class ModelGap(Stage):
         max_effects: int = Field(4, ge=0, le=20)
         alpha: float = Field(1e-3, gt=0.0, lt=0.5, description="family-wise false-positive rate per round")
         cv_folds: int = Field(5, ge=2, le=20)
+        effect_plugins: list[str] = Field(
+            [], description="extra plugin modules whose vgr_model_effects join the catalog (like vgr gap --plugin)"
+        )
 
     def __init__(self, ctx, params) -> None:  # buffers exist before setup: a device may publish from its setup
         super().__init__(ctx, params)
@@ -59,10 +63,17 @@ class ModelGap(Stage):
             cfg = GapConfig(
                 SelectionConfig(alpha=p.alpha, cv_folds=p.cv_folds, seed=self.ctx.seed), max_effects=p.max_effects
             )
+            families = families_from_registry(tuple(p.effect_plugins))
             result = analyse_gap(
-                p.model, data, noise_mm=p.noise_mm, calibrate=tuple(p.calibrate), report_dir=p.report_dir, config=cfg
+                p.model,
+                data,
+                noise_mm=p.noise_mm,
+                calibrate=tuple(p.calibrate),
+                report_dir=p.report_dir,
+                config=cfg,
+                families=families,
             )
-        except (GapDataError, GapInputError, ValueError) as exc:
+        except (GapDataError, GapInputError, PluginError, ValueError) as exc:
             self.ctx.event("warning", "model_gap_failed", str(exc))
             self.ctx.publish("result", CalibrationResultMsg(kind="model_gap", verdict="failed", reasons=[str(exc)]))
             return
