@@ -13,10 +13,16 @@ Per method: RMS, median and 95th percentile of the rotation error angle (deg) an
 (mm) of T_tcp_cam. Methods: vgr's ML estimate with the noise declared (``vgr_ml``) and estimated from
 the data (``vgr_ml_noise_estimated``), vgr's closed forms, OpenCV's five ``calibrateHandEye`` methods
 and its two ``calibrateRobotWorldHandEye`` methods. The Cramér–Rao bound is computed at the truth
-from the Fisher information of the noise model (``crlb.crlb_covariance``); for vgr the coverage of
-its reported covariance is the fraction of trials with the truth inside the 95 % ellipsoid of
-T_tcp_cam (6 dof); a vgr-only run of ``--coverage-trials`` draws measures that coverage more precisely
-(binomial standard deviation 0.7 % at 1000 trials instead of 1.5 % at 200).
+from the Fisher information of the noise model (``crlb.crlb_covariance``).
+
+Coverage of vgr's reported uncertainty: a separate vgr-only run of ``--coverage-trials`` (1000) noise
+draws at the same truth, with the noise declared and estimated, counts the trials whose truth lies
+inside the 95 % confidence region the result states (``CalibrationResult.confidence_threshold``:
+chi2(6) for a declared noise; for an estimated noise the Kenward-Roger covariance and
+6 F(6, dof) / f_scale, see plugins/solvers/handeye/variance.py),
+for T_tcp_cam (6 dof) and jointly with T_base_target (12 dof). 200 trials would leave a binomial
+standard deviation of 1.5 % (93-97 % is +-1.3 sd); 1000 trials give 0.7 %, and every coverage is
+reported with its exact (Clopper-Pearson) 95 % interval.
 
 A second section runs OpenCV's own test protocol (test_calibration_hand_eye.cpp: 100 trials of 10
 poses, camera noise 0.002 rad / 5 mm, robot noise 0.001 rad / 1 mm as described) and reports the
@@ -126,9 +132,7 @@ def run_scenario(name: str, noise: NoiseModel, trials: int, n_poses: int, seed: 
     }
     errors: dict[str, list[np.ndarray]] = {k: [] for k in ["vgr_ml", "vgr_ml_noise_estimated", *others]}
     times: dict[str, float] = dict.fromkeys(errors, 0.0)
-    inside = {"vgr_ml": 0, "vgr_ml_noise_estimated": 0}
     verdicts: dict[str, dict[str, int]] = {"vgr_ml": {}, "vgr_ml_noise_estimated": {}}
-    q95 = stats.chi2.ppf(0.95, 6)
     for _ in range(trials):
         meas = sim.add_noise(truth, noise, rng)
         M, B = meas.T_base_tcp, meas.T_cam_target
@@ -138,7 +142,6 @@ def run_scenario(name: str, noise: NoiseModel, trials: int, n_poses: int, seed: 
             times[key] += time.perf_counter() - t0
             d = pose_delta(res.estimate["T_tcp_cam"], truth.X)[0]
             errors[key].append(d)
-            inside[key] += int(d @ np.linalg.solve(res.covariance[:6, :6], d) <= q95)
             verdicts[key][res.verdict] = verdicts[key].get(res.verdict, 0) + 1
         for key, solve in others.items():
             t0 = time.perf_counter()
@@ -151,8 +154,7 @@ def run_scenario(name: str, noise: NoiseModel, trials: int, n_poses: int, seed: 
         s["rot_rms_over_crlb"] = s["rot_rms_deg"] / np.rad2deg(b_rot)
         s["trans_rms_over_crlb"] = s["trans_rms_mm"] / (b_trans * 1e3)
         s["time_ms"] = 1e3 * times[key] / trials
-        if key in inside:
-            s["coverage_95"] = inside[key] / trials
+        if key in verdicts:
             s["verdicts"] = verdicts[key]
         methods[key] = s
     return {
@@ -167,31 +169,81 @@ def run_scenario(name: str, noise: NoiseModel, trials: int, n_poses: int, seed: 
     }
 
 
-def run_coverage(noise: NoiseModel, trials: int, n_poses: int, seed: int) -> dict[str, float]:
-    """Coverage of vgr's reported 95 % ellipsoid (declared noise) over more trials, same truth."""
+def binomial_interval(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
+    """Clopper-Pearson (exact) interval of a binomial proportion k / n."""
+    a = 1.0 - level
+    lo = float(stats.beta.ppf(a / 2, k, n - k + 1)) if k > 0 else 0.0
+    hi = float(stats.beta.ppf(1 - a / 2, k + 1, n - k)) if k < n else 1.0
+    return lo, hi
+
+
+def run_coverage(noise: NoiseModel, trials: int, n_poses: int, seed: int) -> dict:
+    """Coverage of vgr's reported 95 % confidence regions, noise declared and estimated, same truth.
+
+    A trial counts as covered when the truth lies inside the region the result itself states:
+    ``d^T C^-1 d <= res.confidence_threshold(k)``, i.e. the chi2(k) quantile for a known (declared)
+    covariance and ``k F(k, dof) / f_scale`` with the result's ``dof`` and ``f_scale`` when the noise was
+    estimated (Kenward-Roger). The estimated-noise run also reports the coverage the chi-square
+    quantile would give with the same covariance, for comparison.
+    """
     rng = np.random.default_rng(seed)
     truth = sim.viewing_scene(rng, n_poses, "eye_in_hand")
     rng = np.random.default_rng(seed + 1)
     q6, q12 = stats.chi2.ppf(0.95, 6), stats.chi2.ppf(0.95, 12)
-    in_x = in_xy = 0
+    modes = {"noise_declared": noise, "noise_estimated": None}
+    count = {m: {"x": 0, "xy": 0, "x_chi2": 0, "xy_chi2": 0} for m in modes}
+    dofs: dict[str, list[float]] = {m: [] for m in modes}
+    scales: dict[str, list[float]] = {m: [] for m in modes}
+    inflation: list[float] = []
+    times = dict.fromkeys(modes, 0.0)
     for _ in range(trials):
         meas = sim.add_noise(truth, noise, rng)
-        res = calibrate_hand_eye(meas.T_base_tcp, meas.T_cam_target, noise=noise)
-        d = np.concatenate(
-            [
-                pose_delta(res.estimate["T_tcp_cam"], truth.X)[0],
-                pose_delta(res.estimate["T_base_target"], truth.Y)[0],
-            ]
-        )
-        in_x += int(d[:6] @ np.linalg.solve(res.covariance[:6, :6], d[:6]) <= q6)
-        in_xy += int(d @ np.linalg.solve(res.covariance, d) <= q12)
-    p = in_x / trials
-    return {
-        "trials": trials,
-        "coverage_95_T_tcp_cam": p,
-        "coverage_95_T_tcp_cam_and_T_base_target": in_xy / trials,
-        "binomial_std_at_0.95": float(np.sqrt(0.95 * 0.05 / trials)),
-    }
+        for mode, declared in modes.items():
+            t0 = time.perf_counter()
+            res = calibrate_hand_eye(meas.T_base_tcp, meas.T_cam_target, noise=declared)
+            times[mode] += time.perf_counter() - t0
+            d = np.concatenate(
+                [
+                    pose_delta(res.estimate["T_tcp_cam"], truth.X)[0],
+                    pose_delta(res.estimate["T_base_target"], truth.Y)[0],
+                ]
+            )
+            m6 = float(d[:6] @ np.linalg.solve(res.covariance[:6, :6], d[:6]))
+            m12 = float(d @ np.linalg.solve(res.covariance, d))
+            c = count[mode]
+            c["x"] += int(m6 <= res.confidence_threshold(6))
+            c["xy"] += int(m12 <= res.confidence_threshold(12, dof=res.metrics.get("covariance_dof_xy")))
+            c["x_chi2"] += int(m6 <= q6)
+            c["xy_chi2"] += int(m12 <= q12)
+            dofs[mode].append(res.metrics.get("covariance_dof", float("inf")))
+            scales[mode].append(res.metrics.get("covariance_f_scale", 1.0))
+            if "covariance_kr_inflation" in res.metrics:
+                inflation.append(res.metrics["covariance_kr_inflation"])
+    out: dict = {"trials": trials, "binomial_std_at_0.95": float(np.sqrt(0.95 * 0.05 / trials))}
+    for mode in modes:
+        c = count[mode]
+        r = {
+            "coverage_95_T_tcp_cam": c["x"] / trials,
+            "interval_95_T_tcp_cam": binomial_interval(c["x"], trials),
+            "coverage_95_T_tcp_cam_and_T_base_target": c["xy"] / trials,
+            "interval_95_T_tcp_cam_and_T_base_target": binomial_interval(c["xy"], trials),
+            "time_ms": 1e3 * times[mode] / trials,
+        }
+        n_scaled = int(np.count_nonzero(np.isfinite(dofs[mode])))
+        if mode == "noise_estimated":
+            r["region"] = "6 F(6, dof) / f_scale (Kenward-Roger), 12 F(12, dof_xy) / f_scale_xy"
+            r["covariance_dof_median"] = float(np.median(dofs[mode]))
+            r["covariance_f_scale_median"] = float(np.median(scales[mode]))
+            r["covariance_kr_inflation_median"] = float(np.median(inflation)) if inflation else 1.0
+            r["chi2_coverage_95_T_tcp_cam"] = c["x_chi2"] / trials
+            r["chi2_interval_95_T_tcp_cam"] = binomial_interval(c["x_chi2"], trials)
+        else:
+            r["region"] = (
+                "chi2(6) / chi2(12); 6 F(6, dof) when the declared noise was rejected and the covariance scaled"
+            )
+            r["trials_covariance_scaled"] = n_scaled
+        out[mode] = r
+    return out
 
 
 def run_opencv_protocol(seed: int, trials: int = 100) -> dict:
@@ -221,28 +273,39 @@ def run_opencv_protocol(seed: int, trials: int = 100) -> dict:
 
 
 def print_summary(result: dict) -> None:
-    head = ("method", "rot RMS", "x CRLB", "rot med", "tr RMS", "x CRLB", "cov95")
+    head = ("method", "rot RMS", "x CRLB", "rot med", "tr RMS", "x CRLB")
     for name, sc in result["scenarios"].items():
         crlb = sc["crlb"]
         print(f"\n{name}: CRLB {crlb['rot_rms_deg']:.4f} deg / {crlb['trans_rms_mm']:.3f} mm RMS")
-        print("  {:24s} {:>8s} {:>7s} {:>8s} {:>8s} {:>7s} {:>6s}".format(*head))
+        print("  {:24s} {:>8s} {:>7s} {:>8s} {:>8s} {:>7s}".format(*head))
         for key, m in sc["methods"].items():
-            cov = f"{m['coverage_95']:.3f}" if "coverage_95" in m else ""
             row = (m["rot_rms_deg"], m["rot_rms_over_crlb"], m["rot_median_deg"])
             row += (m["trans_rms_mm"], m["trans_rms_over_crlb"])
-            print("  {:24s} {:8.4f} {:7.3f} {:8.4f} {:8.3f} {:7.3f}".format(key, *row) + f" {cov:>6s}")
+            print("  {:24s} {:8.4f} {:7.3f} {:8.4f} {:8.3f} {:7.3f}".format(key, *row))
     print("\nOpenCV test protocol (worst of 100 trials; tolerance 2e-2 rad, 5e-2 m):")
     for key, m in result["opencv_protocol"].items():
         a = (m["as_opencv_runs_worst_rvec_rad"], m["as_opencv_runs_worst_t_m"])
         b = (m["as_described_worst_rvec_rad"], m["as_described_worst_t_m"])
         print(f"  {key:18s} as OpenCV runs: {a[0]:.4f} rad {a[1]:.4f} m | as described: {b[0]:.4f} rad {b[1]:.4f} m")
     for name, c in result["coverage"].items():
-        print(
-            f"coverage of vgr's 95 % ellipsoid, {name}, {c['trials']} trials: "
-            f"T_tcp_cam {c['coverage_95_T_tcp_cam']:.3f}, "
-            f"T_tcp_cam + T_base_target {c['coverage_95_T_tcp_cam_and_T_base_target']:.3f} "
-            f"(binomial sd {c['binomial_std_at_0.95']:.3f})"
-        )
+        print(f"\ncoverage of vgr's 95 % confidence regions, {name}, {c['trials']} trials (95 % interval):")
+        for mode in ("noise_declared", "noise_estimated"):
+            r = c[mode]
+            lo, hi = r["interval_95_T_tcp_cam"]
+            lo2, hi2 = r["interval_95_T_tcp_cam_and_T_base_target"]
+            line = (
+                f"  {mode:16s} T_tcp_cam {r['coverage_95_T_tcp_cam']:.3f} [{lo:.3f}, {hi:.3f}], "
+                f"with T_base_target {r['coverage_95_T_tcp_cam_and_T_base_target']:.3f} [{lo2:.3f}, {hi2:.3f}]"
+            )
+            if "chi2_coverage_95_T_tcp_cam" in r:
+                line += (
+                    f"; KR dof {r['covariance_dof_median']:.0f}, scale {r['covariance_f_scale_median']:.3f}, "
+                    f"inflation {r['covariance_kr_inflation_median']:.3f}; "
+                    f"with the chi2(6) quantile instead: {r['chi2_coverage_95_T_tcp_cam']:.3f}"
+                )
+            else:
+                line += f"; {r['trials_covariance_scaled']} trial(s) with the declared noise rejected"
+            print(line)
 
 
 def main() -> None:
@@ -250,13 +313,19 @@ def main() -> None:
     ap.add_argument("--trials", type=int, default=200)
     ap.add_argument("--poses", type=int, default=15)
     ap.add_argument("--seed", type=int, default=6)
-    ap.add_argument("--coverage-trials", type=int, default=1000, help="vgr-only coverage run")
+    ap.add_argument("--coverage-trials", type=int, default=1000, help="vgr-only coverage run (both noise modes)")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "handeye.json")
     args = ap.parse_args()
     t0 = time.time()
     result = {
         "benchmark": "handeye",
-        "parameters": {"trials": args.trials, "poses": args.poses, "seed": args.seed, "setup": "eye_in_hand"},
+        "parameters": {
+            "trials": args.trials,
+            "coverage_trials": args.coverage_trials,
+            "poses": args.poses,
+            "seed": args.seed,
+            "setup": "eye_in_hand",
+        },
         "machine": {
             "platform": platform.platform(),
             "processor": platform.processor(),

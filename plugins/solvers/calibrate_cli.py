@@ -141,12 +141,21 @@ def _vive_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tracker-sigma-mm", type=float, help="tracker position noise per axis (overrides the file)")
     p.add_argument("--tracker-sigma-deg", type=float, help="tracker rotation noise (overrides the file)")
     p.add_argument("--fixture-sigma-deg", type=float, help="fixture orientation scatter (overrides the file)")
+    p.add_argument(
+        "--tcp-prior-mm",
+        type=float,
+        nargs=3,
+        metavar=("X", "Y", "Z"),
+        help="TCP position in the tracker frame from CAD / caliper: a prior that makes one fixture orientation usable",
+    )
+    p.add_argument("--tcp-prior-sigma-mm", type=float, default=1.0, help="uncertainty of --tcp-prior-mm per axis")
     p.add_argument("--contact-topic", default=DEFAULT_TOPICS["contact"], help="MCAP: PoseStamped T_desktop_tcp")
     p.add_argument("--tracker-topic", default=DEFAULT_TOPICS["tracker"], help="MCAP: TrackerPose T_base_tracker")
 
 
 def _vive(args: argparse.Namespace) -> Outcome:
-    from plugins.solvers.vive_desk import calibrate_vive_desk, load_vive_csv, load_vive_json
+    from engine.transforms import T_from_Rt
+    from plugins.solvers.vive_desk import TrackerTcpPrior, calibrate_vive_desk, load_vive_csv, load_vive_json
 
     notes: list[str] = []
     suffix = _suffix(args.data)
@@ -165,7 +174,18 @@ def _vive(args: argparse.Namespace) -> Outcome:
     }
     if any(v is not None for v in over.values()):
         data = replace(data, noise=replace(nz, **{k: float(v) for k, v in over.items() if v is not None}))
-    return Outcome(calibrate_vive_desk(data), notes)
+    prior = None
+    if args.tcp_prior_mm is not None:
+        if not args.tcp_prior_sigma_mm > 0:
+            raise CalibrationInputError("--tcp-prior-sigma-mm must be > 0")
+        # position only: the rotation of T_tracker_tcp comes from the contacts' fixture orientations
+        t = np.asarray(args.tcp_prior_mm, dtype=float) * 1e-3
+        prior = TrackerTcpPrior(T_from_Rt(np.eye(3), t), args.tcp_prior_sigma_mm * 1e-3)
+        notes.append(
+            f"lever-arm prior: TCP at ({', '.join(f'{v:.1f}' for v in args.tcp_prior_mm)}) mm in the tracker "
+            f"frame, {args.tcp_prior_sigma_mm:g} mm per axis"
+        )
+    return Outcome(calibrate_vive_desk(data, prior=prior), notes)
 
 
 # --------------------------------------------------------------------------- TCP by camera
@@ -211,7 +231,7 @@ def _kinematics_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--noise-mm", type=float, default=0.05, help="measurement noise per axis (default 0.05)")
     p.add_argument("--noise-deg", type=float, default=float(np.degrees(1e-4)), help="orientation noise (full pose)")
     p.add_argument("--trust-noise", action="store_true", help="covariance from the stated noise, not the residuals")
-    p.add_argument("--holdout", type=Path, help="held-out samples (CSV) for the before/after table")
+    p.add_argument("--holdout", type=Path, help="held-out samples (.csv / .json) for the before/after table")
     p.add_argument("--holdout-fraction", type=float, default=0.25, help="else this share of DATA is held out")
     p.add_argument("--full-pose", action="store_true", help="MCAP: the measurements carry the tool orientation")
     p.add_argument("--joints-topic", default=DEFAULT_TOPICS["joints"], help="MCAP: JointState")
@@ -221,7 +241,7 @@ def _kinematics_options(p: argparse.ArgumentParser) -> None:
 def _kinematics(args: argparse.Namespace) -> Outcome:
     from engine.transforms import T_from_Rt
     from plugins.sim.model_file import load_robot_model
-    from plugins.solvers.kinematic_calibration import KinematicCalibrationConfig, calibrate_kinematics, read_csv
+    from plugins.solvers.kinematic_calibration import KinematicCalibrationConfig, calibrate_kinematics, read_samples
 
     notes: list[str] = []
     if _suffix(args.data) == ".mcap":
@@ -229,11 +249,13 @@ def _kinematics(args: argparse.Namespace) -> Outcome:
         joints = read_topic(rec, args.joints_topic, JointState)
         points = read_topic(rec, args.point_topic, PoseStamped)
         samples, notes = kinematic_samples(joints, points, full_pose=args.full_pose, **_pairing(args))
-    elif args.data.suffix.lower() == ".csv":
-        samples = read_csv(args.data)
-    else:
-        raise CalibrationInputError(f"{args.data}: kinematic samples are CSV (docs/kinematic_calibration.md) or MCAP")
-    holdout = read_csv(args.holdout) if args.holdout else None
+    else:  # .csv or .json: the same columns (docs/kinematic_calibration.md)
+        samples = read_samples(args.data)
+    holdout = None
+    if args.holdout:
+        if args.holdout.suffix.lower() not in (".csv", ".json"):
+            raise CalibrationInputError(f"{args.holdout}: held-out samples are .csv or .json")
+        holdout = read_samples(args.holdout)
     try:
         model = load_robot_model(args.model)
     except (OSError, KeyError) as exc:

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal, NamedTuple
 
 import numpy as np
+from scipy import stats
 from scipy.spatial.transform import Rotation
 
 Verdict = Literal["ok", "warning", "degenerate", "failed"]
@@ -95,6 +96,29 @@ class CalibrationResult:
             return {}
         sd = np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
         return dict(zip(self.param_names, sd.tolist(), strict=True))
+
+    def confidence_threshold(
+        self, k: int, level: float = 0.95, dof: float | None = None, f_scale: float | None = None
+    ) -> float:
+        """Bound of ``d^T C^-1 d`` for the ``level`` confidence region of ``k`` parameters.
+
+        ``C`` is the ``k x k`` block of :attr:`covariance` belonging to those parameters and ``d``
+        the estimate's deviation from the truth (in the solver's perturbation). When the covariance
+        is known (declared noise, no a-posteriori scaling), ``d^T C^-1 d`` is chi-square with ``k``
+        degrees of freedom. When it rests on a variance estimated from the residuals, it is itself
+        uncertain and ``f_scale * d^T C^-1 d / k`` follows Fisher's ``F(k, dof)`` (exactly, with
+        ``f_scale = 1``, for one variance factor; Kenward-Roger's ``dof`` and ``f_scale`` for
+        several variance components), a wider region. ``dof`` and ``f_scale`` default to
+        ``metrics["covariance_dof"]`` and ``metrics["covariance_f_scale"]`` (absent: known
+        covariance, resp. 1). Solvers document which block those refer to.
+        """
+        if dof is None:
+            dof = self.metrics.get("covariance_dof")
+        if dof is None or not np.isfinite(dof):
+            return float(stats.chi2.ppf(level, k))
+        if f_scale is None:
+            f_scale = self.metrics.get("covariance_f_scale", 1.0)
+        return float(k * stats.f.ppf(level, k, dof) / f_scale)
 
     def summary_rows(self) -> list[SummaryRow]:
         """The estimate for people: rows of name, value, 1-sigma and unit, in mm and degrees.

@@ -13,12 +13,13 @@ from calib_helpers import MOVEIT, MOVEIT_T_BASE_CAM_M, RECIPES, mahalanobis2, ru
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.stats import chi2
+from scipy.stats import f as f_dist
 
 from engine.cli import main
 from engine.transforms import log_so3
 from plugins.solvers.handeye import simulate as he_sim
 from plugins.solvers.handeye.io import load_pose_pairs, write_pose_pairs_json
-from plugins.solvers.kinematic_calibration import write_csv
+from plugins.solvers.kinematic_calibration import write_csv, write_json
 from plugins.solvers.tcp_camera import TcpCameraData, TcpNoiseModel, save_tcp_json
 from plugins.solvers.vive_desk import save_vive_csv, save_vive_json
 from plugins.solvers.vive_desk.simulate import (
@@ -111,15 +112,33 @@ def test_kinematics_from_a_csv_with_held_out_file(tmp_path, capsys):
         q = rng.uniform(-np.pi, np.pi, (n, 6))
         return KinematicSamples(q, truth.fk(q)[:, :3, 3] + rng.normal(0, 5e-5, (n, 3)))
 
-    write_csv(samples(60), tmp_path / "cal.csv")
-    write_csv(samples(40), tmp_path / "hold.csv")
+    cal, hold = samples(60), samples(40)
+    write_csv(cal, tmp_path / "cal.csv")
+    write_json(hold, tmp_path / "hold.json")  # the JSON form: same columns as fields
     out = tmp_path / "rep"
-    assert calibrate("kinematics", tmp_path / "cal.csv", "--holdout", tmp_path / "hold.csv", "--report", out) == 0
+    assert calibrate("kinematics", tmp_path / "cal.csv", "--holdout", tmp_path / "hold.json", "--report", out) == 0
     text = capsys.readouterr().out
-    assert "kinematic calibration: verdict OK" in text and "held-out" in text
+    assert "kinematic calibration: verdict OK" in text and "held-out" in text and "expected for a correct model" in text
     res = json.loads((out / "result.json").read_text())
-    assert res["metrics"]["holdout_rms_after_mm"] / math.sqrt(3) < 1.3 * 0.05
+    m = res["metrics"]
+    # held-out RMS against its expected value for a correct model (noise floor raised by the fit's own
+    # uncertainty, about sqrt(1 + p/n)): (after / expected)^2 ~ F(dof, nu), two-sided 99.9 %
+    lo, hi = f_dist.ppf([0.0005, 0.9995], m["holdout_rms_dof"], m["covariance_dof"])
+    assert lo <= (m["holdout_rms_after_mm"] / m["holdout_rms_expected_mm"]) ** 2 <= hi
+    assert m["holdout_rms_expected_mm"] / (math.sqrt(3) * m["sigma_position_mm"]) < math.sqrt(1 + 2 * 27 / 180)
     assert (out / "convergence.png").stat().st_size > 10_000 and (out / "before_after.txt").is_file()
+    # the calibration data as JSON give the same result
+    write_json(cal, tmp_path / "cal.json")
+    assert (
+        calibrate(
+            "kinematics", tmp_path / "cal.json", "--holdout", tmp_path / "hold.json", "--json", tmp_path / "j.json"
+        )
+        == 0
+    )
+    capsys.readouterr()
+    assert json.loads((tmp_path / "j.json").read_text())["estimate"]["offsets"] == pytest.approx(
+        res["estimate"]["offsets"], abs=1e-9
+    )
 
 
 # --------------------------------------------------------------------------- exit code 1
@@ -136,6 +155,35 @@ def test_degenerate_data_exit_one(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "verdict DEGENERATE (NOT usable" in text and "two more fixture orientations" in text
     assert calibrate("handeye", MOVEIT, "--setup", "eye_in_hand", "--no-samples") == 1  # wrong set-up: failed
+
+
+def test_seed_001_protocol_says_what_to_add_and_a_cad_prior_makes_it_usable(tmp_path, capsys):
+    """Seed 001 as written (3 contact points, one fixture orientation) cannot determine the lever arm:
+    the advice names both remedies in words a user can act on, and the second one works from the CLI."""
+    sim = simulate_contacts(SEED_POINTS_3, seed=1)
+    save_vive_json(sim.data, tmp_path / "seed001.json")
+    assert calibrate("vive-desk", tmp_path / "seed001.json", "--no-samples") == 1
+    advice = capsys.readouterr().out.split("advice:", 1)[1]
+    assert "one fixture orientation cannot determine the tracker-to-TCP lever arm" in advice
+    assert "two more fixture orientations" in advice and "--tcp-prior-mm X Y Z" in advice
+    cad_mm = sim.T_tracker_tcp[:3, 3] * 1e3 + np.array([0.5, -0.5, 0.3])  # a CAD value, 0.5 mm off
+    assert (
+        calibrate(
+            "vive-desk",
+            tmp_path / "seed001.json",
+            "--no-samples",
+            "--tcp-prior-mm",
+            *cad_mm,
+            "--json",
+            tmp_path / "r.json",
+        )
+        == 0
+    )
+    text = capsys.readouterr().out
+    assert "note: lever-arm prior" in text and "verdict DEGENERATE" not in text
+    res = json.loads((tmp_path / "r.json").read_text())
+    assert np.linalg.norm(np.asarray(res["estimate"]["T_tracker_tcp"])[:3, 3] - sim.T_tracker_tcp[:3, 3]) < 3e-3
+    assert calibrate("vive-desk", tmp_path / "seed001.json", "--tcp-prior-mm", 0, 0, 0, "--tcp-prior-sigma-mm", 0) == 2
 
 
 # --------------------------------------------------------------------------- exit code 2
@@ -180,7 +228,9 @@ def bad_inputs(tmp_path: Path, rec: Path) -> list[tuple[list[object], str]]:
         (["vive-desk", _write(tmp_path, "v.json", '{"contacts": [{"label": "P1"}]}')], "missing field 'desk_point'"),
         (["tcp", _write(tmp_path, "t.json", '{"format": "vgr.tcp_camera/1", "samples": []}')], "no samples"),
         (["kinematics", _write(tmp_path, "k.csv", header + rows)], "5 samples: a 6-joint position calibration needs at least 10"),
-        (["kinematics", _write(tmp_path, "k.json", "{}")], "CSV"),
+        (["kinematics", _write(tmp_path, "k.json", "{}")], "one object per pose"),
+        (["kinematics", _write(tmp_path, "k2.json", '[{"q1_deg": 1, "x_mm": 2}]')], "missing column 'y_mm'"),
+        (["kinematics", _write(tmp_path, "k.yaml", "a: 1")], "unsupported file type '.yaml'"),
         (["kinematics", _write(tmp_path, "m.csv", header + metres)], "they look like metres"),
         (["tcp", rec, "--point-topic", "/nope"], "no topic '/nope' (topics with PoseStamped messages: "),
         (["tcp", rec, "--point-topic", "/poses/joint_state"], "carries JointState messages, not PoseStamped"),

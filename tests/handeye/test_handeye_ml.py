@@ -24,7 +24,8 @@ def _monte_carlo(setup: str, noise: NoiseModel, n_poses: int, trials: int, seed:
         x_name = res.param_names[0].split(".")[0]
         d = pose_delta(res.estimate[x_name], scene.X)[0]
         err.append(d)
-        inside += d @ np.linalg.solve(res.covariance[:6, :6], d) <= stats.chi2.ppf(0.95, 6)
+        # the region the result states: chi2(6) for a known covariance, 6 F(6, dof) when estimated
+        inside += d @ np.linalg.solve(res.covariance[:6, :6], d) <= res.confidence_threshold(6)
     err = np.array(err)
     rms_rot = float(np.sqrt(np.mean(np.sum(err[:, 3:] ** 2, axis=1))))
     rms_trans = float(np.sqrt(np.mean(np.sum(err[:, :3] ** 2, axis=1))))
@@ -47,6 +48,16 @@ def test_exact_robot_poses_are_supported():
     rms_rot, rms_trans, (crlb_rot, crlb_trans), coverage = _monte_carlo("eye_in_hand", noise, 10, 40, seed=21)
     assert rms_rot <= 1.2 * crlb_rot and rms_trans <= 1.2 * crlb_trans
     assert coverage >= 0.85
+
+
+def test_estimated_noise_reaches_the_bound_and_its_f_region_is_calibrated():
+    trials = 60
+    rms_rot, rms_trans, (crlb_rot, crlb_trans), coverage = _monte_carlo(
+        "eye_in_hand", NOISE, 12, trials, seed=29, estimate=True
+    )
+    assert rms_rot <= 1.2 * crlb_rot and rms_trans <= 1.2 * crlb_trans
+    # binomial: 95 % coverage less 3 standard deviations of 60 trials
+    assert coverage >= 0.95 - 3.0 * np.sqrt(0.95 * 0.05 / trials)
 
 
 def test_crlb_shrinks_with_more_poses_and_grows_with_noise():

@@ -1,15 +1,30 @@
 """Monte-Carlo: the calibration is efficient (errors at the Cramér-Rao bound) and its covariance honest.
 
 30 trials of the same 60 UR5e poses with independent 0.05 mm noise. The reference ("identifiable
-truth") is the calibration of the noise-free data; the CRLB is ``(J^T J)^-1`` of the whitened
+truth") is the calibration of the noise-free data; the CRLB ``C`` is ``(J^T J)^-1`` of the whitened
 Jacobian there. Compared: the joint and tool parameters (the base parameters are offsets from the
 per-trial initial frame, so they are not comparable across trials as numbers).
+
+Every bound below is a quantile of the distribution the statistic has when the estimator is
+efficient, at the trial count used (two-sided 99.9 %, so a correct solver fails about once in a
+thousand seeds; the seeds are fixed):
+
+* aggregate: each ``e^T C^-1 e`` is chi-square with ``p`` degrees of freedom, their sum over ``T``
+  trials chi-square with ``T p`` (630 here: the mean normalised squared error scatters by 5.6 %
+  and its bound is 1.196, a ratio of 1.094, so an estimator 1.1x above the CRLB, 1.21 in this
+  measure, fails more often than not);
+* per parameter: ``T (RMS / CRLB sigma)^2`` is chi-square with ``T``; none may exceed its 99.9 %
+  quantile after Bonferroni's correction for ``p`` parameters;
+* reported covariance (scaled by the residual variance, ``nu`` degrees of freedom): each
+  ``e^T C_reported^-1 e / p`` is F(p, nu); their mean lies within 3.29 standard deviations of the F
+  mean.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import stats
 
 from plugins.solvers.kinematic_calibration import (
     KinematicCalibrationConfig,
@@ -20,6 +35,7 @@ from plugins.solvers.kinematic_calibration import (
 from .kincal_sim import measure, nominal_model, random_poses, true_robot
 
 TRIALS = 30
+Z999 = float(stats.norm.ppf(0.9995))  # two-sided 99.9 %
 
 
 def _values(out, names):
@@ -40,7 +56,7 @@ def test_identifiable_parameters_reach_the_crlb_and_covariance_is_calibrated():
     sel = [ref.result.param_names.index(n) for n in names]
     crlb = ref.result.covariance[np.ix_(sel, sel)]
     x_ref = _values(ref, names)
-    errors, mahal_reported = [], []
+    errors, mahal_reported, nu = [], [], None
     for k in range(TRIALS):
         out = calibrate_kinematics(
             model, measure(truth, q, seed=100 + k), config=KinematicCalibrationConfig(holdout_fraction=0.0)
@@ -51,15 +67,22 @@ def test_identifiable_parameters_reach_the_crlb_and_covariance_is_calibrated():
         errors.append(e)
         cov = out.result.covariance[np.ix_(sel, sel)]  # reported, with the estimated variance factor
         mahal_reported.append(e @ np.linalg.solve(cov, e) / len(names))
+        nu = out.result.metrics["covariance_dof"]
     E = np.array(errors)
-    p = len(names)
-    mahal_crlb = np.mean([e @ np.linalg.solve(crlb, e) for e in E]) / p
-    ratio = np.sqrt(np.mean(E**2, axis=0)) / np.sqrt(np.diag(crlb))
-    print(f"\nCRLB check over {TRIALS} trials, {p} parameters: mean normalised squared error {mahal_crlb:.3f}")
-    print(f"RMS error / CRLB sigma per parameter: median {np.median(ratio):.3f}, max {ratio.max():.3f}")
-    print(f"reported covariance: mean e^T C^-1 e / p = {np.mean(mahal_reported):.3f}")
-    assert mahal_crlb <= 1.1**2  # efficient: within 1.1x the CRLB (in the aggregate, RMS sense)
-    assert np.median(ratio) <= 1.1
-    assert ratio.max() <= 1.6  # 30 trials: single-parameter RMS estimates scatter by ~13 %
-    assert 0.75 <= np.mean(mahal_reported) <= 1.3  # the reported covariance is neither over- nor underconfident
+    p, T = len(names), TRIALS
+    total = float(np.sum([e @ np.linalg.solve(crlb, e) for e in E]))
+    ratio2 = np.mean(E**2, axis=0) / np.diag(crlb)
+    print(f"\nCRLB check over {T} trials, {p} parameters: mean normalised squared error {total / (T * p):.3f}")
+    print(
+        f"RMS error / CRLB sigma per parameter: median {np.median(np.sqrt(ratio2)):.3f}, max {np.sqrt(ratio2.max()):.3f}"
+    )
+    print(f"reported covariance: mean e^T C^-1 e / p = {np.mean(mahal_reported):.3f} (nu = {nu:.0f})")
+    # aggregate: sum of T chi2(p) terms
+    assert stats.chi2.ppf(0.0005, T * p) <= total <= stats.chi2.ppf(0.9995, T * p)
+    # every single parameter: T ratio^2 ~ chi2(T), Bonferroni over p
+    assert np.all(T * ratio2 <= stats.chi2.ppf(1.0 - 0.001 / p, T))
+    # reported covariance: mean of T F(p, nu) terms
+    assert nu == 3 * len(q) - len(ref.result.param_names)
+    f_mean, f_var = stats.f.stats(p, nu, moments="mv")
+    assert abs(np.mean(mahal_reported) - f_mean) <= Z999 * np.sqrt(f_var / T)
     assert np.sqrt(np.diag(crlb)).max() < 1e-3  # every identified parameter is determined to < 1 mm / 1 mrad

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -9,7 +11,15 @@ from hypothesis import strategies as st
 
 from plugins.sim.robot_effects import GeometricErrors, JointCompliance
 from plugins.sim.true_robot import RobotWithEffects
-from plugins.solvers.kinematic_calibration import KinematicSamples, calibrate_kinematics, read_csv, write_csv
+from plugins.solvers.kinematic_calibration import (
+    KinematicSamples,
+    calibrate_kinematics,
+    read_csv,
+    read_json,
+    read_samples,
+    write_csv,
+    write_json,
+)
 
 from .kincal_sim import measure, nominal_model, random_poses, true_robot
 
@@ -139,6 +149,33 @@ def test_csv_round_trip_with_context(tmp_path):
     pose = measure(TRUTH, data.q, 61, rot_noise_rad=1e-4)
     write_csv(pose, tmp_path / "pose.csv")
     assert np.allclose(read_csv(tmp_path / "pose.csv").rotations, pose.rotations, atol=1e-12)
+
+
+def test_json_form_has_the_csv_columns_and_round_trips(tmp_path):
+    data = measure(TRUTH, random_poses(MODEL, 12, 63), 64, rot_noise_rad=1e-4)
+    data.temp_c = np.linspace(20, 25, 12)
+    write_json(data, tmp_path / "d.json")
+    write_csv(data, tmp_path / "d.csv")
+    doc = json.loads((tmp_path / "d.json").read_text())
+    assert doc["format"] == "vgr.kinematic.samples/1" and len(doc["samples"]) == 12
+    assert list(doc["samples"][0]) == (tmp_path / "d.csv").read_text().splitlines()[0].split(",")
+    for back in (read_json(tmp_path / "d.json"), read_samples(tmp_path / "d.json")):
+        assert np.allclose(back.q, data.q, atol=1e-12) and np.allclose(back.positions, data.positions, atol=1e-12)
+        assert np.allclose(back.rotations, data.rotations, atol=1e-12) and np.allclose(back.temp_c, data.temp_c)
+    (tmp_path / "bare.json").write_text(json.dumps(doc["samples"]))  # a bare list of poses
+    assert np.allclose(read_json(tmp_path / "bare.json").q, data.q, atol=1e-12)
+    # the same checks as the CSV: units, missing fields, other formats
+    rows = [dict(r, x_mm=r["x_mm"] / 1000, y_mm=r["y_mm"] / 1000, z_mm=r["z_mm"] / 1000) for r in doc["samples"]]
+    (tmp_path / "m.json").write_text(json.dumps(rows))
+    with pytest.raises(ValueError, match="look like metres"):
+        read_json(tmp_path / "m.json")
+    del doc["samples"][3]["q2_deg"]
+    (tmp_path / "gap.json").write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match="pose 3 has no field 'q2_deg'"):
+        read_json(tmp_path / "gap.json")
+    (tmp_path / "other.json").write_text(json.dumps({"format": "vgr.handeye.samples/1", "samples": []}))
+    with pytest.raises(ValueError, match=r"is not 'vgr\.kinematic\.samples/1'"):
+        read_json(tmp_path / "other.json")
 
 
 def test_csv_unit_and_format_errors(tmp_path):

@@ -6,6 +6,15 @@ residuals accepts the declared noise (two-sided, 1 %) and otherwise scales it by
 ``chi2 / dof`` (and says so); ``a_posteriori`` always scales. With the noise estimated from the
 data the covariance is always scaled by the (near 1) variance factor.
 
+Confidence regions: a scaled covariance is an estimate, so the region of k parameters is
+``d^T C^-1 d <= k F(k, nu; level) / lambda`` (``CalibrationResult.confidence_threshold``) with
+``metrics["covariance_dof"]`` = ``nu`` and ``metrics["covariance_f_scale"]`` = ``lambda`` for X
+(6 parameters; ``_xy`` for X and Y, 12). With the noise estimated these are Kenward-Roger's, and
+the covariance itself is the Kenward-Roger adjusted one (``variance``;
+``metrics["covariance_kr_inflation"]`` says by how much it widened X's); for a declared noise
+scaled by the variance factor, ``nu = dof`` and ``lambda = 1`` (exact). Absent when the covariance
+is known (chi-square).
+
 Parameters of the covariance: decoupled perturbations (``lie``) of X then Y, i.e. translation in
 the parent frame (m) and rotation about parent-frame axes (rad).
 
@@ -114,6 +123,18 @@ def assemble_result(
             )
             advice.append("state the robot and camera noise that matches the data, or pass noise=None to estimate it")
     cov = fit.covariance * cov_factor
+    # degrees of freedom of the covariance (confidence regions use F(k, dof) instead of chi2(k))
+    cov_dof: dict[str, float] = {}
+    if noise_estimated and fit.dof > 0 and np.isfinite(fit.dof_x):
+        cov_dof = {
+            "covariance_dof": fit.dof_x,
+            "covariance_f_scale": fit.f_scale_x,
+            "covariance_dof_xy": fit.dof_xy,
+            "covariance_f_scale_xy": fit.f_scale_xy,
+            "covariance_kr_inflation": fit.kr_inflation_x,
+        }
+    elif cov_factor != 1.0 or (covariance_scale == "a_posteriori" and fit.dof > 0):
+        cov_dof = {"covariance_dof": float(fit.dof), "covariance_dof_xy": float(fit.dof)}
 
     # ---- pose-chain spread (each sample's own estimate of Y against the fit)
     d_chain = pose_delta(chain_poses(setup, M, fit.X, B), np.broadcast_to(fit.Y, M.shape))
@@ -136,6 +157,7 @@ def assemble_result(
             "dof": float(fit.dof),
             "variance_factor": vf,
             "covariance_factor": cov_factor,
+            **cov_dof,
             "std_x_trans_m": float(np.sqrt(np.sum(std[0:3] ** 2))),
             "std_x_rot_rad": float(np.sqrt(np.sum(std[3:6] ** 2))),
             "std_y_trans_m": float(np.sqrt(np.sum(std[6:9] ** 2))),

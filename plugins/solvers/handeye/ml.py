@@ -19,7 +19,10 @@ Runs :class:`ml_model.EivModel` through ``scipy.optimize.least_squares`` in four
    then only their sum is determined, which is also all the estimate depends on.
 4. **Final ML fit** on the inliers with the final noise; the covariance of (X, Y) is the inverse
    Fisher information at the optimum (Gauss-Newton, nuisance robot poses eliminated exactly by the
-   Schur complement). It is *unscaled* here; ``solver`` decides on the a-posteriori scaling.
+   Schur complement). It is *unscaled* here; ``solver`` decides on the a-posteriori scaling. With
+   the noise estimated, the covariance rests on estimated variance components: it is the
+   Kenward-Roger adjusted one (``variance``), and the F distribution's degrees of freedom and scale
+   for X and for (X, Y) say how wide a confidence region must be (``F`` instead of chi-square).
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ from scipy.optimize import least_squares
 from plugins.solvers.handeye.ml_model import EivModel, EivState
 from plugins.solvers.handeye.noise import NoiseModel
 from plugins.solvers.handeye.problem import Setup
+from plugins.solvers.handeye.variance import kenward_roger
 
 F64 = NDArray[np.float64]
 Loss = Literal["huber", "cauchy", "linear"]
@@ -78,6 +82,14 @@ class MLFit:
     nfev: int
     converged: bool
     noise_groups_estimated: int = 0  # variance components with redundancy >= 1 (0: noise not estimated)
+    # estimated noise (``variance``, Kenward-Roger): F(k, dof) denominator degrees of freedom and scale
+    # lambda of the confidence regions of X (6) and of (X, Y) (12), and the factor by which the
+    # adjustment widened X's covariance (mean over its 6 whitened directions); inf / 1 when declared
+    dof_x: float = float("inf")
+    dof_xy: float = float("inf")
+    f_scale_x: float = 1.0
+    f_scale_xy: float = 1.0
+    kr_inflation_x: float = 1.0
     notes: list[str] = field(default_factory=list)
 
 
@@ -172,6 +184,7 @@ def refine_ml(
     n = T_base_tcp.shape[0]
     notes: list[str] = []
     estimable = 0
+    estimated_groups = np.zeros(4, dtype=bool)
     model = EivModel(setup, T_base_tcp, T_cam_target, noise, X0, Y0)
     weights = np.ones(n)
     if initial_weights is not None and opts.loss != "linear":
@@ -237,7 +250,8 @@ def refine_ml(
             model = model.with_noise(current)
             if np.all(np.abs(factor - 1.0) < 0.01):
                 break
-        estimable = int(np.count_nonzero(redund >= 1.0))
+        estimated_groups = redund >= 1.0
+        estimable = int(np.count_nonzero(estimated_groups))
         noise = current
 
     # ---- phase 4: final ML fit on inliers and covariance (phase 1 already is it when nothing changed)
@@ -254,6 +268,14 @@ def refine_ml(
         cov = np.linalg.pinv(info)
         notes.append("information matrix singular: covariance from the pseudo-inverse")
     n_in = int(np.count_nonzero(inlier_w))
+    dof_x = dof_xy = float("inf")
+    f_scale_x = f_scale_xy = kr_inflation_x = 1.0
+    if opts.estimate_noise:  # the covariance rests on estimated variances: Kenward-Roger (``variance``)
+        kr = kenward_roger(model, st, inlier_w, estimated_groups, [slice(0, 6), slice(0, 12)])
+        kr_inflation_x = float(np.trace(np.linalg.solve(cov[:6, :6], kr.covariance[:6, :6]))) / 6.0
+        cov = kr.covariance
+        dof_x, dof_xy = kr.dof
+        f_scale_x, f_scale_xy = kr.f_scale
     return MLFit(
         X=st.X,
         Y=st.Y,
@@ -271,5 +293,10 @@ def refine_ml(
         nfev=nfev_total,
         converged=converged,
         noise_groups_estimated=estimable,
+        dof_x=dof_x,
+        dof_xy=dof_xy,
+        f_scale_x=f_scale_x,
+        f_scale_xy=f_scale_xy,
+        kr_inflation_x=kr_inflation_x,
         notes=notes,
     )

@@ -8,6 +8,7 @@ advice). ``format_report(result)`` returns plain text for the CLI and logs.
 from __future__ import annotations
 
 import numpy as np
+from scipy import stats
 from scipy.spatial.transform import Rotation
 
 from plugins.solvers.calibration_result import CalibrationResult
@@ -102,6 +103,18 @@ def format_report(result: CalibrationResult, *, per_sample: bool = True) -> str:
             f"{m['noise_robot_trans_m'] * _MM:.3f} mm / {m['noise_robot_rot_rad'] * _DEG:.4f} deg, camera "
             f"{m['noise_camera_trans_m'] * _MM:.3f} mm / {m['noise_camera_rot_rad'] * _DEG:.4f} deg"
         )
+    if result.covariance is not None and result.param_names:
+        x = result.param_names[0].split(".")[0]
+        thr = result.confidence_threshold(6)
+        if "covariance_dof" in m:
+            nu = m["covariance_dof"]
+            how = "Kenward-Roger" if "covariance_f_scale" in m else "variance factor"
+            lines.append(
+                f"95 % confidence region of {x}: Mahalanobis^2 <= {thr:.2f} (F(6, {nu:.0f}), {how}: the "
+                f"covariance rests on an estimated noise; chi2(6) would give {stats.chi2.ppf(0.95, 6):.2f})"
+            )
+        else:
+            lines.append(f"95 % confidence region of {x}: Mahalanobis^2 <= {thr:.2f} (chi2(6), declared noise)")
     if "excitation_min_rad" in m:
         lines.append(
             f"motion: largest relative rotation {m['max_relative_rotation_rad'] * _DEG:.1f} deg, "

@@ -161,8 +161,10 @@ def _calibrate(
         options=MLOptions(loss=loss, estimate_noise=estimate_noise),
         initial_weights=weights0,
     )
+    # the label names the initialiser that was used: for init="auto" the winner of the closed forms
+    init_label = f"{best} (best of {len(cands)} closed forms)" if init == "auto" and len(cands) > 1 else best
     return assemble_result(
-        kind, setup, frames.x_name, frames.y_name, data.index, M, B, fit, best, loss, estimate_noise,
+        kind, setup, frames.x_name, frames.y_name, data.index, M, B, fit, init_label, loss, estimate_noise,
         covariance_scale, accuracy, verdict, reasons, advice, metrics,
     )  # fmt: skip
 

@@ -1,7 +1,9 @@
 """Kinematic (DH / MDH / POE) calibration of serial robots from external tool measurements (issue 6).
 
 Entry point: :func:`calibrate_kinematics` (see :mod:`.calibrate`); data: :class:`KinematicSamples`,
-:func:`read_csv` / :func:`write_csv` (the plain CSV format shared with the model-gap workflow).
+:func:`read_csv` / :func:`write_csv` (the plain CSV format shared with the model-gap workflow) and
+:func:`read_json` / :func:`write_json` (the same columns as JSON fields); :func:`read_samples` picks
+by suffix.
 """
 
 from .calibrate import (
@@ -9,9 +11,10 @@ from .calibrate import (
     KinematicCalibrationConfig,
     calibrate_kinematics,
     candidate_parameters,
+    expected_holdout_rms,
     initial_measurement_frame,
 )
-from .data import KinematicSamples, read_csv, write_csv
+from .data import KinematicSamples, read_csv, read_json, read_samples, write_csv, write_json
 from .identifiability import Identifiability, analyse
 from .report import format_table, plot_convergence
 
@@ -23,9 +26,13 @@ __all__ = [
     "analyse",
     "calibrate_kinematics",
     "candidate_parameters",
+    "expected_holdout_rms",
     "format_table",
     "initial_measurement_frame",
     "plot_convergence",
     "read_csv",
+    "read_json",
+    "read_samples",
     "write_csv",
+    "write_json",
 ]

@@ -211,6 +211,30 @@ def _random_configs(model: RobotModel, n: int, seed: int) -> F64:
     return lo + np.random.default_rng(seed).random((n, model.dof)) * (hi - lo)
 
 
+def expected_holdout_rms(
+    model: RobotModel, holdout: KinematicSamples, names: list[str], cov: F64, sigma_m: float
+) -> tuple[float, float]:
+    """Expected 3-D position RMS on held-out poses for a correct model, and its degrees of freedom.
+
+    A held-out error is the new measurement's noise minus the calibrated model's prediction error,
+    ``e_i = n_i - A_i d`` (``A_i`` the position Jacobian of the identified parameters, ``d`` their
+    error, covariance ``cov``), so ``E|e_i|^2 = 3 sigma^2 + tr(A_i cov A_i^T)``: the noise floor
+    raised by what the fit left uncertain. Averaged over poses like the calibration ones this is
+    ``3 sigma^2 (1 + p / n)`` for ``p`` parameters and ``n`` residuals; here it is computed exactly
+    for the given poses. Returns ``(sqrt(mean E|e_i|^2), dof)`` with ``dof`` Satterthwaite's degrees
+    of freedom of the held-out mean square, ``(tr S)^2 / tr(S^2)`` for ``S = sigma^2 I + A cov A^T``:
+    ``(RMS / expected)^2`` then follows ``chi2(dof) / dof`` (``F(dof, nu)`` when ``sigma`` and ``cov``
+    rest on a variance estimated with ``nu`` degrees of freedom).
+    """
+    _, J = model.param_jacobian(holdout.q, frame="base")
+    A = J[:, :3, [model.chain.index(n) for n in names]].reshape(-1, len(names))
+    m = A.shape[0]
+    M = cov @ (A.T @ A)  # tr(A cov A^T) = tr(M), tr((A cov A^T)^2) = tr(M^2)
+    tr_s = m * sigma_m**2 + float(np.trace(M))
+    tr_s2 = m * sigma_m**4 + 2.0 * sigma_m**2 * float(np.trace(M)) + float(np.sum(M * M.T))
+    return float(np.sqrt(tr_s / holdout.n_samples)), tr_s**2 / tr_s2
+
+
 def _error_rows(model: RobotModel, samples: KinematicSamples) -> dict[str, float]:
     T = model.fk(samples.q)
     e = (samples.positions - T[:, :3, 3]) * 1e3
@@ -386,9 +410,16 @@ def calibrate_kinematics(
         "chi2": chi2_stat,
         "chi2_dof": float(dof),
     }
+    if not cfg.trust_noise:
+        metrics["covariance_dof"] = float(dof)  # s^2 estimated: confidence regions use F(k, dof)
     if len(table) > 1:
         metrics["holdout_rms_before_mm"] = table[1]["before"]["rms_mm"]
         metrics["holdout_rms_after_mm"] = table[1]["after"]["rms_mm"]
+        if cov is not None and holdout is not None:
+            expected, h_dof = expected_holdout_rms(calibrated, holdout, kept, cov, np.sqrt(s2) * cfg.noise_position_m)
+            metrics["holdout_rms_expected_mm"] = expected * 1e3
+            metrics["holdout_rms_dof"] = h_dof
+            table[1]["expected_rms_mm"] = expected * 1e3
     values = calibrated.param_values
     estimate = {
         "T_meas_base": calibrated.T_world_base,

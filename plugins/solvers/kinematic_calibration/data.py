@@ -9,6 +9,15 @@ optional ``t_s``          time since warm-up start (s)
 optional ``dir1 .. dirN`` approach direction per joint (+1 / -1)
 optional ``temp_c``       temperature (deg C); optional ``payload_kg`` mass at the TCP (kg)
 
+JSON form (``read_json`` / ``write_json``), the same columns as named fields of one object per pose::
+
+    {"format": "vgr.kinematic.samples/1",
+     "samples": [{"q1_deg": 0.0, "q2_deg": -90.0, ..., "x_mm": 512.3, "y_mm": -80.1, "z_mm": 390.0},
+                 ...]}
+
+(a bare list of such objects is accepted too; a field missing in one pose is an error).
+``read_samples`` picks the reader by the suffix (``.csv`` / ``.json``).
+
 Inside the code everything is SI (rad, m). Loading checks for NaN, non-unit quaternions, duplicate
 poses and unit mix-ups (positions that look like metres in the ``_mm`` columns, joint angles that look
 like radians in the ``_deg`` columns) and reports them.
@@ -17,6 +26,7 @@ like radians in the ``_deg`` columns) and reports them.
 from __future__ import annotations
 
 import csv
+import json
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -121,6 +131,9 @@ _Q_COL = re.compile(r"^q(\d+)_deg$")
 _DIR_COL = re.compile(r"^dir(\d+)$")
 
 
+JSON_FORMAT = "vgr.kinematic.samples/1"
+
+
 def read_csv(path: str | Path) -> KinematicSamples:
     """Read the CSV format of the module docstring (raises ValueError naming the problem)."""
     path = Path(path)
@@ -130,6 +143,46 @@ def read_csv(path: str | Path) -> KinematicSamples:
         reader = csv.DictReader(f)
         header = reader.fieldnames or []
         rows = list(reader)
+    return _from_rows(path, list(header), rows)
+
+
+def read_json(path: str | Path) -> KinematicSamples:
+    """Read the JSON form of the module docstring (the CSV columns as fields of one object per pose)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path} does not exist")
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path}: not valid JSON ({e})") from None
+    if isinstance(doc, dict):
+        fmt = doc.get("format", JSON_FORMAT)
+        if fmt != JSON_FORMAT:
+            raise ValueError(f"{path}: format {fmt!r} is not {JSON_FORMAT!r}")
+        rows = doc.get("samples")
+    else:
+        rows = doc
+    if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):
+        raise ValueError(
+            f"{path}: expected {{'format': {JSON_FORMAT!r}, 'samples': [{{...}}, ...]}} (one object per pose)"
+        )
+    header: list[str] = []
+    for r in rows:
+        header += [k for k in r if k not in header]
+    missing = [(i, c) for i, r in enumerate(rows) for c in header if c not in r]
+    if missing:
+        i, c = missing[0]
+        raise ValueError(f"{path}: pose {i} has no field {c!r} ({len(missing)} missing field(s) in all)")
+    return _from_rows(path, header, rows)
+
+
+def read_samples(path: str | Path) -> KinematicSamples:
+    """``read_json`` for ``.json`` files, ``read_csv`` otherwise."""
+    return read_json(path) if Path(path).suffix.lower() == ".json" else read_csv(path)
+
+
+def _from_rows(path: Path, header: list[str], rows: list[dict]) -> KinematicSamples:
+    """Samples from records keyed by the CSV column names (values: numbers or numeric strings)."""
     if not rows:
         raise ValueError(f"{path}: no data rows")
     q_cols = sorted((int(m.group(1)), c) for c in header if (m := _Q_COL.match(c)))
@@ -142,7 +195,7 @@ def read_csv(path: str | Path) -> KinematicSamples:
     def col(name: str) -> F64:
         try:
             return np.array([float(r[name]) if r[name] not in ("", None) else np.nan for r in rows])
-        except ValueError as e:
+        except (TypeError, ValueError) as e:
             raise ValueError(f"{path}: column {name!r}: {e}") from None
 
     q_deg = np.column_stack([col(c) for _, c in q_cols])
@@ -182,8 +235,25 @@ def read_csv(path: str | Path) -> KinematicSamples:
     return samples
 
 
+def write_json(samples: KinematicSamples, path: str | Path) -> None:
+    """Write samples in the JSON form of the module docstring (degrees, millimetres)."""
+    header, data = _table(samples)
+    doc = {"format": JSON_FORMAT, "samples": [dict(zip(header, map(float, row), strict=True)) for row in data]}
+    Path(path).write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+
+
 def write_csv(samples: KinematicSamples, path: str | Path) -> None:
     """Write samples in the CSV format of the module docstring (degrees, millimetres)."""
+    header, data = _table(samples)
+    with Path(path).open("w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        for row in data:
+            w.writerow([repr(float(v)) for v in row])
+
+
+def _table(samples: KinematicSamples) -> tuple[list[str], F64]:
+    """Column names and values (degrees, millimetres) of the plain formats."""
     n = samples.n_joints
     header = [f"q{j + 1}_deg" for j in range(n)] + ["x_mm", "y_mm", "z_mm"]
     cols = [np.degrees(samples.q), samples.positions * 1000.0]
@@ -198,9 +268,4 @@ def write_csv(samples: KinematicSamples, path: str | Path) -> None:
     if samples.direction is not None:
         header += [f"dir{j + 1}" for j in range(n)]
         cols.append(np.broadcast_to(samples.direction, (samples.n_samples, n)))
-    data = np.column_stack(cols)
-    with Path(path).open("w", newline="", encoding="utf-8") as f:
-        w = csv.writer(f)
-        w.writerow(header)
-        for row in data:
-            w.writerow([repr(float(v)) for v in row])
+    return header, np.column_stack(cols)

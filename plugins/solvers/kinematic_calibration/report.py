@@ -60,4 +60,10 @@ def format_table(cal: KinematicCalibration) -> str:
         for when in ("before", "after"):
             vals = "".join(f"{row[when][c]:>12.4f}" for c in cols)
             lines.append(f"{row['set']:<12}{row['n']:>5}  {when:<7}{vals}")
+        if "expected_rms_mm" in row:
+            lines.append(
+                f"{row['set']} rms_mm expected for a correct model: {row['expected_rms_mm']:.4f} "
+                f"(after / expected = {row['after']['rms_mm'] / row['expected_rms_mm']:.3f}; the noise floor "
+                "raised by the calibrated parameters' own uncertainty, about sqrt(1 + p/n))"
+            )
     return "\n".join(lines)

@@ -103,6 +103,12 @@ def _identifiability(problem: DeskProblem, x: F64) -> Identifiability:
     return analyse_identifiability(J_main, PARAM_NAMES, _SCALES, J_nuisance=J_nuis)
 
 
+_PRIOR_ADVICE = (
+    "the lever arm from CAD / caliper as a prior (TCP position in the tracker frame; command line: "
+    "--tcp-prior-mm X Y Z [--tcp-prior-sigma-mm 1], Python: prior=TrackerTcpPrior(T_tracker_tcp, sigma_m))"
+)
+
+
 def _describe_null_space(ident: Identifiability, n_groups: int) -> Issue:
     """Degenerate-design issue in words, with advice on the measurements that fix it."""
     k = ident.n_params - ident.rank
@@ -121,16 +127,16 @@ def _describe_null_space(ident: Identifiability, n_groups: int) -> Issue:
             f"[{d[0]:+.2f}, {d[1]:+.2f}, {d[2]:+.2f}])"
         )
         advice = (
-            "add contacts at a fixture orientation tilted about a different axis (>= 30 deg), or give TrackerTcpPrior"
+            "add contacts with the fixture tilted about a different axis of the desk (>= 30 deg), or " + _PRIOR_ADVICE
         )
     else:
         what = f"{k} components of the tracker-to-TCP lever arm"
         advice = (
-            "record contacts at two more fixture orientations tilted about two different axes "
-            "(e.g. 30 deg about desk x and 30 deg about desk y; free-orientation pivot contacts "
-            "also work), or give TrackerTcpPrior with the CAD / caliper lever arm"
-            if n_groups <= 1
-            else "add contacts at fixture orientations tilted about two different axes, or give TrackerTcpPrior"
+            f"{'one fixture orientation' if n_groups <= 1 else 'these fixture orientations'} cannot "
+            "determine the tracker-to-TCP lever arm; add ONE of: (a) contacts at two more fixture "
+            "orientations tilted about two different axes (e.g. the same points with the fixture "
+            "tilted 30 deg about desk x, then 30 deg about desk y; free-orientation pivot contacts also "
+            "work), or (b) " + _PRIOR_ADVICE
         )
     return Issue(
         "degenerate",
