@@ -41,11 +41,11 @@ golden: install
 	$(BIN)/vgr run recipes/demo.yaml -p source.n_points=400 -p source.frames=10 --record recordings/demo.mcap --no-progress
 	$(BIN)/vgr run recipes/sim_capture.yaml -p camera.intrinsics.width=160 -p camera.intrinsics.height=120 \
 	  -p camera.publish_depth=false -p start.count=2 --record recordings/sim_capture.mcap --no-progress
-	@for r in eye_in_hand_dock eye_to_hand_dock dual_dock; do \
+	@for r in eye_in_hand_dock eye_to_hand_dock dual_dock planar_assembly; do \
 	  $(BIN)/vgr run recipes/$$r.yaml --record recordings/$$r.mcap --no-progress || exit 1; done
 
 # Teach the guidance scenarios: run each teach recipe, make its matcher template from the capture.
-TEACH := eye_in_hand eye_to_hand
+TEACH := eye_in_hand eye_to_hand planar_assembly
 templates: install
 	@mkdir -p runs
 	@for t in $(TEACH); do \
@@ -53,8 +53,15 @@ templates: install
 	  $(BIN)/vgr template make --from-recording runs/teach_$$t.mcap --name $$t -o recipes/templates || exit 1; \
 	done
 
+# Benchmarks: each benchmarks/*.py script (bench_*.py are their helpers) writes benchmarks/results/<name>.json.
+# `make bench` runs them all, one after the other (long); `make bench-NAME` runs one, e.g.
+# `make bench-record_replay BENCH_ARGS=--quick`. Timing figures need a quiet machine.
+BENCHMARKS := $(sort $(basename $(notdir $(filter-out benchmarks/bench_%.py,$(wildcard benchmarks/*.py)))))
 bench: install
-	$(BIN)/python benchmarks/engine_overhead.py
+	@set -e; for b in $(BENCHMARKS); do echo "== benchmarks/$$b.py"; PYTHONPATH=. $(BIN)/python benchmarks/$$b.py; done
+
+bench-%: install
+	PYTHONPATH=. $(BIN)/python benchmarks/$*.py $(BENCH_ARGS)
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache .hypothesis runs

@@ -5,6 +5,7 @@ Key expressions (``<run>`` is the run id)::
     vgr/<run>/<stage>/<port>          data stream of an output port (pub/sub)
     vgr/<run>/<stage>/srv/<service>   request/reply service of a stage (queryable)
     vgr/<run>/_ready/<stage>          liveliness: the stage is declared and listening
+    vgr/<run>/_started/<process>      liveliness: the process has set up its stages and reads its inputs
     vgr/<run>/_active/<process>       liveliness: the process still has stages producing data
     vgr/<run>/_control                run-wide control (stop), published by any process
 
@@ -14,8 +15,12 @@ loopback only (``tcp/127.0.0.1:0``). Stages of one process exchange message obje
 subscriber listens. Streams are reliable with congestion control BLOCK: nothing is dropped.
 
 Nothing may block zenoh's receive thread: it also delivers service replies, so a reader blocked
-there would deadlock a stage waiting for a reply. Remote inputs and service queries are therefore
-taken by callbacks that only append to unbounded queues; the runtime warns when one grows large.
+there would deadlock a stage waiting for a reply. A remote input's samples therefore go to a FIFO
+channel of very large capacity, read by the port's pump thread (engine.runtime.RemoteInput), and
+service queries to a callback that only appends to an unbounded queue. (zenoh-python 1.10 runs a
+Python callback on a thread of its own, but feeds that thread through a bounded channel: measured
+here, a callback blocked while a few hundred samples arrive stalls the session's receive thread,
+service replies included. So no callback of ours ever blocks.)
 """
 
 from __future__ import annotations
@@ -49,6 +54,10 @@ def ready_key(run: str, stage: str) -> str:
     return f"vgr/{run}/_ready/{stage}"
 
 
+def started_key(run: str, process: str) -> str:
+    return f"vgr/{run}/_started/{process}"
+
+
 def active_key(run: str, process: str) -> str:
     return f"vgr/{run}/_active/{process}"
 
@@ -62,6 +71,7 @@ def exchange_key(run: str, stage: str, client: str) -> str:
 
 
 STOP_ENVELOPE = encode_envelope(Envelope(Kind.STOP, 0, 0, ""))
+REMOTE_CHANNEL_CAPACITY = 1 << 22  # samples an input from another process may have waiting
 
 
 def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
@@ -125,6 +135,41 @@ class Inbox:
             self.decl.undeclare()
 
 
+class LiveSet:
+    """Liveliness tokens present, updated by a liveliness subscriber; ``wait`` for a change."""
+
+    def __init__(self) -> None:
+        self._keys: set[str] = set()
+        self._cv = threading.Condition(threading.Lock())
+        self._version = 0
+        self.decl: Any = None
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        with self._cv:
+            if sample.kind == zenoh.SampleKind.DELETE:
+                self._keys.discard(key)
+            else:
+                self._keys.add(key)
+            self._version += 1
+            self._cv.notify_all()
+
+    def snapshot(self) -> tuple[set[str], int]:
+        with self._cv:
+            return set(self._keys), self._version
+
+    def wait(self, version: int, timeout_s: float) -> None:
+        """Return when the set changed after *version* (see :meth:`snapshot`) or after *timeout_s*."""
+        with self._cv:
+            self._cv.wait_for(lambda: self._version != version, timeout_s)
+
+    def close(self) -> None:
+        if self.decl is not None:
+            with contextlib.suppress(Exception):
+                self.decl.undeclare()
+            self.decl = None
+
+
 class BusError(RuntimeError):
     """The zenoh session could not be opened or used."""
 
@@ -154,7 +199,9 @@ class Bus:
 
     def remote_publisher(self, key: str) -> zenoh.Publisher:
         """Publisher to other sessions only (stages here get messages in-process, see engine.inbox):
-        reliable, congestion control BLOCK, so nothing is dropped."""
+        reliable, congestion control BLOCK, so nothing is dropped. Not ``express``: measured over tcp
+        loopback, express did not lower the one-way latency of paced messages and cut the throughput
+        of small ones by 4x (every message its own batch)."""
         return self._keep(
             self.session.declare_publisher(
                 key,
@@ -164,10 +211,20 @@ class Bus:
             )
         )
 
-    def subscribe_remote(self, key: str, callback: Callable[[zenoh.Sample], None]) -> zenoh.Subscriber:
-        """Subscriber to other sessions' publications; *callback* runs on zenoh's receive thread
-        and must never block (engine.inbox.PortInbox only appends)."""
-        return self._keep(self.session.declare_subscriber(key, callback, allowed_origin=zenoh.Locality.REMOTE))
+    def subscribe_remote(self, key: str) -> tuple[zenoh.Subscriber, Any]:
+        """Subscriber to other sessions' publications, and the FIFO channel its samples go to.
+
+        zenoh's network thread only pushes each sample into the channel (Rust side: no GIL, no
+        Python); the reader takes them with ``channel.recv()``, which blocks with the GIL released
+        and raises once the subscriber is undeclared and the channel empty. The channel holds up to
+        REMOTE_CHANNEL_CAPACITY samples (memory is taken as they queue, not up front); only a
+        consumer that far behind would make zenoh's receive thread wait (TCP back-pressure)."""
+        sub = self._keep(
+            self.session.declare_subscriber(
+                key, zenoh.handlers.FifoChannel(REMOTE_CHANNEL_CAPACITY), allowed_origin=zenoh.Locality.REMOTE
+            )
+        )
+        return sub, sub.handler
 
     def subscribe(self, key: str, callback: Callable[[zenoh.Sample], None]) -> zenoh.Subscriber:
         """Subscriber calling *callback* on zenoh's thread (keep it short: observers, control)."""
@@ -181,6 +238,17 @@ class Bus:
 
     def token(self, key: str) -> zenoh.LivelinessToken:
         return self._keep(self.session.liveliness().declare_token(key))
+
+    def watch_alive(self, key_expr: str) -> LiveSet:
+        """Keys of the liveliness tokens matching *key_expr*, kept up to date as tokens come and go
+        (a liveliness subscriber with history); ``close()`` it when done."""
+        live = LiveSet()
+        live.decl = self._keep(
+            self.session.liveliness().declare_subscriber(
+                key_expr, zenoh.handlers.Callback(live.on_sample, indirect=True), history=True
+            )
+        )
+        return live
 
     def alive(self, key_expr: str, timeout_s: float = 1.0) -> set[str]:
         """Keys of the liveliness tokens currently matching *key_expr* (across all processes)."""

@@ -139,6 +139,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         run_id=args.run_id,
         observers=observers,
         ready_timeout_s=args.ready_timeout,
+        freeze_gc=args.own_process,  # the command's own process (not a caller's, e.g. a test): see Runner
     )
     summary = run_with_progress(runner, show=not args.no_progress and console.is_terminal)
     if args.json:
@@ -312,17 +313,19 @@ def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """The ``vgr`` command; *argv* None means this process is the command's own (sys.argv)."""
     try:
-        return _main(list(sys.argv[1:] if argv is None else argv))
+        return _main(list(sys.argv[1:] if argv is None else argv), own_process=argv is None)
     except KeyboardInterrupt:  # before the run started (imports, parsing): nothing to stop yet
         console.print("[yellow]interrupted (Ctrl-C) before the run started[/]")
         return EXIT_INTERRUPTED
 
 
-def _main(argv: list[str]) -> int:
+def _main(argv: list[str], own_process: bool = False) -> int:
     verb = next((a for a in argv if not a.startswith("-")), None)
     parser = build_parser(verb)
     args = parser.parse_args(argv)
+    args.own_process = own_process
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     try:

@@ -30,6 +30,7 @@ __all__ = [
     "Envelope",
     "Kind",
     "MessageRegistry",
+    "data_envelope",
     "decode",
     "decode_envelope",
     "encode",
@@ -59,19 +60,44 @@ class CodecError(ValueError):
     """A payload or envelope that cannot be decoded."""
 
 
+_new_envelope = tuple.__new__
+
+
+def data_envelope(seq: int, stamp_ns: int, type_name: str) -> Envelope:
+    """``Envelope(Kind.DATA, seq, stamp_ns, type_name)``, built without the NamedTuple constructor's
+    argument handling (the publish path makes one per message)."""
+    return _new_envelope(Envelope, (Kind.DATA, seq, stamp_ns, type_name, SCHEMA_VERSION))
+
+
+_pack, _unpack_from, _ENV_SIZE = _ENV.pack, _ENV.unpack_from, _ENV.size
+_KINDS = tuple(Kind)  # Kind(k) through the Enum machinery costs more than the rest of the decode
+_NAMES: dict[bytes, str] = {}  # type names seen on the wire, decoded (bounded: see decode_envelope)
+
+
 def encode_envelope(env: Envelope) -> bytes:
-    return _ENV.pack(MAGIC, int(env.kind), env.schema_version, 0, env.seq, env.stamp_ns) + env.type_name.encode()
+    return _pack(MAGIC, env.kind, env.schema_version, 0, env.seq, env.stamp_ns) + env.type_name.encode()
 
 
 def decode_envelope(raw: bytes) -> Envelope:
-    if len(raw) < _ENV.size:
+    if len(raw) < _ENV_SIZE:
         raise CodecError(f"envelope too short ({len(raw)} bytes)")
-    magic, kind, version, _, seq, stamp = _ENV.unpack_from(raw)
+    magic, kind, version, _, seq, stamp = _unpack_from(raw)
     if magic != MAGIC:
         raise CodecError(f"not a vgr envelope (magic {magic!r})")
     if version > SCHEMA_VERSION:
         raise CodecError(f"schema version {version} is newer than this vgr ({SCHEMA_VERSION}); upgrade vgr")
-    return Envelope(Kind(kind), seq, stamp, raw[_ENV.size :].decode(), version)
+    if kind >= len(_KINDS):
+        raise CodecError(f"unknown envelope kind {kind}")
+    raw_name = raw[_ENV_SIZE:]
+    name = _NAMES.get(raw_name)
+    if name is None:
+        try:
+            name = raw_name.decode()
+        except UnicodeDecodeError as exc:
+            raise CodecError(f"envelope type name is not UTF-8: {exc}") from None
+        if len(_NAMES) < 4096:
+            _NAMES[raw_name] = name
+    return _new_envelope(Envelope, (_KINDS[kind], seq, stamp, name, version))
 
 
 # --------------------------------------------------------------------------- registry
@@ -145,40 +171,64 @@ def encode_payload(msg: Message) -> bytes:
     head = pb.SerializeToString(deterministic=True)
     if bulk is None or msg.BULK is None:
         return head
-    tag = _varint((msg.BULK << 3) | 2) + _varint(len(bulk))
-    return b"".join((head, tag, bulk))
+    key = _BULK_KEYS.get(msg.BULK)
+    if key is None:
+        key = _BULK_KEYS[msg.BULK] = _varint((msg.BULK << 3) | 2)
+    return b"".join((head, key, _varint(len(bulk)), bulk))
 
 
-def _split_bulk(buf: memoryview, field_number: int) -> tuple[bytes, memoryview | None]:
-    """Walk top-level protobuf fields; return (other fields' bytes, bulk field view or None)."""
-    parts: list[memoryview] = []
+_BULK_KEYS: dict[int, bytes] = {}  # field number -> encoded key of the length-delimited bulk field
+
+
+def _split_bulk(buf: memoryview, field_number: int) -> tuple[bytes | memoryview, memoryview | None]:
+    """Walk top-level protobuf fields; return (other fields' bytes, bulk field view or None).
+
+    Single-byte keys and lengths (nearly all of them) are read inline; the other fields are kept
+    as ranges of *buf*, joined only when the bulk field sits between them (our encoder puts it last,
+    so the rest is normally one slice: no copy)."""
     bulk: memoryview | None = None
+    pieces: list[memoryview] = []
+    keep_from = 0  # start of the range of other fields not yet kept
     pos, n = 0, len(buf)
     while pos < n:
         start = pos
-        key, pos = _read_varint(buf, pos)
-        fno, wire = key >> 3, key & 7
+        key = buf[pos]
+        if key < 0x80:
+            pos += 1
+        else:
+            key, pos = _read_varint(buf, pos)
+        wire = key & 7
+        if wire == 2:
+            if pos < n and buf[pos] < 0x80:
+                length = buf[pos]
+                pos += 1
+            else:
+                length, pos = _read_varint(buf, pos)
+            end = pos + length
+            if end > n:
+                raise CodecError("truncated length-delimited field")
+            if key >> 3 == field_number:
+                if start > keep_from:
+                    pieces.append(buf[keep_from:start])
+                bulk = buf[pos:end]  # last one wins, as in protobuf
+                keep_from = end
+            pos = end
+            continue
         if wire == 0:
             _, pos = _read_varint(buf, pos)
         elif wire == 1:
             pos += 8
         elif wire == 5:
             pos += 4
-        elif wire == 2:
-            length, pos = _read_varint(buf, pos)
-            if pos + length > n:
-                raise CodecError("truncated length-delimited field")
-            if fno == field_number:
-                bulk = buf[pos : pos + length]  # last one wins, as in protobuf
-                pos += length
-                continue
-            pos += length
         else:
             raise CodecError(f"unsupported wire type {wire}")
         if pos > n:
             raise CodecError("truncated field")
-        parts.append(buf[start:pos])
-    return b"".join(parts), bulk
+    if keep_from < n:
+        pieces.append(buf[keep_from:n])
+    if len(pieces) == 1:
+        return pieces[0], bulk
+    return b"".join(pieces), bulk
 
 
 def decode_payload(cls: type[Message], payload: bytes | memoryview) -> Message:

@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 import graphlib
+import itertools
 from dataclasses import dataclass, field
 
 from pydantic import ValidationError
@@ -325,11 +326,16 @@ def _check_cycles(
     try:
         list(wait.static_order())
     except graphlib.CycleError as exc:
-        cycle = exc.args[1]
+        cycle = exc.args[1]  # each node waits for the next one
+        # point at a service call of the loop (a `uses:` entry): that is the wiring to reconsider
+        call = next(
+            (s for s in service_edges for a, b in itertools.pairwise(cycle) if (s.client, s.provider) == (a, b)),
+            None,
+        )
+        path = ("stages", call.client, "uses", call.client_name) if call else ("stages", cycle[0], "uses")
         problems.append(
             loaded.problem(
-                ("stages", cycle[0], "uses"),
-                "service calls and data edges form a wait cycle (deadlock risk): " + " -> ".join(cycle),
+                path, "service calls and data edges form a wait cycle (deadlock risk): " + " -> ".join(cycle)
             )
         )
         return []

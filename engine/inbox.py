@@ -1,18 +1,17 @@
-"""The queue of one input port of one stage, with the idle fast path.
+"""The queue of one input port fed by a stage of the same process, with the idle fast path.
 
-Messages reach a port in two ways:
+The producer's ``publish`` offers the message object itself (arrays frozen read-only, nothing
+serialised — like ROS 2 intra-process communication). If the consumer is idle (queue empty, nothing
+in flight, stage lock free) the producer's thread runs the consumer's handler at once, saving a
+thread wake-up; otherwise the message waits in the queue for the port's pump thread. The queue is
+bounded: a producer that outruns its consumer waits (backpressure), nothing is dropped. One port's
+messages are handled in publication order, and the port never has two messages in flight.
+(An input fed by another process has no queue of ours: see engine.runtime.RemoteInput.)
 
-* from a producer stage in the **same process**: the producer's ``publish`` offers the message
-  object itself (arrays frozen read-only, nothing serialised — like ROS 2 intra-process
-  communication). If the consumer is idle (queue empty, nothing in flight, stage lock free) the
-  producer's thread runs the consumer's handler at once, saving a thread wake-up; otherwise the
-  message waits in the queue for the port's pump thread. The queue is bounded: a producer that
-  outruns its consumer waits (backpressure), nothing is dropped.
-* from a producer in **another process**: zenoh's receive thread appends the raw sample (never
-  blocking: that thread also carries service replies); the pump thread decodes it.
-
-Either way one port's messages are handled in publication order, and the port never has two
-messages in flight.
+Wake-ups are the expensive part of a hand-over (a thread switch and a GIL transfer each), so the
+two sides wait on separate conditions of one lock and are notified only when someone waits for
+exactly that: the pump when an item arrives, a producer when room appears. Marking a message done
+(:meth:`release`) wakes nobody.
 """
 
 from __future__ import annotations
@@ -21,25 +20,28 @@ import collections
 import threading
 from typing import Any
 
-LOCAL, REMOTE, STOP = 0, 1, 2
+LOCAL, STOP = 0, 2
 Item = tuple[int, Any, Any]
 
 
 class PortInbox:
     def __init__(self, port: str, depth: int | None) -> None:
         self.port = port
-        self.depth = depth  # None: unbounded (remote inputs)
+        self.depth = depth  # None: unbounded
         self._items: collections.deque[Item] = collections.deque()
-        self._cv = threading.Condition(threading.Lock())
+        self._lock = threading.Lock()
+        self._not_empty = threading.Condition(self._lock)  # the pump waits here
+        self._not_full = threading.Condition(self._lock)  # producers of a bounded inbox wait here
         self._inflight = False
         self._closed = False
-        self._waiting = 0  # threads blocked on the condition (notify only when someone waits)
+        self._pump_waiting = False
+        self._producers_waiting = 0
         self.high_water = 0
 
     # -- producer side -------------------------------------------------------------------------
     def claim_idle(self) -> bool:
         """If nothing is queued or in flight, mark one message in flight and return True."""
-        with self._cv:
+        with self._lock:
             if self._items or self._inflight or self._closed:
                 return False
             self._inflight = True
@@ -47,52 +49,53 @@ class PortInbox:
 
     def put(self, item: Item, *, block: bool = True) -> bool:
         """Queue *item*; wait for room if bounded and *block*. False if the inbox is closed."""
-        with self._cv:
-            while block and self.depth is not None and len(self._items) >= self.depth and not self._closed:
-                self._wait()
+        with self._lock:
+            items = self._items
+            if block and self.depth is not None:
+                while len(items) >= self.depth and not self._closed:
+                    self._producers_waiting += 1
+                    try:
+                        self._not_full.wait()
+                    finally:
+                        self._producers_waiting -= 1
             if self._closed and item[0] != STOP:
                 return False
-            self._items.append(item)
-            self.high_water = max(self.high_water, len(self._items))
-            if self._waiting:
-                self._cv.notify_all()
+            items.append(item)
+            if len(items) > self.high_water:
+                self.high_water = len(items)
+            if self._pump_waiting:
+                self._not_empty.notify()
             return True
-
-    def __call__(self, sample: Any) -> None:
-        """zenoh callback for samples from other processes (must never block)."""
-        self.put((REMOTE, sample, None), block=False)
 
     # -- consumer side -------------------------------------------------------------------------
     def get(self) -> Item:
         """Next item (blocks); marks it in flight until :meth:`release`."""
-        with self._cv:
-            while not self._items:
-                self._wait()
-            item = self._items.popleft()
+        with self._lock:
+            items = self._items
+            while not items:
+                self._pump_waiting = True
+                try:
+                    self._not_empty.wait()
+                finally:
+                    self._pump_waiting = False
+            item = items.popleft()
             self._inflight = item[0] != STOP
-            if self._waiting:
-                self._cv.notify_all()
+            if self._producers_waiting:
+                self._not_full.notify()
             return item
 
     def release(self) -> None:
-        with self._cv:
+        """The message taken by :meth:`get` or :meth:`claim_idle` is handled (nobody waits on this)."""
+        with self._lock:
             self._inflight = False
-            if self._waiting:
-                self._cv.notify_all()
-
-    def _wait(self) -> None:
-        self._waiting += 1
-        try:
-            self._cv.wait()
-        finally:
-            self._waiting -= 1
 
     def close(self) -> None:
         """No more messages: wake the pump (it exits) and any producer waiting for room."""
-        with self._cv:
+        with self._lock:
             self._closed = True
             self._items.append((STOP, None, None))
-            self._cv.notify_all()
+            self._not_empty.notify_all()
+            self._not_full.notify_all()
 
     def __len__(self) -> int:
         return len(self._items)

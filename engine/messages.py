@@ -46,11 +46,13 @@ _PACKED_DTYPES = {v: k for k, v in _PACKED_TYPES.items()}
 
 
 def set_stamp(pb: Any, stamp_ns: int) -> None:
-    pb.timestamp.seconds, pb.timestamp.nanos = divmod(int(stamp_ns), 1_000_000_000)
+    ts = pb.timestamp  # (each attribute access of a sub-message builds a new wrapper)
+    ts.seconds, ts.nanos = divmod(int(stamp_ns), 1_000_000_000)
 
 
 def get_stamp(pb: Any) -> int:
-    return int(pb.timestamp.seconds) * 1_000_000_000 + int(pb.timestamp.nanos)
+    ts = pb.timestamp
+    return int(ts.seconds) * 1_000_000_000 + int(ts.nanos)
 
 
 def set_pose(pose_pb: Any, T: np.ndarray) -> None:
@@ -136,9 +138,12 @@ def freeze(msg: Message) -> Message:
         new.__dict__.pop(WIRE_CACHE, None)  # a re-published message may have been changed: encode it anew
         msg = new
     for v in msg.__dict__.values():
-        if isinstance(v, np.ndarray) and v.flags.writeable:
+        if isinstance(v, _ndarray) and v.flags.writeable:
             v.flags.writeable = False
     return msg
+
+
+_ndarray = np.ndarray
 
 
 # --------------------------------------------------------------------------- geometry (Foxglove)

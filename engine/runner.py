@@ -5,7 +5,9 @@ Life of a run (per process):
 1. open the bus, construct this process's stages, declare publishers, input channels, services;
 2. declare liveliness tokens and, when the recipe spans several processes, wait until every
    stage of the recipe is declared (so no message is published before its consumer listens);
-3. ``setup()`` each stage, start pump threads and source threads;
+3. ``setup()`` each stage, start pump threads; when the recipe spans several processes, wait (a
+   while at most) until every process got this far, so sources do not stream into a process still
+   setting up; then start the source threads;
 4. wait until every *driven* stage (sources and everything downstream of them) has finished here
    and no other process still has active stages; service-only stages then end their streams;
 5. on a stage failure (``on_error: stop``), Ctrl-C or a stop from another process: stop
@@ -16,6 +18,7 @@ Life of a run (per process):
 from __future__ import annotations
 
 import contextlib
+import gc
 import json
 import logging
 import threading
@@ -24,7 +27,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any
 
-from engine.bus import Bus, active_key, control_key, ready_key
+from engine.bus import Bus, active_key, control_key, ready_key, started_key
 from engine.clock import Clock, make_clock
 from engine.codec import Envelope
 from engine.graph import Graph, ServiceEdge
@@ -117,6 +120,7 @@ class Runner:
         observers: list[Observer] | None = None,
         ready_timeout_s: float = 15.0,
         bus: Bus | None = None,
+        freeze_gc: bool = False,
     ) -> None:
         recipe = graph.recipe
         if process not in graph.processes():
@@ -131,6 +135,7 @@ class Runner:
         self.clock = clock or make_clock(recipe.clock)
         self.observers = list(observers or [])
         self.ready_timeout_s = ready_timeout_s
+        self.freeze_gc = freeze_gc
         self.stop_event = threading.Event()
         self.started = False  # True once every local stage's setup() has run
         self.stop_reason: str | None = None
@@ -265,31 +270,75 @@ class Runner:
                 rt.fail(exc, "setup")
         if self.stop_event.is_set():
             return
+        if self.freeze_gc:
+            # what exists now (modules, stage state from setup) lives as long as the process: keep it
+            # out of the cyclic collector, whose full passes over a heap with numpy, scipy and
+            # Open3D loaded otherwise pause every thread for tens of milliseconds now and then
+            gc.collect()
+            gc.freeze()
         self.started = True
         for name in local:
             rt = self.runtimes[name]
             if not rt.driven and not rt.node.cls.inputs:
                 rt.data_done.set()  # pure service providers do not hold the run open
             rt.start_threads()
+        if self.multi_process:
+            self._start_barrier()
+        for name in local:
+            self.runtimes[name].start_source()
+
+    def _start_barrier(self) -> None:
+        """Every process has set up its stages and reads its inputs: only then do sources start, so
+        the first messages do not pile up in a process still setting up (they would not be lost,
+        only late). A process slower than ``ready_timeout_s`` is warned about, not waited for."""
+        self._tokens["started"] = self.bus.token(started_key(self.run_id, self.process))
+        expected = {started_key(self.run_id, p) for p in self.graph.processes()}
+        deadline = time.monotonic() + self.ready_timeout_s
+        live = self.bus.watch_alive(started_key(self.run_id, "*"))
+        try:
+            while not self.stop_event.is_set():
+                keys, version = live.snapshot()
+                missing = expected - keys
+                if not missing:
+                    return
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    log.warning(
+                        "starting the sources although process(es) %s not set up after %g s",
+                        ", ".join(sorted(k.rsplit("/", 1)[-1] for k in missing)),
+                        self.ready_timeout_s,
+                    )
+                    return
+                live.wait(version, min(left, 0.5))
+        finally:
+            live.close()
 
     def _barrier(self) -> None:
+        """Wait until every stage of the recipe is declared, in whichever process. A liveliness
+        subscriber reports each stage's token as it appears, so every process passes the barrier
+        as soon as the last one is up (no polling delay between the processes' starts)."""
         expected = set(self.graph.nodes)
         deadline = time.monotonic() + self.ready_timeout_s
-        while True:
-            ready = {k.rsplit("/", 1)[-1] for k in self.bus.alive(ready_key(self.run_id, "*"))}
-            missing = expected - ready
-            if not missing:
-                return
-            if self.stop_event.is_set():
-                raise RunError(f"run stopped while waiting for stages: {self.stop_reason}")
-            if time.monotonic() > deadline:
-                where = ", ".join(f"{m} (process {self.graph.nodes[m].spec.process})" for m in sorted(missing))
-                raise RunError(
-                    f"after {self.ready_timeout_s:g} s these stages are not running: {where}. "
-                    f"Start `vgr run RECIPE --process NAME` for each process, with the same run id "
-                    f"({self.run_id}) and zenoh endpoints that connect them."
-                )
-            time.sleep(0.05)
+        live = self.bus.watch_alive(ready_key(self.run_id, "*"))
+        try:
+            while True:
+                keys, version = live.snapshot()
+                missing = expected - {k.rsplit("/", 1)[-1] for k in keys}
+                if not missing:
+                    return
+                if self.stop_event.is_set():
+                    raise RunError(f"run stopped while waiting for stages: {self.stop_reason}")
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    where = ", ".join(f"{m} (process {self.graph.nodes[m].spec.process})" for m in sorted(missing))
+                    raise RunError(
+                        f"after {self.ready_timeout_s:g} s these stages are not running: {where}. "
+                        f"Start `vgr run RECIPE --process NAME` for each process, with the same run id "
+                        f"({self.run_id}) and zenoh endpoints that connect them."
+                    )
+                live.wait(version, min(left, 0.5))  # (0.5 s: notice a stop without a token change)
+        finally:
+            live.close()
 
     def _local_driven_done(self) -> bool:
         return all(rt.data_done.is_set() or rt.waits_only_on_undriven() for rt in self.runtimes.values() if rt.driven)

@@ -11,6 +11,11 @@ Data path of ``publish(port, msg)``:
   subscriber (a robot controller, a viewer), or a run observer such as the recorder — the message is
   encoded once (engine.codec) and put on ``vgr/<run>/<stage>/<port>``.
 
+An input fed by a stage of another process is a zenoh subscriber with a FIFO channel handler
+(:class:`RemoteInput`): zenoh's network thread only pushes the sample into the channel (no Python, no
+GIL, never blocking below the channel's large capacity), and the port's pump thread takes the samples
+out in order, decodes and handles them. One hand-over per message, and no Python callback thread.
+
 Handlers of one stage never run concurrently (one re-entrant lock per stage) and each input port's
 messages arrive in publication order. A failure inside a handler becomes an ``error`` Event with
 its traceback, never a silent death.
@@ -18,18 +23,20 @@ its traceback, never a silent death.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 import time
 import traceback
 from dataclasses import dataclass, field
+from time import perf_counter
 from typing import TYPE_CHECKING, Any
 
 from engine import codec
 from engine.bus import data_key, service_key
 from engine.codec import CodecError, Envelope, Kind
 from engine.graph import StageNode
-from engine.inbox import LOCAL, REMOTE, STOP, PortInbox
+from engine.inbox import LOCAL, STOP, PortInbox
 from engine.messages import Event, Message, canonical, freeze
 from engine.stage import EVENTS_PORT, ServiceError, ServiceTimeoutError, Stage, StageContext, stage_rng
 
@@ -38,7 +45,13 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("vgr.runtime")
 LOCAL_QUEUE_DEPTH = 64  # messages a local producer may run ahead of its consumer
-BACKLOG_WARN = 1000  # first backlog of a cross-process input that raises a warning
+_DATA, _EOS, _STOP = Kind.DATA, Kind.EOS, Kind.STOP  # (an Enum attribute lookup costs more than the test)
+
+
+class _Causal(threading.local):
+    """Per thread: the stamp of the input being handled (0 outside a handler)."""
+
+    stamp = 0
 
 
 @dataclass
@@ -84,13 +97,37 @@ class _Output:
         )
         self.publisher = rt.runner.bus.remote_publisher(data_key(rt.run_id, rt.name, port))
         self.external = bool(self.publisher.matching_status.matching)
+        self.observed = bool(rt.runner.observers)  # observers are fixed before a run starts
+        self._update()
         self._listener = self.publisher.declare_matching_listener(self._on_matching)
 
     def _on_matching(self, status: Any) -> None:
         self.external = bool(status.matching)
+        self._update()
 
-    def needs_bytes(self, observers: list[Any]) -> bool:
-        return self.remote_consumers or self.external or bool(observers)
+    def _update(self) -> None:
+        self.on_wire = self.remote_consumers or self.external  # something outside the process listens
+        self.needs_bytes = self.on_wire or self.observed  # the message must be encoded
+
+
+class RemoteInput:
+    """Input port fed by a stage of another process: a zenoh subscriber with a FIFO channel.
+
+    zenoh's network thread queues the samples in the channel (see engine.bus.Bus.subscribe_remote);
+    the port's pump thread (:meth:`StageRuntime._remote_pump`) receives them in publication order.
+    ``close()`` undeclares the subscriber: the pump then gets what was already queued and an error.
+    """
+
+    def __init__(self, rt: StageRuntime, port: str, key: str) -> None:
+        self.port = port
+        self.closed = False
+        self.subscriber, self.channel = rt.runner.bus.subscribe_remote(key)
+
+    def close(self) -> None:
+        if not self.closed:
+            self.closed = True
+            with contextlib.suppress(Exception):  # already undeclared (the bus closes it too)
+                self.subscriber.undeclare()
 
 
 class StageRuntime(StageContext):
@@ -118,7 +155,7 @@ class StageRuntime(StageContext):
             published={p: 0 for p in node.cls.all_outputs()},
         )
         self.outputs: dict[str, _Output] = {}
-        self.inboxes: dict[str, PortInbox] = {}
+        self.inboxes: dict[str, PortInbox | RemoteInput] = {}
         self.queryables: dict[str, Any] = {}  # service -> bus.Inbox
         self._last_in_seq: dict[str, int] = {}
         self.pending_inputs: set[str] = set(node.cls.inputs)
@@ -127,7 +164,9 @@ class StageRuntime(StageContext):
         self.threads: list[threading.Thread] = []
         self.stage: Stage | None = None
         self.clients = {e.client_name: e for e in runner.graph.service_edges if e.client == node.name}
-        self._causal = threading.local()  # stamp of the input being handled on this thread
+        self._causal = _Causal()  # stamp of the input being handled on this thread
+        self._stop_event = runner.stop_event
+        self._observers = runner.observers  # the runner's list (fixed before the run starts)
         self._call_seq: dict[str, int] = {}  # requests sent per service client
 
     # -- StageContext ------------------------------------------------------------------------
@@ -145,23 +184,23 @@ class StageRuntime(StageContext):
             raise ValueError(f"stage {self.name!r} has no output port {port!r} (outputs: {outs})")
         if not isinstance(msg, out.type):
             raise TypeError(f"stage {self.name!r}: port {port!r} carries {out.type.TYPE}, got {type(msg).__name__}")
-        stamp = msg.stamp_ns or getattr(self._causal, "stamp", 0) or self.clock.now_ns()
+        stamp = msg.stamp_ns or self._causal.stamp or self.clock.now_ns()
         msg = freeze(msg)
         if msg.stamp_ns != stamp:
             msg.stamp_ns = stamp
-        msg = canonical(msg)  # what a remote consumer and a replay will see (stamp included)
-        observers = self.runner.observers
+        if not msg.WIRE_EXACT:
+            msg = canonical(msg)  # what a remote consumer and a replay will see (stamp included)
         with out.lock:
             if out.closed:
                 raise RuntimeError(f"stage {self.name!r}: port {port!r} has already ended")
-            out.seq += 1
-            msg.seq = out.seq
-            env = Envelope(Kind.DATA, msg.seq, msg.stamp_ns, msg.TYPE)
-            if out.needs_bytes(observers):
+            seq = out.seq = out.seq + 1
+            msg.seq = seq
+            env = codec.data_envelope(seq, msg.stamp_ns, msg.TYPE)
+            if out.needs_bytes:
                 payload, att = codec.encode_payload(msg), codec.encode_envelope(env)
-                for obs in observers:
+                for obs in self._observers:
                     obs.on_publish(self.name, port, payload, att, msg)
-                if out.remote_consumers or out.external:
+                if out.on_wire:
                     out.publisher.put(payload, attachment=att)
             self.stats.published[port] += 1
             for consumer, cport in out.local:
@@ -175,7 +214,7 @@ class StageRuntime(StageContext):
         if not isinstance(request, spec.request):
             raise TypeError(f"client {client!r} sends {spec.request.TYPE}, got {type(request).__name__}")
         if not request.stamp_ns:
-            request.stamp_ns = getattr(self._causal, "stamp", 0) or self.clock.now_ns()
+            request.stamp_ns = self._causal.stamp or self.clock.now_ns()
         self._call_seq[client] = request.seq = self._call_seq.get(client, 0) + 1
         payload, att = codec.encode(request)
         key = service_key(self.run_id, edge.provider, edge.service)
@@ -222,12 +261,11 @@ class StageRuntime(StageContext):
         for edge in self.runner.graph.inputs_of(self.name):
             producer = self.runner.runtimes.get(edge.src)
             if producer is not None:  # same process
-                box = PortInbox(edge.dst_port, LOCAL_QUEUE_DEPTH)
+                self.inboxes[edge.dst_port] = PortInbox(edge.dst_port, LOCAL_QUEUE_DEPTH)
                 producer.outputs[edge.src_port].local.append((self, edge.dst_port))
             else:
-                box = PortInbox(edge.dst_port, None)
-                self.runner.bus.subscribe_remote(data_key(self.run_id, edge.src, edge.src_port), box)
-            self.inboxes[edge.dst_port] = box
+                key = data_key(self.run_id, edge.src, edge.src_port)
+                self.inboxes[edge.dst_port] = RemoteInput(self, edge.dst_port, key)
 
     @property
     def driven(self) -> bool:
@@ -243,10 +281,14 @@ class StageRuntime(StageContext):
         return all(srcs.get(port) not in self.runner.driven for port in pending)
 
     def start_threads(self) -> None:
+        """Start the threads that read inputs and serve requests (not a source's run())."""
         for port, box in self.inboxes.items():
-            self._spawn(f"{self.name}.{port}", self._input_pump, port, box)
+            pump = self._input_pump if isinstance(box, PortInbox) else self._remote_pump
+            self._spawn(f"{self.name}.{port}", pump, port, box)
         for svc, q in self.queryables.items():
             self._spawn(f"{self.name}.srv.{svc}", self._service_pump, svc, q)
+
+    def start_source(self) -> None:
         if self.node.cls.is_source():
             self._spawn(f"{self.name}.run", self._source_main)
 
@@ -259,11 +301,12 @@ class StageRuntime(StageContext):
     def offer(self, port: str, env: Envelope, msg: Message | None) -> None:
         """A local producer hands over a message (or an end of stream, msg None)."""
         box = self.inboxes[port]
+        assert isinstance(box, PortInbox)
         if not self.runner.started:  # published during setup(): delivered once every stage is set up
             box.put((LOCAL, env, msg), block=False)
             return
         if self.inline and box.claim_idle():
-            if self.lock.acquire(blocking=False):
+            if self.lock.acquire(False):
                 try:
                     self._handle(port, env, msg)
                 finally:
@@ -274,84 +317,87 @@ class StageRuntime(StageContext):
         box.put((LOCAL, env, msg))
 
     def _input_pump(self, port: str, box: PortInbox) -> None:
-        backlog_warn = BACKLOG_WARN
+        """Thread of a local input: handles what the producer queued while this stage was busy."""
         while True:
-            kind, a, b = box.get()
+            kind, env, msg = box.get()
             try:
                 if kind == STOP:
                     return
-                if kind == REMOTE:
-                    if box.depth is None and len(box) >= backlog_warn:
-                        self.event(
-                            "warning",
-                            "input_backlog",
-                            f"input {port!r} has {len(box)} messages waiting: this stage is slower than "
-                            "its producer in another process",
-                            backlog=len(box),
-                        )
-                        backlog_warn *= 4
-                    env, msg = self._decode_remote(port, a)
-                    if env is None:
-                        continue
-                else:
-                    env, msg = a, b
                 with self.lock:
                     self._handle(port, env, msg)
-                if env.kind == Kind.EOS:
+                if env.kind == _EOS:
                     return
             finally:
                 box.release()
 
-    def _decode_remote(self, port: str, sample: Any) -> tuple[Envelope | None, Message | None]:
-        att = sample.attachment
-        try:
-            raw_env = att.to_bytes() if att is not None else b""
-            env = codec.decode_envelope(raw_env)
-            if env.kind != Kind.DATA:
-                return env, None
-            payload = sample.payload.to_bytes()
-            if self.runner.observers:
-                edge = next(e for e in self.runner.graph.inputs_of(self.name) if e.dst_port == port)
-                for obs in self.runner.observers:
-                    obs.on_receive(edge.src, edge.src_port, payload, raw_env)
-            return env, codec.decode(payload, env)
-        except CodecError as exc:
-            if not self.stopping:
-                self.event("warning", "undecodable_message", f"ignored a message on input {port!r}: {exc}")
-            return None, None
+    def _remote_pump(self, port: str, remote: RemoteInput) -> None:
+        """Thread of an input from another process: receives, decodes and handles its samples in order."""
+        recv = remote.channel.recv  # blocks with the GIL released
+        stop, lock, handle, observers = self._stop_event, self.lock, self._handle, self._observers
+        decode_envelope, decode = codec.decode_envelope, codec.decode
+        src = next(e for e in self.runner.graph.inputs_of(self.name) if e.dst_port == port)
+        while True:
+            try:
+                sample = recv()
+            except Exception:  # the channel is closed (subscriber undeclared) and empty
+                return
+            if stop.is_set():
+                return
+            att = sample.attachment
+            try:
+                raw_env = att.to_bytes() if att is not None else b""
+                env = decode_envelope(raw_env)
+                msg = None
+                if env.kind == _DATA:
+                    payload = sample.payload.to_bytes()
+                    for obs in observers:
+                        obs.on_receive(src.src, src.src_port, payload, raw_env)
+                    msg = decode(payload, env)
+            except CodecError as exc:
+                if not stop.is_set():
+                    self.event("warning", "undecodable_message", f"ignored a message on input {port!r}: {exc}")
+                continue
+            with lock:
+                handle(port, env, msg)
+            if env.kind == _EOS:
+                return
 
     def _handle(self, port: str, env: Envelope, msg: Message | None) -> None:
         """Deliver one message or end of stream; the caller holds the stage lock."""
-        if self.stopping or self.failed:
+        if self._stop_event.is_set() or self.failed:
             return
-        if env.kind == Kind.EOS:
-            self._input_ended(port)
+        kind = env.kind
+        if kind != _DATA or msg is None:
+            if kind == _EOS:
+                self._input_ended(port)
             return
-        if env.kind != Kind.DATA or msg is None:
-            return
-        assert self.stage is not None
+        stage = self.stage
+        assert stage is not None
+        seq = env.seq
         last = self._last_in_seq.get(port, 0)
-        if env.seq != last + 1:
+        if seq != last + 1:
             self.event(
                 "warning",
                 "sequence_gap",
-                f"input {port!r}: expected seq {last + 1}, got {env.seq}",
+                f"input {port!r}: expected seq {last + 1}, got {seq}",
                 expected=last + 1,
-                got=env.seq,
+                got=seq,
             )
-        self._last_in_seq[port] = env.seq
-        self.stats.received[port] += 1
-        for obs in self.runner.observers:
+        self._last_in_seq[port] = seq
+        stats = self.stats
+        stats.received[port] += 1
+        for obs in self._observers:
             obs.on_deliver(self.name, port, env)
-        t0 = time.perf_counter()
-        self._causal.stamp = msg.stamp_ns
+        causal = self._causal
+        t0 = perf_counter()
+        causal.stamp = msg.stamp_ns
         try:
-            self.stage.on_message(port, msg)
+            stage.on_message(port, msg)
         except Exception as exc:
             self.fail(exc, f"on_message({port!r})")
         finally:
-            self._causal.stamp = 0
-            self.stats.busy_s += time.perf_counter() - t0
+            causal.stamp = 0
+            stats.busy_s += perf_counter() - t0
 
     def _input_ended(self, port: str) -> None:
         self.pending_inputs.discard(port)
@@ -391,7 +437,7 @@ class StageRuntime(StageContext):
                 att = query.attachment
                 try:
                     env = codec.decode_envelope(att.to_bytes() if att is not None else b"")
-                    if env.kind == Kind.STOP:
+                    if env.kind == _STOP:
                         return
                     payload = query.payload.to_bytes() if query.payload is not None else b""
                     request = codec.decode(payload, env)
@@ -448,8 +494,8 @@ class StageRuntime(StageContext):
             if out.closed:
                 return
             out.closed = True
-            env = Envelope(Kind.EOS, out.seq + 1, self.clock.now_ns(), "")
-            if out.remote_consumers or out.external:
+            env = Envelope(_EOS, out.seq + 1, self.clock.now_ns(), "")
+            if out.on_wire:
                 out.publisher.put(b"", attachment=codec.encode_envelope(env))
             for consumer, cport in out.local:
                 consumer.offer(cport, env, None)

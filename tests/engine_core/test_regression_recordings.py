@@ -1,5 +1,8 @@
-"""Replay regression: every golden recording in recordings/ replays without a difference.
+"""Replay regression: every golden recording in recordings/ replays bit for bit.
 
+Each re-run stage's outputs and every service request must be *identical* to the recorded bytes;
+"within tolerance" is a failure here, as is "different" (replay's promise is bit for bit, and a
+stage whose outputs drift by an ulp from run to run is a determinism bug to find, not to tolerate).
 A failure here means a stage's output changed. If the change is intended, refresh the golden
 files with `make golden` (or `vgr replay FILE --update`) and commit them with the change.
 """
@@ -10,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from engine.diff import DIFFERENT
+from engine.diff import IDENTICAL
 from engine.replay import replay
 
 RECORDINGS = sorted((Path(__file__).resolve().parents[2] / "recordings").glob("*.mcap"))
@@ -22,8 +25,14 @@ def test_there_are_golden_recordings_and_they_are_small():
 
 
 @pytest.mark.parametrize("path", RECORDINGS, ids=[p.stem for p in RECORDINGS])
-def test_golden_recording_replays_without_difference(path):
+def test_golden_recording_replays_identical(path):
     report, _, _ = replay(path)
     assert report.rerun, "nothing was re-run"
-    bad = [f"{v.topic}: {v.first_difference}" for v in (*report.streams, *report.requests) if v.verdict == DIFFERENT]
+    verdicts = [*report.streams, *report.requests]
+    assert verdicts, "the replay compared nothing"
+    bad = [
+        f"{v.topic}: {v.verdict}: {v.first_difference or f'max |diff| {v.max_abs_diff:.3g}'}"
+        for v in verdicts
+        if v.verdict != IDENTICAL
+    ]
     assert not bad and not report.failures, "\n".join(bad + report.failures)
