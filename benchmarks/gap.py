@@ -18,6 +18,14 @@ fixed rule does not get (a user of STLSQ would have to pick the threshold withou
 Per case the combined hidden gap (3-D RMS of the part of all hidden effects together the baseline
 calibration cannot absorb, noise-free) is recorded: two effects of the same size can cancel.
 
+Before either method sees a case's data, its a-priori class is computed from the truth alone
+(``plugins/solvers/model_gap/detectability.py``): ``identifiable`` (the workflow's own F-test, at its
+family-wise alpha, has >= 80 % power to detect the hidden signal left after calibration and to
+separate every hidden effect from the best single rival), ``confounded`` (detectable, some effect not
+separable) or ``undetectable``. The summary's ``per_class`` gives both methods' naming per class:
+exact, *right* (identifiable: exact; otherwise nothing named or only the identifiable part), a
+hidden but non-identifiable effect named, a wrong effect named; the overall figures stay as they were.
+
 Run: ``PYTHONPATH=. python benchmarks/gap.py [--ci] [--jobs 2]`` -> benchmarks/results/gap.json
 """
 
@@ -40,6 +48,7 @@ from engine.gap import GapConfig, run_gap
 from engine.gap.sparse import sparse_library, stlsq_named
 from engine.gap.workflow import collect_candidates
 from plugins.solvers.model_gap import KinematicGapProblem, ProblemConfig, families_from_registry
+from plugins.solvers.model_gap.detectability import CLASSES, POWER_TARGET, classify
 from plugins.solvers.model_gap.simulate import HiddenCase, make_case, suite
 
 THRESHOLDS = (2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 12.0)
@@ -52,6 +61,10 @@ def run_case(case: HiddenCase) -> dict:
     t0 = time.perf_counter()
     camp = make_case(case)
     t_sim = time.perf_counter() - t0
+    # a priori, from the truth alone (before either method sees the data): the case's class
+    t_a = time.perf_counter()
+    apriori = classify(case, camp).to_dict()
+    t_apriori = time.perf_counter() - t_a
     families = families_from_registry()
     problem = KinematicGapProblem(camp.model, camp.data, ProblemConfig(case.calibrate, noise_m=case.noise_m))
     lin = problem.linearise()
@@ -74,6 +87,7 @@ def run_case(case: HiddenCase) -> dict:
         "seed": case.seed,
         "expected": expected,
         "hidden_gap_mm": camp.gap_m * 1e3,
+        "apriori": apriori,
         "vgr": {
             "named": named,
             "correct": named == expected,
@@ -87,8 +101,38 @@ def run_case(case: HiddenCase) -> dict:
         },
         "stlsq": {thr: {"named": v, "correct": v == expected} for thr, v in stl.items()},
         "stlsq_wrong_name_at_reference": bool(set(best) - set(expected)),
-        "seconds": {"simulate": t_sim, "vgr": t_gap, "stlsq_all_thresholds": t_stlsq},
+        "seconds": {"simulate": t_sim, "apriori": t_apriori, "vgr": t_gap, "stlsq_all_thresholds": t_stlsq},
     }
+
+
+def _by_class(effect_rows: list[dict], named, key: str = "cls") -> dict:
+    """Naming per a-priori class (``named(row)``: the method's list of ``name@where``).
+
+    ``exact``: the named set is the hidden set. ``right``: in an identifiable case the exact set; else
+    nothing named or only effects of the case's identifiable part (``unexplained`` / ``no_gap`` or the
+    identifiable part). ``confounded_named``: a hidden but non-identifiable effect named (true, but
+    the data could not have shown it with the target power). ``wrong_name``: an effect not hidden named.
+    """
+    out: dict[str, dict] = {}
+    for cls in CLASSES:
+        rs = [r for r in effect_rows if r["apriori"][key] == cls]
+        n = len(rs)
+        exact = right = conf = wrong = 0
+        for r in rs:
+            got, truth = set(named(r)), set(r["expected"])
+            ok_part = set(r["apriori"]["identifiable_part"]) if key == "cls" else None
+            exact += got == truth
+            wrong += bool(got - truth)
+            if cls == "identifiable":
+                right += got == truth
+            elif ok_part is not None:
+                right += got <= ok_part
+                conf += bool(got <= truth and got - ok_part)
+        d = {"cases": n, "exact": exact, "accuracy": exact / n if n else float("nan"), "wrong_name": wrong}
+        if key == "cls":
+            d |= {"right": right, "right_rate": right / n if n else float("nan"), "confounded_named": conf}
+        out[cls] = d
+    return out
 
 
 def summarise(rows: list[dict]) -> dict:
@@ -137,6 +181,8 @@ def summarise(rows: list[dict]) -> dict:
                 "hidden_gap_mm": r["hidden_gap_mm"],
                 "after_over_floor": r["vgr"]["after_over_floor"],
                 "why": r["vgr"]["decision"],
+                "apriori_class": r["apriori"]["cls"],
+                "identifiable_part": r["apriori"]["identifiable_part"],
             }
             for r in rows
             if not r["vgr"]["correct"]
@@ -165,6 +211,63 @@ def summarise(rows: list[dict]) -> dict:
         for name, rs in groups(lambda r: {e.split("@")[0] for e in r["expected"]}).items()
     }
     per_place = {k: len(v) for k, v in groups(lambda r: set(r["expected"])).items()}
+
+    def vgr_named(r: dict) -> list[str]:
+        return r["vgr"]["named"]
+
+    def stl_named(r: dict) -> list[str]:
+        return r["stlsq"][best]["named"]
+
+    apriori = {
+        "rule": (
+            f"a priori from the truth (plugins/solvers/model_gap/detectability.py): power >= {POWER_TARGET} of the "
+            "workflow's F-test (family-wise alpha, Bonferroni over the round) for detection (true design, combined "
+            "signal after calibration) and identifiability (each effect's signal independent of calibration, the "
+            "other hidden effects and the best single rival)"
+        ),
+        "cases_per_class": {c: sum(r["apriori"]["cls"] == c for r in effect_rows) for c in CLASSES},
+        "vgr": _by_class(effect_rows, vgr_named),
+        "stlsq_best": _by_class(effect_rows, stl_named),
+        "vgr_verdicts_per_class": {
+            c: {
+                v: sum(r["apriori"]["cls"] == c and r["vgr"]["verdict"] == v for r in effect_rows)
+                for v in ("explained", "unexplained", "no_gap")
+            }
+            for c in CLASSES
+        },
+        "non_identifiable_cases": [
+            {
+                "case": r["case"],
+                "class": r["apriori"]["cls"],
+                "identifiable_part": r["apriori"]["identifiable_part"],
+                "weakest": [
+                    {"effect": e["label"], "lambda_id": e["lambda_id"], "rival": e["rival"], "power": e["power"]}
+                    for e in r["apriori"]["effects"]
+                    if not e["identifiable"]
+                ],
+                "vgr": r["vgr"]["named"],
+                "vgr_verdict": r["vgr"]["verdict"],
+                "stlsq_best": r["stlsq"][best]["named"],
+            }
+            for r in effect_rows
+            if r["apriori"]["cls"] != "identifiable"
+        ],
+        "variant_decisive_margin": {
+            "cases_per_class": {c: sum(r["apriori"]["cls_margin"] == c for r in effect_rows) for c in CLASSES},
+            "class_changes": sum(r["apriori"]["cls_margin"] != r["apriori"]["cls"] for r in effect_rows),
+            "vgr": _by_class(effect_rows, vgr_named, "cls_margin"),
+        },
+        "variant_uniform_scale_in_catalog": {
+            "cases_per_class": {
+                c: sum(r["apriori"]["cls_with_uniform_scale"] == c for r in effect_rows) for c in CLASSES
+            },
+            "class_changes": [
+                r["case"] for r in effect_rows if r["apriori"]["cls_with_uniform_scale"] != r["apriori"]["cls"]
+            ],
+            "vgr": _by_class(effect_rows, vgr_named, "cls_with_uniform_scale"),
+        },
+        "noise_controls_chi2_power_max": max((r["apriori"]["power_chi2"] for r in noise_rows), default=float("nan")),
+    }
     return {
         "cases": len(rows),
         "effect_cases": len(effect_rows),
@@ -179,10 +282,12 @@ def summarise(rows: list[dict]) -> dict:
             "note": "threshold chosen in hindsight on this same suite (answers known); vgr's rule is fixed",
             **sweep[best],
         },
+        "per_class": apriori,
         "per_effect_accuracy": per_effect,
         "cases_per_hidden_place": per_place,
         "seconds_per_case_median": {
-            k: float(np.median([r["seconds"][k] for r in rows])) for k in ("simulate", "vgr", "stlsq_all_thresholds")
+            k: float(np.median([r["seconds"][k] for r in rows]))
+            for k in ("simulate", "apriori", "vgr", "stlsq_all_thresholds")
         },
     }
 
@@ -240,6 +345,16 @@ def main() -> None:
         f"{b['false_positive_rate_noise']:.3f} (single {b['naming_accuracy_single']:.3f}, pair "
         f"{b['naming_accuracy_pair']:.3f}; best threshold in hindsight {b['best_threshold_in_hindsight']})"
     )
+    pc = s["per_class"]
+    for cls in CLASSES:
+        a, b = pc["vgr"][cls], pc["stlsq_best"][cls]
+        line = f"  a priori {cls:13s} {a['cases']:3d} cases: vgr exact {a['exact']:3d}"
+        if a["cases"]:
+            line += f" ({a['accuracy']:.3f}), right {a['right']}, wrong name {a['wrong_name']}"
+            line += (
+                f" | STLSQ exact {b['exact']} ({b['accuracy']:.3f}), right {b['right']}, wrong name {b['wrong_name']}"
+            )
+        print(line)
     for name, e in s["per_effect_accuracy"].items():
         print(f"  {name:22s} {e['cases']:3d} cases: vgr {e['vgr']:.3f}  STLSQ {e['stlsq_best']:.3f}")
     for f in s["vgr"]["failures"]:

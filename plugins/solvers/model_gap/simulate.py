@@ -19,7 +19,9 @@ measured TCP: nothing is calibrated, so a base or tool error is observable at al
 its places, ``thermal_drift@robot`` and ``@base`` included), every pair of catalog effects at two
 magnitudes (``base_frame`` / ``tool_offset`` pairs with known frames), and noise-only controls;
 ``full=False`` gives the CI-sized subset. :attr:`SimulatedCampaign.gap_m` is the gap all hidden
-effects leave together (two can partly cancel).
+effects leave together (two can partly cancel); the campaign also carries the truth (noise-free
+displacement of each hidden effect, the calibration's span, the true frames) from which
+:mod:`.detectability` classifies a case a priori, without the measurements.
 """
 
 from __future__ import annotations
@@ -101,6 +103,10 @@ class HiddenEffect:
     name: str
     where: str
     gap_m: float  # RMS gap the effect leaves after the baseline calibration (m), see LEVELS
+    # the effect's sign (scalar effects: ``(+1,)`` / ``(-1,)``) or direction (``tool_offset``: a 3-vector in
+    # the flange frame) instead of a random one; None (the suite): random. For tests that build a case
+    # with a known geometry (two effects that cancel, a tool offset along a chosen axis)
+    direction: tuple[float, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -133,6 +139,14 @@ class SimulatedCampaign:
     # 3-D RMS of the part of *all* hidden effects together that the baseline calibration cannot absorb
     # (noise-free, m): each effect alone leaves its ``gap_m``, but two effects can partly cancel
     gap_m: float = 0.0
+    # The truth, for the a-priori analysis (:mod:`.detectability`), never shown to the workflow:
+    # noise-free displacement ``(N, 3)`` (m, measurement frame) of the measured point by each hidden
+    # effect alone and by all of them together (not calibrated: the calibration's span is ``calibration_m``)
+    signals_m: tuple[np.ndarray, ...] = ()
+    signal_m: np.ndarray | None = None
+    calibration_m: np.ndarray | None = None  # (3N, k) position columns of the scenario's baseline calibration
+    truth_model: RobotModel | None = None  # nominal geometry with the true sensor frame and tool point
+    truth_data: GapData | None = None  # the campaign's inputs with noise-free, effect-free measurements
 
 
 def _random_unit(rng: np.random.Generator, n: int = 3) -> np.ndarray:
@@ -143,6 +157,10 @@ def _random_unit(rng: np.random.Generator, n: int = 3) -> np.ndarray:
 def _unit_effect(e: HiddenEffect, model: RobotModel, rng: np.random.Generator) -> tuple[RobotEffect | None, dict]:
     """The hidden effect at a unit-ish size with a random sign / direction / phase (scaled later)."""
     sign = float(rng.choice((-1.0, 1.0)))
+    if e.direction is not None and e.name != "tool_offset":
+        if e.name not in _SIGNED or len(e.direction) != 1:
+            raise ValueError(f"{e.name}: give the sign of a scalar effect ({', '.join(_SIGNED)}) or a tool direction")
+        sign = float(np.sign(e.direction[0]))
     j = int(e.where[5:]) if e.where.startswith("joint") else 0
     u = 1e-4
     if e.name == "joint_offset":
@@ -165,12 +183,16 @@ def _unit_effect(e: HiddenEffect, model: RobotModel, rng: np.random.Generator) -
             offsets=tuple(np.concatenate([u * _random_unit(rng), u * _random_unit(rng)]).tolist())
         ), {}
     if e.name == "tool_offset":
-        return ToolOffsetError(("tx", "ty", "tz"), tuple((u * _random_unit(rng)).tolist())), {}
+        d = _random_unit(rng) if e.direction is None else np.asarray(e.direction, float) / np.linalg.norm(e.direction)
+        return ToolOffsetError(("tx", "ty", "tz"), tuple((u * d).tolist())), {}
     if e.name == "time_latency":  # the measurement stream lags the joint stream
         return None, {e.name: 1e-3}
     if e.name in _MEASUREMENT:
         return None, {e.name: sign * u}
     raise ValueError(f"unknown effect {e.name!r}")
+
+
+_SIGNED = ("joint_offset", "link_length", "thermal_drift", "depth_scale", "depth_bias")
 
 
 def _scaled(effect: RobotEffect, factor: float) -> RobotEffect:
@@ -230,19 +252,21 @@ def simulate_campaign(
 
     base = measured([], {})
     C = _calibration_columns(true_model, Q, T_meas_world, scenario)
-    robot_effects, meas = [], {}
+    robot_effects, meas, signals = [], {}, []
     for e in effects:
         unit, unit_meas = _unit_effect(e, nominal, rng)
         disp = measured([unit] if unit else [], unit_meas) - base
         if C.shape[1]:
             disp = disp - (C @ np.linalg.lstsq(C, disp.reshape(-1), rcond=None)[0]).reshape(disp.shape)
         factor = e.gap_m / float(np.sqrt(np.mean(np.sum(disp**2, axis=1))))
-        if unit is not None:
-            robot_effects.append(_scaled(unit, factor))
-        for k, v in unit_meas.items():
-            meas[k] = v * factor
+        scaled = [_scaled(unit, factor)] if unit is not None else []
+        scaled_meas = {k: v * factor for k, v in unit_meas.items()}
+        robot_effects += scaled
+        meas.update(scaled_meas)
+        signals.append(measured(scaled, scaled_meas) - base)
     truth = RobotWithEffects(true_model, robot_effects)
-    disp = measured(robot_effects, meas) - base
+    signal = measured(robot_effects, meas) - base
+    disp = signal
     if C.shape[1]:
         disp = disp - (C @ np.linalg.lstsq(C, disp.reshape(-1), rcond=None)[0]).reshape(disp.shape)
     combined_gap = float(np.sqrt(np.mean(np.sum(disp**2, axis=1))))
@@ -261,14 +285,16 @@ def simulate_campaign(
     p = p + rng.normal(0.0, noise_m, p.shape)
     samples = KinematicSamples(Q, p, None, T_s, np.array(d), None, PAY)
     data = GapData(samples, qd=QD, range_m=np.linalg.norm(p, axis=1), sensor=SENSOR, source="simulated")
-    if scenario == "known":  # the model's world is the sensor frame: so is its gravity vector
-        model = _with_gravity(
-            nominal.with_base(T_meas_world).with_tool(_translation(TOOL_TRUE)),
-            T_meas_world[:3, :3] @ nominal.gravity_world,
-        )
-    else:
-        model = nominal.with_tool(_translation(TOOL_GUESS))
-    return SimulatedCampaign(data, model, truth, camera, tracker, combined_gap)
+    # the true frames (the sensor frame as the model's world: so is its gravity vector)
+    known = _with_gravity(
+        nominal.with_base(T_meas_world).with_tool(_translation(TOOL_TRUE)), T_meas_world[:3, :3] @ nominal.gravity_world
+    )
+    model = known if scenario == "known" else nominal.with_tool(_translation(TOOL_GUESS))
+    clean = KinematicSamples(Q, base, None, T_s, np.array(d), None, PAY)
+    truth_data = GapData(clean, qd=QD, range_m=np.linalg.norm(base, axis=1), sensor=SENSOR, source="simulated truth")
+    return SimulatedCampaign(
+        data, model, truth, camera, tracker, combined_gap, tuple(signals), signal, C, known, truth_data
+    )
 
 
 def _calibration_columns(model: RobotModel, Q: np.ndarray, T_meas_world: np.ndarray, scenario: str) -> np.ndarray:
