@@ -1,7 +1,8 @@
 """Benchmark: the model-gap workflow on the hidden-effect suite, side by side with a STLSQ baseline.
 
 The suite (``plugins/solvers/model_gap/simulate.py``): every catalog effect alone at two magnitudes
-(three random places/seeds each; ``thermal_drift`` at ``robot`` and ``base``), every pair of catalog
+(three random places/seeds each; ``thermal_drift`` at ``robot`` and ``base``; ``depth_scale`` and
+``robot_scale`` with the frame calibrated and with known frames), every pair of catalog
 effects at two magnitudes (pairs with ``base_frame`` / ``tool_offset`` with known frames, the others
 with the frame and tool calibrated), and noise-only controls; UR5e, 200 samples measured while
 moving, 0.05 mm noise per axis, simulated controller + RobotWithEffects + the sensors' laws. The
@@ -9,7 +10,11 @@ effects are hidden: the workflow only sees the CSV-equivalent data.
 
 Reported for vgr (``vgr gap``'s rule: F-test at family-wise 1e-3, BIC, 5-fold CV, margin 10):
 naming accuracy (exact set of (effect, place) named), false-positive rate on the noise controls,
-verdicts, held-out RMS after / noise floor; for the sparse-regression baseline (STLSQ over the same
+verdicts, held-out RMS after / noise floor, and the candidates vgr reports *tied* (none named: they
+explain the same part of the gap, e.g. ``depth_scale`` and ``robot_scale`` once the frame is fitted);
+``naming_accuracy_with_ties`` also counts a case as right when vgr names only hidden effects and
+reports every other hidden effect in a tie (it says "one of these", with the truth among them). For the
+sparse-regression baseline (STLSQ over the same
 linearised regressors, after the same calibration, ridge 0.05 as PySINDy's default) the same
 accuracy and false-positive rate at every threshold of a sweep, and at the threshold that is best
 for it *in hindsight*: chosen on this same suite, with the hidden answers known -- an advantage vgr's
@@ -78,6 +83,9 @@ def run_case(case: HiddenCase) -> dict:
     t_gap = time.perf_counter() - t2
     named = sorted(f"{n}@{w}" for n, w in res.named)
     expected = sorted(f"{n}@{w}" for n, w in case.expected)
+    tied = sorted(res.confounded)
+    # right up to a reported tie: only hidden effects named, every other hidden effect among the tied ones
+    with_ties = set(named) <= set(expected) and set(expected) - set(named) <= set(tied)
     best = stl[str(STLSQ_REFERENCE)]
     return {
         "case": case.case_id,
@@ -92,6 +100,8 @@ def run_case(case: HiddenCase) -> dict:
             "named": named,
             "correct": named == expected,
             "wrong_name": bool(set(named) - set(expected)),
+            "tied": tied,
+            "correct_with_ties": bool(with_ties and (named == expected or tied)),
             "verdict": res.verdict,
             "rms_before_mm": res.before.cv_rms * 1e3,
             "rms_after_mm": res.after.cv_rms * 1e3,
@@ -158,12 +168,19 @@ def summarise(rows: list[dict]) -> dict:
         "naming_accuracy_low": rate(r["vgr"]["correct"] for r in effect_rows if r["level"] == "low"),
         "naming_accuracy_high": rate(r["vgr"]["correct"] for r in effect_rows if r["level"] == "high"),
         "naming_accuracy_known_frames": rate(r["vgr"]["correct"] for r in effect_rows if r["scenario"] == "known"),
+        "naming_accuracy_with_ties": rate(r["vgr"]["correct_with_ties"] for r in effect_rows),
+        "tie_reported_cases": sum(bool(r["vgr"]["tied"]) for r in effect_rows),
+        "tie_reported_noise_controls": sum(bool(r["vgr"]["tied"]) for r in noise_rows),
         "wrong_name_rate": rate(r["vgr"]["wrong_name"] for r in effect_rows),
         "false_positive_rate_noise": rate(bool(r["vgr"]["named"]) for r in noise_rows),
         "noise_verdict_no_gap_rate": rate(r["vgr"]["verdict"] == "no_gap" for r in noise_rows),
         "effect_verdict_explained_rate": rate(r["vgr"]["verdict"] == "explained" for r in effect_rows),
         "heldout_within_1_2x_floor_rate": rate(ratio <= 1.2),
         "heldout_above_1_2x_floor_count": int(np.sum(ratio > 1.2)),
+        # a reported tie leaves its part of the gap in the residuals (nothing is added)
+        "heldout_within_1_2x_floor_rate_without_ties": rate(
+            r["vgr"]["after_over_floor"] <= 1.2 for r in effect_rows if not r["vgr"]["tied"]
+        ),
         "heldout_after_over_floor_quantiles": {
             q: float(np.quantile(ratio, float(q))) for q in ("0", "0.05", "0.25", "0.5", "0.75", "0.95", "1")
         },
@@ -181,6 +198,7 @@ def summarise(rows: list[dict]) -> dict:
                 "hidden_gap_mm": r["hidden_gap_mm"],
                 "after_over_floor": r["vgr"]["after_over_floor"],
                 "why": r["vgr"]["decision"],
+                "tied": r["vgr"]["tied"],
                 "apriori_class": r["apriori"]["cls"],
                 "identifiable_part": r["apriori"]["identifiable_part"],
             }
@@ -188,7 +206,12 @@ def summarise(rows: list[dict]) -> dict:
             if not r["vgr"]["correct"]
         ],
         "above_1_2x_floor": [
-            {"case": r["case"], "after_over_floor": r["vgr"]["after_over_floor"], "named": r["vgr"]["named"]}
+            {
+                "case": r["case"],
+                "after_over_floor": r["vgr"]["after_over_floor"],
+                "named": r["vgr"]["named"],
+                "tied": r["vgr"]["tied"],
+            }
             for r in effect_rows
             if r["vgr"]["after_over_floor"] > 1.2
         ],
@@ -206,6 +229,7 @@ def summarise(rows: list[dict]) -> dict:
         name: {
             "cases": len(rs),
             "vgr": rate(r["vgr"]["correct"] for r in rs),
+            "vgr_with_ties": rate(r["vgr"]["correct_with_ties"] for r in rs),
             "stlsq_best": rate(r["stlsq"][best]["correct"] for r in rs),
         }
         for name, rs in groups(lambda r: {e.split("@")[0] for e in r["expected"]}).items()
@@ -246,6 +270,7 @@ def summarise(rows: list[dict]) -> dict:
                     if not e["identifiable"]
                 ],
                 "vgr": r["vgr"]["named"],
+                "vgr_tied": r["vgr"]["tied"],
                 "vgr_verdict": r["vgr"]["verdict"],
                 "stlsq_best": r["stlsq"][best]["named"],
             }
@@ -256,15 +281,6 @@ def summarise(rows: list[dict]) -> dict:
             "cases_per_class": {c: sum(r["apriori"]["cls_margin"] == c for r in effect_rows) for c in CLASSES},
             "class_changes": sum(r["apriori"]["cls_margin"] != r["apriori"]["cls"] for r in effect_rows),
             "vgr": _by_class(effect_rows, vgr_named, "cls_margin"),
-        },
-        "variant_uniform_scale_in_catalog": {
-            "cases_per_class": {
-                c: sum(r["apriori"]["cls_with_uniform_scale"] == c for r in effect_rows) for c in CLASSES
-            },
-            "class_changes": [
-                r["case"] for r in effect_rows if r["apriori"]["cls_with_uniform_scale"] != r["apriori"]["cls"]
-            ],
-            "vgr": _by_class(effect_rows, vgr_named, "cls_with_uniform_scale"),
         },
         "noise_controls_chi2_power_max": max((r["apriori"]["power_chi2"] for r in noise_rows), default=float("nan")),
     }
@@ -333,7 +349,8 @@ def main() -> None:
     print(f"{s['cases']} cases ({s['effect_cases']} with hidden effects, {s['noise_controls']} noise-only)")
     v = s["vgr"]
     print(
-        f"vgr:   naming accuracy {v['naming_accuracy']:.3f} (single {v['naming_accuracy_single']:.3f}, pair "
+        f"vgr:   naming accuracy {v['naming_accuracy']:.3f} (with reported ties {v['naming_accuracy_with_ties']:.3f}, "
+        f"{v['tie_reported_cases']} ties; single {v['naming_accuracy_single']:.3f}, pair "
         f"{v['naming_accuracy_pair']:.3f}), wrong names {v['wrong_name_rate']:.3f}, false positives on noise "
         f"{v['false_positive_rate_noise']:.3f}, held-out <= 1.2x floor {v['heldout_within_1_2x_floor_rate']:.3f} "
         f"({v['heldout_above_1_2x_floor_count']} above; median {v['heldout_after_over_floor_median']:.3f}, "
@@ -356,7 +373,10 @@ def main() -> None:
             )
         print(line)
     for name, e in s["per_effect_accuracy"].items():
-        print(f"  {name:22s} {e['cases']:3d} cases: vgr {e['vgr']:.3f}  STLSQ {e['stlsq_best']:.3f}")
+        print(
+            f"  {name:22s} {e['cases']:3d} cases: vgr {e['vgr']:.3f} (with ties {e['vgr_with_ties']:.3f})  "
+            f"STLSQ {e['stlsq_best']:.3f}"
+        )
     for f in s["vgr"]["failures"]:
         print("  vgr miss:", f)
 

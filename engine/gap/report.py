@@ -11,6 +11,10 @@ JSON (``format: vgr.gap_report/1``), lengths in the problem's report unit (mm fo
   (after its baseline calibration) and of the final augmented model; ``noise_floor_mm``: the 3-D RMS
   the stated noise alone gives; ``noise_source``: ``given`` | ``data column sigma_mm`` | ``estimated``;
 * ``before`` / ``after``: in-sample RMS, max, per axis, chi-square test;
+* ``confounded``: when the last round ended with tied candidates (they explain the same part of the
+  gap, e.g. a range scale and a uniform robot scale once the frame is fitted), ``[{effects,
+  delta_bic, tied_with, advice}]``: none of them is named (verdict ``unexplained``), ``tied_with`` maps
+  each to the others, ``advice`` says what data would separate them; empty otherwise;
 * ``effects_removed``: effects named in an earlier round and dropped by the backward check once the
   later ones explained them (``delta_bic_given_others < 0``);
 * ``iterations``: per round the comparison, where the gap concentrates, every candidate's scores and
@@ -138,6 +142,7 @@ def report_dict(result: GapResult) -> dict[str, Any]:
         "verdict": result.verdict,
         "reason": result.reason,
         "effects_added": effects,
+        "confounded": _confounded(result),
         "effects_removed": [
             {"effect": lab, "iteration": it.index, "delta_bic_given_others": g}
             for it in result.iterations
@@ -180,6 +185,8 @@ def report_dict(result: GapResult) -> dict[str, Any]:
                     "reason": it.decision.reason,
                     "winner": it.decision.winner.label if it.decision.winner else None,
                     "contenders": [{"label": lab, "delta_bic_given": g} for lab, g in it.decision.contenders],
+                    "tied": it.decision.tied,
+                    "advice": it.decision.advice,
                 },
                 "added": None if it.added is None else f"{it.added.name}@{it.added.where}",
                 "removed": [lab for lab, _ in it.removed],
@@ -189,6 +196,20 @@ def report_dict(result: GapResult) -> dict[str, Any]:
         ],
         "files": result.files,
     }
+
+
+def _confounded(result: GapResult) -> list[dict[str, Any]]:
+    d = result.iterations[-1].decision
+    if d.status != "ambiguous" or not d.tied:
+        return []
+    return [
+        {
+            "effects": list(d.tied),
+            "delta_bic": dict(d.tied_delta_bic),
+            "tied_with": {lab: [o for o in d.tied if o != lab] for lab in d.tied},
+            "advice": list(d.advice) or ["collect data that separates them"],
+        }
+    ]
 
 
 def _rank(c: CandidateScore) -> tuple:
@@ -280,6 +301,14 @@ def render(result: GapResult, console: Console, *, top: int = 8) -> None:
         console.print(f"  {escape(it.decision.reason)}", soft_wrap=True)
         for lab, g in it.removed:
             console.print(f"  removed again: {escape(lab)} (the later effects explain it: dBIC given them {g:.1f})")
+    if result.confounded:
+        d = result.iterations[-1].decision
+        console.print(
+            f"[bold yellow]tied, none named:[/] {escape(' = '.join(d.tied))} explain the same part of the gap",
+            soft_wrap=True,
+        )
+        for a in d.advice or ["collect data that separates them"]:
+            console.print(f"  to separate them: {escape(a)}", soft_wrap=True)
     if result.effects:
         t = Table(title="effects added (SI values shown in urad, mm, ms, ppm)", title_justify="left")
         for col in ("effect", "parameters ± 1 sigma", f"held-out gain {u}"):

@@ -28,7 +28,12 @@ decreasing ``dBIC``, and names the first that is *decisive* over every other can
 ``dBIC_r <= dBIC_w - margin`` (as single explanations the data prefer the winner by a Bayes factor of
 ~150), or the winner still gains ``>= margin`` in BIC when added on top of ``r`` (the close
 *contenders*; else the two explain the same part of the gap). When no eligible candidate is decisive
-the round is ambiguous.
+the round is ambiguous: nothing is named, and the candidates that explain the same part of the gap
+are reported as *tied* (:attr:`Decision.tied`), with what would separate them when their effects
+say (a candidate's optional ``tie_advice``: rival effect name -> advice; else "collect data that
+separates them"). An exact tie -- two effects whose columns span the same direction after the
+calibration, e.g. a range scale and a uniform robot scale once the frame is fitted -- always ends
+here: each gains ``-k ln M`` on top of the other.
 
 :func:`gain_given_others` is the backward check of the loop: the BIC an added effect still gains
 given every other effect of the current model.
@@ -113,9 +118,14 @@ class BaselineScore:
 @dataclass
 class Decision:
     status: Literal["named", "none", "ambiguous"]
-    winner: CandidateScore | None
+    winner: CandidateScore | None  # ambiguous: the leader (largest dBIC), which is NOT named
     reason: str
     contenders: list[tuple[str, float]] = field(default_factory=list)  # (label, dBIC of winner given it)
+    # ambiguous: the leader and every candidate that explains the same part of the gap (none is named),
+    # their dBIC as single explanations, and what would separate them
+    tied: list[str] = field(default_factory=list)
+    tied_delta_bic: dict[str, float] = field(default_factory=dict)
+    advice: list[str] = field(default_factory=list)
 
 
 # --------------------------------------------------------------------------- linear algebra
@@ -370,13 +380,36 @@ def decide(scorer: Scorer, scores: list[CandidateScore], cfg: SelectionConfig) -
             )
         return Decision("named", w, reason, contenders)
     w, ambiguous, contenders = skipped[0]
+    by_label = {s.label: s for s in scores}
+    tied = [w.label, *ambiguous]
+    advice = _tie_advice([by_label[lab] for lab in tied])
+    reason = (
+        f"{' and '.join([', '.join(tied[:-1]), tied[-1]])} explain the same part of the gap (BIC margin < "
+        f"{cfg.bic_margin:g}): none is named; collect data that separates them"
+    )
+    if advice:
+        reason += " (" + "; ".join(advice) + ")"
     return Decision(
         "ambiguous",
         w,
-        f"{w.label} and {', '.join(ambiguous)} explain the same part of the gap (BIC margin < "
-        f"{cfg.bic_margin:g}): collect data that separates them",
+        reason,
         contenders,
+        tied,
+        {lab: float(by_label[lab].delta_bic) for lab in tied},
+        advice,
     )
+
+
+def _tie_advice(tied: list[CandidateScore]) -> list[str]:
+    """What separates tied candidates, from their ``tie_advice`` (rival effect name -> advice), deduplicated."""
+    out: list[str] = []
+    for a in tied:
+        table = getattr(a.candidate, "tie_advice", None) or {}
+        for b in tied:
+            text = table.get(b.name) if b is not a else None
+            if text and text not in out:
+                out.append(text)
+    return out
 
 
 def gain_given_others(lin: Linearisation, label: str, n_linear: int, values: F64) -> float:

@@ -16,7 +16,8 @@
 Verdict: ``no_gap`` when nothing was added, no candidate is significant and the residuals are
 consistent with the noise (chi-square test at ``chi2_alpha``); ``explained`` when effects were added
 and the final residuals are consistent with the noise; ``unexplained`` otherwise (a significant gap
-no candidate names decisively, an ambiguous choice, or residuals still above the noise).
+no candidate names decisively, an ambiguous choice -- tied candidates, none of them named, see
+:attr:`GapResult.confounded` -- or residuals still above the noise).
 """
 
 from __future__ import annotations
@@ -108,6 +109,12 @@ class GapResult:
     @property
     def named(self) -> list[tuple[str, str]]:
         return [(fe.name, fe.where) for fe, _ in self.effects]
+
+    @property
+    def confounded(self) -> list[str]:
+        """The candidates tied in the last round (they explain the same part of the gap; none was named)."""
+        d = self.iterations[-1].decision
+        return list(d.tied) if d.status == "ambiguous" else []
 
 
 def compare(lin: Linearisation, baseline: BaselineScore, chi2_alpha: float) -> Comparison:
@@ -255,8 +262,9 @@ def _verdict(iterations: list[Iteration], effects: list, cfg: GapConfig) -> tupl
     noise += f"chi2 = {c.chi2:.0f} for {c.dof} dof, p = {c.chi2_p:.2g})"
     if last.decision.status == "named":  # stopped by max_effects with a candidate still decisive
         return "unexplained", f"more than {cfg.max_effects} effects would be needed; next: {last.decision.reason}"
-    if last.decision.status == "ambiguous":
-        return "unexplained", f"{last.decision.reason}; {noise}"
+    if last.decision.status == "ambiguous":  # tied candidates: none is named
+        done = ", ".join(f"{e.name}@{e.where}" for e, _ in effects)
+        return "unexplained", (f"{done} added; then " if done else "") + f"{last.decision.reason}; {noise}"
     if not c.consistent:
         if effects:
             done = ", ".join(f"{e.name}@{e.where}" for e, _ in effects)

@@ -4,8 +4,9 @@
 truth (noise-free displacements, true frames) before any method sees the data: a strong single
 effect is identifiable, two effects built to cancel are undetectable, an effect with the same
 signature as another catalog effect is confounded -- whatever the noise draw, and the measured data
-play no part. Also the identity behind the ``depth_scale`` note of docs/model_gap.md: after a frame
-calibration a range scale is a uniform scale of all robot lengths and the tool point.
+play no part. Also the identity behind the ``robot_scale`` effect of docs/model_gap.md: after a frame
+calibration a range scale is a uniform scale of all robot lengths and the tool point (the catalog's
+``robot_scale``), and each is the other's rival.
 """
 
 from __future__ import annotations
@@ -16,6 +17,8 @@ from model_gap_helpers import N_SAMPLES
 
 from engine.gap.selection import _basis, _perp
 from plugins.solvers.model_gap.detectability import classify, uniform_scale_column
+from plugins.solvers.model_gap.effects import RobotScaleFamily
+from plugins.solvers.model_gap.problem import KinematicGapProblem, ProblemConfig
 from plugins.solvers.model_gap.simulate import LEVELS, TOOL_TRUE, HiddenCase, HiddenEffect, make_case
 
 pytestmark = pytest.mark.timeout(300)
@@ -95,12 +98,28 @@ def test_a_range_scale_is_a_uniform_scale_of_the_robot_after_frame_calibration()
     C, u = camp.calibration_m, uniform_scale_column(camp)
     assert np.linalg.norm(_perp(_basis(C), s)) > 0.3 * np.linalg.norm(s)  # the calibration alone leaves a gap
     assert np.linalg.norm(_perp(_basis(np.column_stack([C, u])), s)) < 1e-9 * np.linalg.norm(s)
+    # the catalog's robot_scale candidate is that column (computed here independently of the catalog)
+    problem = KinematicGapProblem(camp.truth_model, camp.truth_data, ProblemConfig((), noise_m=1.0))
+    (rs,) = RobotScaleFamily().candidates(problem)
+    (d,) = rs.designs(problem)
+    np.testing.assert_allclose(d.columns.reshape(-1), u, rtol=0, atol=1e-9 * np.abs(u).max())
     # known frames: the same up to a constant shift, the range scale of the base's position e t
     known = make_case(_case([("depth_scale", "camera")], "known"))
     e = known.camera.depth_scale - 1.0
     shift = known.signal_m - e * uniform_scale_column(known).reshape(-1, 3)
     t_base = known.truth_model.T_world_base[:3, 3]
     np.testing.assert_allclose(shift, np.broadcast_to(e * t_base, shift.shape), atol=1e-12)
-    # so with the uniform scale as an alternative a range scale is never identifiable with a fitted frame
-    cc = _classify(_case([("depth_scale", "camera")], "tracker"))
-    assert cc.effects[0].lambda_vs_uniform_scale < 1e-9 and cc.cls_with_uniform_scale == "confounded"
+
+
+@pytest.mark.parametrize(("hidden", "rival"), [("depth_scale@camera", "robot_scale@robot"),
+                                               ("robot_scale@robot", "depth_scale@camera")])  # fmt: skip
+def test_with_a_fitted_frame_the_two_scales_are_each_others_rival(hidden, rival):
+    """robot_scale is in the catalog, so the classification finds it as a rival by itself: with the frame
+    fitted either scale is confounded (nothing independent of the other), with known frames identifiable."""
+    name, where = hidden.split("@")
+    cc = _classify(_case([(name, where)], "tracker"))
+    (e,) = cc.effects
+    assert cc.cls == "confounded" and e.rival == rival and e.lambda_id < 1e-9 * e.lambda_alone
+    assert cc.identifiable_part == []
+    cc = _classify(_case([(name, where)], "known"))
+    assert cc.cls == "identifiable" and cc.effects[0].power > 0.99 and cc.effects[0].rival != rival

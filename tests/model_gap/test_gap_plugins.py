@@ -42,7 +42,7 @@ def test_the_registry_collects_an_outside_effect_through_the_hook():
     assert reg.effect_origin[NAME] == "gap_toy_effect"
     assert reg.effect_origin["backlash"] == "builtin"
     names = {f.name for f in families_from_registry(("gap_toy_effect",))}
-    assert NAME in names and "backlash" in names and len(names) == 12
+    assert NAME in names and "backlash" in names and len(names) == 13  # the 12 built-in families + the toy
 
 
 def test_an_outside_effect_is_tested_and_named_through_the_hook():

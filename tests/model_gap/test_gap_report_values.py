@@ -70,19 +70,20 @@ def test_a_time_constant_gets_a_real_uncertainty(where, seed):
 
 
 @pytest.mark.parametrize(
-    ("effects", "name", "absorbed"),
+    ("effects", "name", "scenario", "absorbed"),
     [
-        ([("depth_scale", "camera")], "depth_scale", True),
-        ([("joint_compliance", "joint2")], "joint_compliance", True),
-        ([("backlash", "joint3")], "backlash", False),
+        ([("depth_scale", "camera")], "depth_scale", "known", False),
+        ([("joint_compliance", "joint2")], "joint_compliance", "tracker", True),
+        ([("backlash", "joint3")], "backlash", "tracker", False),
     ],
     ids=["depth_scale", "compliance", "backlash"],
 )
-def test_the_effect_plot_draws_what_the_calibrated_residuals_show(effects, name, absorbed):
+def test_the_effect_plot_draws_what_the_calibrated_residuals_show(effects, name, scenario, absorbed):
     """``gap_effect_*.png``: the fitted-effect series must run through the residuals before the effect
     was added (regression slope ~1). The full effect does not when the calibration absorbs much of it
-    (depth_scale: the frame takes ~2/3; compliance ~1/5), which is why it is not drawn."""
-    _, res = run(case(effects, seed=7))
+    (compliance: the frame takes ~1/5), which is why it is not drawn. (A depth_scale with the frame fitted
+    -- the frame takes ~2/3 -- is tied with a uniform robot scale and not added: shown with known frames.)"""
+    _, res = run(case(effects, seed=7, scenario=scenario))
     (it,) = [it for it in res.iterations if it.added is not None and it.added.name == name]
     es = effect_series(res, it)
     assert es is not None
@@ -92,10 +93,15 @@ def test_the_effect_plot_draws_what_the_calibrated_residuals_show(effects, name,
         return float(np.dot(es.y_before[m], y_fit[m]) / np.dot(y_fit[m], y_fit[m]))
 
     assert 0.85 < slope(es.y_fitted) < 1.15
-    # what the fitted series explains of the residual before: the noise is what is left
+
+    # what the fitted series explains of the residual before: the noise is what is left (mean squares, not
+    # variances: with known frames a range scale is the same constant e in every sample's own unit)
+    def ms(v: np.ndarray) -> float:
+        return float(np.mean(v**2))
+
     left = es.y_before[m] - es.y_fitted[m]
-    assert np.var(left) < 0.8 * np.var(es.y_before[m])
-    assert np.var(es.y_final[m]) < 0.8 * np.var(es.y_before[m])
+    assert ms(left) < 0.8 * ms(es.y_before[m])
+    assert ms(es.y_final[m]) < 0.8 * ms(es.y_before[m])
     if absorbed:
         assert es.identifiable_share < 0.85
         assert slope(es.y_full) < 0.75  # the full effect would overshoot the residuals

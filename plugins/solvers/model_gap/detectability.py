@@ -34,12 +34,12 @@ Classes (thresholds from the workflow's own test levels and a standard power tar
 * ``undetectable``: detection power < 0.8 (the right answer is ``no_gap`` or nothing named);
 * ``noise``: no hidden effect.
 
-Also reported per effect, outside the catalog: ``lambda_vs_uniform_scale``, the same identifiability
-noncentrality against a **uniform scale of all robot lengths and the tool point** (one column:
-``sum_l L_l dp/dL_l``). After a frame calibration a range scale about the sensor is exactly that
+The rivals are every catalog candidate, ``robot_scale`` (a uniform scale of all robot lengths and the
+tool point) included. After a frame calibration a range scale about the sensor is exactly that
 (``(1+e)(R x + t) = R((1+e) x) + (1+e) t``, and the position of an all-revolute chain is homogeneous
-of degree 1 in its lengths), so ``depth_scale`` has ``lambda_vs_uniform_scale = 0`` in the ``tracker``
-scenario: the catalog names it only because the alternative is not in the catalog.
+of degree 1 in its lengths), so in the ``tracker`` scenario ``depth_scale`` and ``robot_scale`` each
+have ``lambda_id = 0`` with the other as the rival: such a case is ``confounded`` by construction.
+:func:`uniform_scale_column` computes that column independently of the catalog (for the tests).
 """
 
 from __future__ import annotations
@@ -75,8 +75,6 @@ class EffectIdentifiability:
     # a chi-square gain >= bic_margin + (k + shape parameters) ln M): a check that the class does not hinge
     # on which of the workflow's two levels is used
     power_margin: float
-    lambda_vs_uniform_scale: float  # against the out-of-catalog uniform robot scale (see the module doc)
-    power_vs_uniform_scale: float
 
 
 @dataclass
@@ -93,8 +91,6 @@ class CaseClassification:
     identifiable_part: list[str] = field(default_factory=list)
     # the class with the decisive-margin variant of the identifiability power (see EffectIdentifiability)
     cls_margin: str = ""
-    # the class if the catalog had the uniform robot scale as an alternative (see the module docstring)
-    cls_with_uniform_scale: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -137,9 +133,9 @@ def uniform_scale_column(camp: SimulatedCampaign) -> np.ndarray:
     names, values = m.param_names, m.param_values
     lengths = [i for i, n in enumerate(names) if n.startswith("joint") and n.rsplit(".", 1)[-1] in ("a", "d")]
     tool = [names.index(f"tool.{c}") for c in ("tx", "ty", "tz")]
-    # the tool point: the fixed flange -> TCP translation (in TCP axes) plus the tool parameters
-    T = m.T_flange_tcp
-    tool_point = T[:3, :3].T @ T[:3, 3] + values[tool]
+    # the tool point in the flange frame (the tool parameters included): the tool.t* columns move the
+    # measured point along the flange axes
+    tool_point = m.T_flange_tcp[:3, 3]
     return (J[:, :3, lengths] @ values[lengths] + J[:, :3, tool] @ tool_point).reshape(-1)
 
 
@@ -198,7 +194,6 @@ def classify(
     lambda_det = _proj_norm2(D_all, y_tot)
     power_det = _power_f(lambda_det, k_det, M - rank_c - k_det, alpha_t)
 
-    u = uniform_scale_column(camp)[:, None] / sigma
     effects: list[EffectIdentifiability] = []
     for i, (lab, s, D) in enumerate(zip(labels, sig, true_d, strict=True)):
         others = [X for j in range(len(labels)) if j != i for X in (true_d[j], sig[j][:, None])]
@@ -225,14 +220,8 @@ def classify(
         k_shape = 1 if len(designs[lab]) > 1 else 0  # a profiled time constant
         gain_needed = sel.bic_margin + (k_r + k_shape) * np.log(M)
         p_margin = float(stats.ncx2.sf(gain_needed, k_r, max(lam_id, 1e-12))) if k_r else 0.0
-        lam_u, rank_u, k_u = independent(u)
-        p_u = _power_f(lam_u, k_u, M - rank_u - k_u, alpha_t)
-        if lam_id < lam_u:  # the uniform scale joins the catalog's rivals: the smaller of the two
-            lam_u, p_u = lam_id, p_id
         effects.append(
-            EffectIdentifiability(
-                lab, k_i, lam_alone, lam_given, lam_id, rival, p_id, p_id >= power, p_margin, lam_u, p_u
-            )
+            EffectIdentifiability(lab, k_i, lam_alone, lam_given, lam_id, rival, p_id, p_id >= power, p_margin)
         )
 
     def case_class(ok: list[bool]) -> str:
@@ -254,5 +243,4 @@ def classify(
         effects,
         part,
         case_class([e.power_margin >= power for e in effects]),
-        case_class([e.power_vs_uniform_scale >= power for e in effects]),
     )

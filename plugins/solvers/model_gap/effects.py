@@ -14,11 +14,19 @@ Jacobians come from :meth:`RobotWithEffects.effect_jacobian`); measurement-side 
 | ``encoder_eccentricity`` | ``jointN`` | sin and cos amplitudes (rad) | |
 | ``thermal_drift`` | ``robot`` | strain of every link length at equilibrium (1), time constant (s) | ``t_s`` |
 | ``thermal_drift`` | ``base`` | base height growth at equilibrium (m), time constant (s) | ``t_s`` |
+| ``robot_scale`` | ``robot`` | strain of every robot length and the tool point, constant (1) | |
 | ``base_frame`` | ``base`` | base pose error tx ty tz (m) rx ry rz (rad) | |
 | ``tool_offset`` | ``tool`` | tool point error tx ty tz (m, flange frame) | |
 | ``time_latency`` | sensor | latency of the measurement stream (s) | ``qdN_deg_s`` |
 | ``depth_scale`` | sensor | relative range error (1) | ``range_mm`` |
 | ``depth_bias`` | sensor | range offset (m) | ``range_mm`` |
+
+``robot_scale`` is the arm at another steady temperature (``alpha dT``) or a scale error of its
+nominal geometry: every length of the chain after the base (DH ``a`` / ``d``, POE link offsets, the
+flange and the tool point) times ``1 + s``. The position of an all-revolute chain is homogeneous of
+degree 1 in its lengths, so once the measurement frame is fitted it is *exactly* a range scale
+``depth_scale`` of the sensor (``(1+e)(R x + t) = R((1+e) x) + (1+e) t``): the two tie, and the
+workflow reports them as confounded with the advice that separates them (:data:`SCALE_TIE_ADVICE`).
 
 Candidates the baseline calibration already explains (a joint offset of joint 1 when the measurement
 frame is fitted, the base frame itself ...) are scored as *absorbed* by the workflow, not hidden.
@@ -33,11 +41,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from engine.gap.interfaces import Design, Signature
+from plugins.sim.kinematics import RobotModel
 from plugins.sim.measurement_effects import MEASUREMENT_CATALOG
 from plugins.sim.robot_effects import (
     Backlash,
     BaseFrameError,
     EncoderEccentricity,
+    GeometricErrors,
     JointCompliance,
     JointOffset,
     LinkLength,
@@ -49,6 +59,16 @@ from plugins.sim.robot_effects import (
 from .problem import KinematicGapProblem, effect_config
 
 F64 = NDArray[np.float64]
+
+#: why a range scale and a uniform robot scale tie once the measurement frame is fitted, and what
+#: separates them (given when the two explain the same part of the gap)
+SCALE_TIE_ADVICE = (
+    "with the measurement frame fitted a range scale of the sensor and a uniform scale of the robot (every "
+    "length and the tool point: the arm at another steady temperature, or a scale error of its nominal "
+    "geometry) give exactly the same data, and more poses do not help: measure a reference length with the "
+    "same sensor (a calibrated scale bar) to fix the sensor's scale, or fix the measurement frame from an "
+    "independent measurement (a registered sensor frame: --calibrate tool or none)"
+)
 
 
 @dataclass(eq=False)
@@ -71,6 +91,8 @@ class RobotCandidate:
     joint: int | None = None  # joint-space effects: the joint, for the signature's basis
     jac_floor: F64 | None = None  # lowest values at which the effect can be differentiated
     unavailable: str | None = None
+    # rival effect name -> what separates the two when they explain the same part of the gap
+    tie_advice: dict[str, str] = field(default_factory=dict)
     side: ClassVar[str] = "robot"
 
     @property
@@ -132,6 +154,7 @@ class MeasurementCandidate:
     shape_names: tuple[str, ...] = ()
     lower: F64 = field(default_factory=lambda: np.array([-np.inf]))
     upper: F64 = field(default_factory=lambda: np.array([np.inf]))
+    tie_advice: dict[str, str] = field(default_factory=dict)  # rival effect name -> what separates them
     side: ClassVar[str] = "measurement"
 
     def __post_init__(self) -> None:
@@ -347,6 +370,77 @@ class ThermalDriftFamily(_Family):
         return out
 
 
+def uniform_scale_offsets(model: RobotModel) -> dict[str, float]:
+    """Chain-parameter offsets per unit uniform scale of the robot: ``{name: d value / d s}``.
+
+    Every translation of the chain after the base (the base is where the robot stands, not part of
+    it) times ``1 + s``: a translation parameter (DH ``a`` / ``d``, ``tool.tx`` ...) by its value; a
+    fixed transform's translation ``F_t`` through the translation parameters next to it (a POE link
+    offset, the flange, the nominal tool): ``F Trans(t) = Trans(F_t + F_R t)`` takes ``F_R^T F_t`` on
+    the three parameters right after ``F``, ``Trans(t) F = Trans(t + F_t) F_R`` takes ``F_t`` on those
+    right before it. Raises ValueError when a fixed translation has no such neighbours.
+    """
+    chain = model.chain
+    ops = chain.ops
+    values = chain.values
+    out = np.zeros(len(chain.param_names))
+
+    def triple(start: int) -> list[int] | None:
+        seg = ops[start : start + 3]
+        if start < 0 or len(seg) < 3 or sorted(o.kind for o in seg) != ["tx", "ty", "tz"]:
+            return None
+        if any(o.group == "base" for o in seg):
+            return None
+        return [start + ("tx", "ty", "tz").index(o.kind) for o in seg]
+
+    for i, op in enumerate(ops):
+        if op.group == "base":
+            continue
+        if op.kind in ("tx", "ty", "tz"):
+            k = chain.index(op.name)
+            out[k] += values[k]
+        elif op.kind == "fixed":
+            assert op.matrix is not None
+            F_R, F_t = op.matrix[:3, :3], op.matrix[:3, 3]
+            if not np.any(np.abs(F_t) > 1e-12):
+                continue
+            after, before = triple(i + 1), triple(i - 3)
+            if after is not None:
+                d, idx = F_R.T @ F_t, after
+            elif before is not None:
+                d, idx = F_t, before
+            else:
+                raise ValueError(
+                    f"{model.name}: the fixed translation of group {op.group!r} has no translation parameters next "
+                    "to it, so a uniform scale of the robot cannot be expressed"
+                )
+            for axis, j in enumerate(idx):
+                out[chain.index(ops[j].name)] += d[axis]
+    return {n: float(v) for n, v in zip(chain.param_names, out, strict=True) if abs(v) > 1e-12}
+
+
+class RobotScaleFamily(_Family):
+    name = "robot_scale"
+    description = (
+        "uniform scale of the robot: every length and the tool point times (1 + s) (the arm at another steady "
+        "temperature, or a scale error of its nominal geometry)"
+    )
+
+    def _candidates(self, problem):
+        try:
+            offsets = uniform_scale_offsets(problem.model)
+        except ValueError as e:
+            return [self._unavailable(problem, str(e))]
+        names = tuple(offsets)
+        return [
+            RobotCandidate(
+                self.name, "robot", GeometricErrors(names, (0.0,) * len(names)), ("scale",), ("1",),
+                np.array([[offsets[n]] for n in names]), np.array([-np.inf]), np.array([np.inf]), regressor="reach",
+                tie_advice={"depth_scale": SCALE_TIE_ADVICE},
+            )
+        ]  # fmt: skip
+
+
 class BaseFrameFamily(_Family):
     name = "base_frame"
     description = "the robot base is not where the model puts it (6-DOF pose error)"
@@ -399,6 +493,9 @@ class DepthScaleFamily(_MeasurementFamily):
     description = "the ranging sensor's distances are scaled"
     requires = ("range",)
 
+    def _candidates(self, problem):
+        return [MeasurementCandidate(self.name, problem.data.sensor, tie_advice={"robot_scale": SCALE_TIE_ADVICE})]
+
 
 class DepthBiasFamily(_MeasurementFamily):
     name = "depth_bias"
@@ -413,6 +510,7 @@ FAMILIES: tuple[type[_Family], ...] = (
     BacklashFamily,
     EncoderEccentricityFamily,
     ThermalDriftFamily,
+    RobotScaleFamily,
     BaseFrameFamily,
     ToolOffsetFamily,
     TimeLatencyFamily,

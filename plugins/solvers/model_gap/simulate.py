@@ -42,6 +42,7 @@ from plugins.sim.robot_effects import (
     Backlash,
     BaseFrameError,
     EncoderEccentricity,
+    GeometricErrors,
     JointCompliance,
     JointOffset,
     LinkLength,
@@ -55,6 +56,7 @@ from plugins.sim.true_robot import RobotWithEffects
 from plugins.solvers.kinematic_calibration import KinematicSamples
 
 from .data import GapData
+from .effects import uniform_scale_offsets
 
 NOISE_M = 5e-5  # 0.05 mm per axis (laser-tracker class)
 SENSOR = "camera"
@@ -79,7 +81,15 @@ EFFECT_NAMES = (
     "time_latency",
     "depth_scale",
     "depth_bias",
+    "robot_scale",
 )
+# The effects of the suite before ``robot_scale`` joined the catalog: their cases keep the seed stream
+# (and so the data) they had; the cases with ``robot_scale`` and the known-frame range-scale singles
+# draw from a second stream (see :func:`suite`).
+FIRST_EFFECTS = EFFECT_NAMES[:11]
+# the two uniform scales (a range scale of the sensor, a uniform scale of the robot) are exactly
+# confounded once the frame is fitted and separable with known frames: their singles run in both scenarios
+BOTH_SCENARIOS = ("depth_scale", "robot_scale")
 # where each effect is hidden (joints whose effect the baseline calibration does not absorb)
 PLACES: dict[str, tuple[str, ...]] = {
     "joint_offset": ("joint2", "joint3", "joint4", "joint5"),
@@ -93,6 +103,7 @@ PLACES: dict[str, tuple[str, ...]] = {
     "time_latency": (SENSOR,),
     "depth_scale": (SENSOR,),
     "depth_bias": (SENSOR,),
+    "robot_scale": ("robot",),
 }
 KNOWN_FRAME_EFFECTS = ("base_frame", "tool_offset")
 SCENARIO_CALIBRATION = {"tracker": ("frame", "tool"), "known": ()}
@@ -178,6 +189,9 @@ def _unit_effect(e: HiddenEffect, model: RobotModel, rng: np.random.Generator) -
         return ThermalDrift(("base.tz",), (sign * u,), 1800.0), {}
     if e.name == "thermal_drift":
         return ThermalDrift.linear_expansion(model, 1.0, expansion_per_k=sign * u, time_constant_s=1800.0), {}
+    if e.name == "robot_scale":  # every length and the tool point of the true robot times 1 + s
+        offsets = uniform_scale_offsets(model)
+        return GeometricErrors(tuple(offsets), tuple(sign * u * v for v in offsets.values())), {}
     if e.name == "base_frame":
         return BaseFrameError(
             offsets=tuple(np.concatenate([u * _random_unit(rng), u * _random_unit(rng)]).tolist())
@@ -192,7 +206,7 @@ def _unit_effect(e: HiddenEffect, model: RobotModel, rng: np.random.Generator) -
     raise ValueError(f"unknown effect {e.name!r}")
 
 
-_SIGNED = ("joint_offset", "link_length", "thermal_drift", "depth_scale", "depth_bias")
+_SIGNED = ("joint_offset", "link_length", "thermal_drift", "depth_scale", "depth_bias", "robot_scale")
 
 
 def _scaled(effect: RobotEffect, factor: float) -> RobotEffect:
@@ -254,7 +268,7 @@ def simulate_campaign(
     C = _calibration_columns(true_model, Q, T_meas_world, scenario)
     robot_effects, meas, signals = [], {}, []
     for e in effects:
-        unit, unit_meas = _unit_effect(e, nominal, rng)
+        unit, unit_meas = _unit_effect(e, true_model, rng)  # the true tool point (robot_scale scales it)
         disp = measured([unit] if unit else [], unit_meas) - base
         if C.shape[1]:
             disp = disp - (C @ np.linalg.lstsq(C, disp.reshape(-1), rcond=None)[0]).reshape(disp.shape)
@@ -341,28 +355,49 @@ def suite(full: bool = True, seed: int = 0, seeds_per_single: int = 3, noise_con
 
     * singles: every catalog effect at both magnitudes, ``seeds_per_single`` random places and seeds
       each; the places of an effect are drawn without replacement (cycling), so an effect with two
-      places (``thermal_drift@robot`` / ``@base``) is hidden at both;
+      places (``thermal_drift@robot`` / ``@base``) is hidden at both. ``depth_scale`` and
+      ``robot_scale`` are hidden in both scenarios (frame calibrated: the two are exactly confounded;
+      known frames: separable);
     * pairs: every pair of catalog effects at both magnitudes. Pairs with ``base_frame`` or
       ``tool_offset`` use the ``known`` scenario (no frame / tool calibration: with it they would be
       absorbed, not hidden), all others ``tracker``;
     * noise-only controls, one in four with known frames.
+
+    The cases of :data:`FIRST_EFFECTS` (the suite before ``robot_scale`` joined the catalog) draw their
+    seeds from ``seed``'s stream in the order they always had, so they keep their data; the cases added
+    with ``robot_scale`` (its singles and pairs, the known-frame ``depth_scale`` singles) draw from a
+    second stream, ``(seed, 1)``.
     """
     rng = np.random.default_rng(seed)
+    rng_new = np.random.default_rng([seed, 1])
     cases: list[HiddenCase] = []
     reps = seeds_per_single if full else 1
     ci_low = ("joint_compliance", "backlash", "time_latency", "depth_bias")
-    for name in EFFECT_NAMES:
-        scenario = _scenario_of((name,))
+
+    def singles(name: str, scenario: str, gen: np.random.Generator, tag: str = "") -> None:
         for level in ("low", "high"):
             if not full and level == "low" and name not in ci_low:
                 continue
-            places = [str(w) for w in rng.permutation(PLACES[name])]
+            places = [str(w) for w in gen.permutation(PLACES[name])]
             for r in range(reps):
-                s = int(rng.integers(1 << 31))
+                s = int(gen.integers(1 << 31))
                 where = places[r % len(places)]
                 e = HiddenEffect(name, where, LEVELS[level])
-                cases.append(HiddenCase(f"{name}@{where}-{level}-{r}", "single", level, scenario, (e,), s))
-    pairs = list(combinations(EFFECT_NAMES, 2))
+                cases.append(HiddenCase(f"{name}@{where}-{level}-{r}{tag}", "single", level, scenario, (e,), s))
+
+    def pair(a: str, b: str, gen: np.random.Generator, levels: tuple[str, ...]) -> None:
+        same_kind = ("joint_offset", "link_length")
+        for level in levels:
+            s = int(gen.integers(1 << 31))
+            wa, wb = _pick(a, gen), _pick(b, gen)
+            if wa == wb and a in same_kind and b in same_kind:
+                wb = next(w for w in PLACES[b] if w != wa)
+            effs = (HiddenEffect(a, wa, LEVELS[level]), HiddenEffect(b, wb, LEVELS[level]))
+            cases.append(HiddenCase(f"{a}@{wa}+{b}@{wb}-{level}", "pair", level, _scenario_of((a, b)), effs, s))
+
+    for name in FIRST_EFFECTS:
+        singles(name, _scenario_of((name,)), rng)
+    pairs = list(combinations(FIRST_EFFECTS, 2))
     if not full:
         pairs = [
             ("joint_compliance", "backlash"),
@@ -370,17 +405,23 @@ def suite(full: bool = True, seed: int = 0, seeds_per_single: int = 3, noise_con
             ("link_length", "depth_scale"),
             ("base_frame", "joint_compliance"),
         ]
-    same_kind = ("joint_offset", "link_length")
     for a, b in pairs:
-        for level in ("low", "high") if full else ("high",):
-            s = int(rng.integers(1 << 31))
-            wa, wb = _pick(a, rng), _pick(b, rng)
-            if wa == wb and a in same_kind and b in same_kind:
-                wb = next(w for w in PLACES[b] if w != wa)
-            effs = (HiddenEffect(a, wa, LEVELS[level]), HiddenEffect(b, wb, LEVELS[level]))
-            cases.append(HiddenCase(f"{a}@{wa}+{b}@{wb}-{level}", "pair", level, _scenario_of((a, b)), effs, s))
+        pair(a, b, rng, ("low", "high") if full else ("high",))
     n_noise = noise_controls if full else 4
+    noise = []
     for i in range(n_noise):
         scenario = "known" if i % 4 == 3 else "tracker"
-        cases.append(HiddenCase(f"noise-{scenario}-{i}", "noise", "none", scenario, (), int(rng.integers(1 << 31))))
-    return cases
+        noise.append(HiddenCase(f"noise-{scenario}-{i}", "noise", "none", scenario, (), int(rng.integers(1 << 31))))
+    # the cases added with robot_scale (second seed stream)
+    new = [n for n in EFFECT_NAMES if n not in FIRST_EFFECTS]
+    if full:
+        for name in new:
+            singles(name, "tracker", rng_new)
+        for name in BOTH_SCENARIOS:
+            singles(name, "known", rng_new, "-known")
+        for a, b in combinations(EFFECT_NAMES, 2):
+            if a in new or b in new:
+                pair(a, b, rng_new, ("low", "high"))
+    else:
+        singles("robot_scale", "known", rng_new, "-known")
+    return cases + noise
