@@ -11,7 +11,10 @@ sized for workpieces (metres, 2 mm voxels) and the same convergence tolerances a
   RANSAC with mutual filter, edge-length and distance checkers), seeded and single-threaded.
 * ``paper_baseline``: seed 004's "RANSAC + ICP": ``open3d_fpfh_ransac`` then Open3D point-to-plane ICP.
 
-Every function maps CURRENT onto TEMPLATE (returns ``T_match``).
+Every function maps CURRENT onto TEMPLATE (returns ``T_match``). The fine peers come in two forms,
+as vgr does: "cold" (both clouds raw on every call) and "warm" (:class:`WarmPeers`: the template
+preprocessed once, as vgr's stage prepares its template once at set-up; each call then prepares
+only the current capture).
 """
 
 from __future__ import annotations
@@ -81,6 +84,59 @@ def kiss_icp(current: np.ndarray, template: np.ndarray, T_init: np.ndarray) -> n
             kernel=MAX_CORRESPONDENCE_M / 3.0,
         )
     )
+
+
+class WarmPeers:
+    """The fine peers with the template preprocessed once (the peers' own preprocessing, kept)."""
+
+    def __init__(self, template: np.ndarray) -> None:
+        self.sg_target, self.sg_tree = small_gicp.preprocess_points(
+            template, downsampling_resolution=VOXEL_M, num_neighbors=10, num_threads=1
+        )
+        self.o3d_target = _o3d_cloud(template, VOXEL_M)
+        self.kiss_map = VoxelHashMap(voxel_size=MAX_CORRESPONDENCE_M, max_distance=1e6, max_points_per_voxel=20)
+        self.kiss_map.add_points(np.asarray(self.o3d_target.points))
+
+    def small_gicp_gicp(self, current: np.ndarray, T_init: np.ndarray) -> np.ndarray:
+        source, _ = small_gicp.preprocess_points(
+            current, downsampling_resolution=VOXEL_M, num_neighbors=10, num_threads=1
+        )
+        res = small_gicp.align(
+            self.sg_target,
+            source,
+            self.sg_tree,
+            init_T_target_source=T_init,
+            registration_type="GICP",
+            max_correspondence_distance=MAX_CORRESPONDENCE_M,
+            num_threads=1,
+            max_iterations=MAX_ITERATIONS,
+            rotation_epsilon=ROTATION_EPS_RAD,
+            translation_epsilon=TRANSLATION_EPS_M,
+        )
+        return np.array(res.T_target_source)
+
+    def open3d_point_to_plane(self, current: np.ndarray, T_init: np.ndarray) -> np.ndarray:
+        src = _o3d_cloud(current, VOXEL_M)
+        crit = reg.ICPConvergenceCriteria(relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=MAX_ITERATIONS)
+        res = reg.registration_icp(
+            src, self.o3d_target, MAX_CORRESPONDENCE_M, T_init, reg.TransformationEstimationPointToPlane(), crit
+        )
+        return np.array(res.transformation)
+
+    def kiss_icp(self, current: np.ndarray, T_init: np.ndarray) -> np.ndarray:
+        src = np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(current)).voxel_down_sample(VOXEL_M).points)
+        registration = Registration(
+            max_num_iterations=MAX_ITERATIONS, convergence_criterion=TRANSLATION_EPS_M, max_num_threads=1
+        )
+        return np.array(
+            registration.align_points_to_map(
+                points=src,
+                voxel_map=self.kiss_map,
+                initial_guess=T_init,
+                max_correspondance_distance=MAX_CORRESPONDENCE_M,
+                kernel=MAX_CORRESPONDENCE_M / 3.0,
+            )
+        )
 
 
 def open3d_fpfh_ransac(current: np.ndarray, template: np.ndarray, voxel: float, seed: int) -> np.ndarray:

@@ -67,11 +67,12 @@ def test_fine_icp_on_2mm_voxels_at_the_benchmark_resolution():
 )
 def test_every_backend_converges_or_says_it_failed(backend, limits):
     """Each backend from a 2 mm / 1.5 deg initial error: GICP (small_gicp, Open3D) to 0.06 mm /
-    0.035 deg; the others reach the neighbourhood (3 mm / 1.5 deg) or report ``failed``. Measured:
-    Open3D point-to-plane sometimes stops in a neighbouring minimum 1-2 mm away with 10 mm
-    correspondences on this stepped part, small_gicp's point-to-plane keeps a 0.05-0.2 mm bias on
-    2 mm voxels and occasionally diverges (then fails on fitness), KISS-ICP (point-to-point) keeps a
-    0.2-2 mm sampling bias. vgr's default backend is therefore small_gicp GICP."""
+    0.035 deg; the others reach the neighbourhood (3 mm / 1.5 deg) or refuse (``failed``, or
+    ``ambiguous``: the cluster-robust sigma of a pose stuck in a wrong minimum exceeds the limits,
+    0.3-0.8 mm measured). Measured: Open3D point-to-plane sometimes stops in a neighbouring minimum
+    1-2 mm away with 10 mm correspondences on this stepped part, small_gicp's point-to-plane keeps a
+    0.05-0.2 mm bias on 2 mm voxels and occasionally diverges (then fails on fitness), KISS-ICP
+    (point-to-point) keeps a 0.2-2 mm sampling bias. vgr's default backend is therefore small_gicp GICP."""
     cam = scenes.camera(1280, 960)
     errors, verdicts = [], []
     for tmpl, cur, T0 in _pairs(cam, 3, seed=4):
@@ -80,7 +81,7 @@ def test_every_backend_converges_or_says_it_failed(backend, limits):
         if res.verdict == "ok":
             errors.append(scenes.match_error(res.T_match, tmpl, cur, PART))
         else:
-            assert res.verdict == "failed" and res.reasons, res.summary()
+            assert res.verdict in ("failed", "ambiguous") and res.reasons and res.T_match is None, res.summary()
     if backend.endswith("_gicp"):
         assert verdicts == ["ok"] * 3
     errors = np.array(errors).reshape(-1, 2)

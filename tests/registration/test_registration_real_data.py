@@ -3,17 +3,22 @@ bun4 from PCL's tests, and the LiDAR pair of small_gicp's tests.
 
 Ground truth of the bunny pair
 ------------------------------
-PCL's ``T_bun4_bun0`` maps bun0 points into bun4's frame (``p_bun4 = T @ p_bun0``): applied to bun0
-it brings the median nearest-neighbour distance to bun4 down from 21.6 mm to 3.5 mm, its inverse
-makes it 38 mm. It is a rotation of exactly 0.6 rad (cos 0.6 = 0.825336) about y: the nominal
-turntable step, not a registration. The Stanford 3D Scanning Repository's own alignment of the same
-scans (bun.conf: bun045 at t = (-0.0520211, -0.000383981, -0.0109223), q = (0.00548449, -0.294635,
--0.0038555, 0.955586), applied as ``T_bun4_bun0 = inv([R(q)^T, t])``, the only one of the 8
-quaternion-order/direction conventions that fits: median NN distance 3.2 mm) differs from PCL's
-value by 0.78 deg / 1.4 mm at the bun0 centroid. Every ICP variant we tried converges 0.7-1.4 deg
-from PCL's value and within 0.5 deg of Stanford's, so the 1 mm / 0.5 deg check is made against
-Stanford's alignment, and PCL's value is checked at the precision it has (2 mm / 1.5 deg).
-Errors are measured at the bun0 centroid (translation) and as the rotation angle.
+PCL's ``T_bun4_bun0`` (its PPF test, checked there to 0.1 per matrix element) maps bun0 points into
+bun4's frame (``p_bun4 = T @ p_bun0``: median nearest-neighbour distance 21.6 mm -> 3.5 mm, its
+inverse gives 38 mm). It is a hand-rounded value, not a registration result: a rotation of
+0.600000 rad (cos = 0.825336, sin = 0.564642) about exactly the y axis, with t_y exactly 0. (It is
+not the turntable's nominal 45 deg step of "bun045" either.) The Stanford 3D Scanning Repository's
+own alignment of the same scans (bun.conf: bun045 at t = (-0.0520211, -0.000383981, -0.0109223),
+q = (0.00548449, -0.294635, -0.0038555, 0.955586), applied as ``T_bun4_bun0 = inv([R(q)^T, t])``,
+the only one of the 8 quaternion-order/direction conventions that fits) is a rotation of 0.5983 rad
+about (0.019, -0.9997, -0.013) and lies 1.39 mm / 0.78 deg from PCL's value at the bun0 centroid.
+The scans themselves decide between the two: bun0 mapped into bun4, point-to-plane RMS (bun4
+normals, pairs within 10 mm) PCL 1.77 mm, Stanford 1.36 mm, vgr 1.35 mm; median nearest-neighbour
+distance 3.49 / 3.23 / 3.20 mm. So vgr is held to the issue's 1 mm / 0.5 deg against Stanford's
+alignment; against PCL's value it must be as far as Stanford's alignment is, within that same
+1 mm / 0.5 deg (measured: vgr - PCL 1.55 mm / 1.01 deg, Stanford - PCL 1.39 mm / 0.78 deg), and fit
+the scans better than PCL's value does. Errors are measured at the bun0 centroid (translation) and
+as the rotation angle.
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ from pathlib import Path
 import numpy as np
 import open3d as o3d
 import pytest
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 from shared_data import SHARED
 
@@ -63,28 +69,44 @@ def _err(T: np.ndarray, T_ref: np.ndarray, at: np.ndarray) -> tuple[float, float
     return float(dt * 1e3), float(np.degrees(tf.angle_between(T[:3, :3], T_ref[:3, :3])))
 
 
-def test_pcl_ground_truth_maps_bun0_into_bun4(bunny):
-    from scipy.spatial import cKDTree
+def _fit_rms(T: np.ndarray, bun0: np.ndarray, bun4: np.ndarray) -> float:
+    """Point-to-plane RMS (m) of bun0 mapped by T into bun4 (bun4's 10-neighbour normals), pairs < 10 mm."""
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(bun4))
+    pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(10))
+    q = tf.transform_points(T, bun0)
+    d, i = cKDTree(bun4).query(q)
+    r = np.einsum("ij,ij->i", np.asarray(pcd.normals)[i], q - bun4[i])[d < 0.01]
+    return float(np.sqrt(np.mean(r**2)))
 
+
+def test_pcl_ground_truth_is_a_rounded_value_that_fits_the_scans_worse(bunny):
     bun0, bun4 = bunny
     tree = cKDTree(bun4)
     fwd = np.median(tree.query(tf.transform_points(T_BUN4_BUN0_PCL, bun0))[0])
     back = np.median(tree.query(tf.transform_points(tf.inv(T_BUN4_BUN0_PCL), bun0))[0])
     stanford = np.median(tree.query(tf.transform_points(T_BUN4_BUN0_STANFORD, bun0))[0])
-    assert fwd < 0.004 < 0.03 < back
-    assert stanford < fwd  # Stanford's full-resolution alignment fits the scans better
-    assert _err(T_BUN4_BUN0_PCL, T_BUN4_BUN0_STANFORD, bun0.mean(axis=0))[1] == pytest.approx(0.78, abs=0.01)
+    assert fwd < 0.004 < 0.03 < back  # the direction: p_bun4 = T @ p_bun0
+    # PCL's value: 0.6 rad about exactly y, t_y = 0 (6-digit rounding of cos/sin 0.6)
+    rotvec = Rotation.from_matrix(T_BUN4_BUN0_PCL[:3, :3]).as_rotvec()
+    assert np.linalg.norm(rotvec) == pytest.approx(0.6, abs=1e-6)
+    assert np.allclose(rotvec / np.linalg.norm(rotvec), [0.0, -1.0, 0.0], atol=1e-9)
+    assert T_BUN4_BUN0_PCL[1, 3] == 0.0
+    # Stanford's alignment fits the scans better, on both measures
+    assert stanford < fwd
+    assert _fit_rms(T_BUN4_BUN0_STANFORD, bun0, bun4) < _fit_rms(T_BUN4_BUN0_PCL, bun0, bun4) - 0.3e-3
+    assert _err(T_BUN4_BUN0_PCL, T_BUN4_BUN0_STANFORD, bun0.mean(axis=0)) == pytest.approx((1.39, 0.78), abs=0.01)
 
 
 BUNNY_PARAMS = GlobalParams(
     method="fpfh",
     # sparse scans (6 mm spacing): no downsampling, small_gicp's own 10-neighbour covariances
-    # (its 1-sigma is ~0.2 mm / 0.2 deg: limits of 0.5 mm / 0.5 deg instead of the workpiece defaults)
+    # (the calibrated 1-sigma reads ~0.5 mm / 0.6 deg on them, the error against Stanford's
+    # alignment is 0.21 mm / 0.43 deg: limits of 1 mm / 1 deg instead of the workpiece defaults)
     fine=FineParams(
         preprocess=PreprocessParams(voxel_size_m=0.0, normal_k=10, viewpoint=None),
         max_correspondence_m=0.02,
-        max_sigma_translation_m=0.5e-3,
-        max_sigma_rotation_rad=np.radians(0.5),
+        max_sigma_translation_m=1e-3,
+        max_sigma_rotation_rad=np.radians(1.0),
     ),
     coarse_voxel_m=0.0,
     fpfh=FpfhParams(runs=5),
@@ -94,7 +116,9 @@ BUNNY_PARAMS = GlobalParams(
 
 def test_bunny_recovered_from_20_arbitrary_poses(bunny):
     """bun0, moved by 20 random rigid motions (any rotation, +-20 cm), registered onto bun4 with no
-    initial guess: every run lands on the same pose, within 1 mm / 0.5 deg of Stanford's alignment."""
+    initial guess: every run lands on the same pose, within the issue's 1 mm / 0.5 deg of Stanford's
+    alignment; PCL's rounded value is as far from it as Stanford's alignment is (module docstring),
+    and the estimate fits the scans at least as well as Stanford's and better than PCL's."""
     bun0, bun4 = bunny
     rng = np.random.default_rng(2024)
     c0 = bun0.mean(axis=0)
@@ -109,9 +133,13 @@ def test_bunny_recovered_from_20_arbitrary_poses(bunny):
         errs_pcl.append(_err(T_bun4_bun0, T_BUN4_BUN0_PCL, c0))
     errs_stanford, errs_pcl = np.array(errs_stanford), np.array(errs_pcl)
     assert errs_stanford[:, 0].max() < 1.0 and errs_stanford[:, 1].max() < 0.5, errs_stanford.max(axis=0)
-    assert errs_pcl[:, 0].max() < 2.0 and errs_pcl[:, 1].max() < 1.5, errs_pcl.max(axis=0)
+    stanford_to_pcl = np.array(_err(T_BUN4_BUN0_STANFORD, T_BUN4_BUN0_PCL, c0))  # 1.39 mm, 0.78 deg
+    assert np.all(errs_pcl.max(axis=0) < stanford_to_pcl + np.array([1.0, 0.5])), errs_pcl.max(axis=0)
     spread = np.array([_err(T, estimates[0], c0) for T in estimates])
     assert spread.max(axis=0)[0] < 0.05 and spread.max(axis=0)[1] < 0.05  # one optimum, whatever the start
+    fit = _fit_rms(estimates[0], bun0, bun4)
+    assert fit <= _fit_rms(T_BUN4_BUN0_STANFORD, bun0, bun4) + 0.02e-3
+    assert fit < _fit_rms(T_BUN4_BUN0_PCL, bun0, bun4) - 0.3e-3
 
 
 @pytest.mark.parametrize("backend", BACKENDS)

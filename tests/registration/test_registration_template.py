@@ -3,9 +3,11 @@ stored template used by the matchers (with the photo pose kept)."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 
 import numpy as np
+import open3d as o3d
 import pytest
 import registration_scenes as scenes
 
@@ -49,6 +51,12 @@ def test_cloud_template_round_trip_and_use(tmp_path, captures):
     assert loaded.kind == "cloud" and loaded.name == "part_a" and loaded.metadata == {"by": "test"}
     assert np.array_equal(loaded.T_base_tcp_photo, t.T_base_tcp_photo)
     assert np.array_equal(loaded.points, t.points)
+    # full resolution: every cropped point is kept (the 2 mm voxel grid would keep ~1/5 of them)
+    assert loaded.points_resolution == "full" and doc["points_resolution"] == "full"
+    inside = roi.to_open3d().get_point_indices_within_bounding_box(o3d.utility.Vector3dVector(tmpl.points))
+    assert len(loaded.points) == len(inside)
+    assert len(loaded.prepared().points) < len(loaded.points) / 3
+    assert loaded.prepared() is loaded.prepared()  # prepared once, reused with its caches
     assert loaded.preprocess["roi"]["extent"] == pytest.approx([0.24, 0.2, 0.4])
     res = register_fine(cur.points, loaded.prepared(), None)
     assert res.verdict == "ok", res.summary()
@@ -116,3 +124,30 @@ def test_make_template_rejects_bad_photo_pose_and_cloud(captures):
         make_template(tmpl.points, np.full((4, 4), np.nan), name="a")
     with pytest.raises(InvalidInputError, match="empty"):
         make_template(np.zeros((0, 3)), T_PHOTO, name="a")
+
+
+def test_version_1_templates_still_load_and_match(tmp_path, captures):
+    """Templates written before schema 2 stored the points downsampled at their voxel size; they
+    load as such (points_resolution "voxel", used as they are) and still match."""
+    tmpl, cur = captures
+    t = make_template(tmpl.points, T_PHOTO, name="old", preprocess=PreprocessParams(voxel_size_m=0.001))
+    path = save_template(t, tmp_path)
+    # rewrite it the way vgr 1 did: 1 mm voxel points, schema_version 1, no points_resolution
+    down = np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(tmpl.points)).voxel_down_sample(0.001).points)
+    np.save(path / "points.npy", down, allow_pickle=False)
+    doc = json.loads((path / "template.json").read_text())
+    del doc["points_resolution"]
+    doc.update(
+        schema_version=1,
+        n_points=len(down),
+        points_sha256=hashlib.sha256((path / "points.npy").read_bytes()).hexdigest(),
+    )
+    (path / "template.json").write_text(json.dumps(doc))
+    old = load_template(path)
+    assert old.schema_version == 1 and old.points_resolution == "voxel"
+    prepared = old.prepared()
+    assert len(prepared.points) == len(down) and prepared.voxel_size_m == 0.001
+    res = register_fine(cur.points, prepared, None)
+    assert res.verdict == "ok", res.summary()
+    err = scenes.match_error(res.T_match, tmpl, cur, "feature_part")
+    assert err[0] < 0.1 and err[1] < 0.05

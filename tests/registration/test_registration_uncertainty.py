@@ -1,5 +1,6 @@
-"""The Hessian-based uncertainty: calibrated where its assumptions hold, a stated lower bound on
-simulated captures, and weak directions flagged (a flat plate slides in its plane)."""
+"""The pose uncertainty: the formula right where its model holds, the reported sigma calibrated on
+simulated captures (held-out from the captures the factor was measured on), and weak directions
+flagged (a flat plate slides in its plane)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,15 @@ import pytest
 import registration_scenes as scenes
 
 from engine import transforms as tf
-from plugins.solvers.registration import FineParams, PreprocessParams, prepare_cloud, register_fine
+from plugins.solvers.registration import (
+    FineParams,
+    GlobalParams,
+    PreprocessParams,
+    RoiBox,
+    prepare_cloud,
+    register_fine,
+    register_global,
+)
 
 
 def _error_z(res, T_true: np.ndarray) -> np.ndarray:
@@ -27,14 +36,23 @@ def _faceted_surface() -> np.ndarray:
     return np.vstack(faces) + np.array([0.0, 0.0, 0.5])
 
 
-def test_covariance_is_calibrated_when_its_model_holds():
-    """Monte Carlo: i.i.d. Gaussian noise along the normals of a noiseless template, point-to-plane ICP.
-    The errors divided by the reported sigmas must have unit RMS on every axis."""
+@pytest.mark.parametrize("cluster_factor", [0.0, 5.0])
+def test_covariance_is_calibrated_when_its_model_holds(cluster_factor):
+    """Monte Carlo: i.i.d. Gaussian noise along the normals of a noiseless template, point-to-plane ICP,
+    no calibration factor (sigma_scale 1). The errors divided by the reported sigmas must have unit
+    RMS on every axis, with the i.i.d. formula (cluster factor 0) and with the cluster-robust one
+    vgr reports by default (which must not overstate the error where residuals are independent)."""
     P = _faceted_surface()
     pp = PreprocessParams(voxel_size_m=0.0, normal_k=12)
     template = prepare_cloud(P, pp)
     normals = template.normals()
-    params = FineParams(backend="open3d_plane", preprocess=pp, max_correspondence_m=0.01)
+    params = FineParams(
+        backend="open3d_plane",
+        preprocess=pp,
+        max_correspondence_m=0.01,
+        sigma_scale=1.0,
+        sigma_cluster_factor=cluster_factor,
+    )
     rng = np.random.default_rng(7)
     T_c = tf.T_from_Rt(np.eye(3), P.mean(axis=0))
     z = []
@@ -48,35 +66,74 @@ def test_covariance_is_calibrated_when_its_model_holds():
     assert np.all((rms > 0.8) & (rms < 1.25)), rms
 
 
-def test_sigma_is_a_lower_bound_on_simulated_captures():
-    """feature_part, two 0.1 mm-noise captures at 1280 x 960, 2 mm voxels: the reported sigma
-    ignores correlated residuals and the different sampling of the two captures, so the actual
-    errors are larger, but by a bounded factor (RMS <= 4 sigma per axis, every error <= 12 sigma).
-    Measured: RMS 0.8-3.3 sigma per axis, worst 9.9 sigma (rotation about the camera's y)."""
+def _feature_part_errors(rng, n: int, near: bool) -> list[np.ndarray]:
     cam = scenes.camera(1280, 960)
-    rng = np.random.default_rng(3)
     z = []
-    for _ in range(10):
+    for _ in range(n):
         tmpl = scenes.capture("feature_part", scenes.nominal_pose("feature_part"), cam, rng)
-        pose = scenes.perturbed_pose("feature_part", rng, max_shift_m=0.02, max_tilt_deg=10, spin_deg=20)
+        if near:  # as guidance's later looks: 2 mm / 1 deg from the template pose
+            pose = scenes.perturbed_pose("feature_part", rng, max_shift_m=0.002, max_tilt_deg=1, spin_deg=1)
+        else:
+            pose = scenes.perturbed_pose("feature_part", rng, max_shift_m=0.02, max_tilt_deg=10, spin_deg=20)
         cur = scenes.capture("feature_part", pose, cam, rng)
         T_true = scenes.true_match(tmpl, cur)
         T0 = tf.exp_se3(np.r_[rng.normal(0, 1e-3, 3), rng.normal(0, np.radians(0.5), 3)]) @ T_true
         res = register_fine(cur.points, tmpl.points, T0, FineParams())
         assert res.verdict == "ok", res.summary()
         z.append(_error_z(res, T_true))
+    return z
+
+
+def _plate_errors(rng, n: int) -> list[np.ndarray]:
+    """planar_plate from above, captured template, global matcher (planar sweep + contour edges)."""
+    cam = scenes.camera(640, 480)
+    z = []
+    for _ in range(n):
+        tmpl = scenes.capture("planar_plate", scenes.nominal_pose("planar_plate"), cam, rng)
+        pose = scenes.perturbed_pose("planar_plate", rng, max_shift_m=0.02, max_tilt_deg=0, spin_deg=10)
+        cur = scenes.capture("planar_plate", pose, cam, rng)
+        res = register_global(cur.points, prepare_cloud(tmpl.points), GlobalParams(seed=1))
+        assert res.verdict == "ok" and res.method.endswith("+edges"), res.summary()
+        z.append(_error_z(res, scenes.true_match(tmpl, cur)))
+    return z
+
+
+@pytest.mark.parametrize("case", ["feature_part", "feature_part_near", "planar_plate"])
+def test_reported_sigma_is_calibrated_on_held_out_captures(case):
+    """The reported one-sigma (cluster-robust covariance x FineParams.sigma_scale = 2.0) against the
+    true error, per axis, on captures NOT used to measure the factor (it was measured on seeds 100
+    and 200 of the same scenarios; these are seeds 3-5). Before (i.i.d. formula, no factor) the
+    errors reached RMS 3.4 and 10.6 sigma. Measured here: RMS 0.2-1.3 per axis, worst 3.7 sigma.
+    Not covered: systematic model errors, e.g. a CAD template against a capture (below)."""
+    rng = np.random.default_rng({"feature_part": 3, "feature_part_near": 4, "planar_plate": 5}[case])
+    if case == "planar_plate":
+        z = _plate_errors(rng, 5)
+    else:
+        z = _feature_part_errors(rng, 10, near=case.endswith("near"))
     z = np.abs(np.array(z))
-    assert np.all(np.sqrt(np.mean(z**2, axis=0)) <= 4.0), np.sqrt(np.mean(z**2, axis=0))
-    assert z.max() <= 12.0, z.max()
+    rms = np.sqrt(np.mean(z**2, axis=0))
+    assert np.all(rms <= 1.5), rms
+    assert z.max() <= 5.0, z.max()
+
+
+#: a crop box smaller than the planes below: their borders are the crop's, not the part's, so the
+#: contour (edge term) says nothing and only the surface is left
+ROI_INSIDE_PLANE = PreprocessParams(roi=RoiBox.from_bounds([-0.08, -0.06, 0.45], [0.08, 0.06, 0.55]))
+
+
+def _plane_grid(spacing_m: float = 0.001) -> np.ndarray:
+    """A 20 x 15 cm plane 0.5 m from the camera, sampled on a regular grid as a camera samples it."""
+    u, v = np.meshgrid(np.arange(-0.1, 0.1, spacing_m), np.arange(-0.075, 0.075, spacing_m))
+    return np.column_stack([u.ravel(), v.ravel(), np.full(u.size, 0.5)])
 
 
 def test_flat_plate_is_flagged_weak_and_ambiguous():
-    """A plain 20 x 15 cm plane: it can slide in its plane and spin about its normal."""
+    """A plain plane larger than the crop box: it can slide in its plane and spin about its normal.
+    (Seen whole, a rectangle's contour fixes those: test_registration_edges.py.)"""
     rng = np.random.default_rng(0)
-    n = 20000
-    P = np.column_stack([rng.uniform(-0.1, 0.1, n), rng.uniform(-0.075, 0.075, n), np.full(n, 0.5)])
-    cur = P + np.column_stack([np.zeros((n, 2)), rng.normal(0.0, 1e-4, n)])
-    res = register_fine(cur, P, None, FineParams())
+    P = _plane_grid()
+    cur = P + np.column_stack([np.zeros((len(P), 2)), rng.normal(0.0, 1e-4, len(P))])
+    res = register_fine(cur, P, None, FineParams(preprocess=ROI_INSIDE_PLANE))
     assert res.verdict == "ambiguous", res.summary()
     assert res.T_match is None and not res.usable
     kinds = sorted(w.kind for w in res.weak_directions)
@@ -92,9 +149,8 @@ def test_flat_plate_is_flagged_weak_and_ambiguous():
 
 def test_noise_free_plane_is_still_ambiguous():
     """Zero residuals make every sigma 0; the geometry test must still refuse the plane."""
-    rng = np.random.default_rng(1)
-    P = np.column_stack([rng.uniform(-0.1, 0.1, (5000, 2)), np.full(5000, 0.5)])
-    res = register_fine(P, P, None, FineParams())
+    P = _plane_grid(0.002)
+    res = register_fine(P, P, None, FineParams(preprocess=ROI_INSIDE_PLANE))
     assert res.verdict == "ambiguous" and res.T_match is None, res.summary()
     assert "stiffness ratio" in res.reasons[0]
 

@@ -8,6 +8,7 @@ and never raises on bad input. See docs/registration.md.
 Public API::
 
     register_fine(current, template, T_init=None, params=FineParams())       -> RegistrationResult
+        (FineParams(edges=EdgeParams(mode="auto" | "on" | "off")): the contour term, edges.py)
     register_global(current, template, params=GlobalParams())                 -> RegistrationResult
     register_feature_frame(current, template_frame_or_cloud, FeatureFrameParams()) -> RegistrationResult
     fit_feature_frame(cloud, FeatureFrameParams(), reference=None)            -> FeatureFrame
@@ -16,6 +17,7 @@ Public API::
     save_template(template, directory) -> Path;  load_template(path) -> Template
 """
 
+from .edges import EdgeParams
 from .feature_frame import FeatureFrame, FeatureFrameParams, fit_feature_frame, register_feature_frame
 from .fine import FineParams, register_fine
 from .fine_backends import BACKENDS
@@ -29,6 +31,7 @@ from .validation import InvalidInputError
 
 __all__ = [
     "BACKENDS",
+    "EdgeParams",
     "FeatureFrame",
     "FeatureFrameParams",
     "FineParams",

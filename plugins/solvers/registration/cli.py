@@ -3,7 +3,8 @@
 ``make`` takes the capture from a recording (the ``--cloud-topic`` message number ``--index``,
 with the photo pose from ``--pose-topic``: what ``capture_at_pose`` publishes) or from a PLY/PCD/NPZ
 file (with ``--photo-pose``), crops the ROI, preprocesses, and writes ``DIR/NAME.vgrtpl`` (versioned
-format, see plugins.solvers.registration.template). ``show`` prints what a template holds.
+format, see plugins.solvers.registration.template: the cropped points are kept at full resolution).
+``show`` prints what a template holds.
 """
 
 from __future__ import annotations
@@ -117,6 +118,7 @@ def cmd_show(args: argparse.Namespace) -> int:
         "kind": tpl.kind,
         "schema_version": tpl.schema_version,
         "points": None if tpl.points is None else len(tpl.points),
+        "points_resolution": tpl.points_resolution if tpl.points is not None else None,
         "T_base_tcp_photo": np.round(tpl.T_base_tcp_photo, 6).tolist(),
         "preprocess": tpl.preprocess,
         "metadata": tpl.metadata,
@@ -140,7 +142,13 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg
     m.add_argument("--photo-pose", help="with --from-file: T_base_tcp as x,y,z,rx,ry,rz (m, rotation vector)")
     m.add_argument("--name", required=True)
     m.add_argument("--kind", choices=["cloud", "feature_frame"], default="cloud")
-    m.add_argument("--voxel-mm", type=float, default=1.0)
+    m.add_argument(
+        "--voxel-mm",
+        type=float,
+        default=2.0,
+        help="voxel the template is prepared at (default 2, the matcher stage's voxel_size_m); the points "
+        "are stored at full resolution whatever it is",
+    )
     m.add_argument("--roi-min", help="crop box corner x,y,z (m, camera frame)")
     m.add_argument("--roi-max")
     m.add_argument("--feature-kind", choices=["hole", "pin"], default="hole")

@@ -7,13 +7,13 @@ Findings (Open3D 0.20 with oneTBB, small_gicp 1.0.1, KISS-ICP 1.3.0; measured by
   global generator (``o3d.utility.random.seed``). Left multi-threaded, RANSAC's result depends on the
   number of TBB threads (same seed, 1 vs 2 threads: different poses for 3 of 3 seeds on the bunny),
   so vgr runs both with Open3D limited to ONE thread and reseeds before every call.
-* With ``num_threads=1`` (vgr's default) every matcher is bit-identical run after run and whatever
-  Open3D's process-wide thread limit is (1 or 2): Open3D normals/FPFH/voxel grid are per-point
-  computations, and the ICP backends then reduce in a fixed order.
-* With ``num_threads=2`` small_gicp's and Open3D's ICP reductions sum in a scheduling-dependent order:
-  results differ in the last bits (6e-16), also from run to run, and that can move the iteration at
-  which the solver stops, so poses differ up to the convergence tolerance (1e-8 measured). KISS-ICP
-  stayed identical. Bit-exact replay therefore requires ``num_threads=1``.
+* Every matcher is bit-identical run after run, at any ``num_threads`` and whatever Open3D's
+  process-wide thread limit is: Open3D normals/FPFH/voxel grid, small_gicp's k-d tree, normals and
+  covariances and all nearest-neighbour queries are per-point computations (``num_threads``
+  parallelises only those), and the ICP solvers iterate on ONE thread
+  (``fine_backends.SOLVER_THREADS``). Left to ``num_threads=2``, small_gicp's and Open3D's ICP
+  reductions summed in a scheduling-dependent order: last-bit differences, also from run to run,
+  that moved the stopping iteration and the pose by up to 1e-6 (m / rad).
 * small_gicp's multi-threaded voxel grid is documented as non-deterministic and is never used.
 
 ``o3d.utility.set_max_threads`` is process-wide: :func:`open3d_threads` changes it for the duration of

@@ -18,6 +18,7 @@ import numpy as np
 
 from engine import transforms as tf
 
+from .edges import EdgeParams, EdgeSet, away_from_edges, detect_edges, edge_icp, edge_pairs, edge_set
 from .fine_backends import BACKENDS, IcpSettings, run_backend
 from .preprocess import PreparedCloud, PreprocessParams, prepare_cloud
 from .result import RegistrationResult, failed
@@ -35,7 +36,9 @@ class FineParams:
 
     ``polish_voxel_m`` (None = off; 0 = every point): after converging on the downsampled clouds, run
     the backend once more on the clouds at this voxel size with correspondences up to
-    ``polish_correspondence_m`` (default: the main voxel size) and evaluate there. Downsampling to
+    ``polish_correspondence_m`` (default: the main voxel size; at most ``polish_max_iterations``, it
+    starts converged: 1-5 iterations measured, but small_gicp can oscillate below the noise on
+    240k points for all 64 at 0.3 s each) and evaluate there. Downsampling to
     2 mm averages the noise but also discards information: on a 0.1 mm-noise capture the rotation
     about the optical axis is only determined to ~0.01 deg at 2 mm, ~0.002 deg at full resolution.
 
@@ -47,6 +50,16 @@ class FineParams:
     ``ambiguous`` when a per-axis one-sigma at the part centre exceeds ``max_sigma_translation_m`` /
     ``max_sigma_rotation_rad``, or a stiffness ratio is below ``degenerate_ratio`` (a direction the
     geometry does not determine); weak directions (stiffness ratio < ``weak_ratio``) are always listed.
+
+    ``edges`` (see edges.py): with ``mode="auto"`` (default), when the template's surfaces leave a
+    weak direction (:func:`template_stiffness`; a plate seen from above), the estimate is refined
+    with the contour's edge points (point-to-plane + edge rows) instead of the polish and evaluated
+    with them; ``failed`` if less than ``edges.min_fitness`` of the current edge points then match
+    the template's.
+
+    Uncertainty (see uncertainty.py): cluster-robust over cubes of ``sigma_cluster_factor``
+    template resolutions (0 = the i.i.d. formula), every sigma times ``sigma_scale`` (2.0: measured
+    on simulated captures, checked on held-out ones). The ``max_sigma_*`` limits apply to these.
     """
 
     backend: str = "small_gicp_gicp"
@@ -69,7 +82,11 @@ class FineParams:
     polish_voxel_m: float | None = None
     polish_correspondence_m: float | None = None
     polish_backend: str | None = None
+    polish_max_iterations: int = 20
     recheck_iterations: int = 10
+    edges: EdgeParams = field(default_factory=EdgeParams)
+    sigma_cluster_factor: float = 5.0
+    sigma_scale: float = 2.0
 
     def distances(self, template: PreparedCloud) -> tuple[float, float, float]:
         """(max correspondence, inlier distance, truncation) in metres for this template."""
@@ -90,8 +107,14 @@ def evaluate(
     method: str,
     iterations: int = 0,
     converged: bool = True,
+    edges: tuple[EdgeSet, EdgeSet] | None = None,
 ) -> RegistrationResult:
-    """Score *T_match*, compute its uncertainty and decide the verdict (shared by every matcher)."""
+    """Score *T_match*, compute its uncertainty and decide the verdict (shared by every matcher).
+
+    ``edges`` (current, template edge sets): check the contour match and add the edge rows to the
+    Hessian. ``details["min_stiffness_ratio"]`` is set whenever the uncertainty could be computed
+    (also for a result that did not converge); ``details["failure"]`` says why a result failed
+    (``overlap``, ``edges``: the pose is refuted; ``convergence``)."""
     _, inlier_d, trunc = params.distances(template)
     sc = score_alignment(
         current.points,
@@ -121,21 +144,59 @@ def evaluate(
             f"only {sc.fitness:.0%} of the current points lie within {inlier_d * 1e3:.3g} mm of the "
             f"template (need {params.min_fitness:.0%}): wrong part, part missing or initial guess too far"
         )
+    if reasons:  # too little overlap: no uncertainty
+        res.verdict = "failed"
+        res.reasons = reasons
+        res.details["T_candidate"] = T_match
+        res.details["failure"] = "overlap"
+        return res
+    edge_rows, edge_floor, contour_refutes = None, 0.0, False
+    if edges is not None:
+        ep = params.edges
+        spacing = max(edges[0].spacing, edges[1].spacing)
+        pairs = edge_pairs(edges[0], edges[1], T_match, ep.inlier_factor * spacing, ep.min_cos)
+        res.details["edge_fitness"] = pairs.fitness
+        res.details["edge_points"] = len(edges[0])
+        if pairs.fitness < ep.min_fitness:
+            contour_refutes = True
+            reasons.append(
+                f"only {pairs.fitness:.0%} of the current contour ({len(edges[0])} edge points) lies within "
+                f"{ep.inlier_factor * spacing * 1e3:.2g} mm of the template's (need {ep.min_fitness:.0%}): "
+                "wrong pose (e.g. turned in the plane) or wrong part"
+            )
+        edge_rows = (pairs.p, pairs.q, pairs.m)
+        edge_floor = spacing**2 / 6.0  # each capture's contour is sampled to +-spacing / 2
+    src, tgt = sc.inlier_source, sc.inlier_target
+    if edges is not None:  # at the contour the edge rows replace the surface rows (edges.away_from_edges)
+        keep = away_from_edges(template, edges[1])[tgt]
+        src, tgt = src[keep], tgt[keep]
+    p = tf.transform_points(T_match, current.points[src])
+    q = template.points[tgt]
+    n = template.normals()[tgt]
+    unc = pose_uncertainty(
+        p,
+        q,
+        n,
+        weak_ratio=params.weak_ratio,
+        edges=edge_rows,
+        edge_variance_floor=edge_floor,
+        cluster_size_m=params.sigma_cluster_factor * template.resolution() if params.sigma_cluster_factor else None,
+        scale=params.sigma_scale,
+    )
+    res.details["min_stiffness_ratio"] = float(np.min(unc.eigen_ratios))
     if not converged:
-        reasons.append(
-            f"{method} did not converge: still moving after {params.max_iterations} iterations "
-            f"and {params.recheck_iterations} more"
+        ran = (
+            f"{params.edges.max_iterations} Gauss-Newton steps with edges"
+            if edges is not None
+            else f"{params.max_iterations} iterations and {params.recheck_iterations} more"
         )
+        reasons.append(f"{method} did not converge: still moving after {ran}")
     if reasons:
         res.verdict = "failed"
         res.reasons = reasons
         res.details["T_candidate"] = T_match
+        res.details["failure"] = "edges" if contour_refutes else "convergence"
         return res
-
-    p = tf.transform_points(T_match, current.points[sc.inlier_source])
-    q = template.points[sc.inlier_target]
-    n = template.normals()[sc.inlier_target]
-    unc = pose_uncertainty(p, q, n, weak_ratio=params.weak_ratio)
     res.details["stationarity_chi2"] = unc.stationarity_chi2
     res.hessian = unc.hessian
     res.covariance = unc.covariance
@@ -216,13 +277,22 @@ def refine(
         return failed(method, f"{params.backend} returned a non-rigid or non-finite transform")
     T = tf.T_from_Rt(tf.orthonormalize(T[:3, :3]), T[:3, 3])
     iterations, converged = out.iterations, out.converged
+    note = None
+    if _wants_edges(template, params):
+        # weak geometry: the surfaces do not fix the in-plane pose (GICP may still be creeping
+        # along it, so no recheck); the edge stage takes over from here
+        res, note = _refine_with_edges(current, template, T, params, method=method, iterations=iterations)
+        if res is not None:
+            return res
     if not converged:
         T, converged = _recheck(current, template, T, settings, params)
     if params.polish_voxel_m is not None:
         current = current.at_voxel(params.polish_voxel_m)
         template = template.at_voxel(params.polish_voxel_m)
         polish = replace(
-            settings, max_correspondence_m=params.polish_correspondence_m or max(current.voxel_size_m, 1e-3)
+            settings,
+            max_correspondence_m=params.polish_correspondence_m or max(current.voxel_size_m, 1e-3),
+            max_iterations=params.polish_max_iterations,
         )
         out = run_backend(params.polish_backend or params.backend, current, template, T, polish)
         if not (np.all(np.isfinite(out.T_match)) and tf.is_rotation(out.T_match[:3, :3], tol=1e-6)):
@@ -232,7 +302,103 @@ def refine(
         if not converged:
             T, converged = _recheck(current, template, T, polish, params)
         params = replace(params, max_correspondence_m=None, inlier_distance_m=None, truncation_m=None)
-    return evaluate(current, template, T, params, method=method, iterations=iterations, converged=converged)
+    res = evaluate(current, template, T, params, method=method, iterations=iterations, converged=converged)
+    if note:
+        res.reasons.append(note)
+    return res
+
+
+def template_stiffness(template: PreparedCloud, params: FineParams) -> float:
+    """Smallest stiffness ratio of the template's own surfaces AWAY FROM THEIR BORDERS (its
+    downsampled points against themselves, without those within 1.5 resolutions of an edge point;
+    cached). Below ``weak_ratio`` the surfaces alone leave a direction to the normals at the
+    contour, whose tilt is set by the sampling, not by the part (measured: planar_plate seen from
+    above 7e-5, the symmetric plate 7e-5, planar_plate seen 30 deg oblique 3e-3, feature_part 7e-3
+    to 9e-3, a CAD-model template of the plate 0.06). With the contour points kept the plate reads
+    5e-4: too close to the limit to tell it reliably. A template that reads >= 10 ``weak_ratio`` with
+    its borders is taken as it is (the border detection is skipped)."""
+    key = ("interior_stiffness", params.weak_ratio, params.edges)
+    if key not in template._cache:
+        P, N = template.points, template.normals()
+        whole = float(np.min(pose_uncertainty(P, P, N, weak_ratio=params.weak_ratio).eigen_ratios))
+        if whole >= 10.0 * params.weak_ratio:  # stiff even with its borders (feature_part: 0.03)
+            template._cache[key] = whole
+            return whole
+        edges = detect_edges(P, N, params.edges, viewpoint=template.viewpoint)
+        keep = np.ones(len(P), dtype=bool)
+        if len(edges):
+            d, _ = edges.tree().query(P, k=1)
+            keep = d > 1.5 * template.resolution()
+        ratio = 0.0
+        if np.count_nonzero(keep) >= 7:
+            unc = pose_uncertainty(P[keep], P[keep], N[keep], weak_ratio=params.weak_ratio)
+            ratio = float(np.min(unc.eigen_ratios))
+        template._cache[key] = ratio
+    return template._cache[key]
+
+
+def _wants_edges(template: PreparedCloud, params: FineParams) -> bool:
+    mode = params.edges.mode
+    if mode == "off":
+        return False
+    return mode == "on" or template_stiffness(template, params) < params.weak_ratio
+
+
+def _refine_with_edges(
+    current: PreparedCloud,
+    template: PreparedCloud,
+    T: np.ndarray,
+    params: FineParams,
+    *,
+    method: str,
+    iterations: int,
+) -> tuple[RegistrationResult | None, str | None]:
+    """The edge stage (see edges.py): refine *T* with the contours and evaluate with them (on the
+    polish clouds when a polish is asked for). (None, why) without enough edge points."""
+    ep = params.edges
+    cur_e, tmpl_e = edge_set(current, ep), edge_set(template, ep)
+    if min(len(cur_e), len(tmpl_e)) < ep.min_edges:
+        return None, (
+            f"weak geometry, but the edge term was not used: {len(cur_e)} current / {len(tmpl_e)} template "
+            f"edge points (need {ep.min_edges})"
+        )
+    # edge rows at full resolution throughout; surface rows first on the fine-voxel clouds with the
+    # fine stage's correspondence distance (wide basin), then on the evaluation clouds (the polish
+    # clouds when a polish is asked for) with the inlier distances
+    max_corr, _, _ = params.distances(template)
+    edge_gate = ep.inlier_factor * max(cur_e.spacing, tmpl_e.spacing)
+    phases = [(current, template, max_corr, max_corr)]
+    if params.polish_voxel_m is not None:  # evaluated where a polish would have been
+        current = current.at_voxel(params.polish_voxel_m)
+        template = template.at_voxel(params.polish_voxel_m)
+        params = replace(params, max_correspondence_m=None, inlier_distance_m=None, truncation_m=None)
+    _, inlier_d, _ = params.distances(template)
+    phases.append((current, template, inlier_d, edge_gate))
+    T2, it, converged = edge_icp(
+        phases,
+        cur_e,
+        tmpl_e,
+        T,
+        iterations=ep.max_iterations,
+        translation_eps_m=params.translation_eps_m,
+        rotation_eps_rad=params.rotation_eps_rad,
+        min_cos=ep.min_cos,
+        num_threads=params.num_threads,
+    )
+    if not (np.all(np.isfinite(T2)) and tf.is_rotation(T2[:3, :3], tol=1e-6)):
+        return failed(method, "edge refinement returned a non-rigid or non-finite transform"), None
+    T2 = tf.T_from_Rt(tf.orthonormalize(T2[:3, :3]), T2[:3, 3])
+    res = evaluate(
+        current,
+        template,
+        T2,
+        params,
+        method=method + "+edges",
+        iterations=max(iterations, 0) + it,
+        converged=converged,
+        edges=(cur_e, tmpl_e),
+    )
+    return res, None
 
 
 def register_fine(

@@ -89,6 +89,8 @@ class PreparedCloud:
     """A validated, downsampled cloud with lazily built per-backend state.
 
     ``points`` are the downsampled points (m). ``raw_count`` is the input size after validation/ROI.
+    ``full_points`` are the validated, cropped and filtered points before downsampling (what the
+    full-resolution polish and the edge term use); ``roi`` is the crop box they were cut with.
     """
 
     points: np.ndarray
@@ -98,6 +100,7 @@ class PreparedCloud:
     raw_count: int
     name: str = "cloud"
     full_points: np.ndarray | None = field(default=None, repr=False)
+    roi: RoiBox | None = None
     _cache: dict[Any, Any] = field(default_factory=dict, repr=False)
 
     def __len__(self) -> int:
@@ -120,6 +123,7 @@ class PreparedCloud:
                 raw_count=self.raw_count,
                 name=self.name,
                 full_points=src,
+                roi=self.roi,
             )
         return self._cache[key]
 
@@ -155,13 +159,17 @@ class PreparedCloud:
         return self._cache["kdtree"]
 
     def nearest(self, query: np.ndarray, num_threads: int = 1) -> tuple[np.ndarray, np.ndarray]:
-        """(distance, index) of the nearest point of this cloud for each query point (exact search:
-        small_gicp's k-d tree when it is built already, it is twice as fast as scipy's)."""
+        """(distance, index) of the nearest point of this cloud for each query point (exact search with
+        small_gicp's k-d tree, twice as fast as scipy's: the GICP one when it is built already, else
+        a bare tree built once; single-threaded build, so the same tree every time)."""
         if "small_gicp" in self._cache:
-            idx, sq = self._cache["small_gicp"][1].batch_nearest_neighbor_search(query, num_threads)
-            return np.sqrt(np.asarray(sq, dtype=float)), np.asarray(idx, dtype=np.int64)
-        d, i = self.kdtree().query(query, k=1, workers=num_threads)
-        return np.asarray(d, dtype=float), np.asarray(i, dtype=np.int64)
+            tree = self._cache["small_gicp"][1]
+        else:
+            if "nn_tree" not in self._cache:
+                self._cache["nn_tree"] = small_gicp.KdTree(small_gicp.PointCloud(self.points), 1)
+            tree = self._cache["nn_tree"]
+        idx, sq = tree.batch_nearest_neighbor_search(query, num_threads)
+        return np.sqrt(np.asarray(sq, dtype=float)), np.asarray(idx, dtype=np.int64)
 
     def spacing(self) -> float:
         """Median distance (m) from a point to its nearest neighbour: the cloud's resolution."""
@@ -214,7 +222,9 @@ def prepare_cloud(cloud: Any, params: PreprocessParams | None = None, *, name: s
         key = ("prepared", params.voxel_size_m, params.normal_k, params.viewpoint, params.min_points)
         if key not in cloud._cache:
             src = cloud.full_points if cloud.full_points is not None else cloud.points
-            cloud._cache[key] = prepare_cloud(src, params.coarser(params.voxel_size_m), name=name)
+            sub = prepare_cloud(src, params.coarser(params.voxel_size_m), name=name)
+            sub.roi = cloud.roi
+            cloud._cache[key] = sub
         return cloud._cache[key]
     if not (np.isfinite(params.voxel_size_m) and params.voxel_size_m >= 0):
         raise InvalidInputError(f"voxel size must be a finite number >= 0, got {params.voxel_size_m}")
@@ -229,7 +239,7 @@ def prepare_cloud(cloud: Any, params: PreprocessParams | None = None, *, name: s
     if params.outlier_k > 0 and pts.shape[0] > params.outlier_k:
         pts = remove_outliers(pts, params.outlier_k, params.outlier_std_ratio)
     raw_count = int(pts.shape[0])
-    check_spread(pts, name=name, min_extent_m=params.min_extent_m)
+    check_spread(pts[:: max(1, raw_count // 20000)], name=name, min_extent_m=params.min_extent_m)
     down = voxel_downsample(pts, params.voxel_size_m)
     min_after = max(params.min_points, params.normal_k)
     if down.shape[0] < min_after:
@@ -246,4 +256,5 @@ def prepare_cloud(cloud: Any, params: PreprocessParams | None = None, *, name: s
         raw_count=raw_count,
         name=name,
         full_points=pts,
+        roi=params.roi,
     )

@@ -24,10 +24,12 @@ Verdicts
 
 Uncertainty
 -----------
-``hessian`` is ``J^T J`` of the point-to-plane residuals (template normals) at the optimum, for the
-left perturbation ``T' = exp(xi) @ T_match`` with the twist ``xi = (v, w)`` expressed in the template
-frame at its origin. ``covariance = s^2 * inv(hessian)`` with ``s^2`` the residual variance of the
-inliers. ``sigma_translation_m`` / ``sigma_rotation_rad`` are the per-axis one-sigma values of the
+``hessian`` is ``J^T J`` of the point-to-plane residuals (template normals; plus the weighted
+contour edge rows where the edge term ran) at the optimum, for the left perturbation
+``T' = exp(xi) @ T_match`` with the twist ``xi = (v, w)`` expressed in the template frame at its
+origin. ``covariance`` is the cluster-robust covariance of that estimate times the calibration
+factor squared (see uncertainty.py: ``s^2 inv(hessian)`` understated the errors on simulated
+captures by up to 10x). ``sigma_translation_m`` / ``sigma_rotation_rad`` are the per-axis one-sigma values of the
 same twist moved to ``uncertainty_center`` (the centroid of the matched current points, in the
 template frame) so that they read "how well is the part located": translation of the part's centre
 along the template camera's x, y, z and rotation about those axes through the centre.

@@ -4,12 +4,20 @@ A template is either a preprocessed CLOUD (method A: ``P_template``) or a FEATUR
 ``Frame_template``), both in the camera frame at capture time, plus ``T_base_tcp_photo`` (the robot's
 TCP pose in its base frame when the template was captured; seed 000's ``T_photo_template``).
 
-On-disk format (schema version 1): a directory ``<name>.vgrtpl/`` holding
+On-disk format (schema version 2): a directory ``<name>.vgrtpl/`` holding
 
 * ``template.json`` -- ``schema`` ("vgr.template"), ``schema_version``, ``kind``, ``name``,
-  ``T_base_tcp_photo`` (4x4, m), ``preprocess`` (parameters used), ``frame`` (feature frame, or null),
-  ``points_file`` / ``points_sha256`` / ``n_points`` (cloud templates), ``metadata`` (free-form);
-* ``points.npy`` -- (N, 3) float64 points in metres (cloud templates only; loaded without pickle).
+  ``T_base_tcp_photo`` (4x4, m), ``preprocess`` (parameters used, with the ROI), ``frame`` (feature
+  frame, or null), ``points_file`` / ``points_sha256`` / ``n_points`` (cloud templates),
+  ``points_resolution`` ("full"), ``metadata`` (free-form);
+* ``points.npy`` -- (N, 3) float64 points in metres (cloud templates only; loaded without pickle):
+  the capture cropped to the ROI and outlier-filtered, at FULL resolution (not downsampled), so
+  that the fine stage can polish on every point and find the contour's edge points.
+
+Version 1 (vgr before this change) stored the points downsampled at ``preprocess.voxel_size_m``;
+such templates still load and match (``points_resolution`` reads "voxel"), but without the full-
+resolution polish and with coarser edges: remake them with ``vgr template make`` (``make templates``
+for the recipes' own).
 
 A loader refuses unknown schemas, newer versions, checksum mismatches and invalid poses.
 ``make_template`` is the library entry point behind ``vgr template make``.
@@ -32,13 +40,14 @@ from .preprocess import PreparedCloud, PreprocessParams, RoiBox, prepare_cloud
 from .validation import InvalidInputError
 
 SCHEMA = "vgr.template"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 SUFFIX = ".vgrtpl"
 
 
 @dataclass
 class Template:
-    """A stored template (see module docstring). ``points`` for ``kind == "cloud"``, ``frame`` for
+    """A stored template (see module docstring). ``points`` for ``kind == "cloud"`` (full resolution
+    unless ``points_resolution == "voxel"``: a version-1 template), ``frame`` for
     ``kind == "feature_frame"``."""
 
     kind: Literal["cloud", "feature_frame"]
@@ -49,20 +58,35 @@ class Template:
     frame: FeatureFrame | None = None
     metadata: dict[str, Any] = field(default_factory=dict)
     schema_version: int = SCHEMA_VERSION
+    points_resolution: Literal["full", "voxel"] = "full"
+    _prepared: PreparedCloud | None = field(default=None, init=False, repr=False, compare=False)
 
     def prepared(self) -> PreparedCloud:
-        """The stored cloud as a :class:`PreparedCloud` (no re-downsampling), for the matchers."""
+        """The stored cloud as a :class:`PreparedCloud` for the matchers, built once per Template and
+        then reused (its voxel grids, normals, k-d trees, edge points stay cached on it): downsampled
+        at the template's voxel size, with the full-resolution points and the ROI kept for the
+        polish and the edge term. A version-1 template (points already downsampled) is used as is."""
         if self.points is None:
             raise ValueError(f"template {self.name!r} is a {self.kind} template and holds no cloud")
-        pp = self.preprocess
-        return PreparedCloud(
-            points=self.points,
-            voxel_size_m=float(pp["voxel_size_m"]),
-            normal_k=int(pp["normal_k"]),
-            viewpoint=None if pp.get("viewpoint") is None else tuple(pp["viewpoint"]),
-            raw_count=int(self.points.shape[0]),
-            name="template",
-        )
+        if self._prepared is None:
+            pp = self.preprocess
+            viewpoint = None if pp.get("viewpoint") is None else tuple(pp["viewpoint"])
+            voxel, k = float(pp["voxel_size_m"]), int(pp["normal_k"])
+            if self.points_resolution == "voxel":
+                self._prepared = PreparedCloud(
+                    points=self.points,
+                    voxel_size_m=voxel,
+                    normal_k=k,
+                    viewpoint=viewpoint,
+                    raw_count=int(self.points.shape[0]),
+                    name="template",
+                    roi=roi_from_dict(pp.get("roi")),
+                )
+            else:
+                params = PreprocessParams(voxel_size_m=voxel, normal_k=k, viewpoint=viewpoint, min_points=1)
+                self._prepared = prepare_cloud(self.points, params, name="template")
+                self._prepared.roi = roi_from_dict(pp.get("roi"))
+        return self._prepared
 
 
 def _params_dict(p: PreprocessParams) -> dict[str, Any]:
@@ -81,8 +105,9 @@ def make_template(
     feature_params: FeatureFrameParams | None = None,
     metadata: dict[str, Any] | None = None,
 ) -> Template:
-    """Build a template from a capture: crop the ROI, remove outliers, downsample (cloud), or fit the
-    feature frame (feature_frame). Raises InvalidInputError with a reason on bad input."""
+    """Build a template from a capture: crop the ROI and remove outliers, check that it survives the
+    downsampling (cloud: the full-resolution points are stored), or fit the feature frame
+    (feature_frame). Raises InvalidInputError with a reason on bad input."""
     if not name or any(c in name for c in "/\\\0"):
         raise InvalidInputError(f"template name {name!r} must be non-empty without path separators")
     try:
@@ -92,7 +117,8 @@ def make_template(
     if kind == "cloud":
         pp = preprocess or PreprocessParams()
         prep = prepare_cloud(cloud, pp, name="template")
-        return Template(kind, name, T_photo, _params_dict(pp), points=prep.points, metadata=dict(metadata or {}))
+        full = prep.full_points if prep.full_points is not None else prep.points
+        return Template(kind, name, T_photo, _params_dict(pp), points=full, metadata=dict(metadata or {}))
     if kind == "feature_frame":
         fp = feature_params or FeatureFrameParams()
         if preprocess is not None:
@@ -125,6 +151,7 @@ def save_template(template: Template, directory: str | Path) -> Path:
             points_file="points.npy",
             points_sha256=hashlib.sha256((path / "points.npy").read_bytes()).hexdigest(),
             n_points=int(pts.shape[0]),
+            points_resolution=template.points_resolution,
         )
     (path / "template.json").write_text(json.dumps(doc, indent=2, sort_keys=True) + "\n")
     return path
@@ -152,6 +179,9 @@ def load_template(path: str | Path) -> Template:
     except (KeyError, ValueError) as exc:
         raise InvalidInputError(f"{meta_file}: bad T_base_tcp_photo ({exc})") from exc
     kind = doc.get("kind")
+    resolution = "voxel" if version < 2 else doc.get("points_resolution", "full")
+    if resolution not in ("full", "voxel"):
+        raise InvalidInputError(f"{meta_file}: points_resolution {resolution!r} is not 'full' or 'voxel'")
     points = frame = None
     if kind == "cloud":
         pfile = path / str(doc.get("points_file", "points.npy"))
@@ -178,6 +208,7 @@ def load_template(path: str | Path) -> Template:
         frame=frame,
         metadata=dict(doc.get("metadata") or {}),
         schema_version=version,
+        points_resolution=resolution,
     )
 
 
