@@ -23,7 +23,7 @@ def write_report(result: GapResult, features: list[Feature], directory: str | Pa
         if it.added is None:
             continue
         n += 1
-        p = plot_effect(result, it, out / f"gap_effect_{n}_{it.added.name}_{it.added.where}.png")
+        p = plot_effect(result, it, out / f"gap_effect_{n}_{it.added.file_stem}.png")
         if p is not None:
             files[f"effect_{n}"] = str(p)
     for it in result.iterations:

@@ -16,6 +16,9 @@ residuals:
   (nonlinear least squares), returning the effect's parameters with their standard deviations;
   :meth:`GapProblem.fitted_effects` gives every added effect at the current (final) joint refit;
   :meth:`GapProblem.remove_effect` takes one out again and refits (the loop's backward check).
+  A *tie term* (candidates the data cannot tell apart, added as one term) is added as one of them,
+  the representative, with ``tied_with`` naming the others: the problem keeps that annotation (the
+  model file writes it) and :class:`FittedEffect` carries it.
 
 Effect plugins return :class:`EffectFamily` objects from ``vgr_model_effects``; a family turns a
 problem into its candidates (one per place the effect can act: ``joint2``, ``camera`` ...), or
@@ -125,9 +128,23 @@ class EffectFamily(Protocol):
     def candidates(self, problem: GapProblem) -> list[Candidate]: ...
 
 
+TIE_SEP = "|"
+
+
+def tie_label(labels: list[str] | tuple[str, ...]) -> str:
+    """The label of a tie term: its members' ``name@where`` labels, sorted, joined by ``|``."""
+    return TIE_SEP.join(sorted(labels))
+
+
 @dataclass
 class FittedEffect:
-    """An effect added to the model, with its refitted parameters (SI) and one-sigma uncertainties."""
+    """An effect added to the model, with its refitted parameters (SI) and one-sigma uncertainties.
+
+    A *tie term* (``tied_with`` not empty) is the representative effect of a group of candidates the
+    data cannot tell apart: ``name`` / ``where`` / ``params`` / ``config`` are the representative's
+    (what the model evaluates), but the term is not named as that effect: :attr:`label`,
+    :attr:`tie_name` and :attr:`tie_where` name the whole group.
+    """
 
     name: str
     where: str
@@ -135,6 +152,42 @@ class FittedEffect:
     param_std: dict[str, float]
     units: dict[str, str]
     config: dict[str, Any] = field(default_factory=dict)  # how to rebuild it (model-file form)
+    tied_with: tuple[str, ...] = ()  # tie term: the other members' labels (name@where)
+
+    @property
+    def tied(self) -> bool:
+        return bool(self.tied_with)
+
+    @property
+    def representative(self) -> str:
+        """``name@where`` of the effect the model evaluates (for a tie term: one of the group)."""
+        return f"{self.name}@{self.where}"
+
+    @property
+    def members(self) -> list[str]:
+        """The labels the term stands for, sorted (one for a named effect)."""
+        return sorted({self.representative, *self.tied_with})
+
+    @property
+    def label(self) -> str:
+        """``name@where`` of a named effect; ``a@x|b@y`` of a tie term (never one member's name alone)."""
+        return tie_label(self.members) if self.tied else self.representative
+
+    @property
+    def tie_name(self) -> str:
+        """``name`` as reported: a tie term's member names joined by ``|`` (in the order of :attr:`members`)."""
+        return TIE_SEP.join(m.split("@", 1)[0] for m in self.members) if self.tied else self.name
+
+    @property
+    def tie_where(self) -> str:
+        return TIE_SEP.join(m.split("@", 1)[1] for m in self.members) if self.tied else self.where
+
+    @property
+    def file_stem(self) -> str:
+        """A file-name-safe form of :attr:`label` (``backlash_joint3``, ``tie_a_x_or_b_y``)."""
+        if not self.tied:
+            return f"{self.name}_{self.where}"
+        return "tie_" + "_or_".join(m.replace("@", "_") for m in self.members)
 
 
 @runtime_checkable
@@ -149,7 +202,7 @@ class GapProblem(Protocol):
 
     def features(self) -> list[Feature]: ...
 
-    def add_effect(self, candidate: Candidate, values: F64) -> FittedEffect: ...
+    def add_effect(self, candidate: Candidate, values: F64, *, tied_with: tuple[str, ...] = ()) -> FittedEffect: ...
 
     def fitted_effects(self) -> list[FittedEffect]: ...
 

@@ -4,8 +4,9 @@
   model against the unit normal the noise specification predicts, and the 3-D error norms;
 * ``gap_rounds.png``: held-out RMS after each round against the noise floor, and the RMS per bin of
   the features where the gap concentrated most (first model vs augmented model);
-* ``gap_effect_<n>_<name>_<where>.png``: for each added effect, the calibrated residual expressed in
-  the effect's own quantity (e.g. joint error in urad) against its regressor (gravity torque, approach
+* ``gap_effect_<n>_<name>_<where>.png`` (a tie term: ``gap_effect_<n>_tie_<a>_<x>_or_<b>_<y>.png``,
+  drawn as its representative): for each added effect, the calibrated residual expressed in the
+  effect's own quantity (e.g. joint error in urad) against its regressor (gravity torque, approach
   direction, time, speed, range ...), before and after adding it, with the part of the fitted effect
   the calibration cannot absorb (the part the residuals can show; :class:`EffectSeries`).
 """
@@ -78,7 +79,9 @@ def plot_rounds(result: GapResult, features: list[Feature], path: Path) -> Path:
     fig, axes = plt.subplots(1, 1 + len(top), figsize=(4 * (1 + len(top)), 3.6))
     axes = np.atleast_1d(axes)
     ax = axes[0]
-    labels = ["as given"] + [f"+{it.added.name}@{it.added.where}" for it in result.iterations if it.added]
+    labels = ["as given"] + [
+        f"+{it.added.label}" + (" (tie)" if it.added.tied else "") for it in result.iterations if it.added
+    ]
     vals = [it.comparison.cv_rms * s for it in result.iterations][: len(labels)]
     ax.bar(range(len(vals)), vals, color="tab:blue")
     ax.axhline(first.comparison.noise_rms * s, color="k", ls="--", label="noise floor")
@@ -199,7 +202,13 @@ def plot_effect(result: GapResult, it: Iteration, path: Path) -> Path | None:
     ax.axhline(0, color="grey", lw=0.5)
     ax.set_xlabel(es.x_label)
     ax.set_ylabel(f"{es.y_label} ({es.unit})")
-    ax.set_title(f"{it.added.name}@{it.added.where}: calibrated residual against its regressor", fontsize=10)
+    title = f"{it.added.label}: calibrated residual against its regressor"
+    if it.added.tied:  # a tie term: the group, evaluated as its representative, is not a named effect
+        title = (
+            f"tie term {it.added.label}: calibrated residual against its regressor\n"
+            f"(not a named effect; evaluated as {it.added.representative})"
+        )
+    ax.set_title(title, fontsize=9 if it.added.tied else 10)
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=100)

@@ -2,19 +2,28 @@
 
 JSON (``format: vgr.gap_report/1``), lengths in the problem's report unit (mm for robot data):
 
-* ``verdict`` (``explained`` | ``unexplained`` | ``no_gap``) and ``reason``;
-* ``effects_added``: ``[{name, where, params, param_std, units, cv_rms_gain_mm, delta_bic,
+* ``verdict`` (``explained`` | ``explained_up_to_tie`` | ``unexplained`` | ``no_gap``) and ``reason``;
+* ``effects_added``: ``[{name, where, tied, params, param_std, units, cv_rms_gain_mm, delta_bic,
   p_value_corrected, independent_fraction, iteration, config}]`` (params SI, with their units):
   ``params`` / ``param_std`` / ``config`` are those of the *final* joint refit of every effect with
-  the baseline (the augmented model file has the same); the scores are from the round that added it;
+  the baseline (the augmented model file has the same); the scores are from the round that added it.
+  A *tie term* (``tied: true``) is named after its whole group, never after one member:
+  ``name`` ``a|b``, ``where`` ``x|y``, ``label`` ``a@x|b@y``, ``members``; ``representative`` is the
+  member the model evaluates (its ``params`` / ``config``; the model file stores it with
+  ``tied_with``), ``note`` and ``advice`` say what it means and what would separate the members;
 * ``rms_before_mm`` / ``rms_after_mm``: held-out (k-fold cross-validated) 3-D RMS of the model as given
   (after its baseline calibration) and of the final augmented model; ``noise_floor_mm``: the 3-D RMS
   the stated noise alone gives; ``noise_source``: ``given`` | ``data column sigma_mm`` | ``estimated``;
 * ``before`` / ``after``: in-sample RMS, max, per axis, chi-square test;
-* ``confounded``: when the last round ended with tied candidates (they explain the same part of the
+* ``confounded``: every round that ended with tied candidates (they explain the same part of the
   gap, e.g. a range scale and a uniform robot scale once the frame is fitted), ``[{effects,
-  delta_bic, tied_with, advice}]``: none of them is named (verdict ``unexplained``), ``tied_with`` maps
-  each to the others, ``advice`` says what data would separate them; empty otherwise;
+  delta_bic, tied_with, advice, iteration, added, term, representative}]``: none of them is named;
+  ``added`` says whether the group joined the model as the tie term ``term`` (else the loop stopped
+  there: ``max_effects``); ``tied_with`` maps each to the others, ``advice`` says what data would
+  separate them; empty when no round was tied;
+  A tie term of an earlier round that later effects resolved (one member decisive over the others
+  given them) is replaced by that member, named, with ``resolved_tie`` (the tie's label); its
+  ``confounded`` entry says ``resolved_as``;
 * ``effects_removed``: effects named in an earlier round and dropped by the backward check once the
   later ones explained them (``delta_bic_given_others < 0``);
 * ``iterations``: per round the comparison, where the gap concentrates, every candidate's scores and
@@ -33,6 +42,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from .interfaces import FittedEffect
 from .localise import FeatureGap
 from .selection import CandidateScore
 from .workflow import Comparison, GapResult
@@ -120,23 +130,31 @@ def report_dict(result: GapResult) -> dict[str, Any]:
     sel = result.config.selection
     first = result.iterations[0]
     round_of = {id(it.added_score): it.index for it in result.iterations if it.added_score is not None}
+    tie_round = {it.added.label: it.index for it in result.iterations if it.added is not None and it.added.tied}
+    resolved_round = {named: tie_round.get(tie) for tie, named in result.resolved_ties.items()}
     effects = []
     for fe, sc in result.effects:  # values and sigmas of the final joint refit
-        effects.append(
-            {
-                "name": fe.name,
-                "where": fe.where,
-                "params": fe.params,
-                "param_std": fe.param_std,
-                "units": fe.units,
-                f"cv_rms_gain_{u}": sc.cv_gain * s,
-                "delta_bic": sc.delta_bic,
-                "p_value_corrected": sc.p_adjusted,
-                "independent_fraction": sc.independent_fraction,
-                "iteration": round_of.get(id(sc)),
-                "config": fe.config,
-            }
-        )
+        e: dict[str, Any] = {"name": fe.tie_name, "where": fe.tie_where, "tied": fe.tied}
+        if fe.tied:
+            e |= {"label": fe.label, "members": fe.members, "representative": fe.representative}
+        e |= {
+            "params": fe.params,
+            "param_std": fe.param_std,
+            "units": fe.units,
+            f"cv_rms_gain_{u}": sc.cv_gain * s,
+            "delta_bic": sc.delta_bic,
+            "p_value_corrected": sc.p_adjusted,
+            "independent_fraction": sc.independent_fraction,
+            "iteration": round_of.get(id(sc), resolved_round.get(fe.label)),
+            "config": fe.config,
+        }
+        if fe.label in resolved_round:  # named once a later round resolved the tie it was part of
+            e["resolved_tie"] = next(t for t, n in result.resolved_ties.items() if n == fe.label)
+        if fe.tied:
+            it = result.iterations[round_of[id(sc)]] if id(sc) in round_of else None
+            e["note"] = tie_note(fe)
+            e["advice"] = (list(it.decision.advice) if it is not None else []) or ["collect data that separates them"]
+        effects.append(e)
     return {
         "format": REPORT_FORMAT,
         "verdict": result.verdict,
@@ -187,8 +205,11 @@ def report_dict(result: GapResult) -> dict[str, Any]:
                     "contenders": [{"label": lab, "delta_bic_given": g} for lab, g in it.decision.contenders],
                     "tied": it.decision.tied,
                     "advice": it.decision.advice,
+                    "representative": it.decision.representative.label if it.decision.representative else None,
                 },
-                "added": None if it.added is None else f"{it.added.name}@{it.added.where}",
+                "added": None if it.added is None else it.added.label,
+                "added_tied": bool(it.added is not None and it.added.tied),
+                "resolved": [{"tie": t, "named": n, "reason": why} for t, n, why in it.resolved],
                 "removed": [lab for lab, _ in it.removed],
                 "model_file": it.model_file,
             }
@@ -198,18 +219,36 @@ def report_dict(result: GapResult) -> dict[str, Any]:
     }
 
 
+def tie_note(fe: FittedEffect) -> str:
+    """What a tie term means, for the report and the terminal."""
+    return (
+        f"tie term, not a named effect: the data cannot tell {' and '.join(fe.members)} apart (they predict the "
+        f"same data within the decision margin); the model evaluates it as {fe.representative}, which does not "
+        "say that this one is the cause"
+    )
+
+
 def _confounded(result: GapResult) -> list[dict[str, Any]]:
-    d = result.iterations[-1].decision
-    if d.status != "ambiguous" or not d.tied:
-        return []
-    return [
-        {
-            "effects": list(d.tied),
-            "delta_bic": dict(d.tied_delta_bic),
-            "tied_with": {lab: [o for o in d.tied if o != lab] for lab in d.tied},
-            "advice": list(d.advice) or ["collect data that separates them"],
-        }
-    ]
+    out = []
+    resolved = result.resolved_ties
+    for it, group in result.tie_groups:
+        d = it.decision
+        added = it.added is not None and it.added.tied
+        term = it.added.label if added and it.added is not None else None
+        out.append(
+            {
+                "effects": group,
+                "delta_bic": dict(d.tied_delta_bic),
+                "tied_with": {lab: [o for o in group if o != lab] for lab in group},
+                "advice": list(d.advice) or ["collect data that separates them"],
+                "iteration": it.index,
+                "added": added,
+                "term": term,
+                "representative": it.added.representative if added and it.added is not None else None,
+                "resolved_as": resolved.get(term) if term else None,
+            }
+        )
+    return out
 
 
 def _rank(c: CandidateScore) -> tuple:
@@ -251,7 +290,9 @@ def _fmt_params(params: dict[str, float], std: dict[str, float], units: dict[str
 def render(result: GapResult, console: Console, *, top: int = 8) -> None:
     """Print the report: verdict, before/after table, localisation, candidates, effects, files."""
     s, u = result.report_scale, result.report_unit
-    colour = {"explained": "green", "no_gap": "green", "unexplained": "yellow"}[result.verdict]
+    colour = {"explained": "green", "no_gap": "green", "explained_up_to_tie": "cyan", "unexplained": "yellow"}[
+        result.verdict
+    ]
     console.print(f"[bold {colour}]{result.verdict}[/]: {escape(result.reason)}", soft_wrap=True)
     b, a = result.before, result.after
     t = Table(title=f"gap before / after ({u})", title_justify="left")
@@ -284,9 +325,15 @@ def render(result: GapResult, console: Console, *, top: int = 8) -> None:
         for col in ("effect", "k", "indep.", "dBIC", "p corr.", f"CV gain {u}", "verdict"):
             t.add_column(col, justify="left" if col in ("effect", "verdict") else "right")
         ranked = [c for c in sorted(it.scores, key=_rank) if c.testable][:top]
+        tied = set(it.decision.tied) if it.decision.status == "ambiguous" else set()
         for c in ranked:
-            mark = "[green]named[/]" if it.decision.winner is c and it.added else ("eligible" if c.eligible else "")
-            if not c.eligible and c.reasons:
+            if it.added is not None and it.added_score is c and not it.added.tied:
+                mark = "[green]named[/]"
+            elif c.label in tied:
+                mark = "[cyan]tied[/] (in the tie term)" if it.added is not None else "[yellow]tied[/]"
+            else:
+                mark = "eligible" if c.eligible else ""
+            if not c.eligible and c.reasons and c.label not in tied:
                 mark = escape(c.reasons[0])
             t.add_row(
                 c.label,
@@ -301,20 +348,38 @@ def render(result: GapResult, console: Console, *, top: int = 8) -> None:
         console.print(f"  {escape(it.decision.reason)}", soft_wrap=True)
         for lab, g in it.removed:
             console.print(f"  removed again: {escape(lab)} (the later effects explain it: dBIC given them {g:.1f})")
-    if result.confounded:
-        d = result.iterations[-1].decision
+        for tie, lab, why in it.resolved:
+            console.print(f"  tie resolved: {escape(tie)} -> {escape(lab)} named ({escape(why)})", soft_wrap=True)
+    resolved = result.resolved_ties
+    for it, group in result.tie_groups:
+        added = it.added is not None and it.added.tied
+        what = (
+            f"added as one tie term {it.added.label} (evaluated as {it.added.representative})"
+            if added and it.added is not None
+            else "not added (at most max-effects terms)"
+        )
+        if added and it.added is not None and it.added.label in resolved:
+            console.print(
+                f"[bold green]tie resolved:[/] {escape(' = '.join(group))} were tied in round {it.index + 1}; "
+                f"{escape(resolved[it.added.label])} is named, decisive once the later effects were in",
+                soft_wrap=True,
+            )
+            continue
         console.print(
-            f"[bold yellow]tied, none named:[/] {escape(' = '.join(d.tied))} explain the same part of the gap",
+            f"[bold yellow]tied, none named:[/] {escape(' = '.join(group))} explain the same part of the gap; "
+            f"{escape(what)}",
             soft_wrap=True,
         )
-        for a in d.advice or ["collect data that separates them"]:
+        for a in it.decision.advice or ["collect data that separates them"]:
             console.print(f"  to separate them: {escape(a)}", soft_wrap=True)
     if result.effects:
         t = Table(title="effects added (SI values shown in urad, mm, ms, ppm)", title_justify="left")
         for col in ("effect", "parameters ± 1 sigma", f"held-out gain {u}"):
             t.add_column(col)
         for fe, sc in result.effects:
-            t.add_row(f"{fe.name}@{fe.where}", _fmt_params(fe.params, fe.param_std, fe.units), f"{sc.cv_gain * s:.4f}")
+            label = f"{fe.label}\n(tie, not named; evaluated as {fe.representative})" if fe.tied else fe.label
+            params = _fmt_params(fe.params, fe.param_std, fe.units)
+            t.add_row(escape(label), params, f"{sc.cv_gain * s:.4f}")
         console.print(t)
     absorbed = [c.label for c in first.scores if c.absorbed]
     if absorbed:

@@ -33,7 +33,11 @@ are reported as *tied* (:attr:`Decision.tied`), with what would separate them wh
 say (a candidate's optional ``tie_advice``: rival effect name -> advice; else "collect data that
 separates them"). An exact tie -- two effects whose columns span the same direction after the
 calibration, e.g. a range scale and a uniform robot scale once the frame is fitted -- always ends
-here: each gains ``-k ln M`` on top of the other.
+here: each gains ``-k ln M`` on top of the other. The loop then adds the tied group as *one* term
+(they predict the same data to within the margin), evaluated as its :attr:`Decision.representative`
+(:func:`representative`: the eligible member with the largest dBIC; members within ``1e-6`` of it
+-- an exact tie -- are ordered by parameter count, then label, so the choice does not depend on
+rounding) and named after the whole group, never after the representative alone.
 
 :func:`gain_given_others` is the backward check of the loop: the BIC an added effect still gains
 given every other effect of the current model.
@@ -126,6 +130,8 @@ class Decision:
     tied: list[str] = field(default_factory=list)
     tied_delta_bic: dict[str, float] = field(default_factory=dict)
     advice: list[str] = field(default_factory=list)
+    # ambiguous: the member the tie term is evaluated as when the loop adds the group (see representative)
+    representative: CandidateScore | None = None
 
 
 # --------------------------------------------------------------------------- linear algebra
@@ -382,13 +388,14 @@ def decide(scorer: Scorer, scores: list[CandidateScore], cfg: SelectionConfig) -
     w, ambiguous, contenders = skipped[0]
     by_label = {s.label: s for s in scores}
     tied = [w.label, *ambiguous]
-    advice = _tie_advice([by_label[lab] for lab in tied])
+    group = [by_label[lab] for lab in tied]
+    advice = _tie_advice(group)
+    rep = representative(group)
     reason = (
         f"{' and '.join([', '.join(tied[:-1]), tied[-1]])} explain the same part of the gap (BIC margin < "
-        f"{cfg.bic_margin:g}): none is named; collect data that separates them"
+        f"{cfg.bic_margin:g}): none is named; to separate them: "
+        + ("; ".join(advice) if advice else "collect data that separates them")
     )
-    if advice:
-        reason += " (" + "; ".join(advice) + ")"
     return Decision(
         "ambiguous",
         w,
@@ -397,7 +404,22 @@ def decide(scorer: Scorer, scores: list[CandidateScore], cfg: SelectionConfig) -
         tied,
         {lab: float(by_label[lab].delta_bic) for lab in tied},
         advice,
+        rep,
     )
+
+
+def representative(group: list[CandidateScore], rtol: float = 1e-6) -> CandidateScore:
+    """The member a tie term is evaluated as: the eligible one with the largest dBIC.
+
+    Members within ``rtol`` (relative) of the largest -- an exact tie, where which one leads is a
+    matter of rounding -- are ordered by parameter count (the simpler), then by label, so the same
+    data always give the same representative. The choice does not change the prediction beyond the
+    tie's margin; the term is reported under the whole group's name.
+    """
+    pool = [s for s in group if s.eligible] or list(group)
+    top = max(s.delta_bic for s in pool)
+    near = [s for s in pool if s.delta_bic >= top - rtol * max(1.0, abs(top))]
+    return min(near, key=lambda s: (s.k + s.k_shape, s.label))
 
 
 def _tie_advice(tied: list[CandidateScore]) -> list[str]:

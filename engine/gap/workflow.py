@@ -10,14 +10,29 @@
    moves when later ones join); each round keeps the values it added.
 4. Backward check: an earlier effect that the later ones now explain (BIC gain given all the others
    below 0) is removed again (:func:`_prune`).
-5. Repeat while a candidate is named (at most ``max_effects``): the loop stops when no decisive
-   candidate is left. The chi-square test does not stop the loop; it decides the verdict.
+5. **Ties.** A round whose eligible candidates are all tied (they explain the same part of the gap
+   within the decision margin, e.g. a range scale and a uniform robot scale once the frame is
+   fitted) names none of them, but adds the group as *one tie term*: the model is evaluated with
+   the group's representative (:func:`engine.gap.selection.representative`), and the term is
+   reported under the whole group's name (``a@x|b@y``, :class:`FittedEffect` with ``tied_with``),
+   never as the representative alone. Its members are not tested again as new candidates. So the
+   model closes the gap (prediction and held-out RMS reach the noise) while nothing is named that
+   the data cannot show. After each later addition every tie term is re-examined given the rest of
+   the model (:func:`_resolve_ties`): an approximate tie can separate once another effect's signal
+   has left the residuals, and a member decisive over the others (the naming rule's margin) is then
+   named in place of the term. An exact tie never resolves.
+6. Repeat while a candidate is named or a tie term added (at most ``max_effects`` terms): the loop
+   stops when no eligible candidate is left. The chi-square test does not stop the loop; it decides
+   the verdict.
 
-Verdict: ``no_gap`` when nothing was added, no candidate is significant and the residuals are
-consistent with the noise (chi-square test at ``chi2_alpha``); ``explained`` when effects were added
-and the final residuals are consistent with the noise; ``unexplained`` otherwise (a significant gap
-no candidate names decisively, an ambiguous choice -- tied candidates, none of them named, see
-:attr:`GapResult.confounded` -- or residuals still above the noise).
+Verdict (:data:`VERDICTS`): ``no_gap`` when nothing was added, no candidate is significant and the
+residuals are consistent with the noise (chi-square test at ``chi2_alpha``); ``explained`` when
+effects were added, *every one named*, and the final residuals are consistent with the noise;
+``explained_up_to_tie`` when the final residuals are consistent with the noise but at least one
+added term is a tie (the augmented model predicts the data; which of the tied effects is the cause
+the data cannot say, and the report says what would separate them); ``unexplained`` otherwise (a
+significant gap no candidate names decisively, a tie left when ``max_effects`` was reached, or
+residuals still above the noise).
 """
 
 from __future__ import annotations
@@ -29,9 +44,31 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from .interfaces import Candidate, EffectFamily, FittedEffect, GapInputError, GapProblem, Linearisation, Signature
+from .interfaces import (
+    Candidate,
+    EffectFamily,
+    FittedEffect,
+    GapInputError,
+    GapProblem,
+    Linearisation,
+    Signature,
+    tie_label,
+)
 from .localise import FeatureGap, localise
-from .selection import BaselineScore, CandidateScore, Decision, SelectionConfig, decide, gain_given_others, score_all
+from .selection import (
+    BaselineScore,
+    CandidateScore,
+    Decision,
+    SelectionConfig,
+    _basis,
+    _perp,
+    decide,
+    gain_given_others,
+    score_all,
+)
+
+#: the verdicts, from the best news to the worst (see the module docstring)
+VERDICTS = ("no_gap", "explained", "explained_up_to_tie", "unexplained")
 
 
 @dataclass
@@ -74,7 +111,7 @@ class Iteration:
     residual: np.ndarray  # (N, m) physical residuals of this iteration's model
     whitened: np.ndarray
     added: FittedEffect | None = None  # as fitted in this round (the result's effects: final values)
-    added_score: CandidateScore | None = None
+    added_score: CandidateScore | None = None  # a tie term: the representative's score
     signature: Signature | None = None
     # (N, m) physical contribution of the added effect (linearised, this round's fit): in full, and the
     # part the model before it (baseline calibration + earlier effects) cannot absorb -- what the
@@ -84,6 +121,8 @@ class Iteration:
     model_file: str | None = None
     # earlier effects dropped after this round's addition: (label, BIC gain given the others < 0)
     removed: list[tuple[str, float]] = field(default_factory=list)
+    # tie terms of earlier rounds resolved after this round's addition: (tie label, member now named, why)
+    resolved: list[tuple[str, str, str]] = field(default_factory=list)
 
 
 @dataclass
@@ -108,13 +147,36 @@ class GapResult:
 
     @property
     def named(self) -> list[tuple[str, str]]:
-        return [(fe.name, fe.where) for fe, _ in self.effects]
+        """The effects named and added (a tie term is added, never named)."""
+        return [(fe.name, fe.where) for fe, _ in self.effects if not fe.tied]
+
+    @property
+    def tie_terms(self) -> list[FittedEffect]:
+        """The tie terms of the final model (each stands for a group the data cannot tell apart)."""
+        return [fe for fe, _ in self.effects if fe.tied]
+
+    @property
+    def tie_groups(self) -> list[tuple[Iteration, list[str]]]:
+        """Every round that ended tied, with its group (added as a tie term unless the loop stopped there)."""
+        return [(it, sorted(it.decision.tied)) for it in self.iterations if it.decision.status == "ambiguous"]
+
+    @property
+    def unresolved_tie(self) -> list[str]:
+        """A tie the loop stopped on without adding it (``max_effects`` reached), else []."""
+        last = self.iterations[-1]
+        return sorted(last.decision.tied) if last.decision.status == "ambiguous" and last.added is None else []
+
+    @property
+    def resolved_ties(self) -> dict[str, str]:
+        """Tie terms resolved in a later round: tie label -> the member named instead."""
+        return {tie: named for it in self.iterations for tie, named, _ in it.resolved}
 
     @property
     def confounded(self) -> list[str]:
-        """The candidates tied in the last round (they explain the same part of the gap; none was named)."""
-        d = self.iterations[-1].decision
-        return list(d.tied) if d.status == "ambiguous" else []
+        """Every candidate of a tie that stayed a tie (added as a tie term, or left when the loop stopped),
+        sorted; none of them is named. Ties a later round resolved are in :attr:`resolved_ties`."""
+        done = self.resolved_ties
+        return sorted({lab for _, group in self.tie_groups if tie_label(group) not in done for lab in group})
 
 
 def compare(lin: Linearisation, baseline: BaselineScore, chi2_alpha: float) -> Comparison:
@@ -181,6 +243,7 @@ def run_gap(
     iterations: list[Iteration] = []
     effects: list[tuple[FittedEffect, CandidateScore]] = []
     added_labels: set[tuple[str, str]] = set()
+    tie_members: dict[str, list[CandidateScore]] = {}  # tie term (representative label) -> the group's scores
     files: dict[str, str] = {}
     for index in range(cfg.max_effects + 1):
         lin = problem.linearise()
@@ -201,20 +264,34 @@ def run_gap(
         if index == 0 and out_dir is not None:
             files["model_baseline"] = str(problem.save_model(out_dir / "model_0_baseline.yaml"))
         iterations.append(it)
-        if decision.status != "named" or index == cfg.max_effects:
+        if decision.status == "none" or index == cfg.max_effects:
             break
-        w = decision.winner
+        if decision.status == "named":
+            w, tied_with = decision.winner, ()
+        else:  # tied: the group joins as one term, evaluated as its representative, named as the group
+            w = decision.representative
+            assert w is not None
+            tied_with = tuple(sorted(lab for lab in decision.tied if lab != w.label))
         assert w is not None and w.design is not None
         it.signature = w.candidate.signature(problem)
         it.contribution = (w.design.columns @ w.beta) * lin.sigma[:, None]
         it.identifiable = scorer.identifiable_part(w.design, w.beta) * lin.sigma[:, None]
-        it.added = problem.add_effect(w.candidate, w.values)
+        if tied_with:
+            it.added = problem.add_effect(w.candidate, w.values, tied_with=tied_with)
+        else:
+            it.added = problem.add_effect(w.candidate, w.values)
         it.added_score = w
         effects.append((it.added, w))
-        added_labels.add((w.name, w.where))  # never tested again, even if pruned below (no cycles)
+        # never tested again, even if pruned below (no cycles); a tie's members neither, one by one
+        added_labels.add((w.name, w.where))
+        by_label = {s.label: s for s in scores}
+        added_labels.update((by_label[lab].name, by_label[lab].where) for lab in tied_with)
         it.removed = _prune(problem, effects)
+        it.resolved = _resolve_ties(problem, effects, tie_members, cfg.selection.bic_margin)
+        if tied_with:
+            tie_members[w.label] = [by_label[lab] for lab in sorted({w.label, *tied_with})]
         if out_dir is not None:
-            it.model_file = str(problem.save_model(out_dir / f"model_{index + 1}_{w.name}_{w.where}.yaml"))
+            it.model_file = str(problem.save_model(out_dir / f"model_{index + 1}_{it.added.file_stem}.yaml"))
     # the effects as the final joint refit has them (values and sigmas move when later effects are added)
     final = {(fe.name, fe.where): fe for fe in problem.fitted_effects()}
     effects = [(final.get((fe.name, fe.where), fe), sc) for fe, sc in effects]
@@ -251,8 +328,109 @@ def _prune(problem: GapProblem, effects: list[tuple[FittedEffect, CandidateScore
             break
         fe, sc = effects.pop(worst[1])
         problem.remove_effect(sc.candidate)
-        removed.append((f"{fe.name}@{fe.where}", worst[0]))
+        removed.append((fe.label, worst[0]))
     return removed
+
+
+def _resolve_ties(
+    problem: GapProblem,
+    effects: list[tuple[FittedEffect, CandidateScore]],
+    tie_members: dict[str, list[CandidateScore]],
+    margin: float,
+) -> list[tuple[str, str, str]]:
+    """Re-examine the tie terms of earlier rounds once later effects are in the model.
+
+    A tie is judged on the residuals of its round; an *approximate* tie can separate once another
+    effect's signal has left the residuals (a thermal drift and a link length tied next to an
+    unmodelled range bias, say). With ``O`` the current model without the tie term, every member is
+    scored on top of ``O`` as in :func:`engine.gap.selection.decide`: a member that is decisive over
+    every other member (its dBIC ``margin`` above theirs, or gaining ``>= margin`` on top of each)
+    and has ``dBIC > 0`` and physically valid values is named instead of the tie term (the
+    representative untied, or replaced by that member at its fitted values). An exact tie never
+    resolves (each member gains ``-k ln M`` on top of the other).
+    """
+    out: list[tuple[str, str, str]] = []
+    for i in range(len(effects)):
+        fe0, sc0 = effects[i]
+        group = tie_members.get(fe0.representative)
+        current = {f.representative: f for f in problem.fitted_effects()}
+        fe = current.get(fe0.representative)
+        if group is None or fe is None or not fe.tied:
+            continue
+        lin = problem.linearise()
+        M = lin.residual.size
+        A = lin.jacobian.reshape(M, -1)
+        cols = [j for j, n in enumerate(lin.names) if n.startswith(fe.representative + ".")]
+        rest = [j for j in range(A.shape[1]) if j not in cols]
+        cand = sc0.candidate
+        n_lin = len(cand.param_names) - len(cand.shape_names)
+        values = np.array([fe.params[p] for p in cand.param_names[:n_lin]])
+        y = lin.residual.reshape(-1) + A[:, cols[:n_lin]] @ values  # the residual of O
+        Q = _basis(A[:, rest])
+        y_perp = _perp(Q, y)
+        rss_o = float(y_perp @ y_perp)
+        fits = {}
+        for m in group:
+            best = None
+            for d in m.candidate.designs(problem):
+                Bp = _perp(Q, d.columns.reshape(M, -1))
+                beta, *_ = np.linalg.lstsq(Bp, y_perp, rcond=1e-10)
+                rss = float(np.sum((y_perp - Bp @ beta) ** 2))
+                if best is None or rss < best[0]:
+                    best = (rss, Bp, beta, d.shape)
+            if best is None:
+                continue
+            rss, Bp, beta, shape = best
+            k = int(np.linalg.matrix_rank(Bp)) + len(m.candidate.shape_names)
+            dbic = M * np.log(rss_o / max(rss, 1e-300)) - k * np.log(M)
+            fits[m.label] = (m, rss, Bp, beta, shape, k, dbic)
+        for lab, (m, _rss, Bp, beta, shape, k, dbic) in fits.items():
+            lo, hi = np.asarray(m.candidate.lower, float), np.asarray(m.candidate.upper, float)
+            if dbic <= 0 or beta.size != lo.size or not (np.all(beta >= lo) and np.all(beta <= hi)):
+                continue
+            decisive = True
+            for other, (_, rss_r, Bp_r, _, _, _, dbic_r) in fits.items():
+                if other == lab or dbic_r <= dbic - margin:
+                    continue
+                both = np.concatenate([Bp_r, Bp], axis=1)
+                coef, *_ = np.linalg.lstsq(both, y_perp, rcond=1e-10)
+                rss_both = max(float(np.sum((y_perp - both @ coef) ** 2)), 1e-300)
+                if M * np.log(rss_r / rss_both) - k * np.log(M) < margin:
+                    decisive = False
+                    break
+            if not decisive:
+                continue
+            why = f"{lab} is decisive over {', '.join(o for o in fits if o != lab)} given the later effects"
+            problem.remove_effect(cand)
+            new_values = np.concatenate([beta, [shape[n] for n in m.candidate.shape_names]])
+            if lab == fe.representative:
+                new_values = np.array([fe.params[p] for p in cand.param_names])
+            new = problem.add_effect(m.candidate, new_values)
+            effects[i] = (new, m)
+            out.append((fe.label, lab, why))
+            break
+    return out
+
+
+def _added_text(effects: list[tuple[FittedEffect, CandidateScore]], iterations: list[Iteration]) -> str:
+    """``a@x, b@y added`` for the named effects; each tie term spelled out as a tie, with its advice."""
+    named = [fe.label for fe, _ in effects if not fe.tied]
+    parts = [f"{', '.join(named)} added"] if named else []
+    for it in iterations:
+        for tie, lab, why in it.resolved:
+            if lab in named:
+                parts.append(f"the tie {tie} of an earlier round resolved as {lab} ({why})")
+    advice = {tie_label(it.decision.tied): it.decision.advice for it in iterations if it.decision.status == "ambiguous"}
+    for fe, _ in effects:
+        if not fe.tied:
+            continue
+        tips = advice.get(fe.label) or ["collect data that separates them"]
+        parts.append(
+            f"{' and '.join(fe.members)} are tied (the data cannot tell them apart): neither is named, the gap they "
+            f"explain is added as one tie term {fe.label} (evaluated as {fe.representative}); to separate them: "
+            + "; ".join(tips)
+        )
+    return "; ".join(parts)
 
 
 def _verdict(iterations: list[Iteration], effects: list, cfg: GapConfig) -> tuple[str, str]:
@@ -260,16 +438,20 @@ def _verdict(iterations: list[Iteration], effects: list, cfg: GapConfig) -> tupl
     c = last.comparison
     noise = f"residual RMS {c.ratio_to_noise:.2f}x the noise ({'consistent' if c.consistent else 'inconsistent'}, "
     noise += f"chi2 = {c.chi2:.0f} for {c.dof} dof, p = {c.chi2_p:.2g})"
+    done = _added_text(effects, iterations)
     if last.decision.status == "named":  # stopped by max_effects with a candidate still decisive
         return "unexplained", f"more than {cfg.max_effects} effects would be needed; next: {last.decision.reason}"
-    if last.decision.status == "ambiguous":  # tied candidates: none is named
-        done = ", ".join(f"{e.name}@{e.where}" for e, _ in effects)
-        return "unexplained", (f"{done} added; then " if done else "") + f"{last.decision.reason}; {noise}"
+    if last.decision.status == "ambiguous":  # stopped by max_effects on a tie: not added, none named
+        return "unexplained", (
+            (f"{done}; then " if done else "")
+            + f"{last.decision.reason} (not added: at most {cfg.max_effects} terms); {noise}"
+        )
     if not c.consistent:
         if effects:
-            done = ", ".join(f"{e.name}@{e.where}" for e, _ in effects)
-            return "unexplained", f"{done} added, but no catalog effect explains the rest decisively: {noise}"
+            return "unexplained", f"{done}; no catalog effect explains the rest decisively: {noise}"
         return "unexplained", f"no catalog effect explains the gap decisively: {noise}"
+    if any(fe.tied for fe, _ in effects):
+        return "explained_up_to_tie", f"{done}; {noise}"
     if effects:
-        return "explained", f"{', '.join(f'{e.name}@{e.where}' for e, _ in effects)} added; {noise}"
+        return "explained", f"{done}; {noise}"
     return "no_gap", f"no candidate effect is significant; {noise}"

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import pytest
+import yaml
 from model_gap_helpers import N_SAMPLES, case
 
 from engine.cli import main
@@ -62,6 +63,33 @@ def test_exit_code_1_when_a_gap_is_left_unexplained(tmp_path, capsys):
     assert rc == 1
     rep = json.loads(capsys.readouterr().out)
     assert rep["verdict"] == "unexplained" and rep["effects_added"] == []
+
+
+def test_a_tie_exits_3_and_its_augmented_model_closes_the_gap(tmp_path, capsys):
+    """A range scale with the frame fitted (exactly a uniform robot scale): exit code 3, verdict
+    ``explained_up_to_tie``, the pair one tie term in gap_report.json and in augmented_model.yaml (the
+    representative with ``tied_with``); given back with the same data the model leaves no gap (exit 0)."""
+    camp = make_case(case([("depth_scale", "camera")], seed=6))
+    data = write_gap_csv(camp.data, tmp_path / "x.csv")
+    out = tmp_path / "rep"
+    rc = main(["gap", "--model", "ur5e", "--data", str(data), "--report", str(out), "--noise-mm", "0.05"])
+    assert rc == 3
+    rep = json.loads((out / "gap_report.json").read_text(encoding="utf-8"))
+    assert rep["verdict"] == "explained_up_to_tie"
+    (eff,) = rep["effects_added"]
+    assert eff["tied"] and eff["name"] == "depth_scale|robot_scale" and eff["where"] == "sensor|robot"
+    assert rep["rms_after_mm"] <= 1.2 * rep["noise_floor_mm"]
+    text = capsys.readouterr().out
+    assert "explained_up_to_tie" in text and "tie, not named" in text and "))" not in text
+    model = yaml.safe_load((out / "augmented_model.yaml").read_text(encoding="utf-8"))
+    (stored,) = model["effects"]
+    assert f"{stored['name']}@{stored['where']}" == eff["representative"] and stored["tied_with"]
+    rc = main(["gap", "--model", str(out / "augmented_model.yaml"), "--data", str(data), "--noise-mm", "0.05",
+               "--json"])  # fmt: skip
+    assert rc == 0
+    again = json.loads(capsys.readouterr().out)
+    assert again["verdict"] == "no_gap" and again["effects_added"] == []
+    assert again["rms_before_mm"] <= 1.2 * again["noise_floor_mm"]
 
 
 def test_noise_only_csv_exits_0_with_no_gap(tmp_path, capsys):

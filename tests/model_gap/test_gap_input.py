@@ -179,6 +179,9 @@ def test_recorded_streams_give_the_range_so_depth_effects_are_testable():
     )
     # depth_scale is tested (and, the frame being fitted, tied with its exact twin, a uniform robot scale)
     assert res.named == [] and sorted(res.confounded) == ["depth_scale@sensor", "robot_scale@robot"], res.reason
+    assert res.verdict == "explained_up_to_tie" and [t.label for t in res.tie_terms] == [
+        "depth_scale@sensor|robot_scale@robot"
+    ]
     # points in a world / robot frame: no range (its origin is not the instrument's centre), said so
     world = pair_streams(*_messages(camp.data, "world"))
     assert world.range_m is None and any("no range derived" in w for w in world.warnings)

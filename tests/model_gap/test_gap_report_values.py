@@ -82,7 +82,8 @@ def test_the_effect_plot_draws_what_the_calibrated_residuals_show(effects, name,
     """``gap_effect_*.png``: the fitted-effect series must run through the residuals before the effect
     was added (regression slope ~1). The full effect does not when the calibration absorbs much of it
     (compliance: the frame takes ~1/5), which is why it is not drawn. (A depth_scale with the frame fitted
-    -- the frame takes ~2/3 -- is tied with a uniform robot scale and not added: shown with known frames.)"""
+    -- the frame takes ~2/3 -- is tied with a uniform robot scale, added as a tie term: shown with known
+    frames.)"""
     _, res = run(case(effects, seed=7, scenario=scenario))
     (it,) = [it for it in res.iterations if it.added is not None and it.added.name == name]
     es = effect_series(res, it)

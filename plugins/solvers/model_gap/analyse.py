@@ -92,7 +92,8 @@ def analyse_gap(
                 raise GapInputError(
                     f"the model's effect {e.get('name')}@{e.get('where')} cannot be applied to these data"
                 )
-            problem.add_effect(cand, np.array([float(e["params"][p]) for p in cand.param_names]))
+            values = np.array([float(e["params"][p]) for p in cand.param_names])
+            problem.add_effect(cand, values, tied_with=tuple(e.get("tied_with") or ()))  # a tie term stays one
     result = run_gap(problem, fams, config, model_dir=report_dir)
     if report_dir is not None:
         out = Path(report_dir)

@@ -4,7 +4,9 @@
 
 MODEL is a shipped robot (``ur5e``, ``abb_irb120``), a robot model file, or an augmented model a
 previous run wrote; DATA a CSV (docs/model_gap.md) or a vgr recording (.mcap). Exit codes: 0 the
-gap is explained or there is none, 1 a gap remains unexplained, 2 bad input.
+gap is explained or there is none, 1 a gap remains unexplained, 2 bad input, 3 explained up to a
+tie (the augmented model predicts the data to the noise, but part of the gap is one of several
+effects the data cannot tell apart: the report says what would separate them).
 """
 
 from __future__ import annotations
@@ -15,7 +17,13 @@ import sys
 
 from rich.console import Console
 
-EXIT_OK, EXIT_UNEXPLAINED = 0, 1
+EXIT_OK, EXIT_UNEXPLAINED, EXIT_TIED = 0, 1, 3
+EXIT_CODES = {
+    "no_gap": EXIT_OK,
+    "explained": EXIT_OK,
+    "explained_up_to_tie": EXIT_TIED,
+    "unexplained": EXIT_UNEXPLAINED,
+}
 
 
 def add_verbs(sub: argparse._SubParsersAction) -> None:
@@ -84,4 +92,4 @@ def cmd_gap(args: argparse.Namespace) -> int:
     )
     if args.json:
         print(json.dumps(_jsonable(report_dict(result)), indent=2))
-    return EXIT_UNEXPLAINED if result.verdict == "unexplained" else EXIT_OK
+    return EXIT_CODES[result.verdict]

@@ -26,7 +26,8 @@ nominal geometry: every length of the chain after the base (DH ``a`` / ``d``, PO
 flange and the tool point) times ``1 + s``. The position of an all-revolute chain is homogeneous of
 degree 1 in its lengths, so once the measurement frame is fitted it is *exactly* a range scale
 ``depth_scale`` of the sensor (``(1+e)(R x + t) = R((1+e) x) + (1+e) t``): the two tie, and the
-workflow reports them as confounded with the advice that separates them (:data:`SCALE_TIE_ADVICE`).
+workflow names neither: it adds them as one tie term (named after both) and reports them as
+confounded with the advice that separates them (:data:`SCALE_TIE_ADVICE`).
 
 Candidates the baseline calibration already explains (a joint offset of joint 1 when the measurement
 frame is fitted, the base frame itself ...) are scored as *absorbed* by the workflow, not hidden.

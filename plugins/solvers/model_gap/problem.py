@@ -115,6 +115,7 @@ class KinematicGapProblem:
         self.q = data.samples.q
         self.qd = data.qd
         self.accepted: list[tuple[Any, F64]] = []  # (candidate, values)
+        self.tied_with: dict[str, tuple[str, ...]] = {}  # tie terms: representative label -> the other members
         self.calibration_notes: list[str] = []
         self._calibrate_baseline()
 
@@ -327,9 +328,15 @@ class KinematicGapProblem:
         s = self.sigma[:, None]
         return Linearisation((self.data.samples.positions - pred) / s, J / s[:, :, None], names, self.sigma.copy())
 
-    def add_effect(self, candidate: Candidate, values: F64) -> FittedEffect:
-        """Add the candidate and refit everything; the effect's values and sigmas right after this refit."""
+    def add_effect(self, candidate: Candidate, values: F64, *, tied_with: tuple[str, ...] = ()) -> FittedEffect:
+        """Add the candidate and refit everything; the effect's values and sigmas right after this refit.
+
+        ``tied_with``: the candidate is the representative of a tie term (the labels of the other
+        members): evaluated as itself, annotated as the group (:class:`FittedEffect`, the model file).
+        """
         self.accepted.append((candidate, np.asarray(values, dtype=float).copy()))
+        if tied_with:
+            self.tied_with[f"{candidate.name}@{candidate.where}"] = tuple(tied_with)
         self.refit()
         return next(fe for (c, _), fe in zip(self.accepted, self.fitted_effects(), strict=True) if c is candidate)
 
@@ -339,6 +346,7 @@ class KinematicGapProblem:
         if len(kept) == len(self.accepted):
             raise ValueError(f"{candidate.name}@{candidate.where} is not part of the model")
         self.accepted = kept
+        self.tied_with.pop(f"{candidate.name}@{candidate.where}", None)
         self.refit()
 
     def fitted_effects(self) -> list[FittedEffect]:
@@ -362,6 +370,7 @@ class KinematicGapProblem:
                     {p: float(x) for p, x in zip(c.param_names, std, strict=True)},
                     dict(zip(c.param_names, c.units, strict=True)),
                     c.config(v),
+                    self.tied_with.get(f"{c.name}@{c.where}", ()),
                 )
             )
         return out
@@ -495,17 +504,26 @@ class KinematicGapProblem:
         effects = []
         for c, v in self.accepted:
             label = f"{c.name}@{c.where}"
-            effects.append(
-                {
-                    "name": c.name,
-                    "where": c.where,
-                    "side": c.side,
-                    "params": {p: float(x) for p, x in zip(c.param_names, v, strict=True)},
-                    "param_std": std.get(label, {}),
-                    "units": dict(zip(c.param_names, c.units, strict=True)),
-                    "config": c.config(v),
+            entry = {
+                "name": c.name,
+                "where": c.where,
+                "side": c.side,
+                "params": {p: float(x) for p, x in zip(c.param_names, v, strict=True)},
+                "param_std": std.get(label, {}),
+                "units": dict(zip(c.param_names, c.units, strict=True)),
+                "config": c.config(v),
+            }
+            others = self.tied_with.get(label)
+            if others:  # a tie term: evaluated as this effect, standing for the whole group
+                members = sorted({label, *others})
+                entry["tied_with"] = list(others)
+                entry["tie"] = {
+                    "label": "|".join(members),
+                    "note": f"tie term: the data could not tell {' and '.join(members)} apart; it is evaluated as "
+                    f"{label} (the same prediction within the decision margin), which is not a claim that {label} "
+                    "is the cause",
                 }
-            )
+            effects.append(entry)
         return {
             "vgr_gap_model": GAP_MODEL_FORMAT,
             "description": "robot model augmented by `vgr gap`: calibrated geometry (base = the measurement "

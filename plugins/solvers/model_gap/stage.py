@@ -3,10 +3,11 @@
 Collects the robot's ``joint_state`` stream and the ``measurement`` stream (TrackerPose: the
 measured tool point in the sensor frame), pairs them by stamp when both have ended
 (:func:`.data.pair_streams`), runs the workflow and publishes the outcome on ``result`` (a
-CalibrationResult message: kind ``model_gap``, verdict ``explained`` | ``unexplained`` | ``no_gap``,
-metrics in mm, the whole ``gap_report.json`` in ``result_json``). With ``report_dir`` it also writes
-the report, the figures and the augmented model files there. Bad or insufficient data do not raise:
-the stage publishes verdict ``failed`` with the reason and an ``error``-free ``warning`` event.
+CalibrationResult message: kind ``model_gap``, verdict ``explained`` | ``explained_up_to_tie`` |
+``unexplained`` | ``no_gap``, metrics in mm, the whole ``gap_report.json`` in ``result_json``). With
+``report_dir`` it also writes the report, the figures and the augmented model files there. Bad or
+insufficient data do not raise: the stage publishes verdict ``failed`` with the reason and an
+``error``-free ``warning`` event.
 """
 
 from __future__ import annotations
@@ -80,7 +81,8 @@ class ModelGap(Stage):
         rep = report_dict(result)
         metrics = {k: float(rep[k]) for k in ("rms_before_mm", "rms_after_mm", "noise_floor_mm")}
         metrics["effects_added"] = float(len(rep["effects_added"]))
-        names = ", ".join(f"{e['name']}@{e['where']}" for e in rep["effects_added"]) or "none"
+        metrics["tie_terms_added"] = float(sum(e["tied"] for e in rep["effects_added"]))
+        names = ", ".join(e.get("label") or f"{e['name']}@{e['where']}" for e in rep["effects_added"]) or "none"
         self.ctx.event("info", "model_gap", f"{result.verdict}: effects added: {names}", verdict=result.verdict)
         self.ctx.publish(
             "result",
