@@ -8,8 +8,12 @@ Payloads of 64 B, 4 KiB and 1.2 MB, in two topologies:
   vgr: the same two stages in two ``vgr run --process`` processes.
 
 Latency is one-way, from just before the payload is built (``time.monotonic_ns()``, the same clock in
-every process) to the entry of the receiving callback / stage handler, with messages paced so that
-nothing queues; median / p90 / p99 over ``count`` messages after a warm-up. Throughput is messages per
+every process) to the moment the receiving code holds the data: the entry of the vgr stage handler
+(the message received and decoded) and, for raw zenoh, the subscriber callback once it has read the
+payload bytes (``payload.to_bytes()``, the copy out of zenoh's buffers that any use of the data
+needs; for 1.2 MB it takes 0.1-0.2 ms, which the vgr handler's entry includes). Messages are paced
+so that nothing queues; median / p90 / p99 over ``count`` messages after a warm-up. The raw rows
+also give ``p50_entry_us``, measured at the callback's entry before the bytes are read. Throughput is messages per
 second at the receiver when the sender publishes as fast as it can (reliable, congestion control
 BLOCK, nothing dropped). The vgr processes run without recording (``--no-record``): recording costs
 are benchmarks/record_replay.py's subject.
@@ -69,9 +73,17 @@ def session(listen: list[str] | None = None, connect: list[str] | None = None) -
     return zenoh.open(conf)
 
 
-def summarize(lat_ns: list[int], arrivals_ns: list[int], size: int, cpu_s: float | None = None) -> dict[str, float]:
+def summarize(
+    lat_ns: list[int],
+    arrivals_ns: list[int],
+    size: int,
+    cpu_s: float | None = None,
+    lat_entry_ns: list[int] | None = None,
+) -> dict[str, float]:
     lat = np.asarray(lat_ns, dtype=float) / 1e3
     out: dict[str, float] = {}
+    if lat_entry_ns:
+        out["p50_entry_us"] = float(np.median(np.asarray(lat_entry_ns, dtype=float))) / 1e3
     if cpu_s is not None and len(arrivals_ns):
         out["cpu_us_per_msg"] = cpu_s / len(arrivals_ns) * 1e6
     if len(lat):
@@ -95,7 +107,8 @@ class RawReceiver:
     """Subscriber callback of the raw runs: latency, arrival time and process CPU time."""
 
     def __init__(self, total: int) -> None:
-        self.lat: list[int] = []
+        self.lat: list[int] = []  # to the callback holding the payload bytes
+        self.lat_entry: list[int] = []  # to the callback's entry
         self.arr: list[int] = []
         self.cpu = [0.0, 0.0]
         self.n = 0
@@ -103,11 +116,14 @@ class RawReceiver:
         self.done = threading.Event()
 
     def __call__(self, sample: zenoh.Sample) -> None:
-        now = time.monotonic_ns()
+        entry = time.monotonic_ns()
         data = sample.payload.to_bytes()
+        now = time.monotonic_ns()
         self.n += 1
         if self.n > WARMUP:
-            self.lat.append(now - int.from_bytes(data[:8], "little"))
+            sent = int.from_bytes(data[:8], "little")
+            self.lat.append(now - sent)
+            self.lat_entry.append(entry - sent)
             self.arr.append(now)
             if len(self.lat) == 1:
                 self.cpu[0] = time.process_time()
@@ -126,7 +142,7 @@ def raw_in_process(size: int, count: int, interval_s: float) -> dict[str, float]
     sub.undeclare()
     pub.undeclare()
     s.close()
-    return summarize(rx.lat, rx.arr, size, max(cpu1, rx.cpu[1]) - cpu0)
+    return summarize(rx.lat, rx.arr, size, max(cpu1, rx.cpu[1]) - cpu0, rx.lat_entry)
 
 
 def send(pub: zenoh.Publisher, size: int, count: int, interval_s: float) -> tuple[float, float]:
@@ -151,7 +167,9 @@ def raw_subscriber_main(endpoint: str, out: str, total: int) -> None:
     rx = RawReceiver(total)
     s.declare_subscriber("bench/raw", rx)
     rx.done.wait(300)
-    Path(out).write_text(json.dumps({"lat_ns": rx.lat, "arrivals_ns": rx.arr, "cpu_s": rx.cpu}))
+    Path(out).write_text(
+        json.dumps({"lat_ns": rx.lat, "lat_entry_ns": rx.lat_entry, "arrivals_ns": rx.arr, "cpu_s": rx.cpu})
+    )
     s.close()
 
 
@@ -174,7 +192,7 @@ def raw_cross_process(size: int, count: int, interval_s: float) -> dict[str, flo
     pub.undeclare()
     s.close()
     rx_cpu = res["cpu_s"][1] - res["cpu_s"][0]
-    return summarize(res["lat_ns"], res["arrivals_ns"], size, (cpu1 - cpu0) + rx_cpu)
+    return summarize(res["lat_ns"], res["arrivals_ns"], size, (cpu1 - cpu0) + rx_cpu, res["lat_entry_ns"])
 
 
 # --------------------------------------------------------------------------- vgr
@@ -214,7 +232,9 @@ def vgr_in_process(size: int, count: int, interval_s: float) -> dict[str, float]
         text = text.replace("processes:", "unused_processes:")
         text = "\n".join(x for x in text.splitlines() if not x.strip().startswith(("unused", "pub:", "sub:")))
         loaded = load_recipe("bench.yaml", text=text)
-        summary = Runner(build_graph(loaded, load_registry(loaded.recipe.plugins))).run()
+        # freeze_gc as `vgr run` does in its own process (the cyclic collector's full passes over this
+        # process's heap would otherwise pause the stages now and then)
+        summary = Runner(build_graph(loaded, load_registry(loaded.recipe.plugins)), freeze_gc=True).run()
         assert summary.ok, summary.stop_reason
         res, src = json.loads(out.read_text()), json.loads(src_out.read_text())
     cpu = max(src["cpu_s"][1], res["cpu_s"][1]) - src["cpu_s"][0]
@@ -314,7 +334,7 @@ def main() -> None:
                     tp_runs[who].append(fn(size, n_tp, 0.0))
             for who in fns:
                 lat, tp = median_of(lat_runs[who]), median_of(tp_runs[who])
-                row = {k: v for k, v in lat.items() if k.endswith("_us") or k == "n"}
+                row = {k: v for k, v in lat.items() if k.endswith("_us") or k == "n"}  # (p50_entry_us: raw only)
                 row |= {k: v for k, v in tp.items() if k in ("msg_per_s", "MB_per_s", "cpu_us_per_msg")}
                 results.setdefault(topo, {}).setdefault(label, {})[who] = row
                 print(

@@ -21,12 +21,13 @@ from __future__ import annotations
 
 import struct
 from enum import IntEnum
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 from engine.messages import BUILTIN_MESSAGE_TYPES, WIRE_CACHE, Message
 from engine.schemas import SCHEMA_VERSION, proto_class
 
 __all__ = [
+    "DataFormat",
     "Envelope",
     "Kind",
     "MessageRegistry",
@@ -76,6 +77,26 @@ _NAMES: dict[bytes, str] = {}  # type names seen on the wire, decoded (bounded: 
 
 def encode_envelope(env: Envelope) -> bytes:
     return _pack(MAGIC, env.kind, env.schema_version, 0, env.seq, env.stamp_ns) + env.type_name.encode()
+
+
+class DataFormat:
+    """The envelope of one message type's DATA messages, for the hot paths of one port.
+
+    ``pack(head, seq, stamp_ns, name)`` builds the envelope in one struct call (what
+    ``encode_envelope(data_envelope(...))`` gives); ``unpack(raw)`` splits one into
+    ``(head, seq, stamp_ns, name)`` and raises ``struct.error`` when the length does not fit. A
+    received envelope whose ``head`` and ``name`` equal this format's is a DATA message of this type
+    at this schema version; anything else (end of stream, an older version, another type, garbage)
+    goes through :func:`decode_envelope`."""
+
+    __slots__ = ("head", "name", "pack", "type_name", "unpack")
+
+    def __init__(self, type_name: str) -> None:
+        self.type_name = type_name
+        self.name = type_name.encode()
+        fmt = struct.Struct(f"<8sQq{len(self.name)}s")
+        self.head = _pack(MAGIC, Kind.DATA, SCHEMA_VERSION, 0, 0, 0)[:8]
+        self.pack, self.unpack = fmt.pack, fmt.unpack
 
 
 def decode_envelope(raw: bytes) -> Envelope:
@@ -137,7 +158,12 @@ registry = MessageRegistry()
 # --------------------------------------------------------------------------- payload
 
 
+_SMALL_VARINTS = tuple(bytes((i,)) for i in range(0x80))
+
+
 def _varint(n: int) -> bytes:
+    if n < 0x80:
+        return _SMALL_VARINTS[n]
     out = bytearray()
     while True:
         b = n & 0x7F
@@ -168,7 +194,10 @@ def encode_payload(msg: Message) -> bytes:
     """Protobuf bytes of *msg* (bulk array appended as its length-delimited field)."""
     wire = msg.__dict__.get(WIRE_CACHE)  # a published message carries the protobuf it was rebuilt from
     pb, bulk = wire if wire is not None else msg.to_proto()
-    head = pb.SerializeToString(deterministic=True)
+    maps = _MAPS.get(type(pb))
+    if maps is None:
+        maps = _has_maps(type(pb))
+    head = pb.SerializeToString(deterministic=True) if maps else pb.SerializeToString()
     if bulk is None or msg.BULK is None:
         return head
     key = _BULK_KEYS.get(msg.BULK)
@@ -178,6 +207,30 @@ def encode_payload(msg: Message) -> bytes:
 
 
 _BULK_KEYS: dict[int, bytes] = {}  # field number -> encoded key of the length-delimited bulk field
+_MAPS: dict[type, bool] = {}  # protobuf class -> whether a map field occurs anywhere in it
+
+
+def _has_maps(pb_cls: type) -> bool:
+    """True when messages of *pb_cls* may contain a map field, whose entries only deterministic
+    serialisation orders. Without maps the two serialisations are the same bytes, and asking for
+    ``deterministic=True`` costs more than the serialisation of a small message itself."""
+    known = _MAPS.get(pb_cls)
+    if known is None:
+        known = _MAPS[pb_cls] = _descriptor_has_maps(pb_cls.DESCRIPTOR, set())  # type: ignore[attr-defined]
+    return known
+
+
+def _descriptor_has_maps(desc: Any, seen: set[str]) -> bool:
+    seen.add(desc.full_name)
+    for f in desc.fields:
+        sub = f.message_type
+        if sub is None:
+            continue
+        if sub.GetOptions().map_entry:
+            return True
+        if sub.full_name not in seen and _descriptor_has_maps(sub, seen):
+            return True
+    return False
 
 
 def _split_bulk(buf: memoryview, field_number: int) -> tuple[bytes | memoryview, memoryview | None]:
@@ -231,12 +284,16 @@ def _split_bulk(buf: memoryview, field_number: int) -> tuple[bytes | memoryview,
     return b"".join(pieces), bulk
 
 
+SMALL_PAYLOAD = 8192  # below this, one protobuf parse (copying the bulk) beats walking the fields in Python
+
+
 def decode_payload(cls: type[Message], payload: bytes | memoryview) -> Message:
-    """Message of class *cls* from its protobuf bytes (bulk arrays are views of *payload*)."""
+    """Message of class *cls* from its protobuf bytes (bulk arrays of payloads larger than
+    SMALL_PAYLOAD are views of *payload*; smaller ones are parsed whole, the bulk field copied)."""
     pb = cls.proto()
     try:
-        if cls.BULK is None:
-            pb.ParseFromString(bytes(payload))
+        if cls.BULK is None or len(payload) <= SMALL_PAYLOAD:
+            pb.ParseFromString(payload if type(payload) is bytes else bytes(payload))
             return cls.from_proto(pb, None)
         rest, bulk = _split_bulk(memoryview(payload).cast("B"), cls.BULK)
         pb.ParseFromString(rest)

@@ -1,11 +1,12 @@
 """The queue of one input port fed by a stage of the same process, with the idle fast path.
 
 The producer's ``publish`` offers the message object itself (arrays frozen read-only, nothing
-serialised — like ROS 2 intra-process communication). If the consumer is idle (queue empty, nothing
-in flight, stage lock free) the producer's thread runs the consumer's handler at once, saving a
-thread wake-up; otherwise the message waits in the queue for the port's pump thread. The queue is
-bounded: a producer that outruns its consumer waits (backpressure), nothing is dropped. One port's
-messages are handled in publication order, and the port never has two messages in flight.
+serialised — like ROS 2 intra-process communication), and END when its port ends. If the consumer
+is idle (queue empty, nothing in flight, stage lock free) the producer's thread runs the consumer's
+handler at once, saving a thread wake-up; otherwise the message waits in the queue for the port's
+pump thread. The queue is bounded: a producer that outruns its consumer waits (backpressure),
+nothing is dropped. One port's messages are handled in publication order, and the port never has
+two messages in flight.
 (An input fed by another process has no queue of ours: see engine.runtime.RemoteInput.)
 
 Wake-ups are the expensive part of a hand-over (a thread switch and a GIL transfer each), so the
@@ -20,8 +21,20 @@ import collections
 import threading
 from typing import Any
 
-LOCAL, STOP = 0, 2
-Item = tuple[int, Any, Any]
+
+class _Marker:
+    __slots__ = ("name",)
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    def __repr__(self) -> str:
+        return f"<{self.name}>"
+
+
+END = _Marker("end of stream")  # the producer's port ended (handled like a message, in order)
+STOP = _Marker("stop")  # the run is stopping: the pump exits
+Item = Any  # a Message, END or STOP
 
 
 class PortInbox:
@@ -58,7 +71,7 @@ class PortInbox:
                         self._not_full.wait()
                     finally:
                         self._producers_waiting -= 1
-            if self._closed and item[0] != STOP:
+            if self._closed and item is not STOP:
                 return False
             items.append(item)
             if len(items) > self.high_water:
@@ -79,21 +92,24 @@ class PortInbox:
                 finally:
                     self._pump_waiting = False
             item = items.popleft()
-            self._inflight = item[0] != STOP
+            self._inflight = item is not STOP
             if self._producers_waiting:
                 self._not_full.notify()
             return item
 
     def release(self) -> None:
-        """The message taken by :meth:`get` or :meth:`claim_idle` is handled (nobody waits on this)."""
-        with self._lock:
-            self._inflight = False
+        """The message taken by :meth:`get` or :meth:`claim_idle` is handled (nobody waits on this).
+
+        No lock: only the thread that took the message clears the flag, as its last step, and a
+        producer's :meth:`claim_idle` seeing it either still set (it queues) or cleared (it
+        handles inline) is correct either way."""
+        self._inflight = False
 
     def close(self) -> None:
         """No more messages: wake the pump (it exits) and any producer waiting for room."""
         with self._lock:
             self._closed = True
-            self._items.append((STOP, None, None))
+            self._items.append(STOP)
             self._not_empty.notify_all()
             self._not_full.notify_all()
 

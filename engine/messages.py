@@ -52,7 +52,7 @@ def set_stamp(pb: Any, stamp_ns: int) -> None:
 
 def get_stamp(pb: Any) -> int:
     ts = pb.timestamp
-    return int(ts.seconds) * 1_000_000_000 + int(ts.nanos)
+    return ts.seconds * 1_000_000_000 + ts.nanos  # (protobuf integer fields read as int)
 
 
 def set_pose(pose_pb: Any, T: np.ndarray) -> None:
@@ -84,6 +84,7 @@ class Message:
     # then hands the object over as is. False (poses travel as quaternions, which round by an ulp):
     # publish hands over the wire form, so a local consumer, a remote one and a replay see the same.
     WIRE_EXACT: ClassVar[bool] = False
+    _pb_class: ClassVar[Any] = None  # protobuf class of SCHEMA, looked up on first use (per class)
 
     stamp_ns: int = 0
     seq: int = 0
@@ -97,13 +98,16 @@ class Message:
     def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
         raise NotImplementedError
 
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        cls._pb_class = None  # each class looks up its own SCHEMA (a subclass may name another)
+
     @classmethod
     def proto(cls) -> Any:
         """A new, empty protobuf message of this class's schema (class looked up once)."""
-        pb_cls = cls.__dict__.get("_pb_class")
+        pb_cls = cls._pb_class
         if pb_cls is None:
-            pb_cls = proto_class(cls.SCHEMA)
-            cls._pb_class = pb_cls  # type: ignore[attr-defined]
+            pb_cls = cls._pb_class = proto_class(cls.SCHEMA)
         return pb_cls()
 
 
@@ -130,17 +134,29 @@ def freeze(msg: Message) -> Message:
     A message that was already published (``seq`` set, e.g. a received message passed on) is
     shallow-copied first, so re-publishing never changes what another consumer holds. Arrays are
     frozen in place: a producer that writes into an array after publishing it gets an error
-    instead of silently corrupting a consumer.
+    instead of silently corrupting a consumer. (The two steps are also :func:`detach` and
+    :func:`freeze_arrays`, which publish runs apart.)
     """
+    msg = detach(msg)
+    freeze_arrays(msg)
+    return msg
+
+
+def detach(msg: Message) -> Message:
+    """*msg*, or a shallow copy of it if it was already published (``seq`` set)."""
     if msg.seq:
         new = object.__new__(type(msg))
         new.__dict__.update(msg.__dict__)
         new.__dict__.pop(WIRE_CACHE, None)  # a re-published message may have been changed: encode it anew
         msg = new
+    return msg
+
+
+def freeze_arrays(msg: Message) -> None:
+    """Make the numpy arrays among *msg*'s attributes read-only, in place."""
     for v in msg.__dict__.values():
         if isinstance(v, _ndarray) and v.flags.writeable:
             v.flags.writeable = False
-    return msg
 
 
 _ndarray = np.ndarray
@@ -524,7 +540,8 @@ class Blob(Message):
         pb = self.proto()
         set_stamp(pb, self.stamp_ns)
         pb.frame_id, pb.content_type = self.frame_id, self.content_type
-        return pb, memoryview(self.data).cast("B")
+        data = self.data
+        return pb, data if type(data) is bytes else memoryview(data).cast("B")
 
     @classmethod
     def from_proto(cls, pb: Any, bulk: Bulk) -> Self:

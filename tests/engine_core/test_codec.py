@@ -82,31 +82,29 @@ def test_pose_uses_foxglove_pose_in_frame():
     assert np.allclose(roundtrip(m.PoseStamped(T=T, frame_id="base")).T, T, atol=1e-15)
 
 
-@pytest.mark.parametrize(
-    "msg",
-    [
-        m.Image(data=np.full((4, 5), np.nan, np.float32), frame_id="cam"),
-        m.CameraInfo(width=640, height=480, K=np.array([[500, 0, 320], [0, 500, 240], [0, 0, 1.0]])),
-        m.Transform(frame_id="base", child_frame_id="tcp", T=tf.T_from_rotvec([0, 0, 1], [0, 0, 1])),
-        m.FrameTransforms(transforms=[m.Transform(frame_id="a", child_frame_id="b")]),
-        m.JointState(names=["j1", "j2"], positions=np.array([0.1, -0.2]), velocities=np.zeros(2)),
-        m.Blob(data=b"\x00\x01" * 100, content_type="application/octet-stream"),
-        m.TrackerPose(serial="LHR-1", T=tf.T_from_rotvec([0.1, 0, 0], [0, 1, 0]), valid=False),
-        m.Event(level="alarm", code="x", stage="s", message="hello", traceback="tb", details={"a": [1, 2]}),
-        m.CalibrationResultMsg(
-            kind="handeye", verdict="ok", transforms={"T_tcp_cam": np.eye(4)}, metrics={"rms_mm": 0.1}
-        ),
-        m.RobotCommand(command_id="c1", kind="move_j", joints=np.array([0.0, 1.0])),
-        m.RobotReply(command_id="c1", ok=True, T=np.eye(4), joints=np.zeros(6), duplicate=True),
-        m.Correction(
-            kind="delta_tool",
-            T=tf.T_from_rotvec([0, 0, 0.01], [0.001, 0, 0]),
-            verdict="refused",
-            reasons=["r"],
-        ),
-        m.Request(command="capture", args={"exposure": 3}),
-    ],
-)
+EVERY_TYPE = [
+    m.Image(data=np.full((4, 5), np.nan, np.float32), frame_id="cam"),
+    m.CameraInfo(width=640, height=480, K=np.array([[500, 0, 320], [0, 500, 240], [0, 0, 1.0]])),
+    m.Transform(frame_id="base", child_frame_id="tcp", T=tf.T_from_rotvec([0, 0, 1], [0, 0, 1])),
+    m.FrameTransforms(transforms=[m.Transform(frame_id="a", child_frame_id="b")]),
+    m.JointState(names=["j1", "j2"], positions=np.array([0.1, -0.2]), velocities=np.zeros(2)),
+    m.Blob(data=b"\x00\x01" * 100, content_type="application/octet-stream"),
+    m.TrackerPose(serial="LHR-1", T=tf.T_from_rotvec([0.1, 0, 0], [0, 1, 0]), valid=False),
+    m.Event(level="alarm", code="x", stage="s", message="hello", traceback="tb", details={"a": [1, 2]}),
+    m.CalibrationResultMsg(kind="handeye", verdict="ok", transforms={"T_tcp_cam": np.eye(4)}, metrics={"rms_mm": 0.1}),
+    m.RobotCommand(command_id="c1", kind="move_j", joints=np.array([0.0, 1.0])),
+    m.RobotReply(command_id="c1", ok=True, T=np.eye(4), joints=np.zeros(6), duplicate=True),
+    m.Correction(
+        kind="delta_tool",
+        T=tf.T_from_rotvec([0, 0, 0.01], [0.001, 0, 0]),
+        verdict="refused",
+        reasons=["r"],
+    ),
+    m.Request(command="capture", args={"exposure": 3}),
+]
+
+
+@pytest.mark.parametrize("msg", EVERY_TYPE)
 def test_every_message_type_roundtrips(msg):
     out = roundtrip(msg)
     assert type(out) is type(msg)
@@ -159,3 +157,70 @@ def test_bulk_arrays_are_zero_copy_views_of_the_payload():
     out = codec.decode(payload, codec.decode_envelope(env))
     assert not out.points.flags.writeable  # a view of the (immutable) payload: stages must not modify inputs
     assert np.shares_memory(out.points, np.frombuffer(payload, np.uint8))
+
+
+@pytest.mark.parametrize("msg", [*EVERY_TYPE, m.PointCloud(points=np.ones((5, 3)), frame_id="c", stamp_ns=3)])
+def test_payload_is_the_deterministic_protobuf_serialisation(msg):
+    """The encoder asks upb for deterministic output only where a map field makes it matter; the
+    bytes must be what a deterministic serialisation (bulk field appended) gives."""
+    pb, bulk = msg.to_proto()
+    expected = pb.SerializeToString(deterministic=True)
+    if bulk is not None and msg.BULK is not None:
+        expected += codec._varint((msg.BULK << 3) | 2) + codec._varint(len(bulk)) + bytes(bulk)
+    assert codec.encode_payload(msg) == expected
+
+
+def test_only_schemas_with_maps_ask_for_deterministic_serialisation():
+    from google.protobuf import struct_pb2
+
+    assert codec._has_maps(struct_pb2.Struct) and codec._has_maps(struct_pb2.Value)  # (nested, recursive)
+    assert not any(codec._has_maps(type(msg.proto())) for msg in EVERY_TYPE)
+
+
+@pytest.mark.parametrize(
+    "msg",
+    [
+        m.Blob(data=bytes(range(256)) * 40, frame_id="f", content_type="x", stamp_ns=9),
+        m.Image(data=np.arange(64, dtype=np.float32).reshape(8, 8), frame_id="cam", stamp_ns=5),
+        m.PointCloud(points=np.arange(30, dtype=np.float32).reshape(10, 3), stamp_ns=2),
+        m.PointCloud(points=np.ones((7, 3)), colors=np.full((7, 3), 9, np.uint8)),
+    ],
+)
+def test_small_payloads_parsed_whole_decode_like_large_ones_split(msg, monkeypatch):
+    payload = codec.encode_payload(msg)
+    whole = codec.decode_payload(type(msg), payload)  # small: one protobuf parse
+    monkeypatch.setattr(codec, "SMALL_PAYLOAD", -1)
+    split = codec.decode_payload(type(msg), payload)  # the large-payload path: bulk field as a view
+    for k, v in vars(whole).items():
+        w = getattr(split, k)
+        if isinstance(v, np.ndarray):
+            assert v.dtype == w.dtype and np.array_equal(v, w) and v.flags.writeable == w.flags.writeable, k
+        elif isinstance(v, memoryview | bytes):
+            assert bytes(v) == bytes(w), k
+        else:
+            assert v == w, k
+    assert codec.encode_payload(whole) == codec.encode_payload(split) == payload
+
+
+def test_data_format_packs_and_recognises_data_envelopes():
+    import struct
+
+    fmt = codec.DataFormat("PointCloud")
+    raw = fmt.pack(fmt.head, 7, 1_700_000_000_000_000_001, fmt.name)
+    assert raw == codec.encode_envelope(codec.data_envelope(7, 1_700_000_000_000_000_001, "PointCloud"))
+    assert codec.decode_envelope(raw) == Envelope(Kind.DATA, 7, 1_700_000_000_000_000_001, "PointCloud")
+    head, seq, stamp, name = fmt.unpack(raw)
+    assert (head, seq, stamp, name) == (fmt.head, 7, 1_700_000_000_000_000_001, fmt.name)
+    # anything else is not taken for this port's data: end of stream, another type, another version
+    for other in (
+        codec.encode_envelope(Envelope(Kind.EOS, 8, 1, "")),
+        codec.encode_envelope(Envelope(Kind.EOS, 8, 1, "PointCloud")),
+        codec.encode_envelope(Envelope(Kind.DATA, 8, 1, "Pointcloud")),
+        codec.encode_envelope(Envelope(Kind.DATA, 8, 1, "PointCloud", schema_version=0)),
+        b"",
+    ):
+        try:
+            head, _, _, name = fmt.unpack(other)
+        except struct.error:
+            continue
+        assert (head, name) != (fmt.head, fmt.name)
