@@ -29,6 +29,9 @@ This module owns the sensor model of the simulated 3D camera (structured light /
 * **Injectable effects** (off by default): ``depth_scale`` and ``depth_bias_m`` act on the measured
   range along the ray, ``r_meas = depth_scale * (r_true + noise) + depth_bias_m``, so a scale error
   grows linearly with distance and a bias is a constant shift along each ray.
+* **Depth units.** Real sensors report z as an integer number of depth units (RealSense: 16 bits of
+  1 mm by default, 0.1 mm settable); ``depth_unit_m`` > 0 rounds the measured z to that grid (the
+  point moves along its ray). The rounding error is uniform, sigma = unit / sqrt(12) (29 um at 0.1 mm).
 
 Everything is vectorised over pixels; the per-frame cost is the BVH build, the ray cast (only rays
 inside the parts' projected bounding boxes; for a full scene most of the time, see docs/sim_sensors.md)
@@ -136,6 +139,7 @@ class DepthNoiseModel:
     dropout_prob: float = 0.0  # extra random dropout
     depth_scale: float = 1.0  # injectable effects (off by default)
     depth_bias_m: float = 0.0
+    depth_unit_m: float = 0.0  # reported z is a multiple of this (sensor depth units); 0 = continuous
 
     def __post_init__(self) -> None:
         vals = (
@@ -145,6 +149,7 @@ class DepthNoiseModel:
             self.dropout_prob,
             self.depth_scale,
             self.depth_bias_m,
+            self.depth_unit_m,
         )
         if not all(math.isfinite(v) for v in vals):
             raise ValueError(f"depth noise parameters must be finite, got {self}")
@@ -156,6 +161,8 @@ class DepthNoiseModel:
             raise ValueError(f"dropout_prob must be in [0, 1), got {self.dropout_prob}")
         if self.depth_scale <= 0:
             raise ValueError(f"depth_scale must be positive, got {self.depth_scale}")
+        if self.depth_unit_m < 0:
+            raise ValueError(f"depth_unit_m must be >= 0, got {self.depth_unit_m}")
 
     def sigma(self, z: np.ndarray | float) -> np.ndarray:
         """Standard deviation (m) of the range error at depth z (m)."""
@@ -397,6 +404,8 @@ class DepthCameraModel:
             range_meas += sigma * rng.standard_normal(len(sub))
         range_meas = noise.depth_scale * range_meas + noise.depth_bias_m
         z_meas = range_meas / d_norm
+        if noise.depth_unit_m > 0.0:  # the sensor reports integer depth units (e.g. 16-bit, 0.1 mm)
+            z_meas = np.round(z_meas / noise.depth_unit_m) * noise.depth_unit_m
         if np.any(z_meas <= 0.0):  # a huge negative bias pushed points behind the camera: drop them
             ki = np.flatnonzero(z_meas > 0.0)
             sub, idx, dx, dy, z_true, sigma, z_meas = (a[ki] for a in (sub, idx, dx, dy, z_true, sigma, z_meas))

@@ -403,3 +403,20 @@ def test_any_pose_renders_finite_points_on_the_surface_within_range(rotvec, posi
     assert cap.points[:, 2].min() >= 0.2 and cap.points[:, 2].max() <= 2.0
     assert on_surface_distance(wp, cap.points, T_cam_part).max() < 1e-6
     np.testing.assert_allclose(SMALL.project(cap.points), cap.pixels, atol=1e-3)
+
+
+def test_depth_units_round_the_reported_z_along_the_ray():
+    """A sensor reporting 0.1 mm depth units: every z is a multiple of the unit, each point stays on
+    its ray, and the rounding adds a uniform error of sigma unit/sqrt(12) to the noiseless depth."""
+    unit = 1e-4
+    noise = DepthNoiseModel(sigma_const_m=0.0, grazing_dropout_deg=89.9, depth_unit_m=unit)
+    cam = DepthCameraModel(SMALL, noise, max_range_m=3.0)
+    cap, truth = cam.render_with_truth([(wall(), wall_pose(1.0, tilt_deg=30.0))], np.eye(4), np.random.default_rng(0))
+    z = cap.points[:, 2]
+    np.testing.assert_allclose(z / unit, np.round(z / unit), atol=1e-6)
+    np.testing.assert_allclose(SMALL.project(cap.points), cap.pixels, atol=1e-3)  # as the other projection tests
+    err = z - truth.z_true
+    assert np.abs(err).max() <= unit / 2 + 1e-12
+    assert np.std(err) == pytest.approx(unit / np.sqrt(12), rel=0.1)
+    with pytest.raises(ValueError, match="depth_unit_m"):
+        DepthNoiseModel(depth_unit_m=-1e-4)

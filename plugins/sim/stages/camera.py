@@ -13,6 +13,7 @@ each camera of a cell its own (e.g. ``fixed_camera``) so that the frame tree sta
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any, ClassVar, Literal
 
 import numpy as np
@@ -59,6 +60,7 @@ class NoiseSpec(_Strict):
     sigma_quad_per_m: float = Field(0.0, ge=0.0)
     grazing_dropout_deg: float = Field(80.0, gt=0.0, le=90.0)
     dropout_prob: float = Field(0.0, ge=0.0, lt=1.0)
+    depth_unit_m: float = Field(0.0, ge=0.0, le=0.01, description="reported z rounded to this unit (any preset)")
 
 
 class MountSpec(_Strict):
@@ -111,6 +113,7 @@ class SimCamera(Stage):
             noise = DepthNoiseModel(
                 p.noise.sigma_const_m, p.noise.sigma_quad_per_m, p.noise.grazing_dropout_deg, p.noise.dropout_prob
             )
+        noise = replace(noise, depth_unit_m=p.noise.depth_unit_m)
         model = DepthCameraModel(intr, noise, p.min_range_m, p.max_range_m)
         parts = [PartPlacement(ps.name, make_workpiece(ps.workpiece), ps.pose.T(), ps.parent) for ps in p.parts]
         mount = CameraMount(p.mount.kind, p.mount.pose.T())
