@@ -15,7 +15,6 @@ says so. Nothing moves the robot.
 from __future__ import annotations
 
 import argparse
-import logging
 from pathlib import Path
 from typing import Any
 
@@ -23,13 +22,12 @@ import numpy as np
 import yaml
 from rich.console import Console
 
-from engine.clock import SimClock
 from engine.errors import RecipeError
 from engine.messages import Event, Message, Request
 from engine.plugin_manager import load_registry
 from engine.recipe import load_recipe
-from engine.stage import StageContext, stage_rng
 from engine.transforms import T_from_ur, as_transform
+from plugins.util.detached import DetachedContext
 
 out = Console()
 EXIT_OK, EXIT_FAILED, EXIT_INVALID = 0, 1, 2
@@ -40,18 +38,8 @@ class TeachError(Exception):
     """The pose cannot be taught (bad recipe, no robot, robot did not answer)."""
 
 
-class _QuietContext(StageContext):
-    """Enough engine for one device stage answering ``state``: no bus, publications dropped."""
-
-    def __init__(self, name: str, seed: int, recipe_dir: Path) -> None:
-        self.name, self.run_id, self.seed = name, "teach", seed
-        self.rng = stage_rng(seed, name)
-        self.clock = SimClock()
-        self.log = logging.getLogger(f"vgr.teach.{name}")
-        self.recipe_dir = recipe_dir
-
-    def publish(self, port: str, msg: Message) -> None:
-        pass
+class _QuietContext(DetachedContext):
+    """A detached robot stage answering ``state``: warnings printed, no services of its own to call."""
 
     def event(self, level: str, code: str, message: str, **details: Any) -> None:
         if level in ("warning", "error", "alarm"):
@@ -59,16 +47,6 @@ class _QuietContext(StageContext):
 
     def call(self, client: str, request: Message, timeout_s: float = 10.0) -> Message:
         raise TeachError(f"the robot stage {self.name!r} needs service {client!r} to report its state")
-
-    def has_client(self, client: str) -> bool:
-        return False
-
-    @property
-    def stopping(self) -> bool:
-        return False
-
-    def sleep(self, seconds: float) -> bool:
-        return self.clock.sleep(seconds)
 
 
 def _stage_of(doc: dict[str, Any], types: str | tuple[str, ...]) -> str | None:
