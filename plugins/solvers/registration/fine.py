@@ -46,9 +46,7 @@ class FineParams:
     estimate did not converge (the backend reports hitting its iteration limit and a re-run of
     ``recheck_iterations`` from the estimate still moves the part centre by more than
     ``10 * translation_eps_m`` or rotates it by more than ``10 * rotation_eps_rad``; small_gicp
-    can stop at its limit while oscillating far below the noise, which is accepted; so is an estimate
-    that the re-run still moves by less than ``creep_sigma_fraction`` of its own smallest one-sigma,
-    with a note and ``details["creep"]``);
+    can stop at its limit while oscillating far below the noise, which is accepted);
     ``ambiguous`` when a per-axis one-sigma at the part centre exceeds ``max_sigma_translation_m`` /
     ``max_sigma_rotation_rad``, or a stiffness ratio is below ``degenerate_ratio`` (a direction the
     geometry does not determine); weak directions (stiffness ratio < ``weak_ratio``) are always listed.
@@ -86,7 +84,6 @@ class FineParams:
     polish_backend: str | None = None
     polish_max_iterations: int = 20
     recheck_iterations: int = 10
-    creep_sigma_fraction: float = 0.05
     edges: EdgeParams = field(default_factory=EdgeParams)
     sigma_cluster_factor: float = 5.0
     sigma_scale: float = 2.0
@@ -243,32 +240,20 @@ def evaluate(
 
 def _recheck(
     current: PreparedCloud, template: PreparedCloud, T: np.ndarray, settings: IcpSettings, params: FineParams
-) -> tuple[np.ndarray, bool, tuple[float, float] | None]:
+) -> tuple[np.ndarray, bool]:
     """Re-run the backend briefly from *T*; converged if it hardly moves (see FineParams).
-    ``recheck_iterations <= 0`` disables the check (used for the coarse stage of global matching).
-    Returns (estimate, converged, (how far the re-run still moved the part centre m, turned rad))."""
+    ``recheck_iterations <= 0`` disables the check (used for the coarse stage of global matching)."""
     if params.recheck_iterations <= 0:
-        return T, True, None
+        return T, True
     out = run_backend(params.backend, current, template, T, replace(settings, max_iterations=params.recheck_iterations))
     T2 = out.T_match
     if not (np.all(np.isfinite(T2)) and tf.is_rotation(T2[:3, :3], tol=1e-6)):
-        return T, False, None
+        return T, False
     c = current.centroid[None, :]
     moved = float(np.linalg.norm(tf.transform_points(T2, c) - tf.transform_points(T, c)))
     turned = tf.angle_between(T[:3, :3], T2[:3, :3])
     ok = moved <= 10.0 * params.translation_eps_m and turned <= 10.0 * params.rotation_eps_rad
-    return (T if ok else tf.T_from_Rt(tf.orthonormalize(T2[:3, :3]), T2[:3, 3])), ok, (moved, turned)
-
-
-def _creep_is_negligible(res: RegistrationResult, creep: tuple[float, float] | None, params: FineParams) -> bool:
-    """True when an estimate that is still moving moves by less than ``creep_sigma_fraction`` of its
-    own smallest one-sigma: the backend oscillates far below what the data determine (small_gicp
-    can wander by micrometres near a noisy optimum), so the answer would not change."""
-    if creep is None or res.sigma_translation_m is None or res.sigma_rotation_rad is None:
-        return False
-    moved, turned = creep
-    f = params.creep_sigma_fraction
-    return moved <= f * float(np.min(res.sigma_translation_m)) and turned <= f * float(np.min(res.sigma_rotation_rad))
+    return (T if ok else tf.T_from_Rt(tf.orthonormalize(T2[:3, :3]), T2[:3, 3])), ok
 
 
 def refine(
@@ -299,9 +284,8 @@ def refine(
         res, note = _refine_with_edges(current, template, T, params, method=method, iterations=iterations)
         if res is not None:
             return res
-    creep = None
     if not converged:
-        T, converged, creep = _recheck(current, template, T, settings, params)
+        T, converged = _recheck(current, template, T, settings, params)
     if params.polish_voxel_m is not None:
         current = current.at_voxel(params.polish_voxel_m)
         template = template.at_voxel(params.polish_voxel_m)
@@ -315,18 +299,10 @@ def refine(
             return failed(method, f"{params.backend} returned a non-rigid or non-finite transform (polish)")
         T = tf.T_from_Rt(tf.orthonormalize(out.T_match[:3, :3]), out.T_match[:3, 3])
         iterations, converged = iterations + max(out.iterations, 0), out.converged
-        creep = None
         if not converged:
-            T, converged, creep = _recheck(current, template, T, polish, params)
+            T, converged = _recheck(current, template, T, polish, params)
         params = replace(params, max_correspondence_m=None, inlier_distance_m=None, truncation_m=None)
     res = evaluate(current, template, T, params, method=method, iterations=iterations, converged=converged)
-    if not converged and _creep_is_negligible(res, creep, params):
-        res = evaluate(current, template, T, params, method=method, iterations=iterations, converged=True)
-        res.details["creep"] = {"moved_m": creep[0], "turned_rad": creep[1]}  # type: ignore[index]
-        res.reasons.append(
-            f"still moving by {creep[0] * 1e6:.2g} um / {np.degrees(creep[1]) * 1e3:.2g} mdeg after the recheck: "  # type: ignore[index]
-            f"under {params.creep_sigma_fraction:g} of its one-sigma, accepted"
-        )
     if note:
         res.reasons.append(note)
     return res
