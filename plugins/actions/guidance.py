@@ -136,7 +136,13 @@ class Guidance(Stage):
     def on_message(self, port: str, msg: Request) -> None:  # type: ignore[override]
         p: Guidance.Params = self.params  # type: ignore[assignment]
         job = msg.seq
-        result = GuidanceResult(mode=p.mode, job=job, frame_id="base")
+        result = GuidanceResult(
+            mode=p.mode,
+            job=job,
+            frame_id="base",
+            translation_tol_mm=p.translation_tol_mm,
+            rotation_tol_deg=p.rotation_tol_deg,
+        )
         try:
             self._run(job, result)
         except GuidanceStopError as stop:
@@ -164,6 +170,7 @@ class Guidance(Stage):
             T_match = np.asarray(match.T_match, dtype=float)
             if not np.all(np.isfinite(T_match)):
                 raise GuidanceStopError("failed", "nan", f"look {look}: T_match contains NaN")
+            result.matches.append(T_match)
             t, r = gm.size_of(T_match)
             result.residual_mm.append(t * 1e3)
             result.residual_deg.append(float(np.degrees(r)))

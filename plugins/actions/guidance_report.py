@@ -110,8 +110,10 @@ class GuidanceReport(Stage):
 
     class Params(StageParams):
         report_dir: str = Field("runs/reports", description="folder for the JSON and PNG files")
-        translation_tol_mm: float = Field(0.1, gt=0.0, description="drawn on the plot: the guidance tolerance")
-        rotation_tol_deg: float = Field(0.01, gt=0.0)
+        translation_tol_mm: float | None = Field(
+            None, gt=0.0, description="tolerance drawn on the plot; default: the one guidance used"
+        )
+        rotation_tol_deg: float | None = Field(None, gt=0.0)
         plot: bool = True
 
     def setup(self) -> None:
@@ -135,8 +137,11 @@ class GuidanceReport(Stage):
         stem = folder / f"{self.ctx.run_id}-{self.ctx.name}-job{g.job}"
         files = {"report": str(stem.with_suffix(".json"))}
         stem.with_suffix(".json").write_text(json.dumps(doc, indent=2))
+        # the tolerances guidance converged against (a result from before they travelled: the defaults)
+        tol_mm = p.translation_tol_mm or g.translation_tol_mm or 0.1
+        tol_deg = p.rotation_tol_deg or g.rotation_tol_deg or 0.01
         if p.plot and doc["looks"]:
-            plot_convergence(doc, p.translation_tol_mm, p.rotation_tol_deg, stem.with_suffix(".png"))
+            plot_convergence(doc, tol_mm, tol_deg, stem.with_suffix(".png"))
             files["convergence plot"] = str(stem.with_suffix(".png"))
-        text = report_text(doc, p.translation_tol_mm, p.rotation_tol_deg)
+        text = report_text(doc, tol_mm, tol_deg)
         self.ctx.event("result", "guidance_report", text, files=files, job=g.job)

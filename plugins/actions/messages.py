@@ -2,7 +2,8 @@
 
 Carries the mode, the verdict (``converged`` | ``not_converged`` | ``refused`` | ``failed``), the
 start and end TCP poses the docking formulas need (``T_start``, ``T_end``, T_base_tcp as the robot
-reports them) and the per-look residuals (what the matcher still saw, in mm and degrees).
+reports them), the per-look residuals (what the matcher still saw, in mm and degrees) and each usable
+look's ``T_match`` (so a report or a benchmark can redo the arithmetic of any look).
 """
 
 from __future__ import annotations
@@ -32,6 +33,9 @@ message GuidanceResult {             // one run of the guidance loop (plugins/ac
   repeated double residual_deg = 10; // per look: |rotation| of T_match
   repeated string match_verdicts = 11;
   uint64 job = 12;                   // sequence number of the trigger that started it
+  repeated foxglove.Pose matches = 13; // per usable look: T_match (current -> template, camera frame)
+  double translation_tol_mm = 14;    // the tolerances guidance converged against
+  double rotation_tol_deg = 15;
 }
 """,
 )
@@ -56,6 +60,9 @@ class GuidanceResult(Message):
     residual_deg: list[float] = field(default_factory=list)
     match_verdicts: list[str] = field(default_factory=list)
     job: int = 0
+    matches: list[np.ndarray] = field(default_factory=list)  # T_match per usable look
+    translation_tol_mm: float = 0.0  # the tolerances guidance converged against (0: not stated)
+    rotation_tol_deg: float = 0.0
 
     def __post_init__(self) -> None:
         if self.verdict not in VERDICTS:
@@ -81,6 +88,9 @@ class GuidanceResult(Message):
         pb.residual_mm.extend(float(x) for x in self.residual_mm)
         pb.residual_deg.extend(float(x) for x in self.residual_deg)
         pb.match_verdicts.extend(self.match_verdicts)
+        for T in self.matches:
+            set_pose(pb.matches.add(), T)
+        pb.translation_tol_mm, pb.rotation_tol_deg = self.translation_tol_mm, self.rotation_tol_deg
         return pb, None
 
     @classmethod
@@ -98,4 +108,7 @@ class GuidanceResult(Message):
             residual_deg=list(pb.residual_deg),
             match_verdicts=list(pb.match_verdicts),
             job=pb.job,
+            matches=[get_pose(m) for m in pb.matches],
+            translation_tol_mm=pb.translation_tol_mm,
+            rotation_tol_deg=pb.rotation_tol_deg,
         )

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
 
 from .chain import JacobianFrame
 from .kinematics import RobotModel
@@ -97,6 +98,31 @@ class RobotWithEffects:
         T = self.fk(q, ctx)
         p = np.asarray(point_tcp, dtype=float).reshape(3)
         return T[..., :3, :3] @ p + T[..., :3, 3]
+
+    def joints_reaching(
+        self, T_world_tcp: ArrayLike, q_seed: ArrayLike | None = None, *, tol_m: float = 1e-9, max_iter: int = 20
+    ) -> F64:
+        """Commanded joints at which the TRUE TCP is at ``T_world_tcp`` (what jogging the real robot there gives).
+
+        This is how a pose is taught on a robot with errors: the controller then reports the nominal
+        pose of these joints (``nominal.fk(q)``), not ``T_world_tcp``. Newton on the true pose from the
+        nominal inverse kinematics, with the nominal geometric Jacobian (the effects are small).
+        Raises ValueError when the target is not reached to ``tol_m`` (and 1e-9 rad).
+        """
+        T_t = np.asarray(T_world_tcp, dtype=float)
+        ik = self.nominal.ik(T_t, q_seed)
+        if not ik.success or ik.q is None:
+            raise ValueError(f"the nominal model cannot reach the pose: {ik.reason}")
+        q = np.asarray(ik.q, dtype=float)
+        for _ in range(max_iter):
+            T = self.fk(q)
+            dp = T_t[:3, 3] - T[:3, 3]
+            dw = Rotation.from_matrix(T_t[:3, :3] @ T[:3, :3].T).as_rotvec()
+            if np.linalg.norm(dp) < tol_m and np.linalg.norm(dw) < 1e-9:
+                return q
+            J = self.nominal.jacobian(q, frame="base")  # world coordinates, v of the TCP origin
+            q = q + np.linalg.lstsq(J, np.concatenate([dp, dw]), rcond=None)[0]
+        raise ValueError(f"the true robot did not reach the pose within {max_iter} Newton steps")
 
     # ----------------------------------------------------------------------------- fitting support
 

@@ -68,11 +68,16 @@ class DockingEvaluator(Stage):
         if p.output:
             Path(p.output).parent.mkdir(parents=True, exist_ok=True)
             Path(p.output).write_text(json.dumps(result, indent=2))
-        text = (
-            f"docking error {result['error_mm']:.4f} mm / {result['error_deg']:.4f} deg"
-            if result.get("error_mm") is not None
-            else f"not docked: {result['reason']}"
-        )
+        if result.get("error_mm") is None:
+            text = f"not docked: {result['reason']}"
+        elif p.scenario == "assembly":
+            verdict = "assembled" if result["success"] else "NOT assembled"
+            text = (
+                f"{verdict}: worst pin offset {result['error_mm']:.4f} mm from its hole axis "
+                f"(clearance {result['clearance_mm']} mm)"
+            )
+        else:
+            text = f"docking error {result['error_mm']:.4f} mm / {result['error_deg']:.4f} deg"
         self.ctx.event("result", "docking_evaluation", f"truth: {text}", **result)
 
     def evaluate(self) -> dict[str, object]:
@@ -104,22 +109,46 @@ class DockingEvaluator(Stage):
 
     def _assembly(self, truth: dict[str, np.ndarray], tcp_final: np.ndarray) -> dict[str, object]:
         p: DockingEvaluator.Params = self.params  # type: ignore[assignment]
-        held, base_part = make_workpiece(p.held_workpiece), make_workpiece(p.base_workpiece)
         grasp_true = inv(truth["tcp"]) @ truth[p.held_part]  # type: ignore[index]
-        T_plate = tcp_final @ grasp_true
-        T_base = truth[p.base_part]  # type: ignore[index]
-        offsets = []
-        for pin, hole in zip(p.pins, p.holes, strict=True):
-            axis = (T_base[:3, :3] @ base_part.feature_axes[hole]).astype(float)
-            centre = transform_points(T_base, base_part.features[hole])[0]
-            for point in (pin, f"{pin}_tip"):
-                x = transform_points(T_plate, held.features[point])[0] - centre
-                offsets.append(float(np.linalg.norm(x - np.dot(x, axis) * axis)) * 1e3)
-        worst = max(offsets)
-        return {
-            "pin_offsets_mm": offsets,
-            "error_mm": worst,
-            "error_deg": None,
-            "success": worst < p.clearance_mm,
-            "clearance_mm": p.clearance_mm,
-        }
+        return assembly_fit(
+            tcp_final @ grasp_true,
+            truth[p.base_part],  # type: ignore[index]
+            held_workpiece=p.held_workpiece,
+            base_workpiece=p.base_workpiece,
+            pins=p.pins,
+            holes=p.holes,
+            clearance_mm=p.clearance_mm,
+        )
+
+
+def assembly_fit(
+    T_world_plate: np.ndarray,
+    T_world_base: np.ndarray,
+    *,
+    held_workpiece: str = "planar_plate",
+    base_workpiece: str = "base_plate",
+    pins: tuple[str, ...] = ("pin1", "pin2"),
+    holes: tuple[str, ...] = ("hole1", "hole2"),
+    clearance_mm: float = 0.5,
+) -> dict[str, object]:
+    """Seed 004's criterion for a plate at ``T_world_plate`` over a base at ``T_world_base``.
+
+    Lateral offset (mm) of each pin's root and tip from its hole's axis; ``success`` when every offset
+    is under the radial clearance (a pin then enters its hole).
+    """
+    held, base_part = make_workpiece(held_workpiece), make_workpiece(base_workpiece)
+    offsets = []
+    for pin, hole in zip(pins, holes, strict=True):
+        axis = (T_world_base[:3, :3] @ base_part.feature_axes[hole]).astype(float)
+        centre = transform_points(T_world_base, base_part.features[hole])[0]
+        for point in (pin, f"{pin}_tip"):
+            x = transform_points(T_world_plate, held.features[point])[0] - centre
+            offsets.append(float(np.linalg.norm(x - np.dot(x, axis) * axis)) * 1e3)
+    worst = max(offsets)
+    return {
+        "pin_offsets_mm": offsets,
+        "error_mm": worst,
+        "error_deg": None,
+        "success": worst < clearance_mm,
+        "clearance_mm": clearance_mm,
+    }
