@@ -83,6 +83,8 @@ class FineParams:
     polish_correspondence_m: float | None = None
     polish_backend: str | None = None
     polish_max_iterations: int = 20
+    polish_translation_eps_m: float | None = None  # the polish's step tolerances (None: the fine stage's)
+    polish_rotation_eps_rad: float | None = None
     recheck_iterations: int = 10
     edges: EdgeParams = field(default_factory=EdgeParams)
     sigma_cluster_factor: float = 5.0
@@ -293,6 +295,8 @@ def refine(
             settings,
             max_correspondence_m=params.polish_correspondence_m or max(current.voxel_size_m, 1e-3),
             max_iterations=params.polish_max_iterations,
+            translation_eps_m=params.polish_translation_eps_m or settings.translation_eps_m,
+            rotation_eps_rad=params.polish_rotation_eps_rad or settings.rotation_eps_rad,
         )
         out = run_backend(params.polish_backend or params.backend, current, template, T, polish)
         if not (np.all(np.isfinite(out.T_match)) and tf.is_rotation(out.T_match[:3, :3], tol=1e-6)):

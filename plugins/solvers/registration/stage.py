@@ -57,6 +57,13 @@ class Matcher(Stage):
         backend: Backend = Field("small_gicp_gicp", description="fine backend (see docs/registration.md)")
         voxel_size_m: float = Field(0.002, gt=0.0, le=0.05)
         polish_voxel_m: float | None = Field(0.0, ge=0.0, description="final pass at this voxel; 0 = all points")
+        polish_step_um: float = Field(
+            1.0,
+            gt=0.0,
+            description="the polish stops once an iteration moves the part by less than this (um) and turns "
+            "it by less than this over 0.1 m (far below any capture's noise; at the fine stage's 0.1 um "
+            "small_gicp often ran to its iteration limit)",
+        )
         roi_min_m: tuple[float, float, float] | None = Field(None, description="crop box of the capture (camera frame)")
         roi_max_m: tuple[float, float, float] | None = None
         min_fitness: float = Field(0.5, gt=0.0, le=1.0)
@@ -98,6 +105,8 @@ class Matcher(Stage):
             max_sigma_translation_m=p.max_sigma_translation_mm / 1e3,
             max_sigma_rotation_rad=float(np.radians(p.max_sigma_rotation_deg)),
             polish_voxel_m=p.polish_voxel_m,
+            polish_translation_eps_m=p.polish_step_um * 1e-6,
+            polish_rotation_eps_rad=p.polish_step_um * 1e-5,
             edges=EdgeParams(mode=p.edges),
         )
         self.global_ = GlobalParams(
