@@ -118,7 +118,9 @@ class _ReplayContext(StageContext):
         self.seq[port] += 1
         msg.seq = self.seq[port]
         out = Output(msg.seq, msg.stamp_ns, msg.TYPE, codec.encode_payload(msg), msg)
-        self.replayer.outputs[topic_of(self.name, port)].append(out)
+        topic = topic_of(self.name, port)
+        self.replayer.outputs[topic].append(out)
+        self.replayer.output_by_seq[(topic, msg.seq)] = out
 
     def call(self, client: str, request: Message, timeout_s: float = 10.0) -> Message:
         return self.replayer.serve_call(self, client, request)
@@ -142,6 +144,7 @@ class Replayer:
         self.run_id = rec.metadata.get("vgr.run", {}).get("run_id", graph.recipe.name)
         self.clock = SimClock(int(rec.metadata.get("vgr.run", {}).get("clock_start_ns", SimClock.DEFAULT_EPOCH_NS)))
         self.outputs: dict[str, list[Output]] = defaultdict(list)
+        self.output_by_seq: dict[tuple[str, int], Output] = {}  # (topic, seq) -> the re-run's output
         self.contexts: dict[str, _ReplayContext] = {}
         self.stages: dict[str, Any] = {}
         self.exchanges: dict[tuple[str, str], deque[Exchange]] = defaultdict(deque)
@@ -261,7 +264,7 @@ class Replayer:
             return
         src_stage = src_topic.split("/")[1]
         if src_stage in self.stages:
-            out = next((o for o in self.outputs.get(src_topic, []) if o.seq == seq), None)
+            out = self.output_by_seq.get((src_topic, seq))
             if out is None:
                 self.failures.append(f"{stage}: input {src_topic}[seq {seq}] was recorded but not replayed")
                 return
