@@ -97,3 +97,14 @@ def test_relative_control_assembles_where_the_absolute_baseline_cannot() -> None
     exact = gt.absolute_assembly(trial, hand_eye_scale=0.0)["absolute"]
     assert not wrong["success"] and wrong["error_mm"] > 1.0
     assert exact["error_mm"] < 1.0 and exact["error_mm"] < wrong["error_mm"] / 3
+
+
+@pytest.mark.parametrize("seed", [1104, 1123])
+def test_a_first_look_whose_best_candidates_are_refuted_still_finds_the_plate(seed: int) -> None:
+    """Draws with the grasp turned ~9 deg where the global registration's first fine candidates all
+    failed the contour check (the look was refused, nothing moved): the next coarse candidate is
+    refined too, so the first look is usable and the plate is assembled."""
+    trial = gt.run_trial("planar_assembly", seed)
+    g = trial.guidance["guidance"]
+    assert g.match_verdicts[0] == "ok", g.reasons
+    assert trial.converged and trial.evaluation["success"], (g.reasons, trial.evaluation)

@@ -43,7 +43,9 @@ class GlobalParams:
     template's spacing). ``max_refined``: coarse hypotheses refined by ICP (with ``coarse_backend``,
     GICP by default: the widest basin of convergence). Runners-up whose coarse score is within twice
     the ambiguity gap of the best are refined at the fine level too (at most ``max_fine`` distinct
-    poses), so an ambiguity is decided on fine scores. ``ambiguity_gap``: minimum
+    poses), so an ambiguity is decided on fine scores; while every pose refined so far is refuted by
+    its own evaluation (e.g. its contour does not match), the next one is refined too (planar plate:
+    2 of 100 first looks were refuted this way with a right pose left unrefined). ``ambiguity_gap``: minimum
     relative score gap ``(s_runner_up - s_best) / s_runner_up`` for an unambiguous result.
     Hypotheses closer than ``distinct_translation_m`` (at the part centre) and ``distinct_rotation_rad``
     are the same pose. ``seed`` fixes every random choice (RANSAC, plane RANSAC).
@@ -188,7 +190,10 @@ def register_global(current: Any, template: Any, params: GlobalParams | None = N
     unrefined: list[tuple[float, np.ndarray, str]] = []
     for k, (sc, T, label) in enumerate(refined_c):
         close = sc > 0 and (sc - s_best_c) / sc < 2.0 * params.ambiguity_gap
-        if k > 0 and (len(finals) >= params.max_fine or not close):
+        # while every pose refined so far is refuted by its own evaluation (its contour does not
+        # match the template's), the next coarse candidate is refined at the fine level as well
+        all_refuted = bool(finals) and all(_refuted(r) for r, _, _ in finals)
+        if k > 0 and (len(finals) >= params.max_fine or not close) and not all_refuted:
             unrefined.append((sc, T, label))
             continue
         r = refine(cur, tmpl, T, rank)
