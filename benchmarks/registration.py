@@ -277,6 +277,7 @@ def bench_stage_planar_plate(poses: int) -> dict:
     from engine.cli import main as vgr_cli
     from engine.messages import PointCloud
     from plugins.solvers.registration.stage import Matcher
+    from plugins.util.detached import DetachedContext
 
     cam = scenes.camera(640, 480)
     rng = np.random.default_rng(SEED + 5)
@@ -285,7 +286,7 @@ def bench_stage_planar_plate(poses: int) -> dict:
         np.savez(f"{d}/teach.npz", points=tmpl.points)
         args = ["template", "make", "--from-file", f"{d}/teach.npz", "--photo-pose=0,0,0.45,0,0,0"]
         assert vgr_cli([*args, "--name", "plate", "-o", d]) == 0
-        stage = Matcher(scenes.StageContext(), Matcher.Params(template=f"{d}/plate.vgrtpl"))
+        stage = Matcher(DetachedContext("matcher", seed=4), Matcher.Params(template=f"{d}/plate.vgrtpl"))
         stage.setup()
     counts = {"ok_success": 0, "ok_wrong": 0, "ambiguous": 0, "failed": 0}
     times, errors = [], []

@@ -106,22 +106,6 @@ def at_distance(T_cam_part: np.ndarray, distance_m: float) -> np.ndarray:
     return tf.T_from_Rt(np.eye(3), [0.0, 0.0, distance_m - DISTANCE_M]) @ T_cam_part
 
 
-class StageContext:
-    """The least a solver stage needs of its context outside a run: name, seed, clock, log (no bus)."""
-
-    def __init__(self, name: str = "matcher", seed: int = 4) -> None:
-        import logging
-
-        from engine.clock import SimClock
-        from engine.stage import stage_rng
-
-        self.name, self.run_id, self.seed = name, "test", seed
-        self.rng = stage_rng(seed, name)
-        self.clock = SimClock()
-        self.log = logging.getLogger(f"test.{name}")
-        self.recipe_dir = None
-
-
 def true_match(template: Capture, current: Capture) -> np.ndarray:
     return template.T_cam_part @ tf.inv(current.T_cam_part)
 

@@ -23,6 +23,7 @@ import registration_scenes as scenes
 from engine.cli import main as vgr
 from engine.messages import PointCloud
 from plugins.solvers.registration.stage import Matcher
+from plugins.util.detached import DetachedContext
 
 PART = "planar_plate"
 
@@ -40,7 +41,7 @@ def stage_and_template(tmp_path_factory):
     args = ["template", "make", "--from-file", str(out / "teach.npz"), f"--photo-pose={photo_pose}"]
     code = vgr([*args, "--name", "plate", "-o", str(out)])
     assert code == 0
-    stage = Matcher(scenes.StageContext(), Matcher.Params(template=str(out / "plate.vgrtpl")))
+    stage = Matcher(DetachedContext("matcher", seed=4), Matcher.Params(template=str(out / "plate.vgrtpl")))
     stage.setup()
     return stage, tmpl, cam, rng
 
@@ -112,7 +113,7 @@ def test_template_make_then_stage_reach_the_fine_accuracy_target(tmp_path):
     np.savez(tmp_path / "teach.npz", points=tmpl.points)
     args = ["template", "make", "--from-file", str(tmp_path / "teach.npz"), "--photo-pose=0,0,0.5,0,0,0"]
     assert vgr([*args, "--name", "part", "-o", str(tmp_path)]) == 0
-    stage = Matcher(scenes.StageContext(), Matcher.Params(template=str(tmp_path / "part.vgrtpl")))
+    stage = Matcher(DetachedContext("matcher", seed=4), Matcher.Params(template=str(tmp_path / "part.vgrtpl")))
     stage.setup()
     assert stage.template.points_resolution == "full" and len(stage.template.points) > 200_000
     errors = []
