@@ -24,6 +24,7 @@ from pydantic import Field
 from engine.messages import Correction
 from engine.stage import Stage, StageParams
 from plugins.actions import guidance_math as gm
+from plugins.actions.guidance import Guidance
 from plugins.actions.messages import GuidanceResult
 
 
@@ -137,9 +138,10 @@ class GuidanceReport(Stage):
         stem = folder / f"{self.ctx.run_id}-{self.ctx.name}-job{g.job}"
         files = {"report": str(stem.with_suffix(".json"))}
         stem.with_suffix(".json").write_text(json.dumps(doc, indent=2))
-        # the tolerances guidance converged against (a result from before they travelled: the defaults)
-        tol_mm = p.translation_tol_mm or g.translation_tol_mm or 0.1
-        tol_deg = p.rotation_tol_deg or g.rotation_tol_deg or 0.01
+        # the tolerances guidance converged against (a result from before they travelled: its defaults)
+        defaults = Guidance.Params.model_fields
+        tol_mm = p.translation_tol_mm or g.translation_tol_mm or defaults["translation_tol_mm"].default
+        tol_deg = p.rotation_tol_deg or g.rotation_tol_deg or defaults["rotation_tol_deg"].default
         if p.plot and doc["looks"]:
             plot_convergence(doc, tol_mm, tol_deg, stem.with_suffix(".png"))
             files["convergence plot"] = str(stem.with_suffix(".png"))
