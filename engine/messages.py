@@ -12,7 +12,7 @@ Each class names its protobuf ``SCHEMA`` (see engine.schemas) and converts with 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, is_dataclass
 from typing import Any, ClassVar, Self
 
 import numpy as np
@@ -153,13 +153,41 @@ def detach(msg: Message) -> Message:
 
 
 def freeze_arrays(msg: Message) -> None:
-    """Make the numpy arrays among *msg*'s attributes read-only, in place."""
-    for v in msg.__dict__.values():
-        if isinstance(v, _ndarray) and v.flags.writeable:
-            v.flags.writeable = False
+    """Make the numpy arrays among *msg*'s fields read-only, in place.
+
+    Only the fields that can hold an array are looked at (:func:`array_fields`, once per class):
+    publish calls this for every message, and for a message of strings and bytes the scan of all its
+    attributes cost more than the rest of the hand-over to a local consumer."""
+    cls = type(msg)
+    names = _ARRAY_FIELDS.get(cls)
+    if names is None:
+        names = array_fields(cls)
+    if names:
+        d = msg.__dict__
+        for name in names:
+            v = d.get(name)
+            if isinstance(v, _ndarray) and v.flags.writeable:
+                v.flags.writeable = False
 
 
 _ndarray = np.ndarray
+_ARRAY_FIELDS: dict[type, tuple[str, ...]] = {}
+# annotations of fields that cannot hold a numpy array; any other annotation (np.ndarray, Any, a
+# custom class, ...) is looked at when the message is published
+_NO_ARRAY = frozenset({"str", "int", "float", "bool", "bytes", "memoryview", "bytearray", "None"})
+
+
+def array_fields(cls: type) -> tuple[str, ...]:
+    """Names of the dataclass fields of *cls* that may hold a numpy array (cached per class)."""
+    if not is_dataclass(cls):
+        raise TypeError(f"{cls.__name__} is not a dataclass message type")
+    names = []
+    for f in fields(cls):
+        ann = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", repr(f.type))
+        if not all(part.strip() in _NO_ARRAY for part in ann.split("|")):
+            names.append(f.name)
+    out = _ARRAY_FIELDS[cls] = tuple(names)
+    return out
 
 
 # --------------------------------------------------------------------------- geometry (Foxglove)

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import contextlib
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
 
 import numpy as np
 import pytest
@@ -224,3 +226,28 @@ def test_data_format_packs_and_recognises_data_envelopes():
         except struct.error:
             continue
         assert (head, name) != (fmt.head, fmt.name)
+
+
+def test_freeze_arrays_looks_at_every_field_that_may_hold_an_array() -> None:
+    """publish freezes only the fields whose annotation can hold an array; an array in any of them
+    (np.ndarray, Any, a dict) is frozen, and fields of strings and bytes are skipped."""
+
+    @dataclass(kw_only=True, eq=False)
+    class Mixed(m.Message):
+        TYPE: ClassVar[str] = "MixedForFreezeTest"
+        label: str = ""
+        raw: bytes | memoryview = b""
+        arr: np.ndarray = field(default_factory=lambda: np.zeros(3))
+        anything: Any = None
+        maybe: np.ndarray | None = None
+
+    assert m.array_fields(Mixed) == ("arr", "anything", "maybe")
+    assert m.array_fields(m.Blob) == ()
+    assert m.array_fields(m.PointCloud) == ("points", "normals", "colors")
+    msg = Mixed(arr=np.ones(3), anything=np.ones(2), maybe=None)
+    m.freeze_arrays(msg)
+    assert not msg.arr.flags.writeable and not msg.anything.flags.writeable
+    with pytest.raises(ValueError):
+        msg.arr[0] = 5.0
+    with pytest.raises(TypeError, match="not a dataclass"):
+        m.array_fields(int)
