@@ -25,6 +25,11 @@ to the last measured message: ``cpu_us_per_msg``, and ``throughput_ratio_cpu`` =
 / vgr CPU per message, the throughput ratio a CPU-bound run would show. On a machine shared with other
 work that figure is the steadier one; the wall-clock ratios are what the targets name.
 
+For 64 B and 4 KiB across processes a third row, ``typed_floor`` (benchmarks/wire_floor.py), gives the
+throughput of vgr's codec alone: the same Blobs built, encoded, packed 64 to a zenoh sample, decoded
+and handed to the sink's code in the receiving process, with no engine at all. An engine delivering
+typed messages through this codec cannot beat it; ``typed_floor_throughput_ratio`` = that row / raw.
+
 Usage: ``python benchmarks/engine_overhead.py [--quick] [--repeat N] [--out FILE]``; writes
 benchmarks/results/engine_overhead.json (``--quick``: engine_overhead_quick.json, git-ignored).
 """
@@ -53,8 +58,10 @@ ROOT = HERE.parent
 sys.path[:0] = [str(HERE), str(ROOT)]
 
 from bench_stages import make_payload  # noqa: E402
+from wire_floor import BATCH, floor_cross_process, floor_subscriber_main  # noqa: E402
 
 SIZES = {"64B": 64, "4KiB": 4096, "1.2MB": 1_200_000}
+FLOOR_MAX_SIZE = 4096  # the typed floor row is measured for the small payloads (the targets they miss)
 WARMUP = 20
 
 
@@ -195,6 +202,16 @@ def raw_cross_process(size: int, count: int, interval_s: float) -> dict[str, flo
     return summarize(res["lat_ns"], res["arrivals_ns"], size, (cpu1 - cpu0) + rx_cpu, res["lat_entry_ns"])
 
 
+def typed_floor_cross_process(size: int, count: int, interval_s: float) -> dict[str, float]:
+    """Throughput reference: vgr's codec, batched, without the engine (see benchmarks/wire_floor.py)."""
+    assert interval_s == 0.0, "the floor row measures throughput only (batching holds paced messages back)"
+    res = floor_cross_process(size, count, WARMUP, free_port(), session, __file__)
+    rx = res["receiver"]
+    cpu = float(res["sender_cpu_s"]) + (rx["cpu_s"][1] - rx["cpu_s"][0])
+    out = summarize([], rx["arrivals_ns"], size, cpu)
+    return {k: v for k, v in out.items() if k in ("msg_per_s", "MB_per_s", "cpu_us_per_msg")}
+
+
 # --------------------------------------------------------------------------- vgr
 
 
@@ -304,9 +321,13 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--out", type=Path, help="result file (default benchmarks/results/engine_overhead[_quick].json)")
     ap.add_argument("--raw-sub", nargs=3, metavar=("ENDPOINT", "OUT", "TOTAL"), help=argparse.SUPPRESS)
+    ap.add_argument("--floor-sub", nargs=3, metavar=("ENDPOINT", "OUT", "TOTAL"), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.raw_sub:
         raw_subscriber_main(args.raw_sub[0], args.raw_sub[1], int(args.raw_sub[2]))
+        return
+    if args.floor_sub:
+        floor_subscriber_main(args.floor_sub[0], args.floor_sub[1], int(args.floor_sub[2]), WARMUP, session)
         return
     t_start = time.monotonic()
     repeat = 1 if args.quick else args.repeat
@@ -322,6 +343,7 @@ def main() -> None:
         "cross_process": {"raw_zenoh": raw_cross_process, "vgr": vgr_cross_process},
     }
     results: dict[str, dict[str, dict[str, dict[str, float]]]] = {}
+    floor_runs: dict[str, list[dict[str, float]]] = {}
     for topo, fns in topologies.items():
         for label, size in SIZES.items():
             n_lat, interval, n_tp = plan[label]
@@ -332,6 +354,8 @@ def main() -> None:
                     lat_runs[who].append(fn(size, n_lat, interval))
                 for who, fn in fns.items():
                     tp_runs[who].append(fn(size, n_tp, 0.0))
+                if topo == "cross_process" and size <= FLOOR_MAX_SIZE:
+                    floor_runs.setdefault(label, []).append(typed_floor_cross_process(size, n_tp, 0.0))
             for who in fns:
                 lat, tp = median_of(lat_runs[who]), median_of(tp_runs[who])
                 row = {k: v for k, v in lat.items() if k.endswith("_us") or k == "n"}  # (p50_entry_us: raw only)
@@ -343,6 +367,14 @@ def main() -> None:
                     f"cpu {row['cpu_us_per_msg']:8.1f} us/msg",
                     flush=True,
                 )
+    for label, runs in floor_runs.items():
+        row = median_of(runs)
+        results["cross_process"][label]["typed_floor"] = row
+        print(
+            f"{'cross_process':14s} {label:6s} {'floor':10s} {'':33s}{row['msg_per_s']:10.0f} msg/s  "
+            f"{row['MB_per_s']:8.1f} MB/s  cpu {row['cpu_us_per_msg']:8.1f} us/msg   (codec, {BATCH} per sample, no engine)",
+            flush=True,
+        )
     ratios = {}
     for topo, by_size in results.items():
         for label, r in by_size.items():
@@ -355,6 +387,10 @@ def main() -> None:
                 "meets_latency_target_1.5x": lat_ratio <= 1.5,
                 "meets_throughput_target_0.7x": tp_ratio >= 0.7,
             }
+            if "typed_floor" in r:  # the best any engine delivering typed messages with this codec can do
+                ratios[f"{topo}/{label}"]["typed_floor_throughput_ratio"] = (
+                    r["typed_floor"]["msg_per_s"] / r["raw_zenoh"]["msg_per_s"]
+                )
     elapsed = time.monotonic() - t_start
     doc = {
         "benchmark": "engine_overhead",
@@ -371,9 +407,11 @@ def main() -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(doc, indent=2))
     for k, v in ratios.items():
+        floor = v.get("typed_floor_throughput_ratio")
         print(
             f"{k:22s} latency x{v['latency_ratio_p50']:.2f}  throughput x{v['throughput_ratio']:.2f}  "
             f"(CPU per message: x{v['throughput_ratio_cpu']:.2f})"
+            + (f"  typed floor x{floor:.2f}" if floor is not None else "")
         )
     print(f"written {out} after {elapsed:.0f} s")
 
