@@ -37,7 +37,7 @@ from engine.transforms import T_from_Rt, inv
 from plugins.actions import guidance_math as gm
 from plugins.actions.messages import GuidanceResult
 from plugins.params import PoseSpec
-from plugins.sim.model_file import load_robot_model
+from plugins.sim.model_file import load_robot_model, transform_entry
 from plugins.sim.robot_effects import effects_from_config
 from plugins.sim.sensor_effects import PoseOffset
 from plugins.sim.stages.evaluation import assembly_fit
@@ -142,10 +142,6 @@ def _offset_dict(o: PoseOffset) -> dict[str, list[float]]:
     }
 
 
-def _pose_dict(T: np.ndarray) -> dict[str, list[list[float]]]:
-    return {"matrix": [[float(v) for v in row] for row in T]}
-
-
 def recipe_data(scenario: str) -> dict[str, Any]:
     """The shipped recipe of a scenario as plain data (YAML anchors expanded into copies)."""
     recipe, _, _ = SCENARIOS[scenario]
@@ -181,7 +177,7 @@ def draw(
         drot = _unit(rng) * np.radians(spec.hand_eye_deg)
         errors[guidance] = np.concatenate([dt, drot])
         believed = perturbed_pose(mount_pose(data, camera), dt, drot)
-        data["stages"][guidance]["params"]["hand_eye"] = _pose_dict(believed)
+        data["stages"][guidance]["params"]["hand_eye"] = transform_entry(believed)
     for key, value in (extra or {}).items():
         stage, param = key.split(".", 1)
         data["stages"][stage].setdefault("params", {})[param] = value

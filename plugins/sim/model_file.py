@@ -294,7 +294,8 @@ def load_robot_model(name_or_path: str | Path) -> RobotModel:
     return robot_model_from_dict(data, source=str(path))
 
 
-def _transform_entry(T: np.ndarray) -> dict[str, Any]:
+def transform_entry(T: np.ndarray) -> dict[str, Any]:
+    """A 4x4 transform as recipe/model-file data: ``{"matrix": [[...], ...]}`` of plain floats."""
     return {"matrix": [[float(v) for v in row] for row in np.asarray(T)]}
 
 
@@ -316,14 +317,14 @@ def model_to_dict(model: RobotModel) -> dict[str, Any]:
         screws, M = model.poe_screws_at_zero()
         for lim, sc in zip(limits, screws, strict=True):
             joints.append({"axis": list(sc.axis), "point": list(sc.point)} | lim)
-        out["flange_at_zero"] = _transform_entry(M)
+        out["flange_at_zero"] = transform_entry(M)
     else:
         for lim, row in zip(limits, model.dh_rows(), strict=True):
             joints.append({k: getattr(row, k) for k in ("a", "alpha", "d", "theta", "beta")} | lim)
-        out["last_to_flange"] = _transform_entry(model._fixed_matrix("flange"))
+        out["last_to_flange"] = transform_entry(model._fixed_matrix("flange"))
     out["joints"] = joints
-    out["base"] = _transform_entry(model.T_world_base)
-    out["tool"] = _transform_entry(model.T_flange_tcp)
+    out["base"] = transform_entry(model.T_world_base)
+    out["tool"] = transform_entry(model.T_flange_tcp)
     if model.links is not None:
         out["links"] = [{"mass": link.mass_kg, "com_link": list(link.com_link)} for link in model.links]
     out["gravity"] = [float(g) for g in model.gravity_world]
