@@ -11,6 +11,7 @@ from calib_helpers import MOVEIT, MOVEIT_T_BASE_CAM_M, RECIPES, events, results,
 
 from plugins.solvers.handeye import simulate as he_sim
 from plugins.solvers.handeye.io import write_pose_pairs_json
+from plugins.util.detached import DetachedContext
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -174,28 +175,13 @@ def test_calibration_poses_ids_are_deterministic_and_a_refusal_stops_the_sequenc
     assert not res.usable and msgs[("calibrate", "transform")] == []
 
 
-class FakeContext:
-    """Just enough of a StageContext to drive a solver stage by hand (message order chosen by the test)."""
-
-    name, run_id, seed = "calibrate", "t", 5
-
-    def __init__(self) -> None:
-        self.published: list[tuple[str, object]] = []
-
-    def publish(self, port, msg):
-        self.published.append((port, msg))
-
-    def event(self, level, code, message, **details):
-        self.published.append(("events", (level, code, message)))
-
-
 def test_a_solve_that_overtakes_its_samples_waits_for_them():
     from engine.messages import PoseStamped, Request
     from plugins.solvers.handeye.io import load_pose_pairs
     from plugins.solvers.stages.hand_eye import HandEyeCalibration
 
     s = load_pose_pairs(MOVEIT)
-    ctx = FakeContext()
+    ctx = DetachedContext("calibrate", seed=5)
     stage = HandEyeCalibration(ctx, HandEyeCalibration.Params(setup="eye_to_hand"))
     stage.setup()
     stage.on_message("solve", Request(command="solve", args={"total_samples": 50}, seq=1))  # arrives first
@@ -210,17 +196,12 @@ def test_a_solve_that_overtakes_its_samples_waits_for_them():
     assert len([p for p, _ in ctx.published if p == "result"]) == 1
 
 
-class FakeRobotContext(FakeContext):
-    """A context whose robot executes each command id once (a repeat answers ``duplicate``) and
-    whose point instrument answers at a fixed stamp."""
-
-    name = "poses"
+class FakeRobotContext(DetachedContext):
+    """A detached context whose robot executes each command id once (a repeat answers
+    ``duplicate``) and whose point instrument answers at a fixed stamp."""
 
     def __init__(self) -> None:
-        super().__init__()
-        import numpy as np
-
-        self.rng = np.random.default_rng(0)
+        super().__init__("poses")
         self.seen: set[str] = set()
 
     def call(self, client, request, timeout_s=10.0):
@@ -246,10 +227,9 @@ def test_a_repeated_trigger_moves_and_measures_nothing():
     stage.on_message("trigger", Request(command="start", seq=1))  # the same trigger again (a restart, a replay)
     ports = [p for p, _ in ctx.published]
     assert ports.count("point") == 2 and ports.count("done") == 1
-    assert (
-        "events",
-        ("warning", "duplicate_trigger", "command poses-1-0 was already executed; sequence skipped"),
-    ) in ctx.published
+    assert [(e.level, e.code, e.message) for e in ctx.events] == [
+        ("warning", "duplicate_trigger", "command poses-1-0 was already executed; sequence skipped")
+    ]
     stage.on_message("trigger", Request(command="start", seq=2))  # a new trigger: new ids, moves again
     done = [m for p, m in ctx.published if p == "done"]
     assert [d.args["total_samples"] for d in done] == [2, 4]
