@@ -2,7 +2,8 @@
 
 Key expressions (``<run>`` is the run id)::
 
-    vgr/<run>/<stage>/<port>          data stream of an output port (pub/sub)
+    vgr/<run>/<stage>/<port>          data stream of an output port, one message per sample (pub/sub)
+    vgr/<run>/_wire/<stage>/<port>    the same stream to vgr stages of other processes (engine.wire)
     vgr/<run>/<stage>/srv/<service>   request/reply service of a stage (queryable)
     vgr/<run>/_ready/<stage>          liveliness: the stage is declared and listening
     vgr/<run>/_started/<process>      liveliness: the process has set up its stages and reads its inputs
@@ -11,8 +12,8 @@ Key expressions (``<run>`` is the run id)::
 
 The default session is the embedded set-up: peer mode, multicast scouting off, listening on
 loopback only (``tcp/127.0.0.1:0``). Stages of one process exchange message objects in-process
-(engine.inbox); a stream goes through zenoh, encoded, when another process or an external
-subscriber listens. Streams are reliable with congestion control BLOCK: nothing is dropped.
+(engine.inbox); a stream goes through zenoh, encoded, when another process (on its ``_wire`` key,
+see engine.wire) or an external subscriber (on its public key) listens. Streams are reliable with congestion control BLOCK: nothing is dropped.
 
 Nothing may block zenoh's receive thread: it also delivers service replies, so a reader blocked
 there would deadlock a stage waiting for a reply. A remote input's samples therefore go to a FIFO
@@ -44,6 +45,10 @@ _open_buses: weakref.WeakSet[Bus] = weakref.WeakSet()
 
 def data_key(run: str, stage: str, port: str) -> str:
     return f"vgr/{run}/{stage}/{port}"
+
+
+def wire_key(run: str, stage: str, port: str) -> str:
+    return f"vgr/{run}/_wire/{stage}/{port}"
 
 
 def service_key(run: str, stage: str, service: str) -> str:

@@ -13,7 +13,8 @@ Envelope (zenoh attachment; in MCAP the same values are the channel's schema, th
     struct "<4sBBHQq": magic b"VGR\\x01", kind, schema version, reserved, seq, stamp_ns
     followed by the UTF-8 message type name (e.g. "PointCloud")
 
-``kind`` is DATA for messages, EOS when a port ends, STOP for local control. Documented in
+``kind`` is DATA for messages, EOS when a port ends, STOP for local control, BATCH for a sample
+holding several messages (only on the internal stage-to-stage key, see engine.wire). Documented in
 docs/messages.md.
 """
 
@@ -47,6 +48,7 @@ class Kind(IntEnum):
     DATA = 0
     EOS = 1
     STOP = 2
+    BATCH = 3  # several messages in one sample, between vgr processes (engine.wire)
 
 
 class Envelope(NamedTuple):

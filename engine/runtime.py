@@ -9,14 +9,17 @@ Data path of ``publish(port, msg)``:
   idle, else by the consumer's pump thread; see engine.inbox);
 * when anything outside the process may listen — a stage of another process, an external zenoh
   subscriber (a robot controller, a viewer), or a run observer such as the recorder — the message is
-  encoded once (engine.codec) and put on ``vgr/<run>/<stage>/<port>``; the envelope is packed by
-  the port's :class:`~engine.codec.DataFormat` in one struct call.
+  encoded once (engine.codec; the envelope packed by the port's :class:`~engine.codec.DataFormat` in
+  one struct call). Stages of other processes get it through the port's
+  :class:`~engine.wire.WireSender` on ``vgr/<run>/_wire/<stage>/<port>`` (put at once when the port
+  is idle, batched while it bursts); an external subscriber gets it on ``vgr/<run>/<stage>/<port>``,
+  one message per sample, put only while one listens there.
 
 An input fed by a stage of another process is a zenoh subscriber with a FIFO channel handler
 (:class:`RemoteInput`): zenoh's network thread only pushes the sample into the channel (no Python, no
 GIL, never blocking below the channel's large capacity), and the port's pump thread takes the samples
-out in order, decodes and handles them. One hand-over per message, and no Python callback thread;
-samples already waiting are taken without releasing the GIL.
+out in order, unpacks batches, decodes and handles the messages. No Python callback thread; samples
+already waiting are taken without releasing the GIL.
 
 Per message the hot paths do only what the message needs: everything fixed for a port (its
 publisher, envelope format, message class, consumers' offer functions, the deliver function with
@@ -44,12 +47,13 @@ from time import perf_counter
 from typing import TYPE_CHECKING, Any
 
 from engine import codec
-from engine.bus import data_key, service_key
+from engine.bus import data_key, service_key, wire_key
 from engine.codec import CodecError, Envelope, Kind
 from engine.graph import StageNode
 from engine.inbox import END, STOP, PortInbox
 from engine.messages import Event, Message, canonical, detach, freeze_arrays
 from engine.stage import EVENTS_PORT, ServiceError, ServiceTimeoutError, Stage, StageContext, stage_rng
+from engine.wire import BATCH_ENVELOPE, WireSender, iter_batch
 
 if TYPE_CHECKING:
     from engine.runner import Runner
@@ -93,7 +97,10 @@ class StageStats:
 
 
 class _Output:
-    """One output port: its zenoh publisher, local consumers, sequence counter and lock."""
+    """One output port: its zenoh publishers, local consumers, sequence counter and lock.
+
+    Consumers in other vgr processes get the messages through ``wire`` (engine.wire, on the internal
+    key); the public key's ``publisher`` is put to only while a foreign subscriber listens there."""
 
     def __init__(self, runtime: StageRuntime, port: str) -> None:
         rt = runtime
@@ -110,6 +117,11 @@ class _Output:
         )
         self.publisher = rt.runner.bus.remote_publisher(data_key(rt.run_id, rt.name, port))
         self.put = self.publisher.put
+        self.wire = (
+            WireSender(rt.runner.bus.remote_publisher(wire_key(rt.run_id, rt.name, port)), f"{rt.name}.{port}")
+            if self.remote_consumers
+            else None
+        )
         self.external = bool(self.publisher.matching_status.matching)
         self.observed = bool(rt.runner.observers)  # observers are fixed before a run starts
         self._update()
@@ -121,6 +133,7 @@ class _Output:
 
     def _update(self) -> None:
         self.on_wire = self.remote_consumers or self.external  # something outside the process listens
+        self.send = self.wire.send if self.wire is not None else None
         self.needs_bytes = self.on_wire or self.observed  # the message must be encoded
 
 
@@ -217,8 +230,10 @@ class StageRuntime(StageContext):
                 att = fmt.pack(fmt.head, seq, msg.stamp_ns, fmt.name)
                 for obs in self._observers:
                     obs.on_publish(self.name, port, payload, att, msg)
-                if out.on_wire:
+                if out.external:
                     out.put(payload, attachment=att)
+                if out.send is not None:
+                    out.send(payload, att)
             if exact:  # frozen before any consumer here holds it, after the bytes are on their way
                 freeze_arrays(msg)
             self.stats.published[port] += 1
@@ -284,7 +299,7 @@ class StageRuntime(StageContext):
                 self.inboxes[edge.dst_port] = PortInbox(edge.dst_port, LOCAL_QUEUE_DEPTH)
                 producer.outputs[edge.src_port].local.append(self._offerer(edge.dst_port))
             else:
-                key = data_key(self.run_id, edge.src, edge.src_port)
+                key = wire_key(self.run_id, edge.src, edge.src_port)
                 self.inboxes[edge.dst_port] = RemoteInput(self, edge.dst_port, key)
 
     @property
@@ -366,16 +381,14 @@ class StageRuntime(StageContext):
         """Thread of an input from another process: receives, decodes and handles its samples in order.
 
         Samples already waiting are taken without releasing the GIL (``try_recv``); only an empty
-        channel makes the thread block (``recv``, GIL released). A DATA envelope of the port's own
-        type is recognised by one struct call (:class:`engine.codec.DataFormat`) and its payload
-        decoded with the port's class; anything else takes the general path (:meth:`_decode_other`)."""
+        channel makes the thread block (``recv``, GIL released). A sample is one message or a batch
+        of them (engine.wire), handled one by one in order. A DATA envelope of the port's own type is
+        recognised by one struct call (:class:`engine.codec.DataFormat`) and its payload decoded with
+        the port's class; anything else takes the general path (:meth:`_decode_other`)."""
         channel = remote.channel
         try_recv, recv = channel.try_recv, channel.recv
-        stop_is_set, lock, deliver, observers = self._stop_event.is_set, self.lock, self._deliver[port], self._observers
-        cls = self.node.cls.inputs[port]
-        fmt = codec.DataFormat(cls.TYPE)
-        unpack, head, name = fmt.unpack, fmt.head, fmt.name
-        src = next(e for e in self.runner.graph.inputs_of(self.name) if e.dst_port == port)
+        stop_is_set, lock, deliver = self._stop_event.is_set, self.lock, self._deliver[port]
+        decode = self._message_decoder(port)
         while True:
             try:
                 sample = try_recv()
@@ -387,46 +400,69 @@ class StageRuntime(StageContext):
                 return
             att = sample.attachment
             raw_env = att.to_bytes() if att is not None else b""
+            payload = sample.payload.to_bytes()
+            if raw_env == BATCH_ENVELOPE:
+                items = iter_batch(payload)
+            else:
+                items = iter(((raw_env, payload),))
             try:
-                try:
-                    h, seq, stamp, n = unpack(raw_env)
-                    fast = h == head and n == name
-                except _StructError:
-                    fast = False
-                if fast:
-                    payload = sample.payload.to_bytes()
-                    if observers:
-                        for obs in observers:
-                            obs.on_receive(src.src, src.src_port, payload, raw_env)
-                    msg = _decode_payload(cls, payload)
-                    msg.seq = seq
-                    if not msg.stamp_ns:
-                        msg.stamp_ns = stamp
-                else:
-                    msg = self._decode_other(src, raw_env, sample)
+                for raw_env, payload in items:
+                    try:
+                        msg = decode(raw_env, payload)
+                    except CodecError as exc:
+                        self._undecodable(port, exc)
+                        continue
                     if msg is None:
                         continue
-            except CodecError as exc:
-                if not stop_is_set():
-                    self.event("warning", "undecodable_message", f"ignored a message on input {port!r}: {exc}")
-                continue
-            with lock:
-                deliver(msg)
-            if msg is END:
-                return
+                    with lock:
+                        deliver(msg)
+                    if msg is END:
+                        return
+            except CodecError as exc:  # the batch itself is damaged: the rest of it is lost
+                self._undecodable(port, exc)
             # drop the message and its buffers now, not when the next one has arrived: freeing a
             # large payload would otherwise land on the next message's latency
-            sample = att = payload = msg = None
+            sample = att = payload = items = msg = None
 
-    def _decode_other(self, src: Any, raw_env: bytes, sample: Any) -> Message | object | None:
-        """A sample the fast path did not recognise: a message of another type or schema version,
+    def _undecodable(self, port: str, exc: CodecError) -> None:
+        if not self._stop_event.is_set():
+            self.event("warning", "undecodable_message", f"ignored a message on input {port!r}: {exc}")
+
+    def _message_decoder(self, port: str) -> Any:
+        """``decode(raw_env, payload)`` of remote input *port*: its message, END, or None (ignore);
+        raises CodecError. Observers see every data message as it arrives."""
+        observers = self._observers
+        cls = self.node.cls.inputs[port]
+        fmt = codec.DataFormat(cls.TYPE)
+        unpack, head, name = fmt.unpack, fmt.head, fmt.name
+        src = next(e for e in self.runner.graph.inputs_of(self.name) if e.dst_port == port)
+
+        def decode(raw_env: bytes, payload: bytes | memoryview) -> Message | object | None:
+            try:
+                h, seq, stamp, n = unpack(raw_env)
+            except _StructError:
+                return self._decode_other(src, raw_env, payload)
+            if h != head or n != name:
+                return self._decode_other(src, raw_env, payload)
+            if observers:
+                for obs in observers:
+                    obs.on_receive(src.src, src.src_port, payload, raw_env)
+            msg = _decode_payload(cls, payload)
+            msg.seq = seq
+            if not msg.stamp_ns:
+                msg.stamp_ns = stamp
+            return msg
+
+        return decode
+
+    def _decode_other(self, src: Any, raw_env: bytes, payload: bytes | memoryview) -> Message | object | None:
+        """A message the fast path did not recognise: a message of another type or schema version,
         an end of stream (END), or something to ignore (None). Raises CodecError."""
         env = codec.decode_envelope(raw_env)
         if env.kind == _EOS:
             return END
         if env.kind != _DATA:
             return None
-        payload = sample.payload.to_bytes()
         for obs in self._observers:
             obs.on_receive(src.src, src.src_port, payload, raw_env)
         return codec.decode(payload, env)
@@ -574,9 +610,12 @@ class StageRuntime(StageContext):
             if out.closed:
                 return
             out.closed = True
-            env = Envelope(_EOS, out.seq + 1, self.clock.now_ns(), "")
-            if out.on_wire:
-                out.publisher.put(b"", attachment=codec.encode_envelope(env))
+            eos = codec.encode_envelope(Envelope(_EOS, out.seq + 1, self.clock.now_ns(), ""))
+            if out.external:
+                out.publisher.put(b"", attachment=eos)
+            if out.wire is not None:
+                out.wire.send(b"", eos)
+                out.wire.close()  # after what is queued, then the sender thread ends
             for offer in out.local:
                 offer(END)
 
@@ -618,3 +657,6 @@ class StageRuntime(StageContext):
                     )
                 )
         self._close_port(EVENTS_PORT)
+        for out in self.outputs.values():  # a stopped run: ports that did not end get no EOS
+            if out.wire is not None:
+                out.wire.close(timeout_s=2.0)
