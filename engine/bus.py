@@ -13,7 +13,8 @@ Key expressions (``<run>`` is the run id)::
 The default session is the embedded set-up: peer mode, multicast scouting off, listening on
 loopback only (``tcp/127.0.0.1:0``). Stages of one process exchange message objects in-process
 (engine.inbox); a stream goes through zenoh, encoded, when another process (on its ``_wire`` key,
-see engine.wire) or an external subscriber (on its public key) listens. Streams are reliable with congestion control BLOCK: nothing is dropped.
+see engine.wire) or an external subscriber (on its public key) listens. Streams are reliable with
+congestion control BLOCK: nothing is dropped.
 
 Nothing may block zenoh's receive thread: it also delivers service replies, so a reader blocked
 there would deadlock a stage waiting for a reply. A remote input's samples therefore go to a FIFO
