@@ -82,13 +82,17 @@ class WireSender:
         self._busy = False  # the sender thread is putting messages taken from the queue
         self._closed = False
         self._last_ns = 0
+        self._error: BaseException | None = None  # a put of the sender thread failed
         self._thread: threading.Thread | None = None
         self.samples = 0  # zenoh samples put (batches count once)
         self.batched = 0  # messages that went in a batch
 
     def send(self, payload: bytes, envelope: bytes) -> None:
+        """Send one message (raises, as a put would, once a put of the sender thread has failed)."""
         now = time.monotonic_ns()
         with self._cv:
+            if self._error is not None:
+                raise RuntimeError(f"sending {self._name} to other processes failed: {self._error}") from self._error
             burst = now - self._last_ns < BURST_NS
             self._last_ns = now
             idle = not self._pending and not self._busy
@@ -96,8 +100,10 @@ class WireSender:
                 self._put(payload, attachment=envelope)  # idle port: no hand-over, no wait
                 self.samples += 1
                 return
-            while len(self._pending) >= MAX_PENDING and not self._closed:
+            while len(self._pending) >= MAX_PENDING and not self._closed and self._error is None:
                 self._cv.wait()
+            if self._error is not None:
+                raise RuntimeError(f"sending {self._name} to other processes failed: {self._error}") from self._error
             self._pending.append((envelope, payload))
             if self._thread is None:
                 self._thread = threading.Thread(target=self._run, name=f"vgr:wire:{self._name}", daemon=True)
@@ -126,9 +132,15 @@ class WireSender:
                 self._cv.notify_all()  # a producer waiting for room
             try:
                 self._put_items(items)
-            finally:
+            except Exception as exc:  # the session is gone, say: the producer's next send raises it
                 with self._cv:
+                    self._error = exc
+                    self._pending.clear()
                     self._busy = False
+                    self._cv.notify_all()
+                return
+            with self._cv:
+                self._busy = False
 
     def _put_items(self, items: list[tuple[bytes, bytes]]) -> None:
         run: list[tuple[bytes, bytes]] = []

@@ -111,6 +111,20 @@ def test_a_slow_link_makes_the_producer_wait_and_loses_nothing(monkeypatch):
     assert time.monotonic() - t0 > 0.02  # the producer waited for room at least a few puts' time
 
 
+def test_a_failed_put_of_the_sender_thread_fails_the_next_send():
+    class Broken(FakePublisher):
+        def put(self, payload: bytes, attachment: bytes) -> None:
+            if len(self.samples) >= 1:
+                raise ConnectionError("session closed")
+            super().put(payload, attachment)
+
+    sender = wire.WireSender(Broken(), "src.out")
+    with pytest.raises(RuntimeError, match=r"sending src\.out to other processes failed: session closed"):
+        for seq in range(1, 10_000):  # a burst: queued for the sender thread, whose second put fails
+            sender.send(b"z", env_of(seq))
+    sender.close()
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
