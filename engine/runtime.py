@@ -122,6 +122,7 @@ class _Output:
             if self.remote_consumers
             else None
         )
+        self.send = self.wire.send if self.wire is not None else None
         self.external = bool(self.publisher.matching_status.matching)
         self.observed = bool(rt.runner.observers)  # observers are fixed before a run starts
         self._update()
@@ -133,7 +134,6 @@ class _Output:
 
     def _update(self) -> None:
         self.on_wire = self.remote_consumers or self.external  # something outside the process listens
-        self.send = self.wire.send if self.wire is not None else None
         self.needs_bytes = self.on_wire or self.observed  # the message must be encoded
 
 

@@ -92,7 +92,7 @@ class WireSender:
         now = time.monotonic_ns()
         with self._cv:
             if self._error is not None:
-                raise RuntimeError(f"sending {self._name} to other processes failed: {self._error}") from self._error
+                raise self._failure()
             burst = now - self._last_ns < BURST_NS
             self._last_ns = now
             idle = not self._pending and not self._busy
@@ -103,13 +103,18 @@ class WireSender:
             while len(self._pending) >= MAX_PENDING and not self._closed and self._error is None:
                 self._cv.wait()
             if self._error is not None:
-                raise RuntimeError(f"sending {self._name} to other processes failed: {self._error}") from self._error
+                raise self._failure()
             self._pending.append((envelope, payload))
             if self._thread is None:
                 self._thread = threading.Thread(target=self._run, name=f"vgr:wire:{self._name}", daemon=True)
                 self._thread.start()
             elif len(self._pending) == 1:
                 self._cv.notify_all()
+
+    def _failure(self) -> RuntimeError:
+        err = RuntimeError(f"sending {self._name} to other processes failed: {self._error}")
+        err.__cause__ = self._error
+        return err
 
     def close(self, timeout_s: float = 10.0) -> None:
         """Put what is still queued, then stop the sender thread."""
