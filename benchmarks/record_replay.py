@@ -42,7 +42,7 @@ sys.path[:0] = [str(HERE.parent)]
 
 from engine.graph import build_graph  # noqa: E402
 from engine.plugin_manager import load_registry  # noqa: E402
-from engine.recipe import load_recipe  # noqa: E402
+from engine.recipe import LoadedRecipe, load_recipe  # noqa: E402
 from engine.recorder import Recorder  # noqa: E402
 from engine.replay import _ReplayContext, replay  # noqa: E402
 from engine.runner import Runner  # noqa: E402
@@ -69,10 +69,9 @@ stages:
 REGISTRY = load_registry()
 
 
-def run(text: str, frames: int, record: Path | None) -> tuple[float, float]:
-    """Run the recipe *text* (recording to *record* unless None): (frames per second of wall time,
-    process CPU ms per frame: every thread, the recorder's included)."""
-    loaded = load_recipe("rec_bench.yaml", text=text)
+def run_loaded(loaded: LoadedRecipe, record: Path | None) -> tuple[float, float]:
+    """Run *loaded* in this process, recording to *record* unless None: (wall seconds, process CPU
+    seconds: every thread, the recorder's included)."""
     graph = build_graph(loaded, REGISTRY)
     observers = [Recorder(record, graph.recipe.record, loaded, REGISTRY.plugins)] if record else []
     t0, c0 = time.perf_counter(), time.process_time()
@@ -80,6 +79,13 @@ def run(text: str, frames: int, record: Path | None) -> tuple[float, float]:
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     assert summary.ok, summary.stop_reason
     assert "recording_error" not in summary.artifacts, summary.artifacts
+    return wall, cpu
+
+
+def run(text: str, frames: int, record: Path | None) -> tuple[float, float]:
+    """Run the recipe *text* (recording to *record* unless None): (frames per second of wall time,
+    process CPU ms per frame: every thread, the recorder's included)."""
+    wall, cpu = run_loaded(load_recipe("rec_bench.yaml", text=text), record)
     return frames / wall, cpu / frames * 1e3
 
 
@@ -129,15 +135,7 @@ SHIPPED = ("eye_in_hand_dock", "planar_assembly")  # recipes whose run the recor
 
 def run_recipe(name: str, record: Path | None) -> float:
     """Wall seconds of one run of recipes/<name>.yaml in this process, recording to *record* unless None."""
-    loaded = load_recipe(str(HERE.parent / "recipes" / f"{name}.yaml"))
-    graph = build_graph(loaded, REGISTRY)
-    observers = [Recorder(record, graph.recipe.record, loaded, REGISTRY.plugins)] if record else []
-    t0 = time.perf_counter()
-    summary = Runner(graph, observers=observers).run()
-    wall = time.perf_counter() - t0
-    assert summary.ok, summary.stop_reason
-    assert "recording_error" not in summary.artifacts, summary.artifacts
-    return wall
+    return run_loaded(load_recipe(str(HERE.parent / "recipes" / f"{name}.yaml")), record)[0]
 
 
 def recipe_overhead(tmp: Path, repeat: int) -> dict[str, object]:
