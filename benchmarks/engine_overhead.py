@@ -48,6 +48,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -58,8 +59,9 @@ ROOT = HERE.parent
 sys.path[:0] = [str(HERE), str(ROOT)]
 
 from bench_stages import make_payload  # noqa: E402
-from wire_floor import BATCH, floor_cross_process, floor_subscriber_main  # noqa: E402
+from wire_floor import BATCH, floor_subscriber_main, send_batched  # noqa: E402
 
+BENCH_KEY = "bench/data"  # key of the raw and typed-floor runs
 SIZES = {"64B": 64, "4KiB": 4096, "1.2MB": 1_200_000}
 FLOOR_MAX_SIZE = 4096  # the typed floor row is measured for the small payloads (the targets they miss)
 WARMUP = 20
@@ -142,8 +144,8 @@ class RawReceiver:
 def raw_in_process(size: int, count: int, interval_s: float) -> dict[str, float]:
     s = session()
     rx = RawReceiver(count + WARMUP)
-    sub = s.declare_subscriber("bench/raw", rx)
-    pub = s.declare_publisher("bench/raw", congestion_control=zenoh.CongestionControl.BLOCK)
+    sub = s.declare_subscriber(BENCH_KEY, rx)
+    pub = s.declare_publisher(BENCH_KEY, congestion_control=zenoh.CongestionControl.BLOCK)
     cpu0, cpu1 = send(pub, size, count, interval_s)
     rx.done.wait(60)  # the callback runs on zenoh-python's own thread: let it finish
     sub.undeclare()
@@ -172,7 +174,7 @@ def raw_subscriber_main(endpoint: str, out: str, total: int) -> None:
     """Child process: subscribe over tcp, record, write JSON when all messages arrived."""
     s = session(connect=[endpoint])
     rx = RawReceiver(total)
-    s.declare_subscriber("bench/raw", rx)
+    s.declare_subscriber(BENCH_KEY, rx)
     rx.done.wait(300)
     Path(out).write_text(
         json.dumps({"lat_ns": rx.lat, "lat_entry_ns": rx.lat_entry, "arrivals_ns": rx.arr, "cpu_s": rx.cpu})
@@ -180,35 +182,48 @@ def raw_subscriber_main(endpoint: str, out: str, total: int) -> None:
     s.close()
 
 
-def raw_cross_process(size: int, count: int, interval_s: float) -> dict[str, float]:
+def to_child(flag: str, count: int, send_fn: Callable[[zenoh.Publisher], tuple[float, float]]) -> tuple[dict, float]:
+    """Publish on BENCH_KEY with *send_fn* to a child ``python THIS --<flag> ENDPOINT OUT TOTAL`` over
+    tcp/127.0.0.1 once it has subscribed: (the child's JSON record, this process's CPU seconds over
+    the measured messages)."""
     port = free_port()
     s = session(listen=[f"tcp/127.0.0.1:{port}"])
-    pub = s.declare_publisher("bench/raw", congestion_control=zenoh.CongestionControl.BLOCK)
+    pub = s.declare_publisher(BENCH_KEY, congestion_control=zenoh.CongestionControl.BLOCK)
     with tempfile.TemporaryDirectory() as tmp:
-        out = Path(tmp) / "raw.json"
+        out = Path(tmp) / "child.json"
         child = subprocess.Popen(
-            [sys.executable, __file__, "--raw-sub", f"tcp/127.0.0.1:{port}", str(out), str(count + WARMUP)]
+            [sys.executable, __file__, f"--{flag}", f"tcp/127.0.0.1:{port}", str(out), str(count + WARMUP)]
         )
         deadline = time.monotonic() + 30
         while not pub.matching_status.matching and time.monotonic() < deadline:
             time.sleep(0.01)
         time.sleep(0.2)
-        cpu0, cpu1 = send(pub, size, count, interval_s)
+        cpu0, cpu1 = send_fn(pub)
         child.wait(300)
         res = json.loads(out.read_text())
     pub.undeclare()
     s.close()
+    return res, cpu1 - cpu0
+
+
+def raw_cross_process(size: int, count: int, interval_s: float) -> dict[str, float]:
+    res, tx_cpu = to_child("raw-sub", count, lambda pub: send(pub, size, count, interval_s))
     rx_cpu = res["cpu_s"][1] - res["cpu_s"][0]
-    return summarize(res["lat_ns"], res["arrivals_ns"], size, (cpu1 - cpu0) + rx_cpu, res["lat_entry_ns"])
+    return summarize(res["lat_ns"], res["arrivals_ns"], size, tx_cpu + rx_cpu, res["lat_entry_ns"])
+
+
+def floor_subscriber_process(endpoint: str, out: str, total: int) -> None:
+    """Child process of the typed floor row (benchmarks/wire_floor.py)."""
+    s = session(connect=[endpoint])
+    floor_subscriber_main(s.declare_subscriber(BENCH_KEY, zenoh.handlers.FifoChannel(1 << 20)), out, total, WARMUP)
+    s.close()
 
 
 def typed_floor_cross_process(size: int, count: int, interval_s: float) -> dict[str, float]:
     """Throughput reference: vgr's codec, batched, without the engine (see benchmarks/wire_floor.py)."""
     assert interval_s == 0.0, "the floor row measures throughput only (batching holds paced messages back)"
-    res = floor_cross_process(size, count, WARMUP, free_port(), session, __file__)
-    rx = res["receiver"]
-    cpu = float(res["sender_cpu_s"]) + (rx["cpu_s"][1] - rx["cpu_s"][0])
-    out = summarize([], rx["arrivals_ns"], size, cpu)
+    rx, tx_cpu = to_child("floor-sub", count, lambda pub: send_batched(pub, size, count, WARMUP))
+    out = summarize([], rx["arrivals_ns"], size, tx_cpu + (rx["cpu_s"][1] - rx["cpu_s"][0]))
     return {k: v for k, v in out.items() if k in ("msg_per_s", "MB_per_s", "cpu_us_per_msg")}
 
 
@@ -327,7 +342,7 @@ def main() -> None:
         raw_subscriber_main(args.raw_sub[0], args.raw_sub[1], int(args.raw_sub[2]))
         return
     if args.floor_sub:
-        floor_subscriber_main(args.floor_sub[0], args.floor_sub[1], int(args.floor_sub[2]), WARMUP, session)
+        floor_subscriber_process(args.floor_sub[0], args.floor_sub[1], int(args.floor_sub[2]))
         return
     t_start = time.monotonic()
     repeat = 1 if args.quick else args.repeat

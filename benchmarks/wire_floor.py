@@ -2,9 +2,10 @@
 
 Used by benchmarks/engine_overhead.py as a reference row next to raw zenoh and vgr. The sender
 builds each message as a stage does (a ``Blob`` of the same timestamped payload), encodes it with
-vgr's codec (``engine.codec.encode_payload``) and, unlike vgr, packs ``BATCH`` of them into one zenoh
-sample, so zenoh's per-sample costs (the put, the transmit thread's wake-up, the receive channel) are
-spread over many messages. The receiving process decodes every message with the codec
+vgr's codec (``engine.codec.encode_payload`` and the port envelope) and packs ``BATCH`` of them into
+one zenoh sample in engine.wire's batch format — always, where vgr batches only while a producer
+bursts — so zenoh's per-sample costs (the put, the transmit thread's wake-up, the receive channel)
+are spread over many messages. The receiving process decodes every message with the codec
 (``decode_payload``) and hands it to a handler doing what ``bench_sink`` does. No engine: no
 stage locks, sequence checks, counters, observers or threads of ours.
 
@@ -17,12 +18,7 @@ engine.
 from __future__ import annotations
 
 import json
-import struct
-import subprocess
-import sys
-import tempfile
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import zenoh
@@ -30,31 +26,26 @@ from bench_stages import make_payload
 
 from engine import codec
 from engine.messages import Blob
+from engine.wire import BATCH_ENVELOPE, iter_batch, pack_batch
 
 BATCH = 64  # messages per zenoh sample
-_RECORD = struct.Struct("<QI")  # seq, payload length; then the payload
 
 
-def floor_subscriber_main(
-    endpoint: str, out: str, total: int, warmup: int, session_fn: Callable[..., zenoh.Session]
-) -> None:
-    """Child process: receive batches, decode every message, note latency, arrivals and CPU time."""
-    s = session_fn(connect=[endpoint])
-    sub = s.declare_subscriber("bench/floor", zenoh.handlers.FifoChannel(1 << 20))
-    channel, decode, unpack, head = sub.handler, codec.decode_payload, _RECORD.unpack_from, _RECORD.size
+def floor_subscriber_main(sub: zenoh.Subscriber, out: str, total: int, warmup: int) -> None:
+    """Child process: receive batches from *sub* (a FIFO channel subscriber), decode every message,
+    note latency, arrivals and CPU time, write them to *out* as JSON."""
+    channel, decode = sub.handler, codec.decode_payload
+    unpack = codec.DataFormat(Blob.TYPE).unpack
     lat: list[int] = []
     arrivals: list[int] = []
     cpu = [0.0, 0.0]
     n = 0
     while n < total:
         sample = channel.try_recv() or channel.recv()
-        buf = sample.payload.to_bytes()
-        view, off, end = memoryview(buf), 0, len(buf)
-        while off < end:
-            seq, size = unpack(buf, off)
-            off += head
-            msg = decode(Blob, view[off : off + size])
-            off += size
+        assert sample.attachment is not None and sample.attachment.to_bytes() == BATCH_ENVELOPE
+        for env, payload in iter_batch(sample.payload.to_bytes()):
+            _, seq, _, _ = unpack(env)
+            msg = decode(Blob, payload)
             msg.seq = seq
             # the handler: what bench_sink.on_message does
             now = time.monotonic_ns()
@@ -67,45 +58,26 @@ def floor_subscriber_main(
                 cpu[0] = time.process_time()
     cpu[1] = time.process_time()
     Path(out).write_text(json.dumps({"lat_ns": lat, "arrivals_ns": arrivals, "cpu_s": cpu}))
-    s.close()
 
 
-def floor_cross_process(
-    size: int, count: int, warmup: int, endpoint_port: int, session_fn: Callable[..., zenoh.Session], script: str
-) -> dict[str, object]:
-    """Publish warm-up + *count* Blobs of *size* bytes as fast as possible, BATCH per sample, to a
-    child process started as ``python SCRIPT --floor-sub ENDPOINT OUT TOTAL``; returns the child's
-    record and this process's CPU seconds over the measured messages."""
-    endpoint = f"tcp/127.0.0.1:{endpoint_port}"
-    s = session_fn(listen=[endpoint])
-    pub = s.declare_publisher("bench/floor", congestion_control=zenoh.CongestionControl.BLOCK)
-    with tempfile.TemporaryDirectory() as tmp:
-        out = Path(tmp) / "floor.json"
-        child = subprocess.Popen([sys.executable, script, "--floor-sub", endpoint, str(out), str(count + warmup)])
-        deadline = time.monotonic() + 30
-        while not pub.matching_status.matching and time.monotonic() < deadline:
-            time.sleep(0.01)
-        time.sleep(0.2)
-        base = bytes(max(size, 8))
-        encode, pack, put = codec.encode_payload, _RECORD.pack, pub.put
-        parts: list[bytes] = []
-        cpu0 = 0.0
-        for i in range(count + warmup):
-            if i == warmup:
-                cpu0 = time.process_time()
-            msg = Blob(data=make_payload(base))
-            msg.stamp_ns = time.monotonic_ns()
-            msg.seq = i + 1
-            payload = encode(msg)
-            parts += (pack(msg.seq, len(payload)), payload)
-            if len(parts) >= 2 * BATCH:
-                put(b"".join(parts))
-                parts.clear()
-        if parts:
-            put(b"".join(parts))
-        cpu1 = time.process_time()
-        child.wait(300)
-        res = json.loads(out.read_text())
-    pub.undeclare()
-    s.close()
-    return {"receiver": res, "sender_cpu_s": cpu1 - cpu0}
+def send_batched(pub: zenoh.Publisher, size: int, count: int, warmup: int) -> tuple[float, float]:
+    """Publish warm-up + *count* Blobs of *size* bytes as fast as possible, BATCH to a sample;
+    process CPU time at the first measured message and at the end."""
+    base = bytes(max(size, 8))
+    fmt = codec.DataFormat(Blob.TYPE)
+    encode, pack, head, name, put = codec.encode_payload, fmt.pack, fmt.head, fmt.name, pub.put
+    batch: list[tuple[bytes, bytes]] = []
+    cpu0 = 0.0
+    for i in range(count + warmup):
+        if i == warmup:
+            cpu0 = time.process_time()
+        msg = Blob(data=make_payload(base))
+        msg.stamp_ns = time.monotonic_ns()
+        msg.seq = i + 1
+        batch.append((pack(head, msg.seq, msg.stamp_ns, name), encode(msg)))
+        if len(batch) >= BATCH:
+            put(pack_batch(batch), attachment=BATCH_ENVELOPE)
+            batch.clear()
+    if batch:
+        put(pack_batch(batch), attachment=BATCH_ENVELOPE)
+    return cpu0, time.process_time()
