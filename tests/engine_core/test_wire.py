@@ -111,6 +111,28 @@ def test_a_slow_link_makes_the_producer_wait_and_loses_nothing(monkeypatch):
     assert time.monotonic() - t0 > 0.02  # the producer waited for room at least a few puts' time
 
 
+def test_the_queue_is_bounded_in_bytes_too(monkeypatch):
+    """Few large messages fill the byte bound long before the count bound: the producer waits."""
+    monkeypatch.setattr(wire, "MAX_PENDING_BYTES", 1000)
+    seen: list[int] = []
+
+    class Watching(FakePublisher):
+        def put(self, payload: bytes, attachment: bytes) -> None:
+            if attachment == wire.BATCH_ENVELOPE:  # a slow link for the sender thread's batches
+                time.sleep(0.002)
+            super().put(payload, attachment)
+            seen.append(sender._pending_bytes)  # what the producer queued meanwhile
+
+    pub = Watching()
+    sender = wire.WireSender(pub, "t")
+    for seq in range(1, 101):
+        sender.send(b"w" * 100, env_of(seq))
+    sender.close()
+    assert [e for e, _ in pub.messages()] == [env_of(s) for s in range(1, 101)]
+    assert max(seen) >= 900  # the queue did fill up to the bound ...
+    assert max(seen) < 1000 + 100  # ... and no further: one payload past it at most
+
+
 def test_a_failed_put_of_the_sender_thread_fails_the_next_send():
     class Broken(FakePublisher):
         def put(self, payload: bytes, attachment: bytes) -> None:
