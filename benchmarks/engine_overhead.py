@@ -19,11 +19,14 @@ BLOCK, nothing dropped). The vgr processes run without recording (``--no-record`
 are benchmarks/record_replay.py's subject.
 
 raw and vgr alternate run by run (raw, vgr, raw, vgr, ... for each payload), so load from other
-programs drifting over time hits both alike; medians over ``--repeat`` runs. Each run also notes the
-CPU time its processes spent (``time.process_time()``, every thread, zenoh's included) from the first
-to the last measured message: ``cpu_us_per_msg``, and ``throughput_ratio_cpu`` = raw CPU per message
-/ vgr CPU per message, the throughput ratio a CPU-bound run would show. On a machine shared with other
-work that figure is the steadier one; the wall-clock ratios are what the targets name.
+programs drifting over time hits both alike; medians over ``--repeat`` runs (default 5), and, per
+row, the ratio of each pair of alternated runs (``*_runs``: their spread is this machine's
+run-to-run noise; on a shared 2-vCPU VM raw zenoh's small-message rate moves by up to +-30 %).
+Each run also notes the CPU time its processes spent (``time.process_time()``, every thread,
+zenoh's included) from the first to the last measured message: ``cpu_us_per_msg``, and
+``throughput_ratio_cpu`` = raw CPU per message / vgr CPU per message, the throughput ratio a
+CPU-bound run would show. On a machine shared with other work that figure is the steadier one; the
+wall-clock ratios are what the targets name.
 
 For 64 B and 4 KiB across processes a third row, ``typed_floor`` (benchmarks/wire_floor.py), gives the
 throughput of vgr's codec alone: the same Blobs built, encoded, packed 64 to a zenoh sample, decoded
@@ -333,7 +336,7 @@ def median_of(runs: list[dict[str, float]]) -> dict[str, float]:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="fewer messages and repetitions (smoke test)")
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--out", type=Path, help="result file (default benchmarks/results/engine_overhead[_quick].json)")
     ap.add_argument("--raw-sub", nargs=3, metavar=("ENDPOINT", "OUT", "TOTAL"), help=argparse.SUPPRESS)
     ap.add_argument("--floor-sub", nargs=3, metavar=("ENDPOINT", "OUT", "TOTAL"), help=argparse.SUPPRESS)
@@ -359,6 +362,7 @@ def main() -> None:
     }
     results: dict[str, dict[str, dict[str, dict[str, float]]]] = {}
     floor_runs: dict[str, list[dict[str, float]]] = {}
+    run_ratios: dict[str, dict[str, list[float]]] = {}  # vgr / raw of each pair of alternated runs
     for topo, fns in topologies.items():
         for label, size in SIZES.items():
             n_lat, interval, n_tp = plan[label]
@@ -371,6 +375,14 @@ def main() -> None:
                     tp_runs[who].append(fn(size, n_tp, 0.0))
                 if topo == "cross_process" and size <= FLOOR_MAX_SIZE:
                     floor_runs.setdefault(label, []).append(typed_floor_cross_process(size, n_tp, 0.0))
+            run_ratios[f"{topo}/{label}"] = {
+                "latency": [
+                    v["p50_us"] / r["p50_us"] for r, v in zip(lat_runs["raw_zenoh"], lat_runs["vgr"], strict=True)
+                ],
+                "throughput": [
+                    v["msg_per_s"] / r["msg_per_s"] for r, v in zip(tp_runs["raw_zenoh"], tp_runs["vgr"], strict=True)
+                ],
+            }
             for who in fns:
                 lat, tp = median_of(lat_runs[who]), median_of(tp_runs[who])
                 row = {k: v for k, v in lat.items() if k.endswith("_us") or k == "n"}  # (p50_entry_us: raw only)
@@ -401,6 +413,10 @@ def main() -> None:
                 "throughput_ratio_cpu": r["raw_zenoh"]["cpu_us_per_msg"] / r["vgr"]["cpu_us_per_msg"],
                 "meets_latency_target_1.5x": lat_ratio <= 1.5,
                 "meets_throughput_target_0.7x": tp_ratio >= 0.7,
+                # the same ratios run by run (raw and vgr alternated, paired in order): their spread
+                # is the run-to-run noise of this machine
+                "latency_ratio_p50_runs": [round(x, 3) for x in run_ratios[f"{topo}/{label}"]["latency"]],
+                "throughput_ratio_runs": [round(x, 3) for x in run_ratios[f"{topo}/{label}"]["throughput"]],
             }
             if "typed_floor" in r:  # the best any engine delivering typed messages with this codec can do
                 ratios[f"{topo}/{label}"]["typed_floor_throughput_ratio"] = (
@@ -423,8 +439,10 @@ def main() -> None:
     out.write_text(json.dumps(doc, indent=2))
     for k, v in ratios.items():
         floor = v.get("typed_floor_throughput_ratio")
+        lat_runs, tp_runs = v["latency_ratio_p50_runs"], v["throughput_ratio_runs"]
         print(
-            f"{k:22s} latency x{v['latency_ratio_p50']:.2f}  throughput x{v['throughput_ratio']:.2f}  "
+            f"{k:22s} latency x{v['latency_ratio_p50']:.2f} [{min(lat_runs):.2f}-{max(lat_runs):.2f}]  "
+            f"throughput x{v['throughput_ratio']:.2f} [{min(tp_runs):.2f}-{max(tp_runs):.2f}]  "
             f"(CPU per message: x{v['throughput_ratio_cpu']:.2f})"
             + (f"  typed floor x{floor:.2f}" if floor is not None else "")
         )
