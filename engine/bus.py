@@ -18,7 +18,7 @@ congestion control BLOCK: nothing is dropped.
 
 Nothing may block zenoh's receive thread: it also delivers service replies, so a reader blocked
 there would deadlock a stage waiting for a reply. A remote input's samples therefore go to a FIFO
-channel of very large capacity, read by the port's pump thread (engine.runtime.RemoteInput), and
+channel of very large capacity, read by the port's pump thread (engine.remote_input.RemoteInput), and
 service queries to a callback that only appends to an unbounded queue. (zenoh-python 1.10 runs a
 Python callback on a thread of its own, but feeds that thread through a bounded channel: measured
 here, a callback blocked while a few hundred samples arrive stalls the session's receive thread,

@@ -7,7 +7,7 @@ handler at once, saving a thread wake-up; otherwise the message waits in the que
 pump thread. The queue is bounded: a producer that outruns its consumer waits (backpressure),
 nothing is dropped. One port's messages are handled in publication order, and the port never has
 two messages in flight.
-(An input fed by another process has no queue of ours: see engine.runtime.RemoteInput.)
+(An input fed by another process has no queue of ours: see engine.remote_input.RemoteInput.)
 
 Wake-ups are the expensive part of a hand-over (a thread switch and a GIL transfer each), so the
 two sides wait on separate conditions of one lock and are notified only when someone waits for

@@ -10,16 +10,14 @@ Data path of ``publish(port, msg)``:
 * when anything outside the process may listen — a stage of another process, an external zenoh
   subscriber (a robot controller, a viewer), or a run observer such as the recorder — the message is
   encoded once (engine.codec; the envelope packed by the port's :class:`~engine.codec.DataFormat` in
-  one struct call). Stages of other processes get it through the port's
-  :class:`~engine.wire.WireSender` on ``vgr/<run>/_wire/<stage>/<port>`` (put at once when the port
-  is idle, batched while it bursts); an external subscriber gets it on ``vgr/<run>/<stage>/<port>``,
-  one message per sample, put only while one listens there.
+  one struct call) and goes where the port (:class:`~engine.output_port.OutputPort`) says: to
+  stages of other processes through its :class:`~engine.wire.WireSender` (put at once when the
+  port is idle, batched while it bursts), to an external subscriber on ``vgr/<run>/<stage>/<port>``
+  only while one listens there.
 
-An input fed by a stage of another process is a zenoh subscriber with a FIFO channel handler
-(:class:`RemoteInput`): zenoh's network thread only pushes the sample into the channel (no Python, no
-GIL, never blocking below the channel's large capacity), and the port's pump thread takes the samples
-out in order, unpacks batches, decodes and handles the messages. No Python callback thread; samples
-already waiting are taken without releasing the GIL.
+An input fed by a stage of another process is a :class:`~engine.remote_input.RemoteInput`: a zenoh
+subscriber with a FIFO channel whose pump thread decodes the messages and hands them to
+:meth:`StageRuntime._deliverer`'s function for the port, as local inputs do.
 
 Per message the hot paths do only what the message needs: everything fixed for a port (its
 publisher, envelope format, message class, consumers' offer functions, the deliver function with
@@ -36,9 +34,7 @@ its traceback, never a silent death.
 
 from __future__ import annotations
 
-import contextlib
 import logging
-import struct
 import threading
 import time
 import traceback
@@ -47,21 +43,22 @@ from time import perf_counter
 from typing import TYPE_CHECKING, Any
 
 from engine import codec
-from engine.bus import data_key, service_key, wire_key
+from engine.bus import service_key, wire_key
 from engine.codec import CodecError, Envelope, Kind
 from engine.graph import StageNode
 from engine.inbox import END, STOP, PortInbox
 from engine.messages import Event, Message, canonical, detach, freeze_arrays
+from engine.output_port import OutputPort
+from engine.remote_input import RemoteInput
 from engine.stage import EVENTS_PORT, ServiceError, ServiceTimeoutError, Stage, StageContext, stage_rng
-from engine.wire import BATCH_ENVELOPE, WireSender, iter_batch
 
 if TYPE_CHECKING:
     from engine.runner import Runner
 
 log = logging.getLogger("vgr.runtime")
 LOCAL_QUEUE_DEPTH = 64  # messages a local producer may run ahead of its consumer
-_DATA, _EOS, _STOP = Kind.DATA, Kind.EOS, Kind.STOP  # (an Enum attribute lookup costs more than the test)
-_encode_payload, _decode_payload, _StructError = codec.encode_payload, codec.decode_payload, struct.error
+_EOS, _STOP = Kind.EOS, Kind.STOP  # (an Enum attribute lookup costs more than the test)
+_encode_payload = codec.encode_payload
 
 
 class _Causal(threading.local):
@@ -96,67 +93,6 @@ class StageStats:
         return sum(v for k, v in self.published.items() if k != EVENTS_PORT)
 
 
-class _Output:
-    """One output port: its zenoh publishers, local consumers, sequence counter and lock.
-
-    Consumers in other vgr processes get the messages through ``wire`` (engine.wire, on the internal
-    key); the public key's ``publisher`` is put to only while a foreign subscriber listens there."""
-
-    def __init__(self, runtime: StageRuntime, port: str) -> None:
-        rt = runtime
-        self.port = port
-        self.type = rt.node.cls.all_outputs()[port]
-        self.format = codec.DataFormat(self.type.TYPE)  # envelope of this port's messages, packed in one call
-        self.lock = threading.Lock()  # seq order == delivery order == wire order
-        self.seq = 0
-        self.closed = False
-        self.local: list[Any] = []  # offer functions of the consumers' inputs in this process (StageRuntime._offerer)
-        graph = rt.runner.graph
-        self.remote_consumers = any(
-            graph.nodes[e.dst].spec.process != rt.node.spec.process for e in graph.consumers_of(rt.name, port)
-        )
-        self.publisher = rt.runner.bus.remote_publisher(data_key(rt.run_id, rt.name, port))
-        self.put = self.publisher.put
-        self.wire = (
-            WireSender(rt.runner.bus.remote_publisher(wire_key(rt.run_id, rt.name, port)), f"{rt.name}.{port}")
-            if self.remote_consumers
-            else None
-        )
-        self.send = self.wire.send if self.wire is not None else None
-        self.external = bool(self.publisher.matching_status.matching)
-        self.observed = bool(rt.runner.observers)  # observers are fixed before a run starts
-        self._update()
-        self._listener = self.publisher.declare_matching_listener(self._on_matching)
-
-    def _on_matching(self, status: Any) -> None:
-        self.external = bool(status.matching)
-        self._update()
-
-    def _update(self) -> None:
-        self.on_wire = self.remote_consumers or self.external  # something outside the process listens
-        self.needs_bytes = self.on_wire or self.observed  # the message must be encoded
-
-
-class RemoteInput:
-    """Input port fed by a stage of another process: a zenoh subscriber with a FIFO channel.
-
-    zenoh's network thread queues the samples in the channel (see engine.bus.Bus.subscribe_remote);
-    the port's pump thread (:meth:`StageRuntime._remote_pump`) receives them in publication order.
-    ``close()`` undeclares the subscriber: the pump then gets what was already queued and an error.
-    """
-
-    def __init__(self, rt: StageRuntime, port: str, key: str) -> None:
-        self.port = port
-        self.closed = False
-        self.subscriber, self.channel = rt.runner.bus.subscribe_remote(key)
-
-    def close(self) -> None:
-        if not self.closed:
-            self.closed = True
-            with contextlib.suppress(Exception):  # already undeclared (the bus closes it too)
-                self.subscriber.undeclare()
-
-
 class StageRuntime(StageContext):
     """The engine side of one stage in this process (implements StageContext)."""
 
@@ -181,7 +117,7 @@ class StageRuntime(StageContext):
             received={p: 0 for p in node.cls.inputs},
             published={p: 0 for p in node.cls.all_outputs()},
         )
-        self.outputs: dict[str, _Output] = {}
+        self.outputs: dict[str, OutputPort] = {}
         self.inboxes: dict[str, PortInbox | RemoteInput] = {}
         self.queryables: dict[str, Any] = {}  # service -> bus.Inbox
         self._deliver: dict[str, Any] = {}  # input port -> its deliver function (see _deliverer)
@@ -286,7 +222,7 @@ class StageRuntime(StageContext):
     # -- wiring ------------------------------------------------------------------------------
     def declare_outputs(self) -> None:
         for port in self.node.cls.all_outputs():
-            self.outputs[port] = _Output(self, port)
+            self.outputs[port] = OutputPort(self, port)
         for svc in self.node.cls.services:
             self.queryables[svc] = self.runner.bus.queryable(service_key(self.run_id, self.name, svc))
 
@@ -318,8 +254,10 @@ class StageRuntime(StageContext):
     def start_threads(self) -> None:
         """Start the threads that read inputs and serve requests (not a source's run())."""
         for port, box in self.inboxes.items():
-            pump = self._input_pump if isinstance(box, PortInbox) else self._remote_pump
-            self._spawn(f"{self.name}.{port}", pump, port, box)
+            if isinstance(box, PortInbox):
+                self._spawn(f"{self.name}.{port}", self._input_pump, port, box)
+            else:
+                self._spawn(f"{self.name}.{port}", box.pump)
         for svc, q in self.queryables.items():
             self._spawn(f"{self.name}.srv.{svc}", self._service_pump, svc, q)
 
@@ -376,96 +314,6 @@ class StageRuntime(StageContext):
                     return
             finally:
                 box.release()
-
-    def _remote_pump(self, port: str, remote: RemoteInput) -> None:
-        """Thread of an input from another process: receives, decodes and handles its samples in order.
-
-        Samples already waiting are taken without releasing the GIL (``try_recv``); only an empty
-        channel makes the thread block (``recv``, GIL released). A sample is one message or a batch
-        of them (engine.wire), handled one by one in order. A DATA envelope of the port's own type is
-        recognised by one struct call (:class:`engine.codec.DataFormat`) and its payload decoded with
-        the port's class; anything else takes the general path (:meth:`_decode_other`)."""
-        channel = remote.channel
-        try_recv, recv = channel.try_recv, channel.recv
-        stop_is_set, lock, deliver = self._stop_event.is_set, self.lock, self._deliver[port]
-        decode = self._message_decoder(port)
-        while True:
-            try:
-                sample = try_recv()
-                if sample is None:
-                    sample = recv()  # blocks with the GIL released
-            except Exception:  # the channel is closed (subscriber undeclared) and empty
-                return
-            if stop_is_set():
-                return
-            att = sample.attachment
-            raw_env = att.to_bytes() if att is not None else b""
-            payload = sample.payload.to_bytes()
-            if raw_env == BATCH_ENVELOPE:
-                items = iter_batch(payload)
-            else:
-                items = iter(((raw_env, payload),))
-            try:
-                for raw_env, payload in items:
-                    try:
-                        msg = decode(raw_env, payload)
-                    except CodecError as exc:
-                        self._undecodable(port, exc)
-                        continue
-                    if msg is None:
-                        continue
-                    with lock:
-                        deliver(msg)
-                    if msg is END:
-                        return
-            except CodecError as exc:  # the batch itself is damaged: the rest of it is lost
-                self._undecodable(port, exc)
-            # drop the message and its buffers now, not when the next one has arrived: freeing a
-            # large payload would otherwise land on the next message's latency
-            sample = att = payload = items = msg = None
-
-    def _undecodable(self, port: str, exc: CodecError) -> None:
-        if not self._stop_event.is_set():
-            self.event("warning", "undecodable_message", f"ignored a message on input {port!r}: {exc}")
-
-    def _message_decoder(self, port: str) -> Any:
-        """``decode(raw_env, payload)`` of remote input *port*: its message, END, or None (ignore);
-        raises CodecError. Observers see every data message as it arrives."""
-        observers = self._observers
-        cls = self.node.cls.inputs[port]
-        fmt = codec.DataFormat(cls.TYPE)
-        unpack, head, name = fmt.unpack, fmt.head, fmt.name
-        src = next(e for e in self.runner.graph.inputs_of(self.name) if e.dst_port == port)
-
-        def decode(raw_env: bytes, payload: bytes | memoryview) -> Message | object | None:
-            try:
-                h, seq, stamp, n = unpack(raw_env)
-            except _StructError:
-                return self._decode_other(src, raw_env, payload)
-            if h != head or n != name:
-                return self._decode_other(src, raw_env, payload)
-            if observers:
-                for obs in observers:
-                    obs.on_receive(src.src, src.src_port, payload, raw_env)
-            msg = _decode_payload(cls, payload)
-            msg.seq = seq
-            if not msg.stamp_ns:
-                msg.stamp_ns = stamp
-            return msg
-
-        return decode
-
-    def _decode_other(self, src: Any, raw_env: bytes, payload: bytes | memoryview) -> Message | object | None:
-        """A message the fast path did not recognise: a message of another type or schema version,
-        an end of stream (END), or something to ignore (None). Raises CodecError."""
-        env = codec.decode_envelope(raw_env)
-        if env.kind == _EOS:
-            return END
-        if env.kind != _DATA:
-            return None
-        for obs in self._observers:
-            obs.on_receive(src.src, src.src_port, payload, raw_env)
-        return codec.decode(payload, env)
 
     def _deliverer(self, port: str) -> Any:
         """The function delivering input *port*'s messages (each ``seq`` is its envelope's) and its

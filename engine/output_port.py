@@ -1,0 +1,59 @@
+"""One output port of a stage at run time: where its messages go, its sequence counter and its lock.
+
+Consumers in this process are offer functions of their input queues (``local``, see
+engine.runtime.StageRuntime._offerer). Consumers in other vgr processes get the port's messages
+through ``wire`` (engine.wire.WireSender, on the internal key ``vgr/<run>/_wire/<stage>/<port>``);
+the public key ``vgr/<run>/<stage>/<port>`` is put to, one message per sample, only while a foreign
+subscriber (a robot controller, a viewer) listens there — zenoh's matching status says when. The
+publish path itself is the stage runtime's (engine.runtime.StageRuntime.publish).
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import TYPE_CHECKING, Any
+
+from engine import codec
+from engine.bus import data_key, wire_key
+from engine.wire import WireSender
+
+if TYPE_CHECKING:
+    from engine.runtime import StageRuntime
+
+
+class OutputPort:
+    """Output *port* of stage runtime *rt*: its zenoh publishers, local consumers, sequence counter
+    and lock (seq order == delivery order == wire order)."""
+
+    def __init__(self, rt: StageRuntime, port: str) -> None:
+        self.port = port
+        self.type = rt.node.cls.all_outputs()[port]
+        self.format = codec.DataFormat(self.type.TYPE)  # envelope of this port's messages, packed in one call
+        self.lock = threading.Lock()
+        self.seq = 0
+        self.closed = False
+        self.local: list[Any] = []  # offer functions of the consumers' inputs in this process
+        graph = rt.runner.graph
+        self.remote_consumers = any(
+            graph.nodes[e.dst].spec.process != rt.node.spec.process for e in graph.consumers_of(rt.name, port)
+        )
+        self.publisher = rt.runner.bus.remote_publisher(data_key(rt.run_id, rt.name, port))
+        self.put = self.publisher.put
+        self.wire = (
+            WireSender(rt.runner.bus.remote_publisher(wire_key(rt.run_id, rt.name, port)), f"{rt.name}.{port}")
+            if self.remote_consumers
+            else None
+        )
+        self.send = self.wire.send if self.wire is not None else None
+        self.external = bool(self.publisher.matching_status.matching)
+        self.observed = bool(rt.runner.observers)  # observers are fixed before a run starts
+        self._update()
+        self._listener = self.publisher.declare_matching_listener(self._on_matching)
+
+    def _on_matching(self, status: Any) -> None:
+        self.external = bool(status.matching)
+        self._update()
+
+    def _update(self) -> None:
+        self.on_wire = self.remote_consumers or self.external  # something outside the process listens
+        self.needs_bytes = self.on_wire or self.observed  # the message must be encoded
