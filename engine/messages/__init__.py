@@ -1,0 +1,112 @@
+"""Message types: the Python objects stages exchange, and their mapping to protobuf schemas.
+
+Every message carries its source's timestamp ``stamp_ns`` (integer ns), a per-port sequence number
+``seq`` (set by the publisher) and the ``frame_id`` its geometry is expressed in. Arrays are numpy;
+received arrays may be read-only views of the wire buffer, so stages never modify inputs in place.
+
+Each class names its protobuf ``SCHEMA`` (see engine.schemas) and converts with ``to_proto`` /
+``from_proto``. A class whose payload is one large array names the bytes field that holds it in
+``BULK``: the codec then moves that array without an extra protobuf copy (engine.codec).
+
+Where things are (import them from here, ``engine.messages``):
+
+* ``base`` — :class:`Message` and the hand-over rules of publish (canonical, detach, freeze);
+* ``geometry`` — types on Foxglove's schemas (point cloud, image, camera info, pose, transforms,
+  joint state, scene meshes), which Foxglove's 3D view shows;
+* ``vgr_v1`` — types on vgr's own schemas (blob, tracker pose, event, calibration result, robot
+  command and reply, correction, request).
+"""
+
+from __future__ import annotations
+
+from engine.messages.base import (
+    WIRE_CACHE,
+    Bulk,
+    Message,
+    array_fields,
+    canonical,
+    detach,
+    freeze,
+    freeze_arrays,
+    get_pose,
+    get_stamp,
+    set_pose,
+    set_stamp,
+)
+from engine.messages.geometry import (
+    CameraInfo,
+    FrameTransforms,
+    Image,
+    JointState,
+    Mesh,
+    PointCloud,
+    PoseStamped,
+    SceneMeshes,
+    Transform,
+)
+from engine.messages.vgr_v1 import (
+    EVENT_LEVELS,
+    ROBOT_COMMAND_KINDS,
+    Blob,
+    CalibrationResultMsg,
+    Correction,
+    Event,
+    Request,
+    RobotCommand,
+    RobotReply,
+    TrackerPose,
+)
+
+BUILTIN_MESSAGE_TYPES: tuple[type[Message], ...] = (
+    PointCloud,
+    Image,
+    CameraInfo,
+    PoseStamped,
+    Transform,
+    FrameTransforms,
+    JointState,
+    Blob,
+    TrackerPose,
+    Event,
+    CalibrationResultMsg,
+    RobotCommand,
+    RobotReply,
+    Correction,
+    Request,
+    SceneMeshes,
+)
+
+__all__ = [
+    "BUILTIN_MESSAGE_TYPES",
+    "EVENT_LEVELS",
+    "ROBOT_COMMAND_KINDS",
+    "WIRE_CACHE",
+    "Blob",
+    "Bulk",
+    "CalibrationResultMsg",
+    "CameraInfo",
+    "Correction",
+    "Event",
+    "FrameTransforms",
+    "Image",
+    "JointState",
+    "Mesh",
+    "Message",
+    "PointCloud",
+    "PoseStamped",
+    "Request",
+    "RobotCommand",
+    "RobotReply",
+    "SceneMeshes",
+    "TrackerPose",
+    "Transform",
+    "array_fields",
+    "canonical",
+    "detach",
+    "freeze",
+    "freeze_arrays",
+    "get_pose",
+    "get_stamp",
+    "set_pose",
+    "set_stamp",
+]

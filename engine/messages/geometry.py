@@ -1,0 +1,379 @@
+"""Message types on Foxglove's well-known schemas, so a recording opens in Foxglove's 3D view:
+point clouds, images and their camera model, poses, transforms, joint states and scene meshes."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, Self
+
+import numpy as np
+
+from engine import transforms as tf
+from engine.messages.base import (
+    _PACKED_DTYPES,
+    _PACKED_TYPES,
+    Bulk,
+    Message,
+    _bytes_of,
+    get_pose,
+    get_stamp,
+    set_pose,
+    set_stamp,
+)
+from engine.schemas import ProtoMessage
+
+
+@dataclass(kw_only=True, eq=False)
+class PointCloud(Message):
+    """Unorganised point cloud: ``points`` (N, 3) float32/float64 in ``frame_id``, optional
+    ``normals`` (N, 3) of the same dtype and ``colors`` (N, 3) uint8. Schema foxglove.PointCloud."""
+
+    TYPE: ClassVar[str] = "PointCloud"
+    WIRE_EXACT: ClassVar[bool] = True
+    SCHEMA: ClassVar[str] = "foxglove.PointCloud"
+    BULK: ClassVar[int | None] = 6
+
+    points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
+    normals: np.ndarray | None = None
+    colors: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        self.points = np.asarray(self.points)
+        if self.points.ndim != 2 or self.points.shape[1] != 3:
+            raise ValueError(f"PointCloud.points must be (N, 3), got {self.points.shape}")
+        if self.points.dtype not in (np.float32, np.float64):
+            self.points = self.points.astype(np.float64)
+        if self.normals is not None:
+            self.normals = np.asarray(self.normals, dtype=self.points.dtype)
+            if self.normals.shape != self.points.shape:
+                raise ValueError("PointCloud.normals must have the shape of points")
+        if self.colors is not None:
+            self.colors = np.asarray(self.colors, dtype=np.uint8)
+            if self.colors.shape != self.points.shape:
+                raise ValueError("PointCloud.colors must be (N, 3) uint8")
+
+    def _layout(self) -> list[tuple[str, np.ndarray, int]]:
+        cols: list[tuple[str, np.ndarray, int]] = [
+            ("x", self.points, 0),
+            ("y", self.points, 1),
+            ("z", self.points, 2),
+        ]
+        if self.normals is not None:
+            cols += [
+                ("normal_x", self.normals, 0),
+                ("normal_y", self.normals, 1),
+                ("normal_z", self.normals, 2),
+            ]
+        if self.colors is not None:
+            cols += [("red", self.colors, 0), ("green", self.colors, 1), ("blue", self.colors, 2)]
+        return cols
+
+    def to_proto(self) -> tuple[ProtoMessage, Bulk]:
+        pb = self.proto()
+        set_stamp(pb, self.stamp_ns)
+        pb.frame_id = self.frame_id
+        pb.pose.orientation.w = 1.0
+        cols = self._layout()
+        dtype = np.dtype([(name, arr.dtype) for name, arr, _ in cols])
+        offset = 0
+        for name, arr, _ in cols:
+            pb.fields.add(name=name, offset=offset, type=_PACKED_TYPES[arr.dtype])
+            offset += arr.dtype.itemsize
+        pb.point_stride = dtype.itemsize
+        if len(cols) == 3 and self.points.flags.c_contiguous:
+            return pb, _bytes_of(self.points)
+        packed = np.empty(len(self.points), dtype=dtype)
+        for name, arr, k in cols:
+            packed[name] = arr[:, k]
+        return pb, _bytes_of(packed)
+
+    @classmethod
+    def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
+        data = bulk if bulk is not None else pb.data
+        names = [f.name for f in pb.fields]
+        dtype = np.dtype(
+            {
+                "names": names,
+                "formats": [_PACKED_DTYPES[f.type] for f in pb.fields],
+                "offsets": [f.offset for f in pb.fields],
+                "itemsize": pb.point_stride,
+            }
+        )
+        n = len(data) // pb.point_stride if pb.point_stride else 0
+        xyz_t = dtype.fields["x"][0] if "x" in names else np.dtype(np.float32)
+        if names == ["x", "y", "z"] and pb.point_stride == 3 * xyz_t.itemsize:
+            points = np.frombuffer(data, dtype=xyz_t).reshape(n, 3)
+            return cls(stamp_ns=get_stamp(pb), frame_id=pb.frame_id, points=points)
+        rec = np.frombuffer(data, dtype=dtype, count=n)
+
+        def stack(keys: tuple[str, str, str]) -> np.ndarray | None:
+            if not all(k in names for k in keys):
+                return None
+            return np.stack([rec[k] for k in keys], axis=1)
+
+        pts = stack(("x", "y", "z"))
+        return cls(
+            stamp_ns=get_stamp(pb),
+            frame_id=pb.frame_id,
+            points=pts if pts is not None else np.zeros((n, 3)),
+            normals=stack(("normal_x", "normal_y", "normal_z")),
+            colors=stack(("red", "green", "blue")),
+        )
+
+
+_IMAGE_ENCODINGS = {
+    "32FC1": (np.float32, 1),
+    "64FC1": (np.float64, 1),
+    "16UC1": (np.uint16, 1),
+    "mono8": (np.uint8, 1),
+    "rgb8": (np.uint8, 3),
+    "bgr8": (np.uint8, 3),
+}
+
+
+@dataclass(kw_only=True, eq=False)
+class Image(Message):
+    """Raw image (H, W) or (H, W, C). Depth images use encoding ``32FC1`` in metres with NaN for
+    invalid pixels. Schema foxglove.RawImage."""
+
+    TYPE: ClassVar[str] = "Image"
+    WIRE_EXACT: ClassVar[bool] = True
+    SCHEMA: ClassVar[str] = "foxglove.RawImage"
+    BULK: ClassVar[int | None] = 6
+
+    data: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.float32))
+    encoding: str = "32FC1"
+
+    def __post_init__(self) -> None:
+        if self.encoding not in _IMAGE_ENCODINGS:
+            raise ValueError(f"unsupported image encoding {self.encoding!r}; use one of {sorted(_IMAGE_ENCODINGS)}")
+        dt, ch = _IMAGE_ENCODINGS[self.encoding]
+        self.data = np.asarray(self.data, dtype=dt)
+        if (ch == 1 and self.data.ndim != 2) or (ch > 1 and (self.data.ndim != 3 or self.data.shape[2] != ch)):
+            raise ValueError(f"image data shape {self.data.shape} does not fit encoding {self.encoding}")
+
+    def to_proto(self) -> tuple[ProtoMessage, Bulk]:
+        pb = self.proto()
+        set_stamp(pb, self.stamp_ns)
+        pb.frame_id = self.frame_id
+        h, w = self.data.shape[:2]
+        pb.width, pb.height, pb.encoding = w, h, self.encoding
+        pb.step = w * self.data.itemsize * (self.data.shape[2] if self.data.ndim == 3 else 1)
+        return pb, _bytes_of(self.data)
+
+    @classmethod
+    def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
+        dt, ch = _IMAGE_ENCODINGS[pb.encoding]
+        buf = bulk if bulk is not None else pb.data
+        shape = (pb.height, pb.width) if ch == 1 else (pb.height, pb.width, ch)
+        data = np.frombuffer(buf, dtype=dt).reshape(shape)
+        return cls(stamp_ns=get_stamp(pb), frame_id=pb.frame_id, data=data, encoding=pb.encoding)
+
+
+@dataclass(kw_only=True, eq=False)
+class CameraInfo(Message):
+    """Pinhole intrinsics of a camera (no distortion unless D is given). Schema foxglove.CameraCalibration."""
+
+    TYPE: ClassVar[str] = "CameraInfo"
+    SCHEMA: ClassVar[str] = "foxglove.CameraCalibration"
+
+    width: int = 0
+    height: int = 0
+    K: np.ndarray = field(default_factory=lambda: np.eye(3))
+    D: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    distortion_model: str = "plumb_bob"
+
+    def to_proto(self) -> tuple[ProtoMessage, Bulk]:
+        pb = self.proto()
+        set_stamp(pb, self.stamp_ns)
+        pb.frame_id, pb.width, pb.height = self.frame_id, self.width, self.height
+        pb.distortion_model = self.distortion_model
+        K = np.asarray(self.K, dtype=float)
+        pb.K.extend(K.ravel().tolist())
+        pb.D.extend(np.asarray(self.D, dtype=float).ravel().tolist())
+        pb.R.extend(np.eye(3).ravel().tolist())
+        P = np.zeros((3, 4))
+        P[:, :3] = K
+        pb.P.extend(P.ravel().tolist())
+        return pb, None
+
+    @classmethod
+    def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
+        return cls(
+            stamp_ns=get_stamp(pb),
+            frame_id=pb.frame_id,
+            width=pb.width,
+            height=pb.height,
+            K=np.array(pb.K, dtype=float).reshape(3, 3),
+            D=np.array(pb.D, dtype=float),
+            distortion_model=pb.distortion_model,
+        )
+
+
+@dataclass(kw_only=True, eq=False)
+class PoseStamped(Message):
+    """Pose ``T`` (4x4) of an entity in ``frame_id``. Schema foxglove.PoseInFrame."""
+
+    TYPE: ClassVar[str] = "PoseStamped"
+    SCHEMA: ClassVar[str] = "foxglove.PoseInFrame"
+
+    T: np.ndarray = field(default_factory=lambda: np.eye(4))
+
+    def to_proto(self) -> tuple[ProtoMessage, Bulk]:
+        pb = self.proto()
+        set_stamp(pb, self.stamp_ns)
+        pb.frame_id = self.frame_id
+        set_pose(pb.pose, self.T)
+        return pb, None
+
+    @classmethod
+    def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
+        return cls(stamp_ns=get_stamp(pb), frame_id=pb.frame_id, T=get_pose(pb.pose))
+
+
+@dataclass(kw_only=True, eq=False)
+class Transform(Message):
+    """``T`` = T_parent_child with parent ``frame_id``. Schema foxglove.FrameTransform."""
+
+    TYPE: ClassVar[str] = "Transform"
+    SCHEMA: ClassVar[str] = "foxglove.FrameTransform"
+
+    child_frame_id: str = ""
+    T: np.ndarray = field(default_factory=lambda: np.eye(4))
+
+    def to_proto(self) -> tuple[ProtoMessage, Bulk]:
+        pb = self.proto()
+        _fill_frame_transform(pb, self)
+        return pb, None
+
+    @classmethod
+    def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
+        return cls(**_read_frame_transform(pb))
+
+
+def _fill_frame_transform(pb: Any, t: Transform) -> None:
+    set_stamp(pb, t.stamp_ns)
+    pb.parent_frame_id, pb.child_frame_id = t.frame_id, t.child_frame_id
+    T = np.asarray(t.T, dtype=float)
+    p, q = T[:3, 3], tf.quat_xyzw_from_R(T[:3, :3])
+    pb.translation.x, pb.translation.y, pb.translation.z = (float(v) for v in p)
+    pb.rotation.x, pb.rotation.y, pb.rotation.z, pb.rotation.w = (float(v) for v in q)
+
+
+def _read_frame_transform(pb: Any) -> dict[str, Any]:
+    r, t = pb.rotation, pb.translation
+    T = (
+        tf.T_from_pose7((t.x, t.y, t.z), (r.x, r.y, r.z, r.w))
+        if (r.x, r.y, r.z, r.w) != (0, 0, 0, 0)
+        else (tf.T_from_Rt(np.eye(3), (t.x, t.y, t.z)))
+    )
+    return {
+        "stamp_ns": get_stamp(pb),
+        "frame_id": pb.parent_frame_id,
+        "child_frame_id": pb.child_frame_id,
+        "T": T,
+    }
+
+
+@dataclass(kw_only=True, eq=False)
+class FrameTransforms(Message):
+    """A set of transforms (the frame tree of the cell). Schema foxglove.FrameTransforms."""
+
+    TYPE: ClassVar[str] = "FrameTransforms"
+    SCHEMA: ClassVar[str] = "foxglove.FrameTransforms"
+
+    transforms: list[Transform] = field(default_factory=list)
+
+    def to_proto(self) -> tuple[ProtoMessage, Bulk]:
+        pb = self.proto()
+        for t in self.transforms:
+            _fill_frame_transform(pb.transforms.add(), t)
+        return pb, None
+
+    @classmethod
+    def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
+        ts = [Transform(**_read_frame_transform(t)) for t in pb.transforms]
+        return cls(stamp_ns=ts[0].stamp_ns if ts else 0, transforms=ts)
+
+
+@dataclass(kw_only=True, eq=False)
+class JointState(Message):
+    """Joint positions (rad or m), velocities and efforts by joint name. Schema foxglove.JointStates."""
+
+    TYPE: ClassVar[str] = "JointState"
+    SCHEMA: ClassVar[str] = "foxglove.JointStates"
+
+    names: list[str] = field(default_factory=list)
+    positions: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    velocities: np.ndarray | None = None
+    efforts: np.ndarray | None = None
+
+    def to_proto(self) -> tuple[ProtoMessage, Bulk]:
+        pb = self.proto()
+        set_stamp(pb, self.stamp_ns)
+        n = len(self.positions)
+        names = self.names or [f"joint{i + 1}" for i in range(n)]
+        for i in range(n):
+            j = pb.joints.add(name=names[i], position=float(self.positions[i]))
+            if self.velocities is not None:
+                j.velocity = float(self.velocities[i])
+            if self.efforts is not None:
+                j.effort = float(self.efforts[i])
+        return pb, None
+
+    @classmethod
+    def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
+        js = list(pb.joints)
+        return cls(
+            stamp_ns=get_stamp(pb),
+            names=[j.name for j in js],
+            positions=np.array([j.position for j in js]),
+            velocities=np.array([j.velocity for j in js]) if js and js[0].HasField("velocity") else None,
+            efforts=np.array([j.effort for j in js]) if js and js[0].HasField("effort") else None,
+        )
+
+
+@dataclass
+class Mesh:
+    """A triangle mesh attached to a frame, for the 3D view (``vertices`` (N, 3) m, ``triangles`` (M, 3))."""
+
+    id: str
+    frame_id: str
+    vertices: np.ndarray
+    triangles: np.ndarray
+    color: tuple[float, float, float, float] = (0.6, 0.6, 0.65, 1.0)
+
+
+@dataclass(kw_only=True, eq=False)
+class SceneMeshes(Message):
+    """Meshes of the cell (workpieces, fixtures) for Foxglove's 3D view. Schema foxglove.SceneUpdate."""
+
+    TYPE: ClassVar[str] = "SceneMeshes"
+    SCHEMA: ClassVar[str] = "foxglove.SceneUpdate"
+
+    meshes: list[Mesh] = field(default_factory=list)
+
+    def to_proto(self) -> tuple[ProtoMessage, Bulk]:
+        pb = self.proto()
+        for m in self.meshes:
+            ent = pb.entities.add(frame_id=m.frame_id, id=m.id, frame_locked=True)
+            ent.timestamp.seconds, ent.timestamp.nanos = divmod(int(self.stamp_ns), 1_000_000_000)
+            tri = ent.triangles.add()
+            tri.pose.orientation.w = 1.0
+            v = np.asarray(m.vertices, dtype=float)[np.asarray(m.triangles, dtype=np.int64).reshape(-1)]
+            for x, y, z in v.tolist():
+                tri.points.add(x=x, y=y, z=z)
+            tri.color.r, tri.color.g, tri.color.b, tri.color.a = m.color
+        return pb, None
+
+    @classmethod
+    def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
+        meshes = []
+        stamp = 0
+        for ent in pb.entities:
+            stamp = stamp or int(ent.timestamp.seconds) * 1_000_000_000 + int(ent.timestamp.nanos)
+            for tri in ent.triangles:
+                pts = np.array([(p.x, p.y, p.z) for p in tri.points], dtype=float).reshape(-1, 3)
+                c = tri.color
+                meshes.append(Mesh(ent.id, ent.frame_id, pts, np.arange(len(pts)).reshape(-1, 3), (c.r, c.g, c.b, c.a)))
+        return cls(stamp_ns=stamp, meshes=meshes)
