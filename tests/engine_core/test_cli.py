@@ -50,9 +50,17 @@ def test_run_demo_with_override_and_json_summary(capsys):
     assert by["stats"]["messages_in"] == 3 and by["source"]["messages_out"] == 3
 
 
-@pytest.mark.parametrize("argv", [["run", "nope.yaml"], ["run", "recipes/demo.yaml", "-p", "bogus.x=1"]])
-def test_run_refuses_bad_input_with_exit_2(argv, capsys):
+@pytest.mark.parametrize(
+    ("argv", "says"),
+    [
+        (["run", "nope.yaml"], "nope.yaml: recipe file not found"),
+        (["run", "recipes/demo.yaml", "-p", "bogus.x=1"], "-p bogus.x=1: no stage named 'bogus' to override"),
+    ],
+)
+def test_run_refuses_bad_input_with_exit_2(argv, says, capsys):
     assert main([*argv, "--no-progress"]) == 2
+    out = capsys.readouterr()
+    assert says in out.err  # the reason, located, on stderr: not just the exit code
 
 
 def test_every_lazily_loaded_verb_is_defined_by_its_module(capsys):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
+from unittest import mock
 
 import numpy as np
 import pytest
@@ -117,7 +118,9 @@ def test_every_message_type_roundtrips(msg):
         if isinstance(v, np.ndarray):
             assert np.allclose(v, w, equal_nan=True, atol=1e-12), k
         elif isinstance(v, list) and v and isinstance(v[0], m.Transform):
-            assert np.allclose(v[0].T, w[0].T)
+            assert len(v) == len(w), k
+            for a, b in zip(v, w, strict=True):
+                assert np.allclose(a.T, b.T) and (a.frame_id, a.child_frame_id) == (b.frame_id, b.child_frame_id), k
         elif isinstance(v, dict) and v and isinstance(next(iter(v.values())), np.ndarray):
             assert all(np.allclose(v[x], w[x]) for x in v)
         elif isinstance(v, memoryview | bytes):
@@ -127,17 +130,31 @@ def test_every_message_type_roundtrips(msg):
 
 
 @settings(max_examples=200, deadline=None)
-@given(st.binary(max_size=200))
-def test_garbage_payload_raises_codec_error_only(raw):
-    for cls in (m.PointCloud, m.Image, m.Blob, m.Event, m.PoseStamped):
-        with contextlib.suppress(CodecError):
-            codec.decode_payload(cls, raw)
+@given(st.binary(max_size=200), st.booleans())
+def test_garbage_payload_raises_codec_error_only(raw, split):
+    """Both decode paths: one protobuf parse (small payloads) and our own walk of the top-level
+    fields that hands the bulk field over as a view (``split``: as for payloads above SMALL_PAYLOAD)."""
+    with mock.patch.object(codec, "SMALL_PAYLOAD", -1 if split else codec.SMALL_PAYLOAD):
+        for cls in (m.PointCloud, m.Image, m.Blob, m.Event, m.PoseStamped):
+            with contextlib.suppress(CodecError):
+                codec.decode_payload(cls, raw)
 
 
-@given(st.binary(max_size=60))
-def test_garbage_envelope_raises_codec_error_only(raw):
+@settings(max_examples=300, deadline=None)
+@given(st.sampled_from([b"\x0a", bytes([(6 << 3) | 2]), b"\x08", b"\xff\xff"]), st.binary(max_size=200))
+def test_the_field_walk_refuses_garbage_with_a_codec_error(head, raw):
+    """The codec's own walk of a payload's top-level fields (the large-payload path) on a plausible
+    first key (a length-delimited field, PointCloud's bulk field, a varint, a long key) followed by
+    garbage: it returns or raises CodecError, nothing else (no IndexError from reading past the end)."""
     with contextlib.suppress(CodecError):
-        codec.decode_envelope(raw)
+        codec._split_bulk(memoryview(head + raw).cast("B"), m.PointCloud.BULK)
+
+
+@given(st.binary(max_size=60), st.booleans())
+def test_garbage_envelope_raises_codec_error_only(raw, with_magic):
+    """Random bytes, and random bytes behind a valid magic (to reach the kind, version and name checks)."""
+    with contextlib.suppress(CodecError):
+        codec.decode_envelope(codec.MAGIC + raw if with_magic else raw)
 
 
 def test_envelope_roundtrip_and_version_check():
@@ -172,6 +189,28 @@ def test_payload_is_the_deterministic_protobuf_serialisation(msg):
     assert codec.encode_payload(msg) == expected
 
 
+def test_a_map_field_is_serialised_deterministically():
+    """A message whose protobuf holds a map: upb's plain serialisation orders the entries by its hash
+    table (checked below to differ from the sorted order), so the encoder must ask for determinism."""
+    from google.protobuf import struct_pb2
+
+    keys = [f"k{i}" for i in range(50)]
+    np.random.default_rng(1).shuffle(keys)
+
+    class MapMessage(m.Message):
+        TYPE: ClassVar[str] = "MapForDeterminismTest"
+
+        def to_proto(self):
+            pb = struct_pb2.Struct()
+            for k in keys:
+                pb.fields[k].number_value = 1.0
+            return pb, None
+
+    pb, _ = MapMessage().to_proto()
+    assert pb.SerializeToString() != pb.SerializeToString(deterministic=True)  # the case that matters
+    assert codec.encode_payload(MapMessage()) == pb.SerializeToString(deterministic=True)
+
+
 def test_only_schemas_with_maps_ask_for_deterministic_serialisation():
     from google.protobuf import struct_pb2
 
@@ -182,7 +221,7 @@ def test_only_schemas_with_maps_ask_for_deterministic_serialisation():
 @pytest.mark.parametrize(
     "msg",
     [
-        m.Blob(data=bytes(range(256)) * 40, frame_id="f", content_type="x", stamp_ns=9),
+        m.Blob(data=bytes(range(256)) * 20, frame_id="f", content_type="x", stamp_ns=9),
         m.Image(data=np.arange(64, dtype=np.float32).reshape(8, 8), frame_id="cam", stamp_ns=5),
         m.PointCloud(points=np.arange(30, dtype=np.float32).reshape(10, 3), stamp_ns=2),
         m.PointCloud(points=np.ones((7, 3)), colors=np.full((7, 3), 9, np.uint8)),
@@ -190,6 +229,7 @@ def test_only_schemas_with_maps_ask_for_deterministic_serialisation():
 )
 def test_small_payloads_parsed_whole_decode_like_large_ones_split(msg, monkeypatch):
     payload = codec.encode_payload(msg)
+    assert len(payload) <= codec.SMALL_PAYLOAD  # else both decodes below take the split path
     whole = codec.decode_payload(type(msg), payload)  # small: one protobuf parse
     monkeypatch.setattr(codec, "SMALL_PAYLOAD", -1)
     split = codec.decode_payload(type(msg), payload)  # the large-payload path: bulk field as a view

@@ -29,15 +29,12 @@ def env_of(seq: int) -> bytes:
 
 
 class FakePublisher:
-    """Records what is put; ``delay_s`` makes each put slow (a congested link)."""
+    """Records what is put, in order."""
 
-    def __init__(self, delay_s: float = 0.0) -> None:
+    def __init__(self) -> None:
         self.samples: list[tuple[bytes, bytes]] = []
-        self.delay_s = delay_s
 
     def put(self, payload: bytes, attachment: bytes) -> None:
-        if self.delay_s:
-            time.sleep(self.delay_s)
         self.samples.append((bytes(payload), bytes(attachment)))
 
     def messages(self) -> list[tuple[bytes, bytes]]:
@@ -65,11 +62,16 @@ def test_batch_round_trip_and_damage():
 @settings(max_examples=200, deadline=None)
 @given(st.binary(max_size=300))
 def test_garbled_batches_only_raise_codec_errors(data):
+    """What iter_batch yields is exactly the bytes it was given, record by record: all of them, or
+    the records before the damage when it raises CodecError."""
+    got: list[tuple[bytes, bytes]] = []
     try:
         for env, payload in wire.iter_batch(data):
-            assert isinstance(env, bytes) and len(payload) >= 0
+            got.append((bytes(env), bytes(payload)))
     except CodecError:
-        pass
+        assert data.startswith(wire.pack_batch(got)) and len(wire.pack_batch(got)) < len(data)
+    else:
+        assert wire.pack_batch(got) == data
 
 
 def test_sender_keeps_publication_order_and_batches_a_burst():
@@ -99,38 +101,47 @@ def test_a_paced_stream_is_put_at_once_by_the_publisher():
     sender.close()
 
 
+class SlowBatches(FakePublisher):
+    """A slow link for the sender thread's batches only (a message put at once by an idle port is
+    fast, so the producer runs into a burst); after each put notes what the producer queued meanwhile."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.sender: wire.WireSender | None = None
+        self.queued: list[tuple[int, int]] = []  # (messages, payload bytes) waiting after each put
+
+    def put(self, payload: bytes, attachment: bytes) -> None:
+        if attachment == wire.BATCH_ENVELOPE:
+            time.sleep(0.002)
+        super().put(payload, attachment)
+        assert self.sender is not None
+        self.queued.append((len(self.sender._pending), self.sender._pending_bytes))
+
+
 def test_a_slow_link_makes_the_producer_wait_and_loses_nothing(monkeypatch):
     monkeypatch.setattr(wire, "MAX_PENDING", 8)
-    pub = FakePublisher(delay_s=0.002)
-    sender = wire.WireSender(pub, "t")
-    t0 = time.monotonic()
+    pub = SlowBatches()
+    sender = pub.sender = wire.WireSender(pub, "t")
     for seq in range(1, 201):
         sender.send(b"y" * 10, env_of(seq))
     sender.close()
     assert [e for e, _ in pub.messages()] == [env_of(s) for s in range(1, 201)]
-    assert time.monotonic() - t0 > 0.02  # the producer waited for room at least a few puts' time
+    assert sender.batched > 100  # the burst went through the sender thread's queue
+    assert max(n for n, _ in pub.queued) == 8  # which filled up to its bound and no further
 
 
 def test_the_queue_is_bounded_in_bytes_too(monkeypatch):
     """Few large messages fill the byte bound long before the count bound: the producer waits."""
     monkeypatch.setattr(wire, "MAX_PENDING_BYTES", 1000)
-    seen: list[int] = []
-
-    class Watching(FakePublisher):
-        def put(self, payload: bytes, attachment: bytes) -> None:
-            if attachment == wire.BATCH_ENVELOPE:  # a slow link for the sender thread's batches
-                time.sleep(0.002)
-            super().put(payload, attachment)
-            seen.append(sender._pending_bytes)  # what the producer queued meanwhile
-
-    pub = Watching()
-    sender = wire.WireSender(pub, "t")
+    pub = SlowBatches()
+    sender = pub.sender = wire.WireSender(pub, "t")
     for seq in range(1, 101):
         sender.send(b"w" * 100, env_of(seq))
     sender.close()
     assert [e for e, _ in pub.messages()] == [env_of(s) for s in range(1, 101)]
-    assert max(seen) >= 900  # the queue did fill up to the bound ...
-    assert max(seen) < 1000 + 100  # ... and no further: one payload past it at most
+    queued_bytes = [b for _, b in pub.queued]
+    assert max(queued_bytes) >= 900  # the queue did fill up to the bound ...
+    assert max(queued_bytes) < 1000 + 100  # ... and no further: one payload past it at most
 
 
 def test_a_failed_put_of_the_sender_thread_fails_the_next_send():
