@@ -23,8 +23,9 @@ import yaml
 from rich.console import Console
 
 from engine.errors import RecipeError
+from engine.graph import build_graph
 from engine.messages import Event, Message, Request
-from engine.plugin_manager import load_registry
+from engine.plugin_manager import PluginError, load_registry
 from engine.recipe import load_recipe
 from engine.transforms import T_from_ur, as_transform
 from plugins.util.detached import DetachedContext
@@ -108,8 +109,9 @@ def pose_text(T: np.ndarray) -> str:
     return "{matrix: [" + ", ".join(rows) + "]}"
 
 
-def write_pose(recipe: Path, what: str, T: np.ndarray, stage: str | None) -> tuple[str, str]:
-    """Replace the taught pose's value text in *recipe*; returns (where, old text)."""
+def taught_text(recipe: Path, what: str, T: np.ndarray, stage: str | None) -> tuple[str, str, str]:
+    """*recipe*'s text with the taught pose's value replaced (the file is not written): (new text,
+    where, old value text)."""
     key, types = WHAT[what]
     text = recipe.read_text()
     root = yaml.compose(text)
@@ -125,9 +127,7 @@ def write_pose(recipe: Path, what: str, T: np.ndarray, stage: str | None) -> tup
         if isinstance(node, yaml.ScalarNode) and "${" in str(node.value):
             continue  # the stage parameter refers to a variable: that variable was tried first
         start, end = node.start_mark.index, node.end_mark.index
-        old = text[start:end]
-        recipe.write_text(text[:start] + pose_text(T) + text[end:])
-        return ".".join(path), old
+        return text[:start] + pose_text(T) + text[end:], ".".join(path), text[start:end]
     raise TeachError(
         f"{recipe} has no vars.{key} and no {key} parameter of a {'/'.join(np.atleast_1d(types))} stage to write to"
     )
@@ -145,9 +145,13 @@ def cmd_teach(args: argparse.Namespace) -> int:
             T = T_from_ur(vals)
         else:
             T = robot_pose(recipe, args.robot)
-        where, old = write_pose(recipe, args.what, T, args.stage)
-        load_recipe(str(recipe))  # the recipe must still be valid
-    except (TeachError, RecipeError, ValueError, OSError, yaml.YAMLError) as exc:
+        new_text, where, old = taught_text(recipe, args.what, T, args.stage)
+        # the taught recipe must pass what `vgr validate` checks (stage parameters included) before
+        # it replaces the file: a refused teach leaves the recipe as it was
+        loaded = load_recipe(str(recipe), text=new_text)
+        build_graph(loaded, load_registry(loaded.recipe.plugins))
+        recipe.write_text(new_text)
+    except (TeachError, RecipeError, PluginError, ValueError, OSError, yaml.YAMLError) as exc:
         out.print(f"[red]cannot teach[/]: {exc}", highlight=False, soft_wrap=True)
         return EXIT_INVALID
     out.print(f"taught {args.what} pose written to {recipe} at {where}", highlight=False)

@@ -13,7 +13,8 @@ from hypothesis import strategies as st
 from engine.cli import main
 from engine.recipe import load_recipe
 from engine.transforms import T_from_ur
-from plugins.actions.teach_cli import pose_text, robot_pose
+from plugins.actions.teach_cli import pose_text
+from plugins.sim.model_file import load_robot_model
 
 RECIPES = Path(__file__).resolve().parents[2] / "recipes"
 
@@ -35,7 +36,8 @@ def test_photo_pose_comes_from_the_robot_state(recipe: Path) -> None:
     assert main(["teach", "photo", str(recipe)]) == 0
     after = recipe.read_text()
     T = np.array(vars_of(recipe)["photo_pose"]["matrix"])
-    assert np.allclose(T, robot_pose(recipe, None), atol=1e-6)  # the simulated robot's home pose
+    ur5e = load_robot_model("ur5e")  # the recipe's simulated robot starts at the model's home joints
+    assert np.allclose(T, ur5e.fk(ur5e.home), atol=1e-6)
     changed = [(a, b) for a, b in zip(before.splitlines(), after.splitlines(), strict=True) if a != b]
     assert len(changed) == 1 and "photo_pose" in changed[0][0]  # one line, comments untouched
 
@@ -65,7 +67,7 @@ def test_stage_parameter_when_there_is_no_variable(tmp_path: Path) -> None:
     "argv",
     [
         ["teach", "photo", "no/such/recipe.yaml"],
-        ["teach", "photo", str(RECIPES / "demo.yaml"), "--pose", "0,0,0,0,0,0"],
+        ["teach", "photo", "DEMO", "--pose", "0,0,0,0,0,0"],
         ["teach", "install", "RECIPE", "--pose", "1,2,3"],
         ["teach", "install", "RECIPE", "--pose", "1,2,3,nan,0,0"],
         ["teach", "photo", "RECIPE", "--robot", "camera"],
@@ -73,10 +75,26 @@ def test_stage_parameter_when_there_is_no_variable(tmp_path: Path) -> None:
     ],
 )
 def test_bad_input_is_refused_and_the_recipe_is_left_alone(recipe: Path, argv: list[str]) -> None:
-    argv = [str(recipe) if a == "RECIPE" else a for a in argv]
-    before = recipe.read_text()
+    demo = recipe.with_name("demo.yaml")  # a recipe with no photo pose to teach (a copy: it must stay as is)
+    shutil.copy(RECIPES / "demo.yaml", demo)
+    argv = [{"RECIPE": str(recipe), "DEMO": str(demo)}.get(a, a) for a in argv]
+    before = {p: p.read_text() for p in (recipe, demo)}
     assert main(argv) == 2
-    assert recipe.read_text() == before
+    assert {p: p.read_text() for p in (recipe, demo)} == before
+
+
+def test_a_taught_pose_that_breaks_the_recipe_leaves_the_file_as_it_was(tmp_path: Path, capsys) -> None:
+    """vars.photo_pose is also used where a number belongs: the taught matrix would make the recipe
+    invalid, so teach refuses and the file keeps every byte (it is validated before it is written)."""
+    text = (RECIPES / "demo.yaml").read_text()
+    text = text.replace("  n_points: 5000\n", "  n_points: 5000\n  photo_pose: 30\n")
+    text = text.replace("frames: 30,", 'frames: "${photo_pose}",')
+    path = tmp_path / "r.yaml"
+    path.write_text(text)
+    load_recipe(str(path))  # valid as written
+    assert main(["teach", "photo", str(path), "--pose", "0.1,0.2,0.3,0,0,0"]) == 2
+    assert "cannot teach" in capsys.readouterr().out
+    assert path.read_text() == text
 
 
 @settings(max_examples=40, deadline=None)
