@@ -83,6 +83,7 @@ class FakeCamera:
     waits: int = 0
     polls: int = 0
     stopped: int = 0
+    aligned: int = 0  # framesets passed through rs.align (the fake's frames are aligned already)
     cursor: int = 0
 
 
@@ -246,6 +247,7 @@ def make_module(cam: FakeCamera) -> types.ModuleType:
             assert to is stream.color
 
         def process(self, frames: _Frameset) -> _Frameset:
+            cam.aligned += 1
             return frames
 
     rs.config, rs.pipeline, rs.align = config, pipeline, align  # type: ignore[attr-defined]

@@ -89,6 +89,7 @@ def test_capture_at_pose_with_the_ur_adapter_and_the_file_camera(monkeypatch):
     assert [m[0] for m in moves] == ["moveJ_IK"] * 3
     for m in moves:
         np.testing.assert_allclose(m[1][0], tf.ur_from_T(T_photo), atol=1e-9)
+    assert len(seen["poses"]) == 3  # one pose per capture, published with its cloud
     for p in seen["poses"]:
         assert p.frame_id == "base" and tf.pose_error(p.T, T_photo)[0] < 1e-6
     assert len(seen["tcp"]) == 4 and len(seen["joints"]) == 4  # at set-up and after each command

@@ -92,6 +92,7 @@ def test_constant_depth_points_have_that_depth_and_reproject(f, c, z):
     np.testing.assert_allclose(pts[..., 2], z, rtol=1e-6)
     uv = rs_project(intr, pts)
     assert np.abs(uv[..., 0] - np.arange(64)).max() < 1e-3
+    assert np.abs(uv[..., 1] - np.arange(48)[:, None]).max() < 1e-3  # (fy, cy: rows too)
 
 
 def test_bad_intrinsics_and_shapes_are_refused_with_a_reason():

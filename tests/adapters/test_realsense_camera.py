@@ -96,6 +96,7 @@ def test_color_aligns_depth_to_the_colour_camera_and_colours_the_points(monkeypa
     stage, ctx = camera(warmup_frames=0, color=True)
     assert (stream.color, INTR.width, INTR.height, format.rgb8, 30) in c.streams
     cloud = stage.on_request("capture", Request())  # frame 1 (frame 0 was dropped as stale)
+    assert c.aligned >= 1  # depth went through rs.align to the colour camera before use
     keep = c.frames[1].reshape(-1) > 0
     np.testing.assert_array_equal(cloud.colors, colors[1].reshape(-1, 3)[keep])
     np.testing.assert_allclose(ctx.published["camera_info"][-1].K[0, 0], 72.0)  # the colour camera's

@@ -22,6 +22,7 @@ from plugins.solvers.handeye.io import load_pose_pairs, write_pose_pairs_json
 from plugins.solvers.kinematic_calibration import write_csv, write_json
 from plugins.solvers.tcp_camera import TcpCameraData, TcpNoiseModel, save_tcp_json
 from plugins.solvers.vive_desk import save_vive_csv, save_vive_json
+from plugins.solvers.vive_desk.realtime import desktop_tcp
 from plugins.solvers.vive_desk.simulate import (
     SEED_POINTS_3,
     SEED_POINTS_4,
@@ -182,7 +183,14 @@ def test_seed_001_protocol_says_what_to_add_and_a_cad_prior_makes_it_usable(tmp_
     text = capsys.readouterr().out
     assert "note: lever-arm prior" in text and "verdict DEGENERATE" not in text
     res = json.loads((tmp_path / "r.json").read_text())
-    assert np.linalg.norm(np.asarray(res["estimate"]["T_tracker_tcp"])[:3, 3] - sim.T_tracker_tcp[:3, 3]) < 3e-3
+    est = {k: np.asarray(v) for k, v in res["estimate"].items()}
+    # the lever arm comes from the prior here (one orientation cannot tell it): check what the contacts
+    # do determine, the TCP pose in the desk frame at the calibration orientation (the prior alone,
+    # with the desk frame at identity, would be metres off)
+    T_cal = sim.T_base_tracker_true[0]
+    got = desktop_tcp(T_cal, est["T_base_desktop"], est["T_tracker_tcp"])
+    true = desktop_tcp(T_cal, sim.T_base_desktop, sim.T_tracker_tcp)
+    assert np.linalg.norm(got[:3, 3] - true[:3, 3]) < 2.5e-3
     assert calibrate("vive-desk", tmp_path / "seed001.json", "--tcp-prior-mm", 0, 0, 0, "--tcp-prior-sigma-mm", 0) == 2
 
 

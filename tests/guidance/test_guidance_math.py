@@ -74,11 +74,22 @@ def test_wrong_hand_eye_still_converges_by_iterating_and_docks_exactly(seed):
     assert t_err < 1e-6 and r_err < 1e-6
 
 
-def test_dual_composes_both_corrections():
-    rng = np.random.default_rng(1)
-    T_s1, T_e1, T_i, T_s2, T_e2 = (rand_T(rng) for _ in range(5))
-    out = gm.dock_dual(T_s1, T_e1, T_i, T_s2, T_e2)
-    assert np.allclose(out, T_e1 @ inv(T_s1) @ T_i @ inv(T_s2) @ T_e2, atol=1e-12)
+@settings(max_examples=100)
+@given(seeds)
+def test_dual_docks_the_carried_part_on_the_moved_part_as_taught(seed):
+    """The cell, not the formula: the incoming part moved (P0 -> P) and the grasp changed (G0 -> G,
+    part pose in the tool frame). Stage 1 (eye-in-hand) ends where the flange camera sees the part as
+    taught; stage 2 (eye-to-hand) ends where the fixed camera sees the carried part at its taught
+    place. The docked carried part must then sit on the moved part exactly as taught."""
+    rng = np.random.default_rng(seed)
+    P0, G0, T_install, T_s1, T_s2 = (rand_T(rng) for _ in range(5))
+    P, G = small_T(rng) @ P0, G0 @ small_T(rng)
+    T_e1 = P @ inv(P0) @ T_s1  # flange camera: inv(T) @ P as taught
+    T_e2 = T_s2 @ G0 @ inv(G)  # fixed camera: the carried part T @ G where T_s2 @ G0 was
+    T_dock = gm.dock_dual(T_s1, T_e1, T_install, T_s2, T_e2)
+    taught = inv(P0) @ T_install @ G0  # carried part in the incoming part's frame, as taught
+    t_err, r_err = pose_error(inv(P) @ T_dock @ G, taught)
+    assert t_err < 1e-9 and r_err < 1e-9
 
 
 def test_sizes_and_thresholds():

@@ -118,13 +118,14 @@ def test_unmodelled_compliance_is_not_hidden():
     assert any("exceed the stated noise" in r for r in out.result.reasons)
 
 
-def test_wrong_robot_model_fails():
+def test_wrong_robot_model_is_flagged_not_passed_as_ok():
     irb = nominal_model("abb_irb120")
     q = random_poses(irb, 60, 45)
     data = measure(true_robot("abb_irb120", seed=46), q, 47)
     out = calibrate_kinematics(MODEL, data)  # a UR5e model for IRB 120 data
-    # generic DH parameters can even turn a UR5e into an IRB 120; the moves are flagged
-    assert out.result.verdict in ("failed", "warning")
+    # generic DH parameters can even turn a UR5e into an IRB 120 (the fit itself succeeds); what
+    # must not happen is an "ok": the implausible parameter moves are flagged
+    assert out.result.verdict == "warning"
     assert any("beyond manufacturing tolerances" in r for r in out.result.reasons)
     assert out.result.advice
 

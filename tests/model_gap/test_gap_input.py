@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import io
+import re
 import tempfile
 from functools import cache
 from pathlib import Path
@@ -98,8 +99,8 @@ def test_nan_or_text_in_any_cell_is_refused_with_its_line(tmp_path_factory, data
     p = _write(tmp_path_factory.mktemp("nan"), header, rows)
     with pytest.raises(GapDataError) as exc:
         read_gap_csv(p)
-    msg = str(exc.value)
-    assert header[j] in msg and str(i + 2) in msg
+    msg = str(exc.value).split(f"{p}: ", 1)[1]  # (the path's own digits must not pass for the line)
+    assert f"'{header[j]}'" in msg and re.search(rf"line(\(s\))? \[?{i + 2}\b", msg), msg
 
 
 @settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])

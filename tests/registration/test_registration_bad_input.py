@@ -10,6 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
+from engine import transforms as tf
 from plugins.solvers.registration import (
     FeatureFrameParams,
     FineParams,
@@ -93,10 +94,15 @@ def test_unknown_backend_gives_failed_result():
 
 
 def test_drop_non_finite_opt_in_recovers_the_pose():
-    cur = np.vstack([GOOD, np.full((30, 3), np.nan)])
+    """The current cloud is the template moved by 3 mm / 2 deg, plus NaN rows: dropped, the match
+    finds the move (p_template = T_match @ p_current) instead of failing on the NaNs."""
+    T_move = tf.T_from_rotvec(np.radians([0.0, 0.0, 2.0]), [0.003, -0.002, 0.001])
+    moved = GOOD @ T_move[:3, :3].T + T_move[:3, 3]
+    cur = np.vstack([moved, np.full((30, 3), np.nan)])
     res = register_fine(cur, GOOD, None, FineParams(preprocess=PreprocessParams(drop_non_finite=True)))
     assert res.verdict == "ok", res.summary()
-    assert np.allclose(res.T_match, np.eye(4), atol=1e-6)
+    d_m, d_rad = tf.pose_error(res.T_match, np.linalg.inv(T_move))
+    assert d_m < 1e-4 and np.degrees(d_rad) < 0.01
 
 
 finite_or_not = st.floats(allow_nan=True, allow_infinity=True, width=64)

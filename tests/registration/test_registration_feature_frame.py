@@ -79,8 +79,11 @@ def test_synthetic_plate_frame_and_match(kind):
         # pins: only ~25 cap-rim points on the 0.8 mm grid, so the centre is less precise
         limit_mm, limit_deg = (0.1, 0.05) if kind == "hole" else (0.3, 0.15)
         assert err_mm < limit_mm and err_deg < limit_deg, (err_mm, err_deg)
-        # the first-order sigma has the error's order of magnitude
-        assert res.sigma_translation_m.max() < 2e-3 * limit_mm and np.isfinite(res.covariance).all()
+        # the first-order sigma has the error's order of magnitude: in-plane between a tenth of the
+        # limit and twice it (measured 0.09-0.10 mm for holes, 0.19-0.23 mm for pins)
+        sigma_in_plane = res.sigma_translation_m[:2]
+        assert np.all(sigma_in_plane > 1e-4 * limit_mm) and res.sigma_translation_m.max() < 2e-3 * limit_mm
+        assert np.isfinite(res.covariance).all()
 
 
 def test_symmetric_feature_pair_is_ambiguous():

@@ -63,7 +63,10 @@ def test_frames_form_a_tree_that_composes_to_the_cell_poses():
     np.testing.assert_allclose(poses["base"], T_WORLD_BASE, atol=1e-12)
     np.testing.assert_allclose(poses["tcp"], T_WORLD_TCP, atol=1e-12)
     np.testing.assert_allclose(poses["camera"], T_WORLD_TCP @ T_TCP_CAM, atol=1e-12)
-    np.testing.assert_allclose(poses["plate"], cell.part_pose(cell.parts[1], T_WORLD_TCP, truth=False), atol=1e-12)
+    # the parts as placed in seed_004_cell: the base plate on the table, the plate held by the tool
+    np.testing.assert_allclose(poses["base_plate"], T_WORLD_BASEPLATE, atol=1e-12)
+    T_tcp_plate = T_from_rotvec([math.pi, 0, 0], [0, 0, 0.2])
+    np.testing.assert_allclose(poses["plate"], T_WORLD_TCP @ T_tcp_plate, atol=1e-12)
     np.testing.assert_allclose(poses["tracker"], T_WORLD_TCP @ T_TCP_TRACKER, atol=1e-12)
     np.testing.assert_allclose(poses["lighthouse"], T_WORLD_LH, atol=1e-12)
 

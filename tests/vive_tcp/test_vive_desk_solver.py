@@ -234,7 +234,7 @@ def test_misplaced_contact_is_flagged_and_fails_the_seed_acceptance():
     res = calibrate_vive_desk(data)
     assert res.outliers[5] and res.outliers.sum() == 1
     assert any("P6" in a for a in res.advice)
-    assert res.verdict == "warning" or res.verdict == "failed"
+    assert res.verdict == "failed" and any("acceptance not met" in r for r in res.reasons)
 
 
 def test_seed_acceptance_fails_with_hand_held_scatter():
