@@ -15,6 +15,8 @@ says so. Nothing moves the robot.
 from __future__ import annotations
 
 import argparse
+import os
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -133,6 +135,18 @@ def taught_text(recipe: Path, what: str, T: np.ndarray, stage: str | None) -> tu
     )
 
 
+def _replace_text(path: Path, text: str) -> None:
+    """Write *text* to a temporary file beside *path* and rename it over *path* (atomic on POSIX:
+    a crash leaves the old recipe or the new one, never half of one; the file's mode is kept)."""
+    tmp = path.with_name(f".{path.name}.teach-tmp")
+    try:
+        tmp.write_text(text)
+        shutil.copymode(path, tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
 def cmd_teach(args: argparse.Namespace) -> int:
     recipe = Path(args.recipe)
     try:
@@ -150,7 +164,7 @@ def cmd_teach(args: argparse.Namespace) -> int:
         # it replaces the file: a refused teach leaves the recipe as it was
         loaded = load_recipe(str(recipe), text=new_text)
         build_graph(loaded, load_registry(loaded.recipe.plugins))
-        recipe.write_text(new_text)
+        _replace_text(recipe, new_text)
     except (TeachError, RecipeError, PluginError, ValueError, OSError, yaml.YAMLError) as exc:
         out.print(f"[red]cannot teach[/]: {exc}", highlight=False, soft_wrap=True)
         return EXIT_INVALID
