@@ -146,10 +146,12 @@ def cmd_run(args: argparse.Namespace) -> int:
         out.print_json(json.dumps(_summary_dict(summary)))
     else:
         print_summary(summary)
+    incomplete = "recording_error" in summary.artifacts
+    if incomplete:  # said even when the run was interrupted
+        console.print(f"[red]the recording is incomplete[/]: {escape(summary.artifacts['recording_error'])}")
     if summary.stop_reason and "interrupted" in summary.stop_reason:
         return EXIT_INTERRUPTED
-    if "recording_error" in summary.artifacts:
-        console.print(f"[red]the recording is incomplete[/]: {escape(summary.artifacts['recording_error'])}")
+    if incomplete:
         return EXIT_FAILED
     return summary.exit_code
 

@@ -120,7 +120,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 def cmd_recover(args: argparse.Namespace) -> int:
     from engine.recording import recover
 
-    r = recover(args.file, args.output)
+    r = recover(args.file, args.output, overwrite=args.force)
     state = "complete file" if r.complete else f"truncated ({r.error or 'no footer'})"
     last = _ns(r.last_log_time) if r.last_log_time else "-"
     out.print(
@@ -147,5 +147,6 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg
 
     p = sub.add_parser("recover", help="rebuild the index of a recording cut short (e.g. kill -9)")
     p.add_argument("file")
-    p.add_argument("-o", "--output", help="output file (default FILE-recovered.mcap)")
+    p.add_argument("-o", "--output", help="output file (default FILE-recovered.mcap); never FILE itself")
+    p.add_argument("--force", action="store_true", help="replace the output file if it exists")
     p.set_defaults(func=cmd_recover)

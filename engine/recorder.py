@@ -108,6 +108,9 @@ def versions(plugins: list[str]) -> dict[str, str]:
     return out
 
 
+WRITER_FINISH_TIMEOUT_S = 60.0  # how long the end of a run waits for the writer's backlog
+
+
 class Recorder(Observer):
     """Run observer writing the MCAP file from its own thread (stage threads only enqueue)."""
 
@@ -218,7 +221,12 @@ class Recorder(Observer):
     def on_finish(self, runner: Runner, summary: RunSummary) -> None:
         self._q.put(("end", summary))
         if self._thread is not None:
-            self._thread.join(60)
+            self._thread.join(WRITER_FINISH_TIMEOUT_S)
+            if self._thread.is_alive():  # still writing a backlog: the file has no footer (yet)
+                self.error = self.error or (
+                    f"the recording writer did not finish within {WRITER_FINISH_TIMEOUT_S:g} s: "
+                    f"{self.path} may lack its end (vgr recover restores what was written)"
+                )
         summary.artifacts["recording"] = str(self.path)
         if self.error:
             summary.artifacts["recording_error"] = self.error

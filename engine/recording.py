@@ -9,6 +9,7 @@ read back and written to a new, indexed file — the same job as ``mcap recover`
 from __future__ import annotations
 
 import json
+import os
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -211,16 +212,37 @@ class RecoverReport:
     last_log_time: int | None
 
 
-def recover(src: str | Path, dst: str | Path | None = None) -> RecoverReport:
-    """Copy every readable record of *src* (e.g. a file cut by kill -9) into a new indexed file."""
+def recover(src: str | Path, dst: str | Path | None = None, *, overwrite: bool = False) -> RecoverReport:
+    """Copy every readable record of *src* (e.g. a file cut by kill -9) into a new indexed file.
+
+    *src* is only read: the output may not be *src* itself, an existing output is replaced only with
+    *overwrite*, and the output appears under its name only once it is complete (written beside it
+    under a temporary name, then renamed). Raises RecordingError otherwise."""
     src = Path(src)
     dst = Path(dst) if dst else src.with_name(src.stem + "-recovered.mcap")
+    if not src.is_file():
+        raise RecordingError(f"no such recording: {src}")
+    if dst.exists() and dst.resolve() == src.resolve():
+        raise RecordingError(f"the output {dst} is the recording being recovered: choose another -o")
+    if dst.exists() and not overwrite:
+        raise RecordingError(f"{dst} exists: remove it, choose another -o, or pass --force")
+    tmp = dst.with_name(f".{dst.name}.partial")
+    try:
+        report = _copy_readable(src, tmp, dst)
+        os.replace(tmp, dst)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return report
+
+
+def _copy_readable(src: Path, tmp: Path, dst: Path) -> RecoverReport:
+    """recover()'s copy of *src* into *tmp* (reported as *dst*)."""
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
     out_schema: dict[int, int] = {}
     out_channel: dict[int, int] = {}
     n, last, error, complete = 0, None, "", False
-    with src.open("rb") as f, dst.open("wb") as g:
+    with src.open("rb") as f, tmp.open("wb") as g:
         w = Writer(g, compression=CompressionType.ZSTD)
         w.start(profile="", library=f"vgr {__version__} recover")
         reader = StreamReader(f, skip_magic=False, emit_chunks=False, validate_crcs=True)

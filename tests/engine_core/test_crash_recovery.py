@@ -104,3 +104,20 @@ def test_kill_9_keeps_flushed_chunks_and_recover_restores_them(tmp_path, capsys,
     assert lost_s <= interval + MARGIN_S, (
         f"{lost_s:.2f} s of data lost with a {interval:g} s flush interval (bound {interval + MARGIN_S:g} s)"
     )
+
+
+def test_recover_never_writes_over_its_input_or_an_existing_file(tmp_path, capsys):
+    src = tmp_path / "run.mcap"
+    assert main(["run", "recipes/demo.yaml", "-p", "source.frames=3", "--no-progress", "--record", str(src)]) == 0
+    before = src.read_bytes()
+    capsys.readouterr()
+    for argv in (["-o", str(src)], ["-o", str(tmp_path / "." / "run.mcap")]):
+        assert main(["recover", str(src), *argv]) == 2
+        assert "is the recording being recovered" in capsys.readouterr().err
+    other = tmp_path / "other.mcap"
+    other.write_bytes(b"keep me")
+    assert main(["recover", str(src), "-o", str(other)]) == 2
+    assert "exists" in capsys.readouterr().err and other.read_bytes() == b"keep me"
+    assert main(["recover", str(src), "-o", str(other), "--force"]) == 0
+    assert load(other).records and src.read_bytes() == before
+    assert not list(tmp_path.glob(".*partial"))  # no temporary file left behind

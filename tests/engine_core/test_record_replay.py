@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import textwrap
+import time
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +12,7 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 from recipe_helpers import graph_from
 
+from engine import recorder as recorder_mod
 from engine.cli import main
 from engine.recorder import Recorder
 from engine.recording import inspect, load
@@ -84,6 +86,28 @@ def test_update_rewrites_the_golden_recording(tmp_path):
     again, _, _ = replay(path)
     assert again.ok and all(v.verdict == "identical" for v in again.streams)
     assert again.outputs["/noisy/cloud"][0].payload == report.outputs["/noisy/cloud"][0].payload
+
+
+def test_update_refuses_when_a_stage_failed_during_the_replay(tmp_path, capsys):
+    """A stage that fails stops producing: rewriting the golden then would drop its later outputs."""
+    path = record(tmp_path, PIPELINE.format(clock="sim"))
+    before = path.read_bytes()
+    assert main(["replay", str(path), "-p", "noisy.n=-100", "--update"]) == 2  # (a negative cloud size raises)
+    out = capsys.readouterr()
+    assert "stage failure during replay" in out.out and "a stage failed during the replay" in out.err
+    assert path.read_bytes() == before and not list(tmp_path.glob("*.tmp"))
+
+
+def test_a_writer_that_cannot_finish_in_time_is_reported_not_hidden(tmp_path, monkeypatch):
+    """The end of a run waits a bounded time for the recorder's backlog; if the writer is still busy
+    the run says the recording is incomplete instead of handing over a file without its end."""
+    monkeypatch.setattr(recorder_mod, "WRITER_FINISH_TIMEOUT_S", 0.05)
+    slow = recorder_mod.Recorder._write
+    monkeypatch.setattr(recorder_mod.Recorder, "_write", lambda self, item: (time.sleep(0.02), slow(self, item)))
+    graph = graph_from(textwrap.dedent(PIPELINE.format(clock="sim")))
+    rec = Recorder(tmp_path / "slow.mcap", graph.recipe.record, graph.loaded, ["builtin", "stage_fixtures"])
+    summary = Runner(graph, observers=[rec]).run()
+    assert "did not finish within 0.05 s" in summary.artifacts["recording_error"]
 
 
 def test_recording_opens_with_foxglove_schemas(tmp_path):
