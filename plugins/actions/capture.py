@@ -14,6 +14,7 @@ from pydantic import Field
 
 from engine.messages import PointCloud, PoseStamped, Request, RobotCommand
 from engine.stage import ServiceError, Stage, StageParams
+from plugins.actions.robot_moves import duplicate_message
 from plugins.interfaces import CAMERA_CAPTURE, ROBOT_MOVE
 from plugins.params import PoseSpec
 
@@ -42,6 +43,9 @@ class CaptureAtPose(Stage):
             reply = self.ctx.call("robot", cmd, timeout_s=p.timeout_s)
         except ServiceError as exc:
             self.ctx.event("alarm", "robot_unavailable", str(exc))
+            return
+        if reply.duplicate:  # handled before: the robot did not move now, the pose is an old one
+            self.ctx.event("alarm", "duplicate_command", duplicate_message(cmd.command_id))
             return
         if not reply.ok:
             self.ctx.event("alarm", "robot_refused", f"move to the photo pose refused: {reply.error}")

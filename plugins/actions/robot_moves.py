@@ -1,8 +1,11 @@
 """One robot move through the ``robot`` service client, for action stages (guidance, docking).
 
 ``move`` sends a ``RobotCommand`` with an idempotent command id and returns the reply, or raises
-``MoveRefused`` with an alarm code: ``robot_unavailable`` (no answer, service error) or
-``robot_refused`` (the controller said no, or gave no pose back). Callers turn it into their alarm.
+``MoveRefused`` with an alarm code: ``robot_unavailable`` (no answer, service error),
+``robot_refused`` (the controller said no, or gave no pose back) or ``duplicate_command`` (the
+controller had already handled this id — a retry, or an earlier run with the same ids and the same
+command journal — so nothing moved now, and the pose in the reply is an old one). Callers turn it
+into their alarm.
 """
 
 from __future__ import annotations
@@ -30,6 +33,16 @@ def move(
         reply = ctx.call("robot", cmd, timeout_s=timeout_s)
     except ServiceError as exc:
         raise MoveRefused("robot_unavailable", str(exc)) from None
+    if reply.duplicate:
+        raise MoveRefused("duplicate_command", duplicate_message(command_id))
     if not reply.ok or reply.T is None:
         raise MoveRefused("robot_refused", f"move {command_id} refused: {reply.error or 'no pose in the reply'}")
     return reply
+
+
+def duplicate_message(command_id: str) -> str:
+    return (
+        f"the robot had already handled command {command_id} and did not move now (a retry, or an earlier "
+        "run: command ids restart with every run, so a command journal kept across runs must be cleared "
+        "or be one file per run)"
+    )

@@ -97,6 +97,23 @@ def test_capture_at_pose_with_the_ur_adapter_and_the_file_camera(monkeypatch):
     assert ("stopScript", ()) in ctl.calls  # teardown released the controller
 
 
+def test_a_second_run_with_the_same_command_journal_does_not_take_old_ids_for_moves(monkeypatch, tmp_path):
+    """Command ids restart with every run; the UR journal remembers them across runs. A second run on
+    the same journal gets 'already handled' replies: it must alarm and capture nothing, not carry on
+    as if the robot had moved to the photo pose."""
+    journal = tmp_path / "ur.jsonl"
+    workspace = WORKSPACE + f", command_journal: {journal}"
+    for rid in ("adp-j1", "adp-j2"):
+        ctl = FakeURController()
+        install_ur(monkeypatch, ctl)
+        text = UR_FILES.format(rid=rid, ip=IP, workspace=workspace, pcl=PCL, photo=matrix_yaml(photo_pose(ctl)))
+        s = run(text)
+        moves = ctl.move_calls()
+    assert len(SEEN["adp-j1"]["clouds"]) == 3  # the first run moved and captured
+    assert moves == [] and not SEEN["adp-j2"].get("clouds")  # the second moved nothing, captured nothing
+    assert [e.code for e in s.events if e.level == "alarm"] == ["duplicate_command"] * 3
+
+
 ROBOT_SCRIPT = """
 name: ur_script
 plugins: [adapter_fixtures]

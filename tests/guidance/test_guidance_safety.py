@@ -68,14 +68,21 @@ class ScriptedContext(StageContext):
 
 
 class Robot:
-    """Accepts moves (the TCP goes exactly where asked) unless ``refuse`` says otherwise."""
+    """Accepts moves (the TCP goes exactly where asked) unless ``refuse`` says otherwise; ids in
+    ``handled_before`` are answered as a controller answers a repeated id (the first reply again:
+    ok, an old pose, ``duplicate``) without moving."""
 
-    def __init__(self, refuse: Callable[[RobotCommand], bool] = lambda cmd: False) -> None:
+    def __init__(
+        self, refuse: Callable[[RobotCommand], bool] = lambda cmd: False, handled_before: frozenset[str] = frozenset()
+    ) -> None:
         self.moves: list[str] = []
         self.refuse = refuse
+        self.handled_before = handled_before
 
     def __call__(self, cmd: Message) -> RobotReply:
         assert isinstance(cmd, RobotCommand)
+        if cmd.command_id in self.handled_before:
+            return RobotReply(command_id=cmd.command_id, ok=True, T=np.eye(4), duplicate=True)
         if self.refuse(cmd):
             return RobotReply(command_id=cmd.command_id, ok=False, error="outside the work envelope")
         self.moves.append(cmd.command_id)
@@ -169,6 +176,15 @@ def test_robot_refusal_stops_the_loop() -> None:
     assert ctx.alarms() == ["robot_refused"]
 
 
+def test_a_repeated_command_id_is_not_taken_for_a_move() -> None:
+    """The controller answers an id it handled before (a retry, or an earlier run's journal) with the
+    old reply and does not move: guidance must not go on from a pose the robot is not at."""
+    robot = Robot(handled_before=frozenset({"guidance-1-photo"}))
+    ctx = run_guidance({"robot": robot, "camera": camera, "match": matches(ok(), ok())})
+    assert result_of(ctx).verdict == "refused" and robot.moves == []
+    assert ctx.alarms() == ["duplicate_command"]
+
+
 def test_camera_timeout_is_not_moved() -> None:
     def silent_camera(_: Message) -> PointCloud:
         raise ServiceTimeoutError("camera.capture: no reply within 30 s")
@@ -230,6 +246,15 @@ def test_docking_refuses_nan_and_robot_refusal_is_an_alarm() -> None:
     dock2.on_message("guidance", converged(PHOTO, PHOTO))
     (corr,) = ctx2.published["correction"]
     assert corr.verdict == "refused" and ctx2.alarms() == ["robot_refused"]
+
+    repeated = Robot(handled_before=frozenset({"docking-1-approach", "docking-1-dock"}))
+    ctx3 = ScriptedContext({"robot": repeated}, name="docking")
+    dock3 = Docking(ctx3, Docking.Params(install_pose={"matrix": PHOTO.tolist()}))
+    dock3.setup()
+    dock3.on_message("guidance", converged(PHOTO, PHOTO))
+    (corr,) = ctx3.published["correction"]
+    assert corr.verdict == "refused" and ctx3.alarms() == ["duplicate_command"]
+    assert "docked" not in [e.code for e in ctx3.events]
 
 
 def _calibration_file(tmp_path, verdict: str, name: str = "T_tcp_cam") -> str:
