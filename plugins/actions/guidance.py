@@ -5,13 +5,15 @@ and while the match is not within tolerance, compute the correction step (plugin
 guidance_math), check it against the limits, move, and look again — at most ``max_iterations``
 moves. The result (``T_start``, ``T_end``, residual per look, verdict) goes out on ``result`` for
 the docking stage, then a ``done`` request that can trigger a second guidance stage (dual docking:
-the eye-in-hand look at the target first, then the eye-to-hand look at the gripped part).
+the eye-in-hand look at the target first, then the eye-to-hand look at the gripped part). A stage
+triggered by a ``done`` whose verdict is not ``converged`` moves nothing: it publishes a refused
+result (alarm ``upstream_not_converged``), so the pairing downstream still holds.
 
 Safety (DESIGN.md): no motion from a failed or ambiguous match, a NaN anywhere, a step or a total
 correction beyond the limits, or a refused/unanswered robot; each ends the run with an ``alarm``
 event and a result whose verdict is not ``converged``, so nothing docks. Not converging within
 ``max_iterations`` raises an alarm too. Robot command ids are ``<stage>-<job>-<k>``: a replayed or
-repeated trigger never moves twice.
+repeated trigger never moves twice (the robot answers ``duplicate`` and guidance stops with an alarm).
 """
 
 from __future__ import annotations
@@ -144,6 +146,10 @@ class Guidance(Stage):
             rotation_tol_deg=p.rotation_tol_deg,
         )
         try:
+            upstream = msg.args.get("verdict") if isinstance(msg.args, dict) else None
+            if upstream is not None and upstream != "converged":  # chained after another guidance (dual)
+                why = f"the guidance that triggered this one ended {upstream!r} (its job {msg.args.get('job')})"
+                raise GuidanceStopError("refused", "upstream_not_converged", f"{why}: nothing moved")
             self._run(job, result)
         except GuidanceStopError as stop:
             result.verdict = stop.verdict if result.verdict != "converged" else result.verdict

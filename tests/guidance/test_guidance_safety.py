@@ -185,6 +185,25 @@ def test_a_repeated_command_id_is_not_taken_for_a_move() -> None:
     assert ctx.alarms() == ["duplicate_command"]
 
 
+@pytest.mark.parametrize("upstream", ["refused", "failed", "not_converged"])
+def test_a_guidance_chained_after_one_that_did_not_converge_moves_nothing(upstream: str) -> None:
+    """Dual docking: the eye-to-hand guidance is triggered by the eye-in-hand one's ``done``; when
+    that one did not converge, the second must not move to its photo pose and correct."""
+    robot = Robot()
+    ctx = ScriptedContext({"robot": robot, "camera": camera, "match": matches(ok(0.0, 0.0))})  # (within tolerance)
+    stage: Stage = Guidance(
+        ctx, Guidance.Params(mode="eye_in_hand", hand_eye={"matrix": X.tolist()}, photo_pose={"matrix": PHOTO.tolist()})
+    )
+    stage.setup()
+    done = Request(command="guidance_done", args={"job": 1, "verdict": upstream}, seq=1)
+    stage.on_message("trigger", done)
+    assert robot.moves == [] and result_of(ctx).verdict == "refused"
+    assert ctx.alarms() == ["upstream_not_converged"] and len(ctx.published["done"]) == 1
+    stage.on_message("trigger", Request(command="guidance_done", args={"job": 2, "verdict": "converged"}, seq=2))
+    assert robot.moves == ["guidance-2-photo"]  # a converged one goes ahead (and converges at its first look)
+    assert ctx.published["result"][-1].verdict == "converged"
+
+
 def test_camera_timeout_is_not_moved() -> None:
     def silent_camera(_: Message) -> PointCloud:
         raise ServiceTimeoutError("camera.capture: no reply within 30 s")
