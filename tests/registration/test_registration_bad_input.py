@@ -170,3 +170,21 @@ def test_cloud_with_the_part_missing_fails(plate_scene):
         assert res.verdict == "failed", res.summary()
         assert res.T_match is None
         assert res.reasons
+
+
+def test_a_non_finite_uncertainty_never_yields_an_ok_match(monkeypatch):
+    """A NaN sigma passes every 'sigma > limit' comparison: the match must fail instead of being ok
+    with an unknown uncertainty (guidance acts on 'ok' alone)."""
+    from plugins.solvers.registration import fine
+
+    real = fine.pose_uncertainty
+
+    def nan_sigma(*args, **kwargs):
+        unc = real(*args, **kwargs)
+        unc.sigma_translation_m = np.full(3, np.nan)
+        return unc
+
+    monkeypatch.setattr(fine, "pose_uncertainty", nan_sigma)
+    res = register_fine(GOOD, GOOD, None)
+    assert res.verdict == "failed" and res.T_match is None, res.summary()
+    assert "not finite" in res.reasons[0]

@@ -219,6 +219,16 @@ def evaluate(
         )
         res.details["T_candidate"] = T_match
         return res
+    if not (
+        np.all(np.isfinite(unc.sigma_translation_m))
+        and np.all(np.isfinite(unc.sigma_rotation_rad))
+        and np.all(np.isfinite(unc.covariance))
+    ):  # (a NaN sigma would pass every "> limit" test below: no verdict from an unknown uncertainty)
+        res.verdict = "failed"
+        res.reasons.insert(0, "the uncertainty of the match is not finite (NaN or inf): not usable")
+        res.details["failure"] = "uncertainty"
+        res.details["T_candidate"] = T_match
+        return res
     over_t = unc.sigma_translation_m > params.max_sigma_translation_m
     over_r = unc.sigma_rotation_rad > params.max_sigma_rotation_rad
     if np.any(over_t) or np.any(over_r):
