@@ -46,6 +46,8 @@ from plugins.interfaces import ROBOT_OUTPUTS, ROBOT_SERVICES
 from plugins.params import PoseSpec
 from plugins.util.sdk import import_sdk
 
+IK_TOL_M, IK_TOL_RAD = 1e-5, math.radians(0.001)  # joints from the controller's IK must reach T this closely
+
 # Hard maxima: a recipe cannot configure more than this (well below the UR controller's own limits).
 HARD_MAX_LINEAR_SPEED_M_S = 1.0
 HARD_MAX_LINEAR_ACCEL_M_S2 = 3.0
@@ -238,19 +240,19 @@ class URRobot(Stage):
             if problem:
                 return self._refused(cmd, f"{cmd.kind}: {problem}")
             target_T = np.asarray(cmd.T, dtype=float)
-            move = driver.move_l if cmd.kind == "move_l" else driver.move_j_to_pose
-            target: np.ndarray = target_T
+        if cmd.kind == "move_l":
+            assert target_T is not None
+            move, target = driver.move_l, target_T
         else:
-            problem = joint_target_problem(cmd.joints, now.q, self.limits)
-            if problem:
-                return self._refused(cmd, f"move_j: {problem}")
-            target_q = np.asarray(cmd.joints, dtype=float)
-            T_fk = driver.forward_kinematics(target_q)
-            if T_fk is None:
-                return self._refused(cmd, "move_j: the controller gave no TCP pose for the joint target (not moving)")
-            outside = self.limits.workspace.outside_reason(T_fk[:3, 3], "TCP of the joint target")
-            if outside:
-                return self._refused(cmd, f"move_j: {outside}")
+            if target_T is not None:  # move_j to a pose: the joints the controller's IK picks, checked first
+                target_q = driver.inverse_kinematics(target_T, now.q)
+                if target_q is None:
+                    return self._refused(cmd, "move_j: the controller's inverse kinematics found no joints for T")
+            else:
+                target_q = np.asarray(cmd.joints, dtype=float)
+            refusal = self._joint_target_refusal(target_q, now.q, target_T)
+            if refusal:
+                return self._refused(cmd, f"move_j: {refusal}")
             move, target = driver.move_j, target_q
 
         t0 = self.ctx.clock.now_s()
@@ -278,6 +280,28 @@ class URRobot(Stage):
             joints=None if after is None else after.q,
             duration_s=duration,
         )
+
+    def _joint_target_refusal(self, q: np.ndarray, q_now: np.ndarray, T_wanted: np.ndarray | None) -> str | None:
+        """Why joint target *q* may not be commanded, or None: joint limits and step first, then its
+        TCP by the controller's FK (inside the workspace; for a pose target, at that pose)."""
+        problem = joint_target_problem(q, q_now, self.limits)
+        if problem:
+            return problem
+        assert self.driver is not None
+        T_fk = self.driver.forward_kinematics(q)
+        if T_fk is None:
+            return "the controller gave no TCP pose for the joint target (not moving)"
+        outside = self.limits.workspace.outside_reason(T_fk[:3, 3], "TCP of the joint target")
+        if outside:
+            return outside
+        if T_wanted is not None:
+            d, a = tf.pose_error(T_fk, T_wanted)
+            if d > IK_TOL_M or a > IK_TOL_RAD:
+                return (
+                    f"the inverse kinematics' joints reach {d * 1e3:.3f} mm / {math.degrees(a):.3f} deg from "
+                    "the target pose (not moving)"
+                )
+        return None
 
     def _arrival_error(self, kind: str, s: URState, T: np.ndarray | None, q: np.ndarray | None) -> str:
         p: URRobotParams = self.params  # type: ignore[assignment]

@@ -171,8 +171,19 @@ class URDriver:
     def move_j(self, q: ArrayLike, speed: float, acceleration: float) -> bool:
         return bool(self.control.moveJ(np.asarray(q, dtype=float).tolist(), speed, acceleration, False))
 
-    def move_j_to_pose(self, T_base_tcp: ArrayLike, speed: float, acceleration: float) -> bool:
-        return bool(self.control.moveJ_IK(tf.ur_from_T(T_base_tcp).tolist(), speed, acceleration, False))
+    def inverse_kinematics(self, T_base_tcp: ArrayLike, q_near: ArrayLike) -> F64 | None:
+        """Joints reaching *T_base_tcp* by the controller's own IK, the solution nearest *q_near*
+        (no motion); None when it gives none. The caller checks them (limits, step, FK) before moving."""
+        try:
+            q = self.control.getInverseKinematics(
+                tf.ur_from_T(T_base_tcp).tolist(), np.asarray(q_near, dtype=float).tolist()
+            )
+        except RuntimeError:  # ur-rtde raises when the controller finds no solution
+            return None
+        q = np.asarray(q, dtype=float)
+        if q.shape != (6,) or not np.all(np.isfinite(q)):
+            return None
+        return q
 
     def forward_kinematics(self, q: ArrayLike) -> F64 | None:
         """T_base_tcp of joints *q* by the controller's calibrated model and active TCP (no motion)."""

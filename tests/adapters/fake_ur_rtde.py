@@ -38,6 +38,7 @@ class FakeURController:
     control_connect_error: Exception | None = None
     next_move_fails: str | None = None  # "protective_stop" | "returns_false" | "raises" | "stops_short"
     fk_fails: bool = False
+    ik_answer: str = "solve"  # "solve" | "raises" (no solution) | "elsewhere" (joints that do not reach the pose)
     calls: list[tuple[str, tuple[Any, ...]]] = field(default_factory=list)
     hosts: list[str] = field(default_factory=list)
 
@@ -136,6 +137,16 @@ def make_modules(ctl: FakeURController) -> tuple[types.ModuleType, types.ModuleT
                 return failed
             ctl.q = np.asarray(q, dtype=float)
             return True
+
+        def getInverseKinematics(self, x: list[float], qnear: list[float] | None = None, *args: float) -> list[float]:
+            ctl.calls.append(("getInverseKinematics", (list(x), qnear)))
+            res = ctl.model.ik(tf.T_from_ur(x), np.asarray(qnear if qnear else ctl.q))
+            if ctl.ik_answer == "raises" or not res.success:
+                raise RuntimeError("getInverseKinematics: no solution")
+            q = np.asarray(res.q, dtype=float)
+            if ctl.ik_answer == "elsewhere":
+                q = q + np.radians([0.0, 0.0, 0.0, 0.0, 0.0, 0.5])  # a wrist turned by half a degree
+            return q.tolist()
 
         def getForwardKinematics(self, q: list[float] | None = None, tcp_offset: list[float] | None = None):
             ctl.calls.append(("getForwardKinematics", (q,)))

@@ -84,11 +84,12 @@ def test_capture_at_pose_with_the_ur_adapter_and_the_file_camera(monkeypatch):
     seen = SEEN["adp-ur1"]
     assert [len(c.points) for c in seen["clouds"]] == [397, 361, 13704]
     assert all(c.frame_id == "camera" for c in seen["clouds"])
-    # one joint move per trigger (ids capture-1..3), each to the photo pose: the first moves 10 mm
+    # one joint move per trigger (ids capture-1..3), each to joints whose TCP is the photo pose (the
+    # controller's IK, checked against the limits first): the first moves 10 mm
     moves = ctl.move_calls()
-    assert [m[0] for m in moves] == ["moveJ_IK"] * 3
+    assert [m[0] for m in moves] == ["moveJ"] * 3
     for m in moves:
-        np.testing.assert_allclose(m[1][0], tf.ur_from_T(T_photo), atol=1e-9)
+        assert tf.pose_error(ctl.model.fk(np.asarray(m[1][0]), frame="base"), T_photo)[0] < 1e-8
     assert len(seen["poses"]) == 3  # one pose per capture, published with its cloud
     for p in seen["poses"]:
         assert p.frame_id == "base" and tf.pose_error(p.T, T_photo)[0] < 1e-6
@@ -151,7 +152,7 @@ def test_robot_contract_over_the_bus_idempotent_ids_and_refusals(monkeypatch):
     assert far[:2] == ("far", False) and "step limit" in far[3]
     assert fast[:2] == ("fast", False) and "speed 5 m/s exceeds" in fast[3]
     assert b[:3] == ("b", True, False)
-    assert [m[0] for m in ctl.move_calls()] == ["moveL", "moveJ_IK"]
+    assert [m[0] for m in ctl.move_calls()] == ["moveL", "moveJ"]
     refusals = [e for e in s.events if e.code == "robot_refused"]
     assert {e.details["command_id"] for e in refusals} == {"far", "fast"}
 

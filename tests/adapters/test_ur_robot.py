@@ -109,13 +109,42 @@ def test_move_j_to_joints_checks_the_target_tcp_with_the_controller_fk_then_move
     np.testing.assert_allclose(reply.joints, q, atol=1e-12)
 
 
-def test_move_j_to_a_pose_uses_movej_ik(ctl):
+def test_move_j_to_a_pose_moves_to_the_controllers_ik_joints_checked_first(ctl):
     stage, _ = robot(ctl)
     T = nudged(home_T(ctl), dy=0.02)
     reply = stage.on_request("move", RobotCommand(command_id="jp", kind="move_j", T=T))
     assert reply.ok, reply.error
-    assert [c[0] for c in ctl.move_calls()] == ["moveJ_IK"]
+    assert [c[0] for c in ctl.calls if c[0] in ("getInverseKinematics", "getForwardKinematics", "moveJ")] == [
+        "getInverseKinematics",
+        "getForwardKinematics",
+        "moveJ",
+    ]
     assert tf.pose_error(reply.T, T)[0] < 1e-6
+
+
+@pytest.mark.parametrize(
+    ("setup", "says"),
+    [
+        # the 20 mm step turns joints 1 and 6 by -2.3 deg: a recipe limit at -1 deg on joint 1 ...
+        ({"joint_min_deg": [-1.0, -360, -360, -360, -360, -360]}, "joint 1 target"),
+        ({"max_joint_step_deg": 1.0}, "step limit"),  # ... or a 1 deg joint step limit refuses it
+    ],
+)
+def test_move_j_to_a_pose_is_refused_when_the_ik_joints_break_a_joint_limit(ctl, setup, says):
+    """The TCP step and workspace are fine, but the joints the controller would take are not: the
+    recipe's joint limits hold for pose targets too (moveJ_IK would have gone there unchecked)."""
+    stage, _ = robot(ctl, **setup)
+    T = nudged(home_T(ctl), dy=0.02)
+    reply = stage.on_request("move", RobotCommand(command_id="jp", kind="move_j", T=T))
+    assert not reply.ok and says in reply.error and ctl.move_calls() == []
+
+
+@pytest.mark.parametrize(("answer", "says"), [("raises", "found no joints"), ("elsewhere", "from the target pose")])
+def test_move_j_to_a_pose_without_a_sound_ik_answer_does_not_move(ctl, answer, says):
+    ctl.ik_answer = answer
+    stage, _ = robot(ctl)
+    reply = stage.on_request("move", RobotCommand(command_id="jp", kind="move_j", T=nudged(home_T(ctl), dy=0.02)))
+    assert not reply.ok and says in reply.error and ctl.move_calls() == []
 
 
 # ----------------------------------------------------------------------------- idempotency
