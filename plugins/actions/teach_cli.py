@@ -15,8 +15,6 @@ says so. Nothing moves the robot.
 from __future__ import annotations
 
 import argparse
-import os
-import shutil
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +29,7 @@ from engine.plugin_manager import PluginError, load_registry
 from engine.recipe import load_recipe
 from engine.transforms import T_from_ur, as_transform
 from plugins.util.detached import DetachedContext
+from plugins.util.files import replace_text
 
 out = Console()
 EXIT_OK, EXIT_FAILED, EXIT_INVALID = 0, 1, 2
@@ -135,18 +134,6 @@ def taught_text(recipe: Path, what: str, T: np.ndarray, stage: str | None) -> tu
     )
 
 
-def _replace_text(path: Path, text: str) -> None:
-    """Write *text* to a temporary file beside *path* and rename it over *path* (atomic on POSIX:
-    a crash leaves the old recipe or the new one, never half of one; the file's mode is kept)."""
-    tmp = path.with_name(f".{path.name}.teach-tmp")
-    try:
-        tmp.write_text(text)
-        shutil.copymode(path, tmp)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
 def cmd_teach(args: argparse.Namespace) -> int:
     recipe = Path(args.recipe)
     try:
@@ -164,7 +151,7 @@ def cmd_teach(args: argparse.Namespace) -> int:
         # it replaces the file: a refused teach leaves the recipe as it was
         loaded = load_recipe(str(recipe), text=new_text)
         build_graph(loaded, load_registry(loaded.recipe.plugins))
-        _replace_text(recipe, new_text)
+        replace_text(recipe, new_text)  # atomic: a crash never leaves half a recipe
     except (TeachError, RecipeError, PluginError, ValueError, OSError, yaml.YAMLError) as exc:
         out.print(f"[red]cannot teach[/]: {exc}", highlight=False, soft_wrap=True)
         return EXIT_INVALID

@@ -9,8 +9,10 @@ formats those pages document (``.json`` / ``.csv``) or an MCAP recording made by
 ``--drop-unmatched``.
 
 Output: the report in mm / degrees (estimate with 1-sigma, residuals, verdict, reasons, advice) on
-stdout; ``--json OUT`` writes the CalibrationResult, ``--report DIR`` writes result.json, report.txt,
-summary.md (and for kinematics convergence.png and before_after.txt). Exit code 0: usable result
+stdout; ``--json OUT`` writes the CalibrationResult (never over the data file; an existing OUT, which
+a ``calibration_file`` stage may be loading, is not replaced by an unusable result: that one goes to
+OUT's name + ``.unusable``), ``--report DIR`` writes result.json, report.txt, summary.md (and for
+kinematics convergence.png and before_after.txt); files are replaced atomically. Exit code 0: usable result
 (verdict ok / warning); 1: degenerate or failed (do not use it); 2: bad input (missing or malformed
 file, NaN, mixed units, too few samples, unpaired samples).
 """
@@ -39,6 +41,7 @@ from plugins.solvers.calibration_inputs import (
 )
 from plugins.solvers.calibration_report import format_result, kinematic_table, write_kinematic_files, write_report_dir
 from plugins.solvers.calibration_result import CalibrationResult
+from plugins.util.files import replace_text
 
 EXIT_USABLE, EXIT_UNUSABLE, EXIT_BAD_INPUT = 0, 1, 2
 FILE_SUFFIXES = (".json", ".csv", ".mcap")
@@ -318,6 +321,9 @@ BAD_INPUT = (ValueError, KeyError, OSError, RecordingError, json.JSONDecodeError
 def run_kind(args: argparse.Namespace) -> int:
     """Run one ``vgr calibrate KIND`` invocation; returns the exit code."""
     _, _, runner = KINDS[args.kind]
+    if args.json and Path(args.json).resolve() == Path(args.data).resolve():
+        print(f"bad input: --json {args.json} is the data file itself: choose another output", file=sys.stderr)
+        return EXIT_BAD_INPUT
     try:
         outcome = runner(args)
     except KeyError as exc:  # a field missing in a JSON file
@@ -334,7 +340,11 @@ def run_kind(args: argparse.Namespace) -> int:
         text = "\n".join(f"note: {n}" for n in outcome.notes) + "\n" + text
     print(text)
     if args.json:
-        Path(args.json).write_text(result.to_json(indent=1) + "\n")
+        out = Path(args.json)
+        if out.exists() and not result.usable:  # a calibration_file stage may load it: keep the working one
+            out = out.with_name(f"{out.stem}.unusable{out.suffix}")
+            print(f"note: kept {args.json} (this result is not usable); wrote it to {out}")
+        replace_text(out, result.to_json(indent=1) + "\n")
     if args.report:
         d = write_report_dir(args.report, result, text, outcome.sections)
         if outcome.write_files is not None:

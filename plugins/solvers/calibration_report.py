@@ -20,6 +20,7 @@ import numpy as np
 
 from plugins.solvers.calibration_result import CalibrationResult, SummaryRow
 from plugins.solvers.handeye.report import format_report as format_hand_eye_report
+from plugins.util.files import replace_text
 
 if TYPE_CHECKING:
     from plugins.solvers.kinematic_calibration import KinematicCalibration
@@ -142,12 +143,13 @@ def write_report_dir(
     text: str,
     extra_sections: Mapping[str, str] | None = None,
 ) -> Path:
-    """Write result.json, report.txt and summary.md into *directory* (created); returns it."""
+    """Write result.json, report.txt and summary.md into *directory* (created); returns it. Each file
+    is replaced atomically (never left half-written)."""
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
-    (d / "result.json").write_text(json.dumps(result.to_dict(), indent=1) + "\n")
-    (d / "report.txt").write_text(text + "\n")
-    (d / "summary.md").write_text(summary_markdown(result, extra_sections))
+    replace_text(d / "result.json", json.dumps(result.to_dict(), indent=1) + "\n")
+    replace_text(d / "report.txt", text + "\n")
+    replace_text(d / "summary.md", summary_markdown(result, extra_sections))
     return d
 
 

@@ -194,6 +194,23 @@ def test_seed_001_protocol_says_what_to_add_and_a_cad_prior_makes_it_usable(tmp_
     assert calibrate("vive-desk", tmp_path / "seed001.json", "--tcp-prior-mm", 0, 0, 0, "--tcp-prior-sigma-mm", 0) == 2
 
 
+def test_an_unusable_result_never_replaces_a_calibration_in_use(tmp_path, capsys):
+    """--json OUT may be the file a calibration_file stage loads: a later, unusable calibration (here
+    the seed-001 protocol without a lever-arm prior: degenerate) goes beside it, not over it."""
+    sim = simulate_contacts(SEED_POINTS_3, seed=1)
+    data = tmp_path / "seed001.json"
+    save_vive_json(sim.data, data)
+    good = tmp_path / "cal.json"
+    good.write_text('{"verdict": "ok", "in use": true}\n')
+    assert calibrate("vive-desk", data, "--no-samples", "--json", good) == 1
+    assert good.read_text() == '{"verdict": "ok", "in use": true}\n'
+    kept = json.loads((tmp_path / "cal.unusable.json").read_text())
+    assert kept["verdict"] == "degenerate" and "kept" in capsys.readouterr().out
+    before = data.read_bytes()
+    assert calibrate("vive-desk", data, "--json", data) == 2  # never over the data file
+    assert data.read_bytes() == before
+
+
 # --------------------------------------------------------------------------- exit code 2
 
 
