@@ -151,3 +151,26 @@ def test_version_1_templates_still_load_and_match(tmp_path, captures):
     assert res.verdict == "ok", res.summary()
     err = scenes.match_error(res.T_match, tmpl, cur, "feature_part")
     assert err[0] < 0.1 and err[1] < 0.05
+
+
+def test_remaking_a_template_that_fails_midway_keeps_the_old_one(tmp_path, captures, monkeypatch):
+    """Re-making a template recipes use: if writing the new one fails after its points are written
+    (disk full, kill), the old template still loads and nothing half-written is left."""
+    from plugins.solvers.registration import template as template_mod
+
+    tmpl, _ = captures
+    path = save_template(make_template(tmpl.points, T_PHOTO, name="in_use"), tmp_path)
+    before = {f.name: f.read_bytes() for f in path.iterdir()}
+    write_points_only = template_mod._write_template
+
+    def fail_after_points(template, where):
+        write_points_only(template, where)
+        (where / "template.json").unlink()
+        raise OSError("No space left on device")
+
+    monkeypatch.setattr(template_mod, "_write_template", fail_after_points)
+    with pytest.raises(OSError, match="No space"):
+        save_template(make_template(tmpl.points[::2], T_PHOTO, name="in_use"), tmp_path)
+    assert {f.name: f.read_bytes() for f in path.iterdir()} == before
+    assert len(load_template(path).points) == len(tmpl.points)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in_use.vgrtpl"]  # no .partial / .old left

@@ -27,6 +27,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import shutil
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -131,9 +133,29 @@ def make_template(
 
 
 def save_template(template: Template, directory: str | Path) -> Path:
-    """Write ``<directory>/<name>.vgrtpl/`` (see module docstring) and return its path."""
+    """Write ``<directory>/<name>.vgrtpl/`` (see module docstring) and return its path.
+
+    The template is written into a temporary directory beside it and swapped in only when complete,
+    so re-making a template that recipes use never leaves it half-written (points of the new one
+    with the checksum of the old, which load_template would refuse)."""
     path = Path(directory) / f"{template.name}{SUFFIX}"
-    path.mkdir(parents=True, exist_ok=True)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp, old = path.with_name(f".{path.name}.partial"), path.with_name(f".{path.name}.old")
+    for leftover in (tmp, old):
+        shutil.rmtree(leftover, ignore_errors=True)
+    tmp.mkdir()
+    try:
+        _write_template(template, tmp)
+        if path.exists():
+            os.rename(path, old)
+        os.rename(tmp, path)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+        shutil.rmtree(old, ignore_errors=True)
+    return path
+
+
+def _write_template(template: Template, path: Path) -> None:
     doc: dict[str, Any] = {
         "schema": SCHEMA,
         "schema_version": SCHEMA_VERSION,
@@ -154,7 +176,6 @@ def save_template(template: Template, directory: str | Path) -> Path:
             points_resolution=template.points_resolution,
         )
     (path / "template.json").write_text(json.dumps(doc, indent=2, sort_keys=True) + "\n")
-    return path
 
 
 def load_template(path: str | Path) -> Template:
