@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import platform
 import queue
 import threading
@@ -81,17 +82,29 @@ def default_path(recipe: str, process: str, directory: str | Path = "runs") -> P
 
 
 def resolve_path(settings: RecordSettings, recipe: str, process: str, override: str | None = None) -> Path:
-    """Where this process records: *override* or ``record.path`` (a file, or a directory), else runs/."""
+    """Where this process records: *override* (``--record``) or ``record.path`` (a file, or a
+    directory), else runs/. A generated name (a directory or runs/) never reuses an existing file. A
+    recipe's ``record.path`` file is shared by all its processes, so processes other than ``main``
+    record beside it under ``<stem>-<process>``. An existing file is replaced only when the run ends
+    well (see :class:`Recorder`)."""
     target = override or settings.path
+    generated = target is None or Path(target).is_dir() or target.endswith("/")
     if target is None:
         path = default_path(recipe, process)
+    elif generated:
+        path = default_path(recipe, process, Path(target))
     else:
-        p = Path(target)
-        path = default_path(recipe, process, p) if (p.is_dir() or target.endswith("/")) else p
+        path = Path(target)
+        if override is None and process != "main":
+            path = path.with_name(f"{path.stem}-{process}{path.suffix}")
     path.parent.mkdir(parents=True, exist_ok=True)
-    n = 1
-    candidate = path
-    while candidate.exists() and override is None and settings.path is None:
+    return _unused(path) if generated else path
+
+
+def _unused(path: Path) -> Path:
+    """*path*, or ``<stem>-1``, ``<stem>-2`` ... beside it: the first name no file has."""
+    n, candidate = 1, path
+    while candidate.exists():
         candidate = path.with_name(f"{path.stem}-{n}{path.suffix}")
         n += 1
     return candidate
@@ -115,7 +128,14 @@ class Recorder(Observer):
     """Run observer writing the MCAP file from its own thread (stage threads only enqueue)."""
 
     def __init__(self, path: Path, settings: RecordSettings, loaded: LoadedRecipe, plugins: list[str]) -> None:
-        self.path = Path(path)
+        # an existing file (a golden recording, say) is not truncated at the start: the run records
+        # beside it and replaces it only when it ends well (a failed run leaves both)
+        self.final_path = Path(path)
+        self.path = (
+            _unused(self.final_path.with_name(f"{self.final_path.stem}.new{self.final_path.suffix}"))
+            if (self.final_path.exists())
+            else self.final_path
+        )
         self.settings = settings
         self.loaded = loaded
         self.plugins = plugins
@@ -227,6 +247,12 @@ class Recorder(Observer):
                     f"the recording writer did not finish within {WRITER_FINISH_TIMEOUT_S:g} s: "
                     f"{self.path} may lack its end (vgr recover restores what was written)"
                 )
+        if self.path != self.final_path:
+            if summary.ok and not self.error:
+                os.replace(self.path, self.final_path)
+                self.path = self.final_path
+            else:
+                summary.artifacts["recording_kept"] = f"{self.final_path} was left as it was (the run did not end well)"
         summary.artifacts["recording"] = str(self.path)
         if self.error:
             summary.artifacts["recording_error"] = self.error

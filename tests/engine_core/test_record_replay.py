@@ -165,3 +165,43 @@ def test_damaged_or_foreign_files_give_clear_errors(tmp_path, capsys):
     assert "cannot read" in capsys.readouterr().err
     assert main(["inspect", str(tmp_path / "missing.mcap")]) == 2
     assert "no such recording" in capsys.readouterr().err
+
+
+def test_recording_over_an_existing_file_replaces_it_only_when_the_run_ends_well(tmp_path):
+    """`--record FILE` on a golden that exists: the run records beside it and renames over it at a
+    good end; a failed run leaves the old file as it was and its own recording beside it."""
+    golden = tmp_path / "golden.mcap"
+    golden.write_bytes(b"the old golden")
+    assert main(["run", "recipes/demo.yaml", "-p", "source.frames=3", "--no-progress", "--record", str(golden)]) == 0
+    assert load(golden).records and sorted(p.name for p in tmp_path.iterdir()) == ["golden.mcap"]
+
+    golden.write_bytes(b"the old golden")
+    graph = graph_from(textwrap.dedent(PIPELINE.format(clock="sim")), ["noisy.n=-100"])  # noisy fails at run time
+    rec = Recorder(golden, graph.recipe.record, graph.loaded, ["builtin", "stage_fixtures"])
+    summary = Runner(graph, observers=[rec]).run()
+    assert not summary.ok and golden.read_bytes() == b"the old golden"
+    assert summary.artifacts["recording"] == str(tmp_path / "golden.new.mcap") and "left as it was" in str(
+        summary.artifacts["recording_kept"]
+    )
+    assert load(tmp_path / "golden.new.mcap").records  # the failed run's own recording, complete
+
+
+def test_record_paths_of_several_processes_and_runs_never_collide(tmp_path, monkeypatch):
+    from datetime import datetime as real_datetime
+
+    from engine.recipe import RecordSettings
+    from engine.recorder import resolve_path
+
+    class Frozen(real_datetime):  # two runs in the same second
+        @classmethod
+        def now(cls, tz=None):
+            return real_datetime(2026, 1, 2, 3, 4, 5)
+
+    monkeypatch.setattr(recorder_mod, "datetime", Frozen)
+    in_dir = RecordSettings(path=str(tmp_path) + "/")
+    first = resolve_path(in_dir, "r", "main")
+    first.write_bytes(b"run 1")
+    assert resolve_path(in_dir, "r", "main") not in (first,)  # a second run that second gets its own file
+    one_file = RecordSettings(path=str(tmp_path / "cell.mcap"))
+    assert resolve_path(one_file, "r", "main") == tmp_path / "cell.mcap"
+    assert resolve_path(one_file, "r", "camera_host") == tmp_path / "cell-camera_host.mcap"
