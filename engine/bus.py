@@ -32,6 +32,7 @@ import collections
 import contextlib
 import json
 import threading
+import time
 import weakref
 from collections.abc import Callable
 from typing import Any
@@ -110,6 +111,26 @@ class _StopMarker:
         return None
 
 
+TIMEOUT_PARAM = "vgr_timeout_ms"  # query parameter: how long the caller waits for the reply
+
+
+def overdue_ms(query: Any, arrived_ns: int) -> float | None:
+    """How long ago the caller of *query* (arrived at *arrived_ns*, monotonic) stopped waiting for
+    its reply, or None while it still waits (or did not say how long it would). Measured from the
+    query's arrival here, so the callers' and providers' clocks need not agree; the caller's timer
+    started a transit time earlier (well under a millisecond on one machine)."""
+    params = getattr(query, "parameters", None)
+    raw = params.get(TIMEOUT_PARAM) if params is not None else None
+    try:
+        timeout_ms = float(raw) if raw is not None else None
+    except ValueError:
+        return None
+    if timeout_ms is None:
+        return None
+    late = (time.monotonic_ns() - arrived_ns) / 1e6 - timeout_ms
+    return late if late > 0 else None
+
+
 class Inbox:
     """Unbounded FIFO fed by a zenoh callback (never blocks zenoh's threads), read with ``recv()``."""
 
@@ -120,11 +141,16 @@ class Inbox:
         self.decl: Any = None
 
     def __call__(self, item: Any) -> None:
+        arrived = time.monotonic_ns()
         with self._cv:
-            self._items.append(item)
+            self._items.append((arrived, item))
             self._cv.notify()
 
     def recv(self) -> Any:
+        return self.recv_timed()[1]
+
+    def recv_timed(self) -> tuple[int, Any]:
+        """(``time.monotonic_ns()`` when it arrived, next item); blocks until there is one."""
         with self._cv:
             while not self._items:
                 self._cv.wait()
@@ -269,7 +295,7 @@ class Bus:
         RuntimeError with the provider's message when it replied with an error.
         """
         replies = self.session.get(
-            key,
+            f"{key}?{TIMEOUT_PARAM}={max(1, round(timeout_s * 1000))}",  # the provider skips it once we gave up
             payload=payload,
             attachment=attachment,
             timeout=timeout_s,

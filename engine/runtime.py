@@ -43,7 +43,7 @@ from time import perf_counter
 from typing import TYPE_CHECKING, Any
 
 from engine import codec
-from engine.bus import service_key, wire_key
+from engine.bus import overdue_ms, service_key, wire_key
 from engine.codec import CodecError, Envelope, Kind
 from engine.graph import StageNode
 from engine.inbox import END, STOP, PortInbox
@@ -394,7 +394,7 @@ class StageRuntime(StageContext):
         stop = self.runner.stop_event
         spec = self.node.cls.services[svc]
         while True:
-            query = queryable.recv()
+            arrived_ns, query = queryable.recv_timed()
             with query:
                 if stop.is_set():
                     return
@@ -409,6 +409,12 @@ class StageRuntime(StageContext):
                         raise CodecError(f"service {svc!r} takes {spec.request.TYPE}, got {type(request).__name__}")
                 except CodecError as exc:
                     query.reply_err(f"bad request to {self.name}.{svc}: {exc}")
+                    continue
+                late_ms = overdue_ms(query, arrived_ns)
+                if late_ms is not None:  # its caller gave up while it queued: doing it now helps no one
+                    why = f"not served: its caller stopped waiting {late_ms:.0f} ms before this stage was free"
+                    self.event("warning", "request_expired", f"{svc}: request {request.seq} {why}", service=svc)
+                    query.reply_err(f"{self.name}.{svc}: {why}")
                     continue
                 reply_bytes, error = self._serve(svc, spec.reply, request)
                 if reply_bytes is not None:

@@ -111,6 +111,32 @@ def test_service_timeout_is_reported_as_timeout():
     assert rows and all(r["args"]["error"] == "ServiceTimeoutError" for r in rows)
 
 
+def test_a_request_whose_caller_gave_up_while_it_queued_is_not_served():
+    """Two callers of one busy service, 0.2 s timeouts, 0.5 s per request: the first request is
+    served (it started in time), the second waits ~0.3 s behind it, its caller gives up, and the
+    provider then skips it (a robot must not start a move nobody waits for any more)."""
+    text = """
+    name: expiry
+    plugins: [stage_fixtures]
+    run_id: exp1
+    stages:
+      src: {type: t_counter, params: {n: 1}}
+      echo: {type: t_echo, params: {delay_s: 0.5}}
+      a: {type: t_caller, inputs: {in: src.out}, uses: {svc: echo.echo}, params: {timeout_s: 0.2}}
+      b: {type: t_caller, inputs: {in: src.out}, uses: {svc: echo.echo}, params: {timeout_s: 0.2}}
+      sa: {type: t_collector, inputs: {in: a.out}}
+      sb: {type: t_collector, inputs: {in: b.out}}
+      slow: {type: t_counter, params: {n: 2, rate_hz: 1}}  # keeps the run going past the queue's end
+      ss: {type: t_collector, inputs: {in: slow.out}}
+    """
+    _, s = run(text)
+    rows = COLLECTED["exp1"]["sa"] + COLLECTED["exp1"]["sb"]
+    assert [r["args"]["error"] for r in rows] == ["ServiceTimeoutError"] * 2
+    assert {st.name: st for st in s.stages}["echo"].requests_served == 1
+    expired = [e for e in s.events if e.code == "request_expired"]
+    assert len(expired) == 1 and expired[0].stage == "echo" and "stopped waiting" in expired[0].message
+
+
 def test_stop_from_another_thread_ends_an_endless_run_promptly():
     text = """
     name: endless
@@ -205,3 +231,20 @@ def test_inline_and_threaded_dispatch_give_identical_results():
         for port, n in (("a", 300), ("b", 200)):
             assert [r["args"]["i"] for r in got if r["command"] == port] == list(range(n))
     assert rows["auto"] == rows["thread"]
+
+
+def test_overdue_is_measured_from_arrival_and_ignores_what_it_cannot_read():
+    import time as _time
+
+    from engine.bus import TIMEOUT_PARAM, overdue_ms
+
+    class Query:
+        def __init__(self, params: dict[str, str]) -> None:
+            self.parameters = params
+
+    now = _time.monotonic_ns()
+    assert overdue_ms(Query({TIMEOUT_PARAM: "100"}), now) is None  # just arrived, 100 ms to go
+    late = overdue_ms(Query({TIMEOUT_PARAM: "100"}), now - 300_000_000)  # arrived 300 ms ago
+    assert late is not None and 190 < late < 260
+    for params in ({}, {TIMEOUT_PARAM: "soon"}):  # a foreign querier that says nothing usable: served
+        assert overdue_ms(Query(params), now - 10**12) is None
