@@ -9,7 +9,6 @@ read back and written to a new, indexed file — the same job as ``mcap recover`
 from __future__ import annotations
 
 import json
-import os
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +21,7 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from engine import __version__
+from engine.files import replacing
 from engine.recorder import TOPIC_DELIVERIES, TOPIC_FINISH
 from engine.schemas import proto_class
 
@@ -226,12 +226,8 @@ def recover(src: str | Path, dst: str | Path | None = None, *, overwrite: bool =
         raise RecordingError(f"the output {dst} is the recording being recovered: choose another -o")
     if dst.exists() and not overwrite:
         raise RecordingError(f"{dst} exists: remove it, choose another -o, or pass --force")
-    tmp = dst.with_name(f".{dst.name}.partial")
-    try:
+    with replacing(dst) as tmp:
         report = _copy_readable(src, tmp, dst)
-        os.replace(tmp, dst)
-    finally:
-        tmp.unlink(missing_ok=True)
     return report
 
 

@@ -23,13 +23,13 @@ import yaml
 from rich.console import Console
 
 from engine.errors import RecipeError
+from engine.files import replace_text
 from engine.graph import build_graph
 from engine.messages import Event, Message, Request
 from engine.plugin_manager import PluginError, load_registry
 from engine.recipe import load_recipe
 from engine.transforms import T_from_ur, as_transform
 from plugins.util.detached import DetachedContext
-from plugins.util.files import replace_text
 
 out = Console()
 EXIT_OK, EXIT_FAILED, EXIT_INVALID = 0, 1, 2

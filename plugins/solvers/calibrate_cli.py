@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from engine.files import replace_text
 from engine.messages import JointState, PoseStamped, TrackerPose
 from engine.recording import Recording, RecordingError
 from plugins.solvers.calibration_inputs import (
@@ -41,7 +42,6 @@ from plugins.solvers.calibration_inputs import (
 )
 from plugins.solvers.calibration_report import format_result, kinematic_table, write_kinematic_files, write_report_dir
 from plugins.solvers.calibration_result import CalibrationResult
-from plugins.util.files import replace_text
 
 EXIT_USABLE, EXIT_UNUSABLE, EXIT_BAD_INPUT = 0, 1, 2
 FILE_SUFFIXES = (".json", ".csv", ".mcap")

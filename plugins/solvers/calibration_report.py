@@ -18,9 +18,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from engine.files import replace_text
 from plugins.solvers.calibration_result import CalibrationResult, SummaryRow
 from plugins.solvers.handeye.report import format_report as format_hand_eye_report
-from plugins.util.files import replace_text
 
 if TYPE_CHECKING:
     from plugins.solvers.kinematic_calibration import KinematicCalibration
