@@ -122,17 +122,16 @@ def overdue_ms(query: Any, arrived_ns: int) -> float | None:
     params = getattr(query, "parameters", None)
     raw = params.get(TIMEOUT_PARAM) if params is not None else None
     try:
-        timeout_ms = float(raw) if raw is not None else None
-    except ValueError:
-        return None
-    if timeout_ms is None:
+        timeout_ms = float(raw)
+    except (TypeError, ValueError):  # not said (None) or not a number
         return None
     late = (time.monotonic_ns() - arrived_ns) / 1e6 - timeout_ms
     return late if late > 0 else None
 
 
 class Inbox:
-    """Unbounded FIFO fed by a zenoh callback (never blocks zenoh's threads), read with ``recv()``."""
+    """Unbounded FIFO fed by a zenoh callback (never blocks zenoh's threads), read with
+    ``recv_timed()``, which also says when each item arrived (see :func:`overdue_ms`)."""
 
     def __init__(self, key: str) -> None:
         self.key_expr = key
@@ -145,9 +144,6 @@ class Inbox:
         with self._cv:
             self._items.append((arrived, item))
             self._cv.notify()
-
-    def recv(self) -> Any:
-        return self.recv_timed()[1]
 
     def recv_timed(self) -> tuple[int, Any]:
         """(``time.monotonic_ns()`` when it arrived, next item); blocks until there is one."""

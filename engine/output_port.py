@@ -55,5 +55,5 @@ class OutputPort:
         self._update()
 
     def _update(self) -> None:
-        self.on_wire = self.remote_consumers or self.external  # something outside the process listens
-        self.needs_bytes = self.on_wire or self.observed  # the message must be encoded
+        # something outside the process listens, or an observer records: the message must be encoded
+        self.needs_bytes = self.remote_consumers or self.external or self.observed

@@ -130,12 +130,8 @@ class Recorder(Observer):
     def __init__(self, path: Path, settings: RecordSettings, loaded: LoadedRecipe, plugins: list[str]) -> None:
         # an existing file (a golden recording, say) is not truncated at the start: the run records
         # beside it and replaces it only when it ends well (a failed run leaves both)
-        self.final_path = Path(path)
-        self.path = (
-            _unused(self.final_path.with_name(f"{self.final_path.stem}.new{self.final_path.suffix}"))
-            if (self.final_path.exists())
-            else self.final_path
-        )
+        final = self.final_path = Path(path)
+        self.path = _unused(final.with_name(f"{final.stem}.new{final.suffix}")) if final.exists() else final
         self.settings = settings
         self.loaded = loaded
         self.plugins = plugins
