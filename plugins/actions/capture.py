@@ -12,9 +12,9 @@ from typing import ClassVar, Literal
 
 from pydantic import Field
 
-from engine.messages import PointCloud, PoseStamped, Request, RobotCommand
+from engine.messages import PointCloud, PoseStamped, Request
 from engine.stage import ServiceError, Stage, StageParams
-from plugins.actions.robot_moves import duplicate_message
+from plugins.actions import robot_moves
 from plugins.interfaces import CAMERA_CAPTURE, ROBOT_MOVE
 from plugins.params import PoseSpec
 
@@ -36,19 +36,12 @@ class CaptureAtPose(Stage):
 
     def on_message(self, port: str, msg: Request) -> None:  # type: ignore[override]
         p: CaptureAtPose.Params = self.params  # type: ignore[assignment]
-        cmd = RobotCommand(
-            command_id=f"{self.ctx.name}-{msg.seq}", kind=p.motion, T=p.photo_pose.T(), speed=p.speed, frame_id="base"
-        )
-        try:
-            reply = self.ctx.call("robot", cmd, timeout_s=p.timeout_s)
-        except ServiceError as exc:
-            self.ctx.event("alarm", "robot_unavailable", str(exc))
-            return
-        if reply.duplicate:  # handled before: the robot did not move now, the pose is an old one
-            self.ctx.event("alarm", "duplicate_command", duplicate_message(cmd.command_id))
-            return
-        if not reply.ok:
-            self.ctx.event("alarm", "robot_refused", f"move to the photo pose refused: {reply.error}")
+        try:  # the shared move: refused, unanswered and already-handled ('duplicate') commands raise
+            reply = robot_moves.move(
+                self.ctx, f"{self.ctx.name}-{msg.seq}", p.photo_pose.T(), p.motion, speed=p.speed, timeout_s=p.timeout_s
+            )
+        except robot_moves.MoveRefused as exc:
+            self.ctx.event("alarm", exc.code, f"move to the photo pose: {exc}")
             return
         try:
             cloud = self.ctx.call("camera", Request(command="capture"), timeout_s=p.timeout_s)

@@ -34,15 +34,12 @@ def move(
     except ServiceError as exc:
         raise MoveRefused("robot_unavailable", str(exc)) from None
     if reply.duplicate:
-        raise MoveRefused("duplicate_command", duplicate_message(command_id))
+        raise MoveRefused(
+            "duplicate_command",
+            f"the robot had already handled command {command_id} and did not move now (a retry, or an earlier "
+            "run: command ids restart with every run, so a command journal kept across runs must be cleared "
+            "or be one file per run)",
+        )
     if not reply.ok or reply.T is None:
         raise MoveRefused("robot_refused", f"move {command_id} refused: {reply.error or 'no pose in the reply'}")
     return reply
-
-
-def duplicate_message(command_id: str) -> str:
-    return (
-        f"the robot had already handled command {command_id} and did not move now (a retry, or an earlier "
-        "run: command ids restart with every run, so a command journal kept across runs must be cleared "
-        "or be one file per run)"
-    )
