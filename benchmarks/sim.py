@@ -13,7 +13,7 @@ not in these times).
   (the worst case: most rays hit), the plate assembled on it.
 
 Kinematics: ``RobotModel.fk`` and ``RobotModel.jacobian`` of the shipped UR5e model
-(``plugins/sim/kinematics.py`` from the sim-kin branch), vectorised over N random configurations,
+(``plugins/robot/kinematics.py`` from the sim-kin branch), vectorised over N random configurations,
 in evaluations (poses) per second; ``benchmarks/sim_kinematics.py`` has the fuller kinematics study.
 
 Run: ``PYTHONPATH=. python benchmarks/sim.py`` -> ``benchmarks/results/sim.json``.  The machine is
@@ -133,9 +133,9 @@ def _rate(fn, n: int, repeats: int = 5, min_time_s: float = 0.2) -> float:
 
 def measure_kinematics() -> dict:
     try:
-        from plugins.sim.model_file import load_robot_model
+        from plugins.robot.model_file import load_robot_model
     except ImportError as exc:  # the kinematics branch has not been merged
-        return {"error": f"plugins.sim.kinematics not available: {exc}"}
+        return {"error": f"plugins.robot.kinematics not available: {exc}"}
     model = load_robot_model("ur5e")
     rng = np.random.default_rng(SEED)
     out: dict = {"model": "ur5e", "fk_per_s": {}, "jacobian_per_s": {}, "fk_and_jacobian_per_s": {}}

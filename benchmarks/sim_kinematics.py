@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from plugins.sim.model_file import load_robot_model
+from plugins.robot.model_file import load_robot_model
 
 SEED = 0
 SIZES = (1, 100, 10_000, 100_000)

@@ -1,4 +1,4 @@
-"""Built-in vgr stages, grouped by role (sensors, solvers, actions) plus the simulated cell (sim).
+"""Built-in vgr stages by role (sensors, solvers, actions), the robot model (robot) and the simulated cell (sim).
 
 They register through the same ``vgr`` entry-point group as third-party plugins (see plugins.builtin).
 """

@@ -1,1 +1,1 @@
-"""actions stages and their libraries."""
+"""Actions: robot moves, the guidance loop, docking, calibration pose campaigns and the UR adapter."""

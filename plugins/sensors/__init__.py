@@ -1,1 +1,1 @@
-"""sensors stages and their libraries."""
+"""Sensors: real device adapters (RealSense, Vive tracker) and file-based cameras."""

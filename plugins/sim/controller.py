@@ -28,12 +28,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from engine.transforms import as_transform, exp_so3, log_so3
+from plugins.robot.effects.base import SampleContext
+from plugins.robot.ik import solve_ik
+from plugins.robot.kinematics import RobotModel
+from plugins.robot.with_effects import RobotWithEffects
 
-from .ik import solve_ik
-from .kinematics import RobotModel
 from .motion_profile import TrapezoidProfile, trapezoid
-from .robot_effects.base import SampleContext
-from .true_robot import RobotWithEffects
 
 F64 = NDArray[np.float64]
 MoveKind = Literal["movej", "movel"]

@@ -37,11 +37,11 @@ from engine.transforms import T_from_Rt, inv
 from plugins.actions import guidance_math as gm
 from plugins.actions.messages import GuidanceResult
 from plugins.params import PoseSpec
-from plugins.sim.model_file import load_robot_model, transform_entry
-from plugins.sim.robot_effects import effects_from_config
+from plugins.robot.effects import effects_from_config
+from plugins.robot.model_file import load_robot_model, transform_entry
+from plugins.robot.with_effects import RobotWithEffects
 from plugins.sim.sensor_effects import PoseOffset
 from plugins.sim.stages.evaluation import assembly_fit
-from plugins.sim.true_robot import RobotWithEffects
 from plugins.sim.workpieces import assembled_plate_pose
 from plugins.solvers.registration.template import load_template
 

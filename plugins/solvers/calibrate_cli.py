@@ -243,7 +243,7 @@ def _kinematics_options(p: argparse.ArgumentParser) -> None:
 
 def _kinematics(args: argparse.Namespace) -> Outcome:
     from engine.transforms import T_from_Rt
-    from plugins.sim.model_file import load_robot_model
+    from plugins.robot.model_file import load_robot_model
     from plugins.solvers.kinematic_calibration import KinematicCalibrationConfig, calibrate_kinematics, read_samples
 
     notes: list[str] = []

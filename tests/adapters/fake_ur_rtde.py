@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from engine import transforms as tf
-from plugins.sim.model_file import load_robot_model
+from plugins.robot.model_file import load_robot_model
 
 UR5E_HOME = np.array([0.0, -np.pi / 2, np.pi / 2, -np.pi / 2, -np.pi / 2, 0.0])
 MOVE_CALLS = ("moveL", "moveJ", "moveJ_IK")

@@ -97,9 +97,9 @@ def test_vive_desk_from_a_file_recovers_the_truth(fmt, tmp_path, capsys):
 
 def test_kinematics_from_a_csv_with_held_out_file(tmp_path, capsys):
     from engine.transforms import T_from_Rt
-    from plugins.sim.model_file import load_robot_model
-    from plugins.sim.robot_effects import GeometricErrors
-    from plugins.sim.true_robot import RobotWithEffects
+    from plugins.robot.effects import GeometricErrors
+    from plugins.robot.model_file import load_robot_model
+    from plugins.robot.with_effects import RobotWithEffects
     from plugins.solvers.kinematic_calibration import KinematicSamples
 
     nominal = load_robot_model("ur5e")

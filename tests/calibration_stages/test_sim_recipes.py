@@ -17,9 +17,9 @@ from engine.cli import main
 from engine.replay import replay
 from engine.transforms import inv, log_so3
 from plugins.params import PoseSpec
-from plugins.sim.model_file import load_robot_model, robot_model_from_dict
-from plugins.sim.robot_effects import effects_from_config
-from plugins.sim.true_robot import RobotWithEffects
+from plugins.robot.effects import effects_from_config
+from plugins.robot.model_file import load_robot_model, robot_model_from_dict
+from plugins.robot.with_effects import RobotWithEffects
 
 pytestmark = pytest.mark.timeout(300)
 

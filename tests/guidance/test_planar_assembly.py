@@ -23,10 +23,10 @@ from engine.replay import replay
 from engine.runner import Runner
 from engine.transforms import T_from_rotvec, pose_error
 from plugins.params import PoseSpec
+from plugins.robot.effects import effects_from_config
+from plugins.robot.model_file import load_robot_model
+from plugins.robot.with_effects import RobotWithEffects
 from plugins.sim import guidance_trials as gt
-from plugins.sim.model_file import load_robot_model
-from plugins.sim.robot_effects import effects_from_config
-from plugins.sim.true_robot import RobotWithEffects
 from plugins.sim.workpieces import assembled_plate_pose
 
 RECIPES = Path(__file__).resolve().parents[2] / "recipes"

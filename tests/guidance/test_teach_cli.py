@@ -14,7 +14,7 @@ from engine.cli import main
 from engine.recipe import load_recipe
 from engine.transforms import T_from_ur
 from plugins.actions.teach_cli import pose_text
-from plugins.sim.model_file import load_robot_model
+from plugins.robot.model_file import load_robot_model
 
 RECIPES = Path(__file__).resolve().parents[2] / "recipes"
 

@@ -6,9 +6,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from engine.transforms import T_from_Rt, exp_se3
-from plugins.sim.model_file import load_robot_model
-from plugins.sim.robot_effects import GeometricErrors
-from plugins.sim.true_robot import RobotWithEffects
+from plugins.robot.effects import GeometricErrors
+from plugins.robot.model_file import load_robot_model
+from plugins.robot.with_effects import RobotWithEffects
 from plugins.solvers.kinematic_calibration import KinematicSamples
 
 NOISE_M = 5e-5  # 0.05 mm per axis, the laser-tracker-like noise

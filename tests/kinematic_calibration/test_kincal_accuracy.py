@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from plugins.sim.model_file import robot_model_from_dict
+from plugins.robot.model_file import robot_model_from_dict
 from plugins.solvers.kinematic_calibration import (
     KinematicCalibrationConfig,
     calibrate_kinematics,

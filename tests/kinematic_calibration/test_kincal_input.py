@@ -9,8 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from plugins.sim.robot_effects import GeometricErrors, JointCompliance
-from plugins.sim.true_robot import RobotWithEffects
+from plugins.robot.effects import GeometricErrors, JointCompliance
+from plugins.robot.with_effects import RobotWithEffects
 from plugins.solvers.kinematic_calibration import (
     KinematicSamples,
     calibrate_kinematics,

@@ -15,7 +15,7 @@ from typing import ClassVar
 import numpy as np
 
 from engine.hookspecs import hookimpl
-from plugins.sim.robot_effects.base import ParamSpec, RobotEffect, check_joints, joint_matrix
+from plugins.robot.effects.base import ParamSpec, RobotEffect, check_joints, joint_matrix
 from plugins.solvers.model_gap.effects import RobotCandidate
 
 NAME = "encoder_second_harmonic"

@@ -47,7 +47,9 @@ def test_vgr_gap_on_csv_writes_the_report_plots_and_table(tmp_path, capsys):
 def test_without_a_noise_spec_the_noise_is_estimated_and_said_so(tmp_path, capsys):
     camp = make_case(case([("joint_compliance", "joint2")], seed=4))
     data = write_gap_csv(camp.data, tmp_path / "x.csv")
-    rc = main(["gap", "--model", "plugins/sim/robots/ur5e.yaml", "--data", str(data), "--report", str(tmp_path / "r")])
+    rc = main(
+        ["gap", "--model", "plugins/robot/robots/ur5e.yaml", "--data", str(data), "--report", str(tmp_path / "r")]
+    )
     assert rc == 0
     rep = json.loads((tmp_path / "r" / "gap_report.json").read_text(encoding="utf-8"))
     assert rep["noise_source"] == "estimated"

@@ -14,7 +14,7 @@ from engine.cli import main
 from engine.gap import GapConfig, SelectionConfig
 from engine.plugin_manager import PluginError, load_registry
 from engine.transforms import inv
-from plugins.sim.true_robot import RobotWithEffects
+from plugins.robot.with_effects import RobotWithEffects
 from plugins.solvers.model_gap import analyse_gap, families_from_registry, write_gap_csv
 from plugins.solvers.model_gap.simulate import T_WORLD_SENSOR, make_case
 

@@ -20,8 +20,8 @@ from rich.console import Console
 
 from engine.gap import GapConfig, SelectionConfig
 from engine.gap.report import render, report_dict
-from plugins.sim.model_file import load_robot_model
-from plugins.sim.true_robot import RobotWithEffects
+from plugins.robot.model_file import load_robot_model
+from plugins.robot.with_effects import RobotWithEffects
 from plugins.solvers.model_gap import analyse_gap
 from plugins.solvers.model_gap.analyse import load_gap_model
 from plugins.solvers.model_gap.effects import RobotScaleFamily, uniform_scale_offsets
@@ -43,7 +43,7 @@ def test_the_effect_scales_the_whole_robot_exactly(robot, convention):
     tool, base = np.eye(4), np.eye(4)
     tool[:3, 3], base[:3, 3] = (0.03, -0.02, 0.12), (0.5, 0.2, -0.3)
     m = m.with_tool(tool).with_base(base)
-    from plugins.sim.robot_effects import GeometricErrors
+    from plugins.robot.effects import GeometricErrors
 
     offsets = uniform_scale_offsets(m)
     assert not any(n.startswith("base.") for n in offsets)

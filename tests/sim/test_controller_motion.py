@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from engine.transforms import exp_se3, log_so3
+from plugins.robot.effects import Backlash, ThermalDrift
+from plugins.robot.model_file import load_robot_model
+from plugins.robot.with_effects import RobotWithEffects
 from plugins.sim.clock import SimClock
 from plugins.sim.controller import SimRobotController
-from plugins.sim.model_file import load_robot_model
-from plugins.sim.robot_effects import Backlash, ThermalDrift
-from plugins.sim.true_robot import RobotWithEffects
 
 UR5E = load_robot_model("ur5e")
 HOME = UR5E.home

@@ -8,9 +8,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from engine.transforms import T_from_Rt
+from plugins.robot.model_file import load_robot_model
 from plugins.sim.clock import SimClock
 from plugins.sim.controller import SimRobotController
-from plugins.sim.model_file import load_robot_model
 
 UR5E = load_robot_model("ur5e")
 IRB120 = load_robot_model("abb_irb120")

@@ -9,8 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import least_squares
 
-from plugins.sim.model_file import load_robot_model
-from plugins.sim.robot_effects import (
+from plugins.robot.effects import (
     CATALOG,
     Backlash,
     BaseFrameError,
@@ -25,7 +24,8 @@ from plugins.sim.robot_effects import (
     effect_from_config,
     effects_from_config,
 )
-from plugins.sim.true_robot import RobotWithEffects
+from plugins.robot.model_file import load_robot_model
+from plugins.robot.with_effects import RobotWithEffects
 
 UR5E = load_robot_model("ur5e")
 RNG = np.random.default_rng(0)

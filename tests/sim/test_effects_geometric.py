@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from engine.transforms import inv, log_se3
-from plugins.sim.model_file import load_robot_model
-from plugins.sim.robot_effects import (
+from plugins.robot.effects import (
     BaseFrameError,
     GeometricErrors,
     JointOffset,
@@ -16,7 +15,8 @@ from plugins.sim.robot_effects import (
     ThermalDrift,
     ToolOffsetError,
 )
-from plugins.sim.true_robot import RobotWithEffects
+from plugins.robot.model_file import load_robot_model
+from plugins.robot.with_effects import RobotWithEffects
 
 UR5E = load_robot_model("ur5e")
 Q = np.random.default_rng(0).uniform(-np.pi, np.pi, size=(100, 6))

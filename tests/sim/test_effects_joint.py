@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from plugins.sim.model_file import load_robot_model, robot_model_from_dict
-from plugins.sim.robot_effects import Backlash, EncoderEccentricity, JointCompliance, SampleContext
-from plugins.sim.true_robot import RobotWithEffects
+from plugins.robot.effects import Backlash, EncoderEccentricity, JointCompliance, SampleContext
+from plugins.robot.model_file import load_robot_model, robot_model_from_dict
+from plugins.robot.with_effects import RobotWithEffects
 
 UR5E = load_robot_model("ur5e")
 

@@ -31,7 +31,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from engine.transforms import abb_from_T, exp_se3, inv, pose_error
-from plugins.sim.model_file import load_robot_model, robot_model_from_dict
+from plugins.robot.model_file import load_robot_model, robot_model_from_dict
 
 Rx = lambda a: Rotation.from_euler("x", a).as_matrix()  # noqa: E731
 Ry = lambda a: Rotation.from_euler("y", a).as_matrix()  # noqa: E731

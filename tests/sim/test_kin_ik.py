@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from engine.transforms import T_from_Rt, exp_se3, pose_error
-from plugins.sim.model_file import load_robot_model
+from plugins.robot.model_file import load_robot_model
 
 
 @pytest.fixture(scope="module", params=["ur5e", "abb_irb120"])

@@ -1,6 +1,6 @@
 """Analytic Jacobians (joints and chain parameters) against central finite differences, to 1e-6.
 
-Twist order (v, w) and frames as documented in plugins.sim.chain: ``space`` matches the left
+Twist order (v, w) and frames as documented in plugins.robot.chain: ``space`` matches the left
 perturbation of engine.transforms (T(q + dq) = exp(J dq) T(q)), ``tool`` the right one, ``base`` is
 the geometric Jacobian (TCP-point velocity, angular velocity, world coordinates).
 """
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from engine.transforms import exp_se3, inv, log_se3
-from plugins.sim.model_file import load_robot_model
+from plugins.robot.model_file import load_robot_model
 
 H = 1e-6
 

@@ -8,7 +8,7 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from plugins.sim.model_file import list_robot_models, load_robot_model, parse_angle, robot_model_from_dict
+from plugins.robot.model_file import list_robot_models, load_robot_model, parse_angle, robot_model_from_dict
 
 UR5E = load_robot_model("ur5e")
 
@@ -192,7 +192,7 @@ def test_parameter_override_shapes_and_names():
 def test_save_and_load_round_trip(tmp_path, conv):
     """A perturbed model written as a model file reads back with the same FK and gravity torque."""
     from engine.transforms import exp_se3
-    from plugins.sim.model_file import save_robot_model
+    from plugins.robot.model_file import save_robot_model
 
     rng = np.random.default_rng(0)
     m = UR5E.with_tool(exp_se3([0.01, 0.0, 0.1, 0.1, 0.0, 0.0])).with_base(exp_se3([0.1, 0.2, 0.3, 0.1, 0.2, 0.3]))

@@ -28,10 +28,10 @@ from engine.messages import FrameTransforms, JointState, PoseStamped, Request, R
 from engine.stage import ServiceSpec, Stage, StageParams
 from plugins.interfaces import ROBOT_OUTPUTS, ROBOT_SERVICES
 from plugins.params import PoseSpec
+from plugins.robot.effects import effect_from_config
+from plugins.robot.model_file import load_robot_model
+from plugins.robot.with_effects import RobotWithEffects
 from plugins.sim import controller as ctl
-from plugins.sim.model_file import load_robot_model
-from plugins.sim.robot_effects import effect_from_config
-from plugins.sim.true_robot import RobotWithEffects
 
 
 class SimRobot(Stage):

@@ -1,7 +1,7 @@
 """Kinematic (geometric) calibration of a serial robot from external measurements of its tool.
 
 Method (seed 003, made complete): the robot is parameterised in standard DH, modified DH or POE
-(:mod:`plugins.sim.conventions`; every geometric quantity is a named chain parameter), together with
+(:mod:`plugins.robot.conventions`; every geometric quantity is a named chain parameter), together with
 the unknown measurement frame (the robot base in the tracker/camera frame, 6 parameters) and the
 measured tool point in the flange frame (3 parameters; 6 with orientation data). The analytic
 Jacobian is the screw Jacobian of the chain (seed 003's formulas 14.14-14.18 generalised: each
@@ -19,7 +19,7 @@ parameter is a "virtual joint"). Steps:
    before/after table on held-out poses, an optional convergence plot, and a verdict.
 
 The returned :class:`CalibrationResult` holds the calibrated model as a model-file mapping in
-``estimate["model_file"]`` (``plugins.sim.model_file.robot_model_from_dict`` rebuilds it) and the
+``estimate["model_file"]`` (``plugins.robot.model_file.robot_model_from_dict`` rebuilds it) and the
 measurement frame as ``estimate["T_meas_base"]``.
 """
 
@@ -35,9 +35,9 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from engine.transforms import T_from_Rt
-from plugins.sim.ik import inverse_left_jacobian_so3
-from plugins.sim.kinematics import RobotModel
-from plugins.sim.model_file import model_to_dict
+from plugins.robot.ik import inverse_left_jacobian_so3
+from plugins.robot.kinematics import RobotModel
+from plugins.robot.model_file import model_to_dict
 from plugins.solvers.calibration_result import CalibrationResult
 
 from .data import KinematicSamples

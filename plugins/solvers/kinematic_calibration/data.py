@@ -35,7 +35,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
-from plugins.sim.robot_effects.base import SampleContext
+from plugins.robot.effects.base import SampleContext
 
 F64 = NDArray[np.float64]
 

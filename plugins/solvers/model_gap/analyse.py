@@ -14,8 +14,8 @@ from engine.gap.files import write_report
 from engine.gap.noise import estimate_noise_scale
 from engine.gap.report import render
 from engine.gap.workflow import collect_candidates
-from plugins.sim.kinematics import RobotModel
-from plugins.sim.model_file import load_robot_model, robot_model_from_dict
+from plugins.robot.kinematics import RobotModel
+from plugins.robot.model_file import load_robot_model, robot_model_from_dict
 
 from .data import GapData, load_gap_data
 from .problem import KinematicGapProblem, ProblemConfig

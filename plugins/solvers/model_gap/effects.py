@@ -1,9 +1,9 @@
 """The model-gap catalog: effect families (registered through ``vgr_model_effects``) and their candidates.
 
 A family is one catalog effect; on a problem it yields one candidate per place the effect can act.
-Robot-side candidates wrap the fittable effects of :mod:`plugins.sim.robot_effects` (their
+Robot-side candidates wrap the fittable effects of :mod:`plugins.robot.effects` (their
 Jacobians come from :meth:`RobotWithEffects.effect_jacobian`); measurement-side ones those of
-:mod:`plugins.sim.measurement_effects`.
+:mod:`plugins.robot.effects.measurement`.
 
 | family | where | parameters (SI) | needs |
 | --- | --- | --- | --- |
@@ -42,9 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from engine.gap.interfaces import Design, Signature
-from plugins.sim.kinematics import RobotModel
-from plugins.sim.measurement_effects import MEASUREMENT_CATALOG
-from plugins.sim.robot_effects import (
+from plugins.robot.effects import (
     Backlash,
     BaseFrameError,
     EncoderEccentricity,
@@ -56,6 +54,8 @@ from plugins.sim.robot_effects import (
     ThermalDrift,
     ToolOffsetError,
 )
+from plugins.robot.effects.measurement import MEASUREMENT_CATALOG
+from plugins.robot.kinematics import RobotModel
 
 from .problem import KinematicGapProblem, effect_config
 

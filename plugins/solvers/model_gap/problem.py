@@ -35,10 +35,10 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from engine.gap.interfaces import Candidate, Feature, FittedEffect, GapInputError, Linearisation
-from plugins.sim.kinematics import RobotModel
-from plugins.sim.measurement_effects import apply_range_distortion, range_distortion_jacobian
-from plugins.sim.model_file import model_to_dict
-from plugins.sim.true_robot import RobotWithEffects
+from plugins.robot.effects.measurement import apply_range_distortion, range_distortion_jacobian
+from plugins.robot.kinematics import RobotModel
+from plugins.robot.model_file import model_to_dict
+from plugins.robot.with_effects import RobotWithEffects
 from plugins.solvers.kinematic_calibration import (
     KinematicCalibrationConfig,
     analyse,

@@ -32,13 +32,7 @@ from itertools import combinations
 import numpy as np
 
 from engine.transforms import inv
-from plugins.sim.camera import look_at
-from plugins.sim.clock import SimClock
-from plugins.sim.controller import SimRobotController
-from plugins.sim.kinematics import RobotModel
-from plugins.sim.measurement_effects import apply_range_distortion
-from plugins.sim.model_file import load_robot_model
-from plugins.sim.robot_effects import (
+from plugins.robot.effects import (
     Backlash,
     BaseFrameError,
     EncoderEccentricity,
@@ -51,8 +45,14 @@ from plugins.sim.robot_effects import (
     ThermalDrift,
     ToolOffsetError,
 )
+from plugins.robot.effects.measurement import apply_range_distortion
+from plugins.robot.kinematics import RobotModel
+from plugins.robot.model_file import load_robot_model
+from plugins.robot.with_effects import RobotWithEffects
+from plugins.sim.camera import look_at
+from plugins.sim.clock import SimClock
+from plugins.sim.controller import SimRobotController
 from plugins.sim.sensor_effects import CameraEffects, TrackerEffects
-from plugins.sim.true_robot import RobotWithEffects
 from plugins.solvers.kinematic_calibration import KinematicSamples
 
 from .data import GapData

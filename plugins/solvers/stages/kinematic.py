@@ -23,7 +23,7 @@ from pydantic import Field
 
 from engine.messages import JointState, PoseStamped, Request
 from plugins.params import PoseSpec
-from plugins.sim.model_file import load_robot_model
+from plugins.robot.model_file import load_robot_model
 from plugins.solvers.calibration_inputs import CalibrationInputError, kinematic_samples, min_kinematic_samples
 from plugins.solvers.calibration_report import format_result, kinematic_table, write_kinematic_files, write_report_dir
 from plugins.solvers.calibration_result import CalibrationResult

@@ -1,10 +1,10 @@
 """Geometric effects: offsets of named chain parameters (DH errors, joint zero offsets, link lengths,
 base frame and TCP offset errors).
 
-All act through ``param_offsets`` on the parameters of :class:`~plugins.sim.chain.KinematicChain`
+All act through ``param_offsets`` on the parameters of :class:`~plugins.robot.chain.KinematicChain`
 (``joint2.a``, ``joint3.theta``, ``base.tz``, ``tool.tx`` ...): metres for ``a d tx ty tz``, radians
 for ``theta alpha beta rx ry rz``. Base errors act in the base frame; tool position errors in the
-flange frame, tool rotation errors about the TCP axes (see :mod:`plugins.sim.conventions`).
+flange frame, tool rotation errors about the TCP axes (see :mod:`plugins.robot.conventions`).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Measurement-side effects a model-gap fit can name: stream latency and range scale / bias.
 
-The robot-side effects (:mod:`plugins.sim.robot_effects`) change where the tool really is; these
+The robot-side effects (:mod:`plugins.robot.effects`) change where the tool really is; these
 change what the external sensor *reports* about it. They are fittable: each is a frozen dataclass
 with :meth:`param_specs`, :meth:`pack` / :meth:`unpack` like a :class:`RobotEffect`, and a
 measurement law that the simulator applies (hidden truth) and the model-gap workflow fits.
@@ -29,7 +29,7 @@ from typing import ClassVar, Self
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .robot_effects.base import ParamSpec
+from .base import ParamSpec
 
 F64 = NDArray[np.float64]
 

@@ -23,8 +23,8 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from .chain import JacobianFrame
+from .effects.base import RobotEffect, SampleContext
 from .kinematics import RobotModel
-from .robot_effects.base import RobotEffect, SampleContext
 
 F64 = NDArray[np.float64]
 

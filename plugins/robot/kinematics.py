@@ -1,9 +1,9 @@
 """Serial robot model: forward kinematics, Jacobians, gravity torque and limits, vectorised over poses.
 
 :class:`RobotModel` is what recipes load by name (``ur5e``, ``abb_irb120``; see
-:mod:`plugins.sim.model_file`), what the simulated controller drives, what the robot-side effects
+:mod:`plugins.robot.model_file`), what the simulated controller drives, what the robot-side effects
 perturb, and what kinematic calibration and the model-gap workflow fit. It wraps a
-:class:`~plugins.sim.chain.KinematicChain` (one named value per elementary motion) with the joint
+:class:`~plugins.robot.chain.KinematicChain` (one named value per elementary motion) with the joint
 limits, speeds, link masses and frames.
 
 Frames: ``fk`` returns ``T_world_tcp = T_world_base @ T_base_flange(q) @ T_flange_tcp``. For the
@@ -12,7 +12,7 @@ controller reports poses in). ``frame="base"`` strips ``T_world_base``.
 
 Shapes: joint arrays are ``(n,)`` for one configuration or ``(N, n)`` for many; results follow
 (``fk``: ``(4, 4)`` or ``(N, 4, 4)``; ``jacobian``: ``(6, n)`` or ``(N, 6, n)``). Jacobian twist
-order is ``(v, w)`` like :mod:`engine.transforms`; see :mod:`plugins.sim.chain` for the frames.
+order is ``(v, w)`` like :mod:`engine.transforms`; see :mod:`plugins.robot.chain` for the frames.
 """
 
 from __future__ import annotations
@@ -448,7 +448,7 @@ class RobotModel:
     # ----------------------------------------------------------------------------- IK
 
     def ik(self, T_world_tcp: ArrayLike, q_seed: ArrayLike | None = None, **kwargs) -> IKResult:
-        """Numerical IK within the joint limits; see :func:`plugins.sim.ik.solve_ik`."""
+        """Numerical IK within the joint limits; see :func:`plugins.robot.ik.solve_ik`."""
         from .ik import solve_ik
 
         return solve_ik(self, T_world_tcp, q_seed, **kwargs)

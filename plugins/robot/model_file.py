@@ -1,6 +1,6 @@
 """Robot model files (YAML): schema, validation (pydantic) and the loader recipes use.
 
-A recipe names a shipped model (``ur5e``, ``abb_irb120``: files in ``plugins/sim/robots/``) or
+A recipe names a shipped model (``ur5e``, ``abb_irb120``: files in ``plugins/robot/robots/``) or
 gives a path to a model file. Units are metres and radians (angles may be written ``pi/2``,
 ``-2*pi`` ..., or with an explicit unit ``165deg``); limits in rad, rad/s, rad/s^2.
 Format (docs/kinematics.md has the full text)::
