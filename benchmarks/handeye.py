@@ -54,10 +54,10 @@ sys.path.insert(0, str(ROOT))
 
 import cv2  # noqa: E402  (benchmark-only comparator)
 
+from engine.transforms import inv, pose_delta  # noqa: E402
 from plugins.solvers.handeye import NoiseModel, PoseNoise, calibrate_hand_eye, closed_form  # noqa: E402
 from plugins.solvers.handeye import simulate as sim  # noqa: E402
 from plugins.solvers.handeye.crlb import crlb_covariance, rms_bounds  # noqa: E402
-from plugins.solvers.handeye.lie import inv_batch, pose_delta  # noqa: E402
 
 SCENARIOS = {
     "camera_only": NoiseModel.isotropic(robot_deg=0.0, robot_mm=0.0, camera_deg=0.1, camera_mm=0.5),
@@ -94,11 +94,11 @@ def opencv_hand_eye(method: int) -> Callable[[np.ndarray, np.ndarray], np.ndarra
 
 def opencv_robot_world(method: int) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
     def solve(M: np.ndarray, B: np.ndarray) -> np.ndarray:
-        G = inv_batch(M)  # base2gripper = T_tcp_base; world2cam = T_cam_target
+        G = inv(M)  # base2gripper = T_tcp_base; world2cam = T_cam_target
         _, _, R, t = cv2.calibrateRobotWorldHandEye(
             list(B[:, :3, :3]), list(B[:, :3, 3]), list(G[:, :3, :3]), list(G[:, :3, 3]), method=method
         )
-        return inv_batch(_T(R, t))[0]  # gripper2cam = T_cam_tcp
+        return inv(_T(R, t))  # gripper2cam = T_cam_tcp
 
     return solve
 

@@ -1,4 +1,4 @@
-"""Rigid transforms in SE(3): the one place that fixes vgr's frame and rotation conventions.
+"""Rigid transforms in SE(3) and SO(3): vgr's one geometry module and its frame conventions.
 
 Conventions (DESIGN.md, not optional):
 
@@ -8,17 +8,28 @@ Conventions (DESIGN.md, not optional):
 * Quaternions are ``(x, y, z, w)`` (scipy's order), unit norm, ``w >= 0`` when we produce them.
 * Twists / tangent vectors are ``xi = (v, w)``: translation part first, rotation part second,
   with the *left* (world-frame) perturbation ``T' = exp(xi) @ T`` unless a function says otherwise.
+* The solvers' *decoupled* perturbation of a pose ``T = (R, t)`` by ``delta = (dt, dphi)``:
+  ``R' = exp([dphi]) R``, ``t' = t + dt``, both in the parent frame (how pose errors are usually
+  specified: a position error in mm and an orientation error in degrees). :func:`retract` applies
+  it, :func:`pose_delta` is its inverse, and the ``d_*`` functions carry it through products and
+  inverses (first order), so chaining them gives analytic Jacobians of any pose chain.
 
-Robot-vendor 6-vectors are converted here, each by an explicitly named function, so that an adapter
-never guesses: UR ``[x, y, z, rx, ry, rz]`` (m, rotation vector), ABB ``pos_mm + quat(w, x, y, z)``,
-KUKA ``X Y Z A B C`` (mm, degrees, ``R = Rz(A) Ry(B) Rx(C)``).
+Shapes: functions that say so take one pose ``(4, 4)`` / rotation ``(3, 3)`` / vector ``(3,)`` or a
+stack ``(n, 4, 4)`` / ``(n, 3, 3)`` / ``(n, 3)`` and return the matching shape.
 
-scipy.spatial.transform.Rotation is the rotation library; this module adds only SE(3) glue.
+What is delegated and what is ours: scipy.spatial.transform.Rotation does every rotation
+conversion, exp and log of SO(3) (batched, robust near 0 and pi). What remains here is what scipy
+does not have: SE(3) glue (inverse, exp/log, adjoint in the ``(v, w)`` order), the SO(3) Jacobians
+of the exponential map and the decoupled-perturbation Jacobians the solvers differentiate with.
+pytransform3d has Jacobians and adjoints too, but orders twists ``(w, v)`` and works one pose at a
+time, so adopting it would mean reordering every caller's twists and losing the batch forms.
+Robot-vendor 6-vectors (UR, ABB, KUKA) are not here: the robot adapters convert them
+(:mod:`plugins.actions.vendor_poses`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -29,32 +40,37 @@ F64 = NDArray[np.float64]
 __all__ = [
     "Rotation",
     "T_from_Rt",
-    "T_from_abb",
-    "T_from_kuka_abc",
     "T_from_pose7",
     "T_from_rotvec",
-    "T_from_ur",
-    "abb_from_T",
     "adjoint",
     "angle_between",
+    "as_pose_array",
     "as_transform",
     "check_rotation",
+    "d_inverse",
+    "d_product_left",
+    "d_product_right",
     "euler_zyx_from_R",
     "exp_se3",
     "exp_so3",
     "hat",
     "inv",
     "is_rotation",
-    "kuka_abc_from_T",
     "log_se3",
     "log_so3",
     "orthonormalize",
     "pose7_from_T",
+    "pose_delta",
     "pose_error",
     "quat_xyzw_from_R",
+    "retract",
+    "rotation_angles",
     "rotvec_from_R",
+    "so3_left_jacobian",
+    "so3_left_jacobian_inv",
+    "so3_right_jacobian",
+    "so3_right_jacobian_inv",
     "transform_points",
-    "ur_from_T",
 ]
 
 
@@ -139,20 +155,37 @@ def orthonormalize(R: ArrayLike) -> F64:
     return U @ D @ Vt
 
 
+def _vectors(w: ArrayLike) -> F64:
+    """A stack ``(n, 3)`` as it is, anything else holding 3 numbers as ``(3,)``."""
+    w = np.asarray(w, dtype=float)
+    return w if w.ndim == 2 and w.shape[1] == 3 else w.reshape(3)
+
+
 def hat(w: ArrayLike) -> F64:
-    """Skew-symmetric matrix [w]x such that hat(w) @ v = w x v."""
-    x, y, z = np.asarray(w, dtype=float).reshape(3)
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    """Skew-symmetric matrix [w]x such that hat(w) @ v = w x v; ``(3,)`` -> ``(3, 3)``, ``(n, 3)`` -> ``(n, 3, 3)``."""
+    w = _vectors(w)
+    x, y, z = w[..., 0], w[..., 1], w[..., 2]
+    S = np.zeros((*w.shape[:-1], 3, 3))
+    S[..., 0, 1], S[..., 0, 2] = -z, y
+    S[..., 1, 0], S[..., 1, 2] = z, -x
+    S[..., 2, 0], S[..., 2, 1] = -y, x
+    return S
 
 
 def exp_so3(w: ArrayLike) -> F64:
-    """Rotation matrix of the rotation vector w."""
-    return Rotation.from_rotvec(np.asarray(w, dtype=float).reshape(3)).as_matrix()
+    """Rotation matrix of the rotation vector w; ``(3,)`` -> ``(3, 3)``, ``(n, 3)`` -> ``(n, 3, 3)``."""
+    return Rotation.from_rotvec(_vectors(w)).as_matrix()
 
 
 def log_so3(R: ArrayLike) -> F64:
-    """Rotation vector of R (robust near 0 and pi: scipy goes through the quaternion)."""
+    """Rotation vector (angle in [0, pi]) of R, ``(3, 3)`` -> ``(3,)`` or ``(n, 3, 3)`` -> ``(n, 3)``
+    (robust near 0 and pi: scipy goes through the quaternion)."""
     return Rotation.from_matrix(np.asarray(R, dtype=float)).as_rotvec()
+
+
+def rotation_angles(R: ArrayLike) -> F64:
+    """Rotation angles in [0, pi] of an ``(n, 3, 3)`` stack (robust near 0 and pi)."""
+    return np.linalg.norm(log_so3(np.asarray(R, dtype=float).reshape(-1, 3, 3)), axis=1)
 
 
 def rotvec_from_R(R: ArrayLike) -> F64:
@@ -180,13 +213,20 @@ def angle_between(R1: ArrayLike, R2: ArrayLike) -> float:
 # --------------------------------------------------------------------------- SE(3)
 
 
+def as_pose_array(T: ArrayLike) -> F64:
+    """View a 4x4 or a stack of 4x4 poses as float ``(n, 4, 4)`` (no validation)."""
+    return np.asarray(T, dtype=float).reshape(-1, 4, 4)
+
+
 def inv(T: ArrayLike) -> F64:
-    """Inverse of a rigid transform (R^T, -R^T t), cheaper and exacter than np.linalg.inv."""
+    """Inverse of a rigid transform (R^T, -R^T t), or of each in a stack ``(n, 4, 4)``; cheaper and
+    exacter than np.linalg.inv."""
     T = np.asarray(T, dtype=float)
-    R = T[:3, :3]
-    Ti = np.eye(4)
-    Ti[:3, :3] = R.T
-    Ti[:3, 3] = -R.T @ T[:3, 3]
+    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
+    Ti = np.zeros_like(T)
+    Ti[..., :3, :3] = Rt
+    Ti[..., :3, 3] = -(Rt @ T[..., :3, 3, None])[..., 0]
+    Ti[..., 3, 3] = 1.0
     return Ti
 
 
@@ -197,26 +237,77 @@ def transform_points(T: ArrayLike, points: ArrayLike) -> F64:
     return P @ T[:3, :3].T + T[:3, 3]
 
 
-def _left_jacobian_so3(w: F64) -> F64:
-    th = float(np.linalg.norm(w))
+# --------------------------------------------------------------------------- SO(3) Jacobians
+# exp(w + d) = exp(J_l(w) d) exp(w) = exp(w) exp(J_r(w) d) to first order in d; J_r(w) = J_l(-w).
+# Each takes w (3,) -> (3, 3) or (n, 3) -> (n, 3, 3). The coefficients are computed without
+# cancellation: (1 - cos t) / t^2 through the half angle, the other two by their Taylor series to
+# t^4 below 0.05 rad, where the closed forms' rounding (eps / t^2) and the series' truncation meet.
+
+
+def _so3_jacobian(w: ArrayLike, coeffs: Callable[[F64], tuple[F64, F64]]) -> F64:
+    """``I + a(t) [w]x + b(t) [w]x^2`` with ``(a, b) = coeffs(t)``, ``t = |w|``."""
     W = hat(w)
-    if th < 1e-8:
-        return np.eye(3) + 0.5 * W + W @ W / 6.0
-    return np.eye(3) + (1.0 - np.cos(th)) / th**2 * W + (th - np.sin(th)) / th**3 * (W @ W)
+    th = np.linalg.norm(np.asarray(w, dtype=float).reshape(W.shape[:-1]), axis=-1)
+    a, b = coeffs(th)
+    return np.eye(3) + np.asarray(a)[..., None, None] * W + np.asarray(b)[..., None, None] * (W @ W)
+
+
+_SERIES_BELOW_RAD = 0.05
+
+
+def _left_coeffs(th: F64) -> tuple[F64, F64]:
+    """``(1 - cos t) / t^2`` and ``(t - sin t) / t^3``."""
+    small = th < _SERIES_BELOW_RAD
+    t = np.where(small, 1.0, th)
+    a = 0.5 * np.sinc(th / (2.0 * np.pi)) ** 2  # 2 sin^2(t/2) / t^2 (np.sinc(x) = sin(pi x) / (pi x))
+    b = np.where(small, 1.0 / 6.0 - th**2 / 120.0 + th**4 / 5040.0, (t - np.sin(t)) / t**3)
+    return a, b
+
+
+def _left_inv_coeffs(th: F64) -> tuple[F64, F64]:
+    """``-1/2`` and ``1/t^2 - 1 / (2 t tan(t/2))``."""
+    small = th < _SERIES_BELOW_RAD
+    t = np.where(small, 1.0, th)
+    c = np.where(small, 1.0 / 12.0 + th**2 / 720.0 + th**4 / 30240.0, 1.0 / t**2 - 1.0 / (2.0 * t * np.tan(0.5 * t)))
+    return np.full_like(th, -0.5), c
+
+
+def so3_left_jacobian(w: ArrayLike) -> F64:
+    """``J_l(w) = I + (1 - cos t)/t^2 [w]x + (t - sin t)/t^3 [w]x^2``."""
+    return _so3_jacobian(w, _left_coeffs)
+
+
+def so3_left_jacobian_inv(w: ArrayLike) -> F64:
+    """``J_l(w)^-1 = I - [w]x / 2 + (1/t^2 - 1/(2 t tan(t/2))) [w]x^2``: maps an angular velocity to
+    the rate of the rotation vector; ``log(exp(e) exp(w)) = w + J_l^-1(w) e`` to first order."""
+    return _so3_jacobian(w, _left_inv_coeffs)
+
+
+def so3_right_jacobian(w: ArrayLike) -> F64:
+    """``J_r(w) = J_l(-w) = J_l(w)^T``."""
+    return so3_left_jacobian(-np.asarray(w, dtype=float))
+
+
+def so3_right_jacobian_inv(w: ArrayLike) -> F64:
+    """``J_r(w)^-1 = J_l(-w)^-1``: ``exp(w) exp(d) = exp(w + J_r^-1(w) d)`` to first order."""
+    return so3_left_jacobian_inv(-np.asarray(w, dtype=float))
+
+
+# --------------------------------------------------------------------------- SE(3) exp / log
 
 
 def exp_se3(xi: ArrayLike) -> F64:
     """Exponential map of a twist xi = (v, w) to a 4x4 transform."""
     xi = np.asarray(xi, dtype=float).reshape(6)
     v, w = xi[:3], xi[3:]
-    return T_from_Rt(exp_so3(w), _left_jacobian_so3(w) @ v)
+    return T_from_Rt(exp_so3(w), so3_left_jacobian(w) @ v)
 
 
 def log_se3(T: ArrayLike) -> F64:
     """Logarithm of a 4x4 transform as a twist (v, w)."""
     T = np.asarray(T, dtype=float)
     w = log_so3(T[:3, :3])
-    v = np.linalg.solve(_left_jacobian_so3(w), T[:3, 3])
+    v = so3_left_jacobian_inv(w) @ T[:3, 3]
     return np.concatenate([v, w])
 
 
@@ -238,42 +329,52 @@ def pose_error(T_a: ArrayLike, T_b: ArrayLike) -> tuple[float, float]:
     return float(np.linalg.norm(T_a[:3, 3] - T_b[:3, 3])), angle_between(T_a[:3, :3], T_b[:3, :3])
 
 
-# --------------------------------------------------------------------------- vendor 6-vectors
+# --------------------------------------------------------------------------- decoupled perturbation
 
 
-def T_from_ur(pose: Sequence[float]) -> F64:
-    """UR pose ``[x, y, z, rx, ry, rz]`` (m, rotation vector in rad) -> T_base_tcp."""
-    p = np.asarray(pose, dtype=float).reshape(6)
-    return T_from_rotvec(p[3:], p[:3])
+def retract(T: ArrayLike, delta: ArrayLike) -> F64:
+    """Apply decoupled perturbations ``delta = (dt, dphi)`` ``(n, 6)`` to poses ``(n, 4, 4)``."""
+    T = as_pose_array(T)
+    d = np.asarray(delta, dtype=float).reshape(-1, 6)
+    out = T.copy()
+    out[:, :3, :3] = exp_so3(d[:, 3:]) @ T[:, :3, :3]
+    out[:, :3, 3] = T[:, :3, 3] + d[:, :3]
+    return out
 
 
-def ur_from_T(T: ArrayLike) -> F64:
-    """T_base_tcp -> UR pose ``[x, y, z, rx, ry, rz]`` (m, rad)."""
-    T = np.asarray(T, dtype=float)
-    return np.concatenate([T[:3, 3], log_so3(T[:3, :3])])
+def pose_delta(T_meas: ArrayLike, T_model: ArrayLike) -> F64:
+    """Decoupled difference ``(t_meas - t_model, log(R_meas R_model^T))`` per pose, ``(n, 6)``.
+
+    It is the ``delta`` with ``retract(T_model, delta) == T_meas``.
+    """
+    Tm = as_pose_array(T_meas)
+    Tp = as_pose_array(T_model)
+    dR = Tm[:, :3, :3] @ np.transpose(Tp[:, :3, :3], (0, 2, 1))
+    return np.concatenate([Tm[:, :3, 3] - Tp[:, :3, 3], log_so3(dR)], axis=1)
 
 
-def T_from_abb(pos_mm: Sequence[float], quat_wxyz: Sequence[float]) -> F64:
-    """ABB robtarget ``trans`` (mm) and ``rot`` quaternion (q1..q4 = w, x, y, z) -> 4x4 in metres."""
-    w, x, y, z = np.asarray(quat_wxyz, dtype=float).reshape(4)
-    return T_from_pose7(np.asarray(pos_mm, dtype=float) / 1000.0, (x, y, z, w))
+def _block(tl: F64, tr: F64, br: F64) -> F64:
+    G = np.zeros((tl.shape[0], 6, 6))
+    G[:, :3, :3], G[:, :3, 3:], G[:, 3:, 3:] = tl, tr, br
+    return G
 
 
-def abb_from_T(T: ArrayLike) -> tuple[F64, F64]:
-    """4x4 (m) -> ABB ``trans`` (mm) and ``rot`` (w, x, y, z) with w >= 0."""
-    p, q = pose7_from_T(T)
-    return p * 1000.0, np.array([q[3], q[0], q[1], q[2]])
+def d_product_left(P: ArrayLike, Q: ArrayLike) -> F64:
+    """d(P Q) / d(perturbation of P): ``[[I, -[R_P t_Q]x], [0, I]]``, shape ``(n, 6, 6)``."""
+    P, Q = np.broadcast_arrays(as_pose_array(P), as_pose_array(Q))
+    lever = np.einsum("nij,nj->ni", P[:, :3, :3], Q[:, :3, 3])
+    eye = np.broadcast_to(np.eye(3), (P.shape[0], 3, 3))
+    return _block(eye, -hat(lever), eye)
 
 
-def T_from_kuka_abc(xyzabc: Sequence[float]) -> F64:
-    """KUKA ``X Y Z A B C`` (mm, degrees; R = Rz(A) Ry(B) Rx(C)) -> 4x4 in metres."""
-    x, y, z, a, b, c = np.asarray(xyzabc, dtype=float).reshape(6)
-    R = Rotation.from_euler("ZYX", [a, b, c], degrees=True).as_matrix()
-    return T_from_Rt(R, np.array([x, y, z]) / 1000.0)
+def d_product_right(P: ArrayLike) -> F64:
+    """d(P Q) / d(perturbation of Q): ``[[R_P, 0], [0, R_P]]``, shape ``(n, 6, 6)``."""
+    R = as_pose_array(P)[:, :3, :3]
+    return _block(R, np.zeros_like(R), R)
 
 
-def kuka_abc_from_T(T: ArrayLike) -> F64:
-    """4x4 (m) -> KUKA ``X Y Z A B C`` (mm, degrees)."""
-    T = np.asarray(T, dtype=float)
-    a, b, c = Rotation.from_matrix(T[:3, :3]).as_euler("ZYX", degrees=True)
-    return np.concatenate([T[:3, 3] * 1000.0, [a, b, c]])
+def d_inverse(P: ArrayLike) -> F64:
+    """d(P^-1) / d(perturbation of P): ``[[-R^T, -R^T [t]x], [0, -R^T]]``, shape ``(n, 6, 6)``."""
+    P = as_pose_array(P)
+    Rt = np.transpose(P[:, :3, :3], (0, 2, 1))
+    return _block(-Rt, -Rt @ hat(P[:, :3, 3]), -Rt)

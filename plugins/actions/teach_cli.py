@@ -28,8 +28,9 @@ from engine.graph import build_graph
 from engine.messages import Event, Message, Request
 from engine.plugin_manager import PluginError, load_registry
 from engine.recipe import load_recipe
-from engine.transforms import T_from_ur, as_transform
+from engine.transforms import as_transform
 from plugins.util.detached import DetachedContext
+from plugins.vendor_poses import T_from_ur
 
 out = Console()
 EXIT_OK, EXIT_FAILED, EXIT_INVALID = 0, 1, 2

@@ -2,7 +2,7 @@
 
 Owns the connection to one UR controller and the translation between vgr and the SDK: UR pose
 vectors ``[x, y, z, rx, ry, rz]`` (m, rotation vector) are converted only by
-``engine.transforms.T_from_ur`` / ``ur_from_T``; joint vectors are plain lists of radians. It says in
+``plugins.vendor_poses.T_from_ur`` / ``ur_from_T``; joint vectors are plain lists of radians. It says in
 words what is wrong with the controller (protective stop, emergency stop, not powered, control
 script not running / remote control off, connection lost), which the stage puts in its refusals.
 
@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from engine import transforms as tf
+from plugins import vendor_poses
 
 F64 = NDArray[np.float64]
 
@@ -130,7 +130,7 @@ class URDriver:
             )
         return URState(
             q=q,
-            T_base_tcp=tf.T_from_ur(pose),
+            T_base_tcp=vendor_poses.T_from_ur(pose),
             robot_mode=int(r.getRobotMode()),
             safety_mode=int(r.getSafetyMode()),
             protective_stopped=bool(r.isProtectiveStopped()),
@@ -166,7 +166,7 @@ class URDriver:
 
     # -- motion (blocking) -----------------------------------------------------------------------
     def move_l(self, T_base_tcp: ArrayLike, speed: float, acceleration: float) -> bool:
-        return bool(self.control.moveL(tf.ur_from_T(T_base_tcp).tolist(), speed, acceleration, False))
+        return bool(self.control.moveL(vendor_poses.ur_from_T(T_base_tcp).tolist(), speed, acceleration, False))
 
     def move_j(self, q: ArrayLike, speed: float, acceleration: float) -> bool:
         return bool(self.control.moveJ(np.asarray(q, dtype=float).tolist(), speed, acceleration, False))
@@ -176,7 +176,7 @@ class URDriver:
         (no motion); None when it gives none. The caller checks them (limits, step, FK) before moving."""
         try:
             q = self.control.getInverseKinematics(
-                tf.ur_from_T(T_base_tcp).tolist(), np.asarray(q_near, dtype=float).tolist()
+                vendor_poses.ur_from_T(T_base_tcp).tolist(), np.asarray(q_near, dtype=float).tolist()
             )
         except RuntimeError:  # ur-rtde raises when the controller finds no solution
             return None
@@ -190,7 +190,7 @@ class URDriver:
         pose = np.asarray(self.control.getForwardKinematics(np.asarray(q, dtype=float).tolist()), dtype=float)
         if pose.shape != (6,) or not np.all(np.isfinite(pose)):
             return None
-        return tf.T_from_ur(pose)
+        return vendor_poses.T_from_ur(pose)
 
     def stop(self, joint_deceleration: float) -> None:
         """Decelerate the joints to zero (stopJ); harmless when nothing moves."""

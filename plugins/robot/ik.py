@@ -43,7 +43,7 @@ class IKResult:
     attempts: int
 
 
-def inverse_left_jacobian_so3(phi: F64) -> F64:
+def so3_left_jacobian_inv(phi: F64) -> F64:
     """``J_l(phi)^-1``: maps an angular velocity to the rate of the rotation vector ``phi``."""
     th = float(np.linalg.norm(phi))
     P = hat(phi)
@@ -72,7 +72,7 @@ class _Problem:
         if self.position_only:
             return r_p, J[:3]
         phi = log_so3(T[:3, :3] @ self.R_t.T)
-        Jr = inverse_left_jacobian_so3(phi) @ J[3:] if np.linalg.norm(phi) < 3.0 else J[3:]
+        Jr = so3_left_jacobian_inv(phi) @ J[3:] if np.linalg.norm(phi) < 3.0 else J[3:]
         return np.concatenate([r_p, self.w * phi]), np.vstack([J[:3], self.w * Jr])
 
     def solve(self, q0: F64, bounds, max_nfev: int) -> F64:

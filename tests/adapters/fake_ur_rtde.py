@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from engine import transforms as tf
+from plugins import vendor_poses
 from plugins.robot.model_file import load_robot_model
 
 UR5E_HOME = np.array([0.0, -np.pi / 2, np.pi / 2, -np.pi / 2, -np.pi / 2, 0.0])
@@ -47,7 +47,7 @@ class FakeURController:
 
     # pose in UR vector form, as the controller reports it
     def tcp_vector(self) -> list[float]:
-        return tf.ur_from_T(self.model.fk(self.q, frame="base")).tolist()
+        return vendor_poses.ur_from_T(self.model.fk(self.q, frame="base")).tolist()
 
     def move_calls(self) -> list[tuple[str, tuple[Any, ...]]]:
         return [c for c in self.calls if c[0] in MOVE_CALLS]
@@ -67,7 +67,7 @@ class FakeURController:
         return None
 
     def go_to_pose(self, pose: list[float]) -> bool:
-        res = self.model.ik(tf.T_from_ur(pose), self.q)
+        res = self.model.ik(vendor_poses.T_from_ur(pose), self.q)
         if not res.success:
             return False
         self.q = np.asarray(res.q, dtype=float)
@@ -140,7 +140,7 @@ def make_modules(ctl: FakeURController) -> tuple[types.ModuleType, types.ModuleT
 
         def getInverseKinematics(self, x: list[float], qnear: list[float] | None = None, *args: float) -> list[float]:
             ctl.calls.append(("getInverseKinematics", (list(x), qnear)))
-            res = ctl.model.ik(tf.T_from_ur(x), np.asarray(qnear if qnear else ctl.q))
+            res = ctl.model.ik(vendor_poses.T_from_ur(x), np.asarray(qnear if qnear else ctl.q))
             if ctl.ik_answer == "raises" or not res.success:
                 raise RuntimeError("getInverseKinematics: no solution")
             q = np.asarray(res.q, dtype=float)
@@ -152,7 +152,7 @@ def make_modules(ctl: FakeURController) -> tuple[types.ModuleType, types.ModuleT
             ctl.calls.append(("getForwardKinematics", (q,)))
             if ctl.fk_fails:
                 return []
-            return tf.ur_from_T(ctl.model.fk(np.asarray(q if q else ctl.q), frame="base")).tolist()
+            return vendor_poses.ur_from_T(ctl.model.fk(np.asarray(q if q else ctl.q), frame="base")).tolist()
 
         def stopJ(self, a: float = 2.0, asynchronous: bool = False) -> None:
             ctl.calls.append(("stopJ", (a, asynchronous)))

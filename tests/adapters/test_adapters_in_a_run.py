@@ -27,6 +27,7 @@ from engine import transforms as tf
 from engine.recorder import Recorder
 from engine.replay import replay
 from engine.runner import Runner
+from plugins import vendor_poses
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -41,7 +42,7 @@ def run(text: str, **kw):
 
 
 def photo_pose(ctl: FakeURController, dx: float = 0.01) -> np.ndarray:
-    T = tf.T_from_ur(ctl.tcp_vector())
+    T = vendor_poses.T_from_ur(ctl.tcp_vector())
     T[0, 3] += dx
     return T
 

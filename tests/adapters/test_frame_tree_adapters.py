@@ -27,6 +27,7 @@ from engine import transforms as tf
 from engine.recorder import Recorder
 from engine.recording import load
 from engine.runner import Runner
+from plugins import vendor_poses
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -36,7 +37,7 @@ WORKSPACE = "workspace_min_m: [-0.8, -0.6, 0.05], workspace_max_m: [0.2, 0.6, 0.
 
 def photo_matrix(ctl: FakeURController) -> str:
     """A photo pose 10 mm from where the fake robot stands, as recipe YAML."""
-    T = tf.T_from_ur(ctl.tcp_vector())
+    T = vendor_poses.T_from_ur(ctl.tcp_vector())
     T[0, 3] += 0.01
     return json.dumps(np.round(T, 12).tolist())
 

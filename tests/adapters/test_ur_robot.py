@@ -16,6 +16,7 @@ from pydantic import ValidationError
 
 from engine import transforms as tf
 from engine.messages import Request, RobotCommand
+from plugins import vendor_poses
 from plugins.actions.ur_robot import URRobot
 from plugins.actions.ur_rtde_driver import URConnectionError
 from plugins.util.sdk import MissingSDKError
@@ -38,7 +39,7 @@ def robot(ctl: FakeURController, **params):
 
 
 def home_T(ctl: FakeURController) -> np.ndarray:
-    return tf.T_from_ur(ctl.tcp_vector())
+    return vendor_poses.T_from_ur(ctl.tcp_vector())
 
 
 def nudged(T: np.ndarray, dx=0.0, dy=0.0, dz=0.0, rot_deg=(0.0, 0.0, 0.0)) -> np.ndarray:
@@ -63,8 +64,8 @@ def test_move_l_sends_the_ur_vector_of_the_target_and_reports_the_reached_pose(c
     [(name, (pose, speed, accel, asynchronous))] = ctl.move_calls()
     assert name == "moveL" and asynchronous is False
     assert (speed, accel) == (0.05, 0.25)  # the stage defaults, not ur-rtde's
-    np.testing.assert_allclose(pose, tf.ur_from_T(T), atol=1e-12)
-    np.testing.assert_allclose(tf.T_from_ur(pose), T, atol=1e-12)
+    np.testing.assert_allclose(pose, vendor_poses.ur_from_T(T), atol=1e-12)
+    np.testing.assert_allclose(vendor_poses.T_from_ur(pose), T, atol=1e-12)
     assert tf.pose_error(reply.T, T)[0] < 1e-6 and tf.pose_error(reply.T, T)[1] < 1e-6
     # state published at set-up and after the command, consistent with the reply
     assert len(ctx.published["tcp_pose"]) == 2 and len(ctx.published["joint_state"]) == 2
@@ -83,7 +84,7 @@ def test_move_l_sends_the_ur_vector_of_the_target_and_reports_the_reached_pose(c
 def test_ur_pose_vector_round_trip_including_rotations_near_pi(axis, angle, t):
     rotvec = np.asarray(axis) / np.linalg.norm(axis) * angle
     T = tf.T_from_rotvec(rotvec, t)
-    back = tf.T_from_ur(tf.ur_from_T(T))
+    back = vendor_poses.T_from_ur(vendor_poses.ur_from_T(T))
     assert tf.pose_error(back, T)[0] < 1e-12 and tf.pose_error(back, T)[1] < 1e-9
 
 

@@ -12,9 +12,9 @@ from hypothesis import strategies as st
 
 from engine.cli import main
 from engine.recipe import load_recipe
-from engine.transforms import T_from_ur
 from plugins.actions.teach_cli import pose_text
 from plugins.robot.model_file import load_robot_model
+from plugins.vendor_poses import T_from_ur
 
 RECIPES = Path(__file__).resolve().parents[2] / "recipes"
 

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from engine import transforms as tf
+from engine.transforms import inv
 from plugins.solvers.handeye import NoiseModel, analyse_motions, calibrate_hand_eye
 from plugins.solvers.handeye import simulate as sim
-from plugins.solvers.handeye.lie import inv_batch
 from plugins.solvers.handeye.problem import model_camera_poses
 
 NOISE = NoiseModel.isotropic(0.02, 0.1, 0.1, 0.5)
@@ -81,7 +81,7 @@ def test_wrong_setup_or_inverted_poses_are_refused(setup):
     other = "eye_to_hand" if setup == "eye_in_hand" else "eye_in_hand"
     wrong = calibrate_hand_eye(scene.T_base_tcp, scene.T_cam_target, setup=other, noise=NOISE)
     assert wrong.verdict == "failed" and f"the set-up is {setup}" in wrong.reasons[-1]
-    inverted = calibrate_hand_eye(scene.T_base_tcp, inv_batch(scene.T_cam_target), setup=setup, noise=NOISE)
+    inverted = calibrate_hand_eye(scene.T_base_tcp, inv(scene.T_cam_target), setup=setup, noise=NOISE)
     assert inverted.verdict == "failed" and "inverted" in inverted.reasons[-1]
     right = calibrate_hand_eye(scene.T_base_tcp, scene.T_cam_target, setup=setup, noise=NOISE)
     assert right.usable

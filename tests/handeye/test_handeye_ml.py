@@ -5,10 +5,10 @@ import pytest
 from scipy import stats
 
 from engine import transforms as tf
+from engine.transforms import pose_delta, retract
 from plugins.solvers.handeye import NoiseModel, calibrate_hand_eye, calibrate_robot_world
 from plugins.solvers.handeye import simulate as sim
 from plugins.solvers.handeye.crlb import crlb_covariance, rms_bounds
-from plugins.solvers.handeye.lie import pose_delta, retract
 
 NOISE = NoiseModel.isotropic(robot_deg=0.02, robot_mm=0.1, camera_deg=0.1, camera_mm=0.5)
 

@@ -30,8 +30,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from engine.transforms import abb_from_T, exp_se3, inv, pose_error
+from engine.transforms import exp_se3, inv, pose_error
 from plugins.robot.model_file import load_robot_model, robot_model_from_dict
+from plugins.vendor_poses import abb_from_T
 
 Rx = lambda a: Rotation.from_euler("x", a).as_matrix()  # noqa: E731
 Ry = lambda a: Rotation.from_euler("y", a).as_matrix()  # noqa: E731

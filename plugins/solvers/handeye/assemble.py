@@ -15,7 +15,7 @@ the covariance itself is the Kenward-Roger adjusted one (``variance``;
 scaled by the variance factor, ``nu = dof`` and ``lambda = 1`` (exact). Absent when the covariance
 is known (chi-square).
 
-Parameters of the covariance: decoupled perturbations (``lie``) of X then Y, i.e. translation in
+Parameters of the covariance: decoupled perturbations (:mod:`engine.transforms`) of X then Y, i.e. translation in
 the parent frame (m) and rotation about parent-frame axes (rad).
 
 Verdict rules (on top of the input and motion checks): ``failed`` when the ML did not converge,
@@ -34,9 +34,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import stats
 
+from engine.transforms import pose_delta
 from plugins.solvers.calibration_result import CalibrationResult
 from plugins.solvers.handeye.consistency import estimate_unit_scale
-from plugins.solvers.handeye.lie import pose_delta
 from plugins.solvers.handeye.ml import Loss, MLFit
 from plugins.solvers.handeye.problem import Setup, chain_poses
 

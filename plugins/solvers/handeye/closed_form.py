@@ -33,8 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from engine.transforms import T_from_Rt, orthonormalize
-from plugins.solvers.handeye.lie import inv_batch, skew_batch
+from engine.transforms import T_from_Rt, hat, inv, orthonormalize
 from plugins.solvers.handeye.problem import RelativeMotions, Setup, relative_motions, robot_A
 
 F64 = NDArray[np.float64]
@@ -109,7 +108,7 @@ def _translation_ls(m: RelativeMotions, R_X: F64) -> F64:
 def _conjugate_camera(m: RelativeMotions, R: F64) -> RelativeMotions:
     """Motions for the unknown ``X' = X H^-1`` with ``H = (R, 0)``: ``B' = H B H^-1``."""
     H = T_from_Rt(R, np.zeros(3))
-    return RelativeMotions(m.A, H @ m.B @ inv_batch(H)[0], m.pairs)
+    return RelativeMotions(m.A, H @ m.B @ inv(H), m.pairs)
 
 
 # --------------------------------------------------------------------------- Tsai-Lenz
@@ -119,7 +118,7 @@ def _tsai_rotation(m: RelativeMotions, R_hint: F64 | None) -> F64:
     qa, qb, usable = _aligned_quaternions(m, R_hint)
     use = _usable_or_all(usable)
     Pa, Pb = 2.0 * qa[use, :3], 2.0 * qb[use, :3]  # modified Rodrigues vectors 2 sin(theta/2) axis
-    lhs = skew_batch(Pa + Pb).reshape(-1, 3)
+    lhs = hat(Pa + Pb).reshape(-1, 3)
     rhs = (Pb - Pa).reshape(-1)
     gibbs, *_ = np.linalg.lstsq(lhs, rhs, rcond=None)  # tan(theta_X / 2) * axis_X
     q = np.append(gibbs, 1.0) / np.sqrt(1.0 + gibbs @ gibbs)
@@ -132,7 +131,7 @@ def _tsai_rotation_homogeneous(m: RelativeMotions) -> F64:
     use = _usable_or_all(usable)
     a, b = qa[use, :3], qb[use, :3]
     S = np.zeros((len(a), 3, 4))
-    S[:, :, :3] = skew_batch(a + b)
+    S[:, :, :3] = hat(a + b)
     S[:, :, 3] = a - b
     _, _, Vt = np.linalg.svd(S.reshape(-1, 4), full_matrices=False)
     return Rotation.from_quat(Vt[-1]).as_matrix()
@@ -198,11 +197,11 @@ def _daniilidis_solve(m: RelativeMotions, R_hint: F64 | None) -> F64:
     # unknown ordered (w, v, w', v') of the dual quaternion of X
     S = np.zeros((k, 6, 8))
     S[:, :3, 0] = a - b
-    S[:, :3, 1:4] = skew_batch(a + b)
+    S[:, :3, 1:4] = hat(a + b)
     S[:, 3:, 0] = a_ - b_
-    S[:, 3:, 1:4] = skew_batch(a_ + b_)
+    S[:, 3:, 1:4] = hat(a_ + b_)
     S[:, 3:, 4] = a - b
-    S[:, 3:, 5:8] = skew_batch(a + b)
+    S[:, 3:, 5:8] = hat(a + b)
     _, _, Vt = np.linalg.svd(S.reshape(-1, 8), full_matrices=False)
     u, v = Vt[-2], Vt[-1]
     u1, v1, u2, v2 = u[:4], u[4:], v[:4], v[4:]

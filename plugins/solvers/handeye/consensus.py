@@ -24,8 +24,8 @@ from itertools import combinations
 import numpy as np
 from numpy.typing import NDArray
 
+from engine.transforms import pose_delta
 from plugins.solvers.handeye.closed_form import closed_form
-from plugins.solvers.handeye.lie import pose_delta
 from plugins.solvers.handeye.noise import NoiseModel
 from plugins.solvers.handeye.problem import Setup, chain_poses
 

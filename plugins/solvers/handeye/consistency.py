@@ -24,8 +24,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from engine.transforms import rotation_angles
 from plugins.solvers.handeye.closed_form import park_martin
-from plugins.solvers.handeye.lie import rotation_angles
 from plugins.solvers.handeye.problem import SETUPS, RelativeMotions, Setup, relative_motions
 
 F64 = NDArray[np.float64]

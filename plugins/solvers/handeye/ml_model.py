@@ -13,8 +13,8 @@ Gaussian noise of both poses (no linearisation of the noise into the chain); eac
 freedom. When the robot is declared exact the M_i are fixed at the measurements and only the
 camera residuals remain (same 6 degrees of freedom per sample).
 
-Parameters are decoupled perturbations (``lie``) of reference poses: ``x = (dX, dY, dM_1..dM_n)``.
-Jacobians are analytic (chain of ``lie.d_*`` operators) and carry the exact chart factor
+Parameters are decoupled perturbations (:mod:`engine.transforms`) of reference poses: ``x = (dX, dY, dM_1..dM_n)``.
+Jacobians are analytic (chain of ``engine.transforms.d_*`` operators) and carry the exact chart factor
 ``J_l(dphi)``; at ``x = 0`` the columns are the perturbations the covariance is reported in.
 """
 
@@ -26,11 +26,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import sparse
 
-from plugins.solvers.handeye.lie import (
+from engine.transforms import (
     d_inverse,
     d_product_left,
     d_product_right,
-    inv_batch,
+    inv,
     pose_delta,
     retract,
     so3_left_jacobian,
@@ -115,16 +115,16 @@ class EivModel:
             dM = np.zeros((self.n, 6))
             M = self.M_ref
             e_robot = np.zeros((self.n, 6))
-        C = inv_batch(M) if self.setup == "eye_in_hand" else M
-        Xi = inv_batch(X)
+        C = inv(M) if self.setup == "eye_in_hand" else M
+        Xi = inv(X)
         D = C @ Y
         B_model = Xi @ D
         e_camera = pose_delta(self.B_meas, B_model)
         st = EivState(X, Y, M, B_model, e_robot, e_camera)
         if jacobian:
             dEB = -_blockdiag_I_J(so3_right_jacobian_inv(e_camera[:, 3:]))
-            K_X = _blockdiag_I_J(so3_left_jacobian(dX[3:]))[0]
-            K_Y = _blockdiag_I_J(so3_left_jacobian(dY[3:]))[0]
+            K_X = _blockdiag_I_J(so3_left_jacobian(dX[None, 3:]))[0]
+            K_Y = _blockdiag_I_J(so3_left_jacobian(dY[None, 3:]))[0]
             dB_dX = d_product_left(Xi, D) @ d_inverse(X)[0]
             dB_dY = d_product_right(Xi)[0] @ d_product_right(C)
             Wc = self.w_camera[None, :, None]

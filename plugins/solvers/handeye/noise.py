@@ -1,7 +1,7 @@
 """Noise models of the two measured poses of a hand-eye sample: robot T_base_tcp, camera T_cam_target.
 
 Each pose measurement ``T~`` is the true pose ``T`` perturbed in the *decoupled* way of
-:mod:`plugins.solvers.handeye.lie`: ``R~ = exp([phi]) R``, ``t~ = t + dt`` with
+:mod:`engine.transforms`: ``R~ = exp([phi]) R``, ``t~ = t + dt`` with
 ``dt ~ N(0, diag(trans_sigma^2))`` and ``phi ~ N(0, diag(rot_sigma^2))``, both expressed in the
 pose's *parent* frame (the robot base for T_base_tcp, the camera for T_cam_target, so a camera's
 larger depth error is ``trans_sigma=(sx, sy, sz_bigger)``). Sigmas are in metres and radians.

@@ -24,7 +24,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from plugins.solvers.handeye.lie import inv_batch
+from engine.transforms import inv
 
 F64 = NDArray[np.float64]
 
@@ -74,7 +74,7 @@ def frames_of(setup: Setup) -> SetupFrames:
 
 def robot_A(setup: Setup, T_base_tcp: F64) -> F64:
     """The left factor ``A_i`` of ``A_i X B_i = Y`` from the robot poses ``(n, 4, 4)``."""
-    return T_base_tcp.copy() if check_setup(setup) == "eye_in_hand" else inv_batch(T_base_tcp)
+    return T_base_tcp.copy() if check_setup(setup) == "eye_in_hand" else inv(T_base_tcp)
 
 
 def chain_poses(setup: Setup, T_base_tcp: F64, X: F64, T_cam_target: F64) -> F64:
@@ -85,8 +85,8 @@ def chain_poses(setup: Setup, T_base_tcp: F64, X: F64, T_cam_target: F64) -> F64
 
 def model_camera_poses(setup: Setup, T_base_tcp: F64, X: F64, Y: F64) -> F64:
     """Camera observations predicted by the model: ``B_i = X^-1 A_i^-1 Y``."""
-    A_inv = inv_batch(robot_A(setup, T_base_tcp))
-    return inv_batch(X)[0] @ A_inv @ Y
+    A_inv = inv(robot_A(setup, T_base_tcp))
+    return inv(X) @ A_inv @ Y
 
 
 @dataclass(frozen=True)
@@ -111,8 +111,8 @@ def relative_motions(setup: Setup, T_base_tcp: F64, T_cam_target: F64, pairs: st
         ii, jj = np.arange(n - 1), np.arange(1, n)
     else:
         raise ValueError(f"pairs must be 'all' or 'consecutive', got {pairs!r}")
-    A_inv = inv_batch(A)
-    B_inv = inv_batch(T_cam_target)
+    A_inv = inv(A)
+    B_inv = inv(T_cam_target)
     return RelativeMotions(
         A=A_inv[jj] @ A[ii],
         B=T_cam_target[jj] @ B_inv[ii],

@@ -23,8 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from engine.transforms import T_from_rotvec, T_from_Rt
-from plugins.solvers.handeye.lie import inv_batch, retract
+from engine.transforms import T_from_rotvec, T_from_Rt, inv, retract
 from plugins.solvers.handeye.noise import NoiseModel, PoseNoise
 from plugins.solvers.handeye.problem import Setup
 
@@ -103,9 +102,9 @@ def viewing_scene(
     B = np.tile(np.eye(4), (n_poses, 1, 1))
     B[:, :3, :3], B[:, :3, 3] = R, p
     if setup == "eye_in_hand":  # A X B = Y with A = M  ->  M = Y B^-1 X^-1
-        M = Y @ inv_batch(B) @ inv_batch(X)[0]
+        M = Y @ inv(B) @ inv(X)
     else:  # A = M^-1  ->  M = X B Y^-1
-        M = X @ B @ inv_batch(Y)[0]
+        M = X @ B @ inv(Y)
     return Scene(setup, M, B, X, Y)
 
 
@@ -130,10 +129,10 @@ def opencv_protocol(
     Y = _opencv_pose(rng, (5 * deg, 85 * deg), (0.5, 3.5))  # target2base
     M = np.zeros((n_poses, 4, 4))
     B = np.zeros((n_poses, 4, 4))
-    X_inv = inv_batch(X)[0]
+    X_inv = inv(X)
     for i in range(n_poses):
         G = _opencv_pose(rng, (5 * deg, 45 * deg), (0.5, 1.5))  # gripper2base
-        Bi = X_inv @ inv_batch(G)[0] @ Y  # target2cam
+        Bi = X_inv @ inv(G) @ Y  # target2cam
         if noise:
             Bi = _noisy_rvec_t(Bi, 0.002, 0.005, rng)
             G_noisy = _noisy_rvec_t(G, 0.001, 0.001, rng)

@@ -34,8 +34,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from engine.transforms import T_from_Rt
-from plugins.robot.ik import inverse_left_jacobian_so3
+from engine.transforms import T_from_Rt, so3_left_jacobian_inv
 from plugins.robot.kinematics import RobotModel
 from plugins.robot.model_file import model_to_dict
 from plugins.solvers.calibration_result import CalibrationResult
@@ -125,7 +124,7 @@ class _Problem:
         if not self.samples.full_pose:
             return rp.ravel(), Jp.reshape(-1, len(self.idx))
         phi = Rotation.from_matrix(self.samples.rotations @ np.swapaxes(T[:, :3, :3], 1, 2)).as_rotvec()
-        Jr = np.stack([-inverse_left_jacobian_so3(-p) @ Jw for p, Jw in zip(phi, J[:, 3:], strict=True)])
+        Jr = np.stack([-so3_left_jacobian_inv(-p) @ Jw for p, Jw in zip(phi, J[:, 3:], strict=True)])
         r = np.concatenate([rp, phi / self.sr], axis=1).ravel()
         Jall = np.concatenate([Jp, Jr / self.sr], axis=1).reshape(-1, len(self.idx))
         return r, Jall

@@ -1,8 +1,8 @@
 """Small least-squares helpers shared by the Vive desk and TCP-by-camera calibrations.
 
-Owns: SO(3) Jacobians of the exponential map, covariance / rank / identifiability of a whitened
-least-squares problem, residual consistency (chi-square) and studentised per-sample outlier tests,
-and input checks (finite arrays, rotations, metre-vs-millimetre magnitude).
+Owns: covariance / rank / identifiability of a whitened least-squares problem, residual
+consistency (chi-square) and studentised per-sample outlier tests, and input checks (finite arrays,
+rotations, metre-vs-millimetre magnitude).
 
 Perturbation convention used by these solvers ("decoupled", documented in docs/vive_and_tcp.md):
 a pose ``T_a_b = [R, t]`` is perturbed as ``t' = t + v`` and ``R' = exp(w) R`` with ``v``, ``w``
@@ -15,7 +15,6 @@ from plugins.solvers.pose_lsq.checks import (
     finite_array,
     looks_like_millimetres,
 )
-from plugins.solvers.pose_lsq.so3 import so3_left_jacobian, so3_left_jacobian_inv, so3_right_jacobian
 from plugins.solvers.pose_lsq.stats import (
     Identifiability,
     analyse_identifiability,
@@ -37,8 +36,5 @@ __all__ = [
     "looks_like_millimetres",
     "marginal_covariance",
     "robust_variance_factor",
-    "so3_left_jacobian",
-    "so3_left_jacobian_inv",
-    "so3_right_jacobian",
     "studentised_block_tests",
 ]

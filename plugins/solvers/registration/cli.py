@@ -17,7 +17,8 @@ import numpy as np
 from rich.console import Console
 
 from engine import codec
-from engine.transforms import T_from_ur, as_transform
+from engine.transforms import as_transform
+from plugins.vendor_poses import T_from_ur
 
 from .feature_frame import FeatureFrameParams
 from .preprocess import PreprocessParams, RoiBox

@@ -30,8 +30,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
-from engine.transforms import T_from_Rt, T_from_ur, pose7_from_T
+from engine.transforms import T_from_Rt, pose7_from_T
 from plugins.solvers.tcp_camera.data import TcpCameraData, TcpNoiseModel
+from plugins.vendor_poses import T_from_ur
 
 F64 = NDArray[np.float64]
 FORMAT = "vgr.tcp_camera/1"

@@ -26,7 +26,7 @@ from scipy.optimize import OptimizeResult, least_squares
 from scipy.spatial.distance import pdist
 from scipy.stats import chi2 as chi2_dist
 
-from engine.transforms import T_from_Rt, exp_so3, hat, inv
+from engine.transforms import T_from_Rt, exp_so3, hat, inv, so3_left_jacobian
 from plugins.solvers.calibration_result import CalibrationResult
 from plugins.solvers.pose_lsq import (
     Identifiability,
@@ -37,7 +37,6 @@ from plugins.solvers.pose_lsq import (
     looks_like_millimetres,
     marginal_covariance,
     robust_variance_factor,
-    so3_left_jacobian,
     studentised_block_tests,
 )
 from plugins.solvers.tcp_camera.data import TcpCameraData

@@ -26,8 +26,15 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from engine.transforms import T_from_Rt, exp_so3, hat, log_so3
-from plugins.solvers.pose_lsq import so3_left_jacobian, so3_left_jacobian_inv, so3_right_jacobian
+from engine.transforms import (
+    T_from_Rt,
+    exp_so3,
+    hat,
+    log_so3,
+    so3_left_jacobian,
+    so3_left_jacobian_inv,
+    so3_right_jacobian,
+)
 from plugins.solvers.vive_desk.data import TrackerTcpPrior, ViveDeskData
 
 F64 = NDArray[np.float64]
