@@ -1,7 +1,7 @@
 """Vision-guided correction on the simulated cell (issue 7): Monte Carlo of the shipped recipes, the
 seed-004 assembly table, and the compute time of one guidance iteration.
 
-Part 1 (``--part trials``): ``--runs`` randomised trials per scenario (plugins/sim/guidance_trials.py:
+Part 1 (``--part trials``): ``--runs`` randomised trials per scenario (tests/guidance_trials.py:
 part placement and/or grasp off by up to +-20 mm / +-10 deg in the plane, every believed camera pose
 off by exactly 1 mm / 0.5 deg in a random direction, 0.1 mm depth noise, 640 x 480), each a full run
 of the shipped recipe through the engine. Per scenario: the rate of runs whose guidance converged
@@ -40,9 +40,8 @@ from rich.progress import Progress
 from rich.table import Table
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-
-from plugins.sim import guidance_trials as gt  # noqa: E402
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+import guidance_trials as gt  # noqa: E402
 
 BOUNDS = {"eye_in_hand": (0.1, 0.05), "eye_to_hand": (0.1, 0.05), "dual": (0.2, None)}
 console = Console(width=160)

@@ -41,6 +41,7 @@ import numpy as np
 import open3d as o3d
 
 from engine.transforms import T_from_Rt, as_transform, transform_points
+from plugins.util.mesh_surface import sample_surface
 
 __all__ = [
     "PLANAR_PLATE_THICKNESS_M",
@@ -91,20 +92,7 @@ class Workpiece:
         Drawn with the caller's generator, so the sample is reproducible (Open3D's samplers use a
         global seed instead).  Returns (points (n, 3), outward unit normals (n, 3)) in the part frame.
         """
-        if n <= 0:
-            raise ValueError(f"sample count must be positive, got {n}")
-        V = np.asarray(self.mesh.vertices, dtype=float)
-        F = np.asarray(self.mesh.triangles, dtype=np.int64)
-        a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
-        cross = np.cross(b - a, c - a)
-        area2 = np.linalg.norm(cross, axis=1)
-        tri = rng.choice(len(F), size=n, p=area2 / area2.sum())
-        r1 = np.sqrt(rng.random(n))
-        r2 = rng.random(n)
-        w_a, w_b, w_c = 1.0 - r1, r1 * (1.0 - r2), r1 * r2
-        points = w_a[:, None] * a[tri] + w_b[:, None] * b[tri] + w_c[:, None] * c[tri]
-        normals = cross[tri] / area2[tri, None]
-        return points, normals
+        return sample_surface(self.mesh.vertices, self.mesh.triangles, n, rng)
 
     def transformed_features(self, T_frame_part: np.ndarray) -> dict[str, np.ndarray]:
         """Feature points expressed in another frame: ``p_frame = T_frame_part @ p_part``."""

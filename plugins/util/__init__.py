@@ -1,1 +1,1 @@
-"""Generic stages: synthetic sources, rigid transforms, statistics sinks (demos, tests, glue)."""
+"""Generic stages (synthetic sources, rigid transforms, statistics sinks) and small helpers any plugin may use."""

@@ -1,4 +1,4 @@
-"""Randomised guidance trials (plugins/sim/guidance_trials.py): the draws are what the issue asks for,
+"""Randomised guidance trials (tests/guidance_trials.py): the draws are what the issue asks for,
 and random draws of each scenario converge and dock within the issue's bounds (truth).
 
 The full Monte Carlo (100 runs per scenario) is benchmarks/guidance.py; here a few draws per scenario
@@ -8,6 +8,7 @@ shipped recipe has.
 
 from __future__ import annotations
 
+import guidance_trials as gt
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -15,7 +16,6 @@ from hypothesis import strategies as st
 
 from engine.transforms import angle_between
 from plugins.params import PoseSpec
-from plugins.sim import guidance_trials as gt
 
 pytestmark = pytest.mark.timeout(600)
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import guidance_trials as gt
 import numpy as np
 import pytest
 import yaml
@@ -26,7 +27,6 @@ from plugins.params import PoseSpec
 from plugins.robot.effects import effects_from_config
 from plugins.robot.model_file import load_robot_model
 from plugins.robot.with_effects import RobotWithEffects
-from plugins.sim import guidance_trials as gt
 from plugins.sim.workpieces import assembled_plate_pose
 
 RECIPES = Path(__file__).resolve().parents[2] / "recipes"

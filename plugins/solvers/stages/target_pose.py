@@ -28,7 +28,6 @@ registration with verdict ok; failed or ambiguous ones raise a ``warning`` event
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any, ClassVar, Literal
 
 import numpy as np
@@ -39,6 +38,7 @@ from engine.stage import Stage, StageParams
 from engine.transforms import inv
 from plugins.params import PoseSpec
 from plugins.solvers.registration import FineParams, GlobalParams, prepare_cloud, register_fine, register_global
+from plugins.util.mesh_surface import read_mesh, sample_surface
 
 
 class TargetPose(Stage):
@@ -78,21 +78,14 @@ class TargetPose(Stage):
     def _model_surface(self, p: TargetPose.Params) -> tuple[np.ndarray, np.ndarray]:
         rng = np.random.default_rng([self.ctx.seed & 0xFFFFFFFF, 7])
         if p.mesh_path:
-            import open3d as o3d
-
-            from plugins.sim.workpieces import Workpiece
-
-            mesh = o3d.io.read_triangle_mesh(Path(p.mesh_path))
-            if not mesh.has_triangles():
-                raise ValueError(f"{p.mesh_path}: no triangle mesh could be read")
-            wp = Workpiece(Path(p.mesh_path).stem, mesh, {}, {}, {}, False, "")
-        elif p.model:
+            mesh = read_mesh(p.mesh_path)
+            return sample_surface(mesh.vertices, mesh.triangles, p.model_points, rng)
+        if p.model:
+            # a simulated-cell part by name: the one place a stage asks the simulator for geometry
             from plugins.sim.workpieces import make_workpiece
 
-            wp = make_workpiece(p.model)
-        else:
-            raise ValueError("target_pose needs `model` or `mesh_path`")
-        return wp.sample_points(p.model_points, rng)
+            return make_workpiece(p.model).sample_points(p.model_points, rng)
+        raise ValueError("target_pose needs `model` or `mesh_path`")
 
     def on_message(self, port: str, msg: Any) -> None:
         (self.clouds if port == "cloud" else self.robot).append(msg)

@@ -13,7 +13,8 @@ The result of a trial is read from the engine: each guidance stage's ``GuidanceR
 moves, each look's ``T_match``) and the ``docking_evaluator``'s truth (docking error, or for the
 planar assembly the pins' offsets from the hole axes). :func:`absolute_assembly` turns the first look
 of a planar-assembly trial into the paper's absolute-pose baseline (seed 004, table 1).
-The benchmark (benchmarks/guidance.py) and the tests (tests/guidance/test_guidance_trials.py) use it.
+The benchmark (benchmarks/guidance.py) and the tests (tests/guidance/test_guidance_trials.py) use it; it is a
+test and benchmark harness, not part of the simulated cell, so it lives with the tests.
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ from plugins.sim.stages.evaluation import assembly_fit
 from plugins.sim.workpieces import assembled_plate_pose
 from plugins.solvers.registration.template import load_template
 
-RECIPES = Path(__file__).resolve().parents[2] / "recipes"
+RECIPES = Path(__file__).resolve().parents[1] / "recipes"
 
 #: scenario -> (recipe file, {guidance stage: camera stage whose mount it believes},
 #:              {camera stage: [(part, what moves it)]}) where "what" is "placement" or "grasp".
