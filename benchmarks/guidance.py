@@ -1,4 +1,4 @@
-"""Vision-guided correction on the simulated cell (issue 7): Monte Carlo of the shipped recipes, the
+"""Vision-guided correction on the simulated cell: Monte Carlo of the shipped recipes, the
 seed-004 assembly table, and the compute time of one guidance iteration.
 
 Part 1 (``--part trials``): ``--runs`` randomised trials per scenario (tests/guidance_trials.py:

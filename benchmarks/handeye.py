@@ -5,7 +5,7 @@ sees the target from 0.35-0.7 m, tilts up to 35 degrees, rolls up to 60 degrees)
 poses; ``--trials`` noise draws of the robot and camera poses (decoupled noise, see
 ``plugins/solvers/handeye/noise.py``). Scenarios:
 
-* ``camera_only``   - camera 0.1 deg / 0.5 mm per axis, robot exact (the setting of issue 6's
+* ``camera_only``   - camera 0.1 deg / 0.5 mm per axis, robot exact (the setting of the
   earlier measurement);
 * ``camera_robot``  - camera 0.1 deg / 0.5 mm, robot 0.02 deg / 0.1 mm per axis.
 

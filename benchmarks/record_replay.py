@@ -1,4 +1,4 @@
-"""Recording and replay costs (issue 3), measured in one run.
+"""Recording and replay costs, measured in one run.
 
 1. Recording overhead: frames per second of a point-cloud pipeline (synthetic_cloud -> transform_cloud
    -> cloud_stats, 50k points per cloud, as fast as it goes, in one process) with recording off and

@@ -36,7 +36,7 @@ def vgr_stage_types() -> list[type]:
 
     sim = [SimRobot, SimCamera, SimTracker, DockingEvaluator]
     devices = [URRobot, ViveTracker, RealSenseCamera, FileCamera]
-    calibration = [  # issue 6: data collection in the simulated cell, solver stages, saved results
+    calibration = [  # data collection in the simulated cell, solver stages, saved results
         SimPointTracker,
         CalibrationPoses,
         TargetPose,
@@ -48,7 +48,7 @@ def vgr_stage_types() -> list[type]:
         CalibrationFile,
     ]
     actions = [CaptureAtPose, Guidance, Docking, DualDocking, GuidanceReport]
-    model_gap = [MeasurementCampaign, ModelGap]  # issue 8
+    model_gap = [MeasurementCampaign, ModelGap]  # model-gap workflow
     return [
         SyntheticCloud,
         TransformCloud,

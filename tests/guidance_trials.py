@@ -1,4 +1,4 @@
-"""Randomised trials of the shipped guidance recipes on the simulated cell (issue 7's Monte Carlo).
+"""Randomised trials of the shipped guidance recipes on the simulated cell (a Monte Carlo of the guidance scenarios).
 
 One trial = one run of a shipped recipe (``recipes/*_dock.yaml``, ``recipes/planar_assembly.yaml``)
 through the real engine with, drawn from the trial's seed:

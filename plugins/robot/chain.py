@@ -8,7 +8,7 @@ one list of *elementary operations* applied left to right::
 Each scalar operation has a unique name (``joint2.a``, ``base.tz``, ``tool.rx`` ...) and a value; a
 revolute joint is an ``rz`` operation whose value (the joint's zero offset, ``jointN.theta``) is
 added to the joint angle. Keeping one named value per elementary motion is what lets kinematic
-calibration (issue 6) and the model-gap workflow (issue 8) perturb *any* geometric parameter, per
+calibration and the model-gap workflow perturb *any* geometric parameter, per
 sample if they need to (thermal drift), and get its analytic Jacobian for free:
 the derivative of the chain with respect to an elementary motion is the unit screw of that motion,
 expressed in the world frame where the operation happens.

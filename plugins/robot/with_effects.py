@@ -2,7 +2,7 @@
 
 The simulated controller reaches commanded poses in nominal-model terms; where the TCP really is
 comes from this class, which is how calibration error shows up in the simulated cell. The same class
-is the augmented model the model-gap workflow fits (issue 8): :meth:`RobotWithEffects.effect_jacobian`
+is the augmented model the model-gap workflow fits: :meth:`RobotWithEffects.effect_jacobian`
 gives the derivative of the predicted pose with respect to one effect's parameter vector, so any
 catalog effect can be fitted by least squares against measurements.
 

@@ -5,8 +5,8 @@ This module owns the sensor model of a Vive tracker as vgr sees it through OpenV
 
 * **Rate.** One sample every ``1 / rate_hz`` seconds, default 250 Hz.  SteamVR's pose is the output of
   an IMU-driven filter corrected by the lighthouse sweeps, so the rate an application sees is its own
-  polling rate; 250 Hz is a typical choice for a tracker polled outside a render loop (the brief of
-  issue 4 names 250 Hz for a Tracker 3.0).  Set ``rate_hz`` to whatever the real adapter polls at.
+  polling rate; 250 Hz is a typical choice for a tracker polled outside a render loop (the brief asks
+  250 Hz for a Vive Tracker 3.0).  Set ``rate_hz`` to whatever the real adapter polls at.
 * **Jitter.** White Gaussian noise, isotropic in position (default sigma 0.3 mm) and as a rotation
   vector in the tracker frame (default 0.02 deg).  Static jitter of Lighthouse tracking is reported
   in the 0.3-1 mm range: O. Kreylos, "Lighthouse tracking examined" (doc-ok.org, 2016) measured

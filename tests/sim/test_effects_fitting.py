@@ -90,7 +90,7 @@ def test_effect_jacobian_matches_finite_differences(index):
 
 
 def test_an_effect_is_fitted_by_least_squares_from_positions():
-    """What issue 8 does: the true compliance is hidden in data; fit it with pack/unpack + Jacobian."""
+    """What the model-gap workflow does: the true compliance is hidden in data; fit it with pack/unpack + Jacobian."""
     truth = JointCompliance((2, 3), (2.5e-6, 4e-6))
     rng = np.random.default_rng(5)
     q = rng.uniform(-np.pi, np.pi, size=(150, 6))

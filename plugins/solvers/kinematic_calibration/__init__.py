@@ -1,4 +1,4 @@
-"""Kinematic (DH / MDH / POE) calibration of serial robots from external tool measurements (issue 6).
+"""Kinematic (DH / MDH / POE) calibration of serial robots from external tool measurements.
 
 Entry point: :func:`calibrate_kinematics` (see :mod:`.calibrate`); data: :class:`KinematicSamples`,
 :func:`read_csv` / :func:`write_csv` (the plain CSV format shared with the model-gap workflow) and

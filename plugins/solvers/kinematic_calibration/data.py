@@ -1,6 +1,6 @@
 """Kinematic measurement samples and their plain-file format (shared with the model-gap workflow).
 
-CSV format (issue 8), one row per robot pose, header required:
+CSV format, one row per robot pose, header required:
 
 ``q1_deg .. qN_deg``      commanded joint angles in degrees
 ``x_mm, y_mm, z_mm``      a tool point measured in an external frame (laser tracker, camera ...), mm

@@ -1,4 +1,4 @@
-"""The model-gap workflow for robot cells (issue 8): ``vgr gap``, the ``model_gap`` stage, the catalog.
+"""The model-gap workflow for robot cells: ``vgr gap``, the ``model_gap`` stage, the catalog.
 
 The statistics and the loop live in :mod:`engine.gap` (no robot knowledge); this package supplies
 the robot-kinematics problem (:mod:`.problem`), the effect families registered through the

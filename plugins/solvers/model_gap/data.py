@@ -1,4 +1,4 @@
-"""Model-gap input data: the kinematic CSV (issue 8) with its optional columns, and vgr recordings.
+"""Model-gap input data: the kinematic CSV with its optional columns, and vgr recordings.
 
 CSV columns (header required, one row per measurement; unknown columns are errors with a suggestion):
 
