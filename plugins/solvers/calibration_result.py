@@ -23,6 +23,8 @@ import numpy as np
 from scipy import stats
 from scipy.spatial.transform import Rotation
 
+from plugins.util.plain_data import plain
+
 Verdict = Literal["ok", "warning", "degenerate", "failed"]
 USABLE_VERDICTS: frozenset[str] = frozenset({"ok", "warning"})
 
@@ -184,19 +186,7 @@ class CalibrationResult:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary (numpy arrays become nested lists)."""
-
-        def conv(x: Any) -> Any:
-            if isinstance(x, np.ndarray):
-                return x.tolist()
-            if isinstance(x, np.generic):
-                return x.item()
-            if isinstance(x, dict):
-                return {k: conv(v) for k, v in x.items()}
-            if isinstance(x, list | tuple):
-                return [conv(v) for v in x]
-            return x
-
-        return conv(
+        return plain(
             {
                 "kind": self.kind,
                 "verdict": self.verdict,

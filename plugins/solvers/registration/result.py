@@ -44,6 +44,7 @@ from typing import Any, Literal
 import numpy as np
 
 from engine import transforms as tf
+from plugins.util.plain_data import plain
 
 Verdict = Literal["ok", "ambiguous", "failed"]
 
@@ -153,23 +154,7 @@ class RegistrationResult:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary (arrays become lists, NaN becomes None)."""
-
-        def conv(x: Any) -> Any:
-            if isinstance(x, np.ndarray):
-                return conv(x.tolist())
-            if isinstance(x, np.generic):
-                return conv(x.item())
-            if isinstance(x, float):
-                return x if np.isfinite(x) else None
-            if isinstance(x, dict):
-                return {str(k): conv(v) for k, v in x.items()}
-            if isinstance(x, list | tuple):
-                return [conv(v) for v in x]
-            if isinstance(x, WeakDirection | Hypothesis):
-                return conv(dict(x.__dict__))
-            return x
-
-        return conv(
+        return plain(
             {
                 "verdict": self.verdict,
                 "method": self.method,
@@ -183,14 +168,15 @@ class RegistrationResult:
                 "uncertainty_center": self.uncertainty_center,
                 "sigma_translation_m": self.sigma_translation_m,
                 "sigma_rotation_rad": self.sigma_rotation_rad,
-                "weak_directions": self.weak_directions,
-                "hypotheses": self.hypotheses,
+                "weak_directions": [vars(w) for w in self.weak_directions],
+                "hypotheses": [vars(h) for h in self.hypotheses],
                 "score_gap": self.score_gap,
                 "iterations": self.iterations,
                 "converged": self.converged,
                 "timings_s": self.timings_s,
                 "details": self.details,
-            }
+            },
+            nan_as_none=True,
         )
 
     def to_json(self, **kwargs: Any) -> str:
