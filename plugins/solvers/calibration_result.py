@@ -184,6 +184,15 @@ class CalibrationResult:
             rows.append(SummaryRow(label, float(value) * scale, None if s is None else s * scale, unit))
         return rows
 
+    def reason_lines(self) -> list[str]:
+        """The end of a text report: ``reasons:`` and ``advice:``, each with its ``  - item`` lines
+        (a heading only when it has items)."""
+        lines: list[str] = []
+        for title, items in (("reasons", self.reasons), ("advice", self.advice)):
+            if items:
+                lines += [f"{title}:"] + [f"  - {x}" for x in items]
+        return lines
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary (numpy arrays become nested lists)."""
         return plain(
