@@ -6,16 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from engine import transforms as tf
-from plugins.solvers.handeye.lie import (
-    d_inverse,
-    d_product_left,
-    d_product_right,
-    inv_batch,
-    pose_delta,
-    retract,
-    so3_left_jacobian,
-    so3_right_jacobian_inv,
-)
+from plugins.solvers.handeye import lie
 from plugins.solvers.handeye.ml_model import EivModel
 from plugins.solvers.handeye.noise import NoiseModel
 from plugins.solvers.handeye.problem import model_camera_poses
@@ -34,7 +25,7 @@ def test_pose_delta_inverts_retract(d, seed_vec):
     rng = np.random.default_rng(int(abs(seed_vec[0]) * 1e6))
     T = random_pose(rng)[None]
     d = d * np.array([1, 1, 1, 2.5, 2.5, 2.5]) / 1.8  # rotations up to ~2.4 rad
-    assert np.allclose(pose_delta(retract(T, d[None]), T)[0], d, atol=1e-9)
+    assert np.allclose(lie.pose_delta(lie.retract(T, d[None]), T)[0], d, atol=1e-9)
 
 
 def test_so3_jacobians_match_their_definitions():
@@ -43,11 +34,11 @@ def test_so3_jacobians_match_their_definitions():
         d = rng.normal(size=3) * 1e-6
         # exp(w + d) = exp(J_l(w) d) exp(w)
         lhs = tf.exp_so3(w + d)
-        rhs = tf.exp_so3(so3_left_jacobian(w)[0] @ d) @ tf.exp_so3(w)
+        rhs = tf.exp_so3(lie.so3_left_jacobian(w)[0] @ d) @ tf.exp_so3(w)
         assert np.allclose(lhs, rhs, atol=1e-11)
         # exp(w) exp(d) = exp(w + J_r^-1(w) d)
         lhs = tf.exp_so3(w) @ tf.exp_so3(d)
-        rhs = tf.exp_so3(w + so3_right_jacobian_inv(w)[0] @ d)
+        rhs = tf.exp_so3(w + lie.so3_right_jacobian_inv(w)[0] @ d)
         assert np.allclose(lhs, rhs, atol=1e-11)
 
 
@@ -58,16 +49,18 @@ def _numeric_dd(f, T: np.ndarray, h: float = 1e-6) -> np.ndarray:
     for k in range(6):
         d = np.zeros((1, 6))
         d[0, k] = h
-        J[:, k] = (pose_delta(f(retract(T[None], d)), base)[0] - pose_delta(f(retract(T[None], -d)), base)[0]) / (2 * h)
+        J[:, k] = (
+            lie.pose_delta(f(lie.retract(T[None], d)), base)[0] - lie.pose_delta(f(lie.retract(T[None], -d)), base)[0]
+        ) / (2 * h)
     return J
 
 
 def test_chain_operators_match_numeric_derivatives():
     rng = np.random.default_rng(1)
     P, Q = random_pose(rng), random_pose(rng)
-    assert np.allclose(d_product_left(P, Q)[0], _numeric_dd(lambda X: X @ Q, P), atol=1e-7)
-    assert np.allclose(d_product_right(P)[0], _numeric_dd(lambda X: P @ X, Q), atol=1e-7)
-    assert np.allclose(d_inverse(P)[0], _numeric_dd(inv_batch, P), atol=1e-7)
+    assert np.allclose(lie.d_product_left(P, Q)[0], _numeric_dd(lambda X: X @ Q, P), atol=1e-7)
+    assert np.allclose(lie.d_product_right(P)[0], _numeric_dd(lambda X: P @ X, Q), atol=1e-7)
+    assert np.allclose(lie.d_inverse(P)[0], _numeric_dd(lie.inv_batch, P), atol=1e-7)
 
 
 @pytest.mark.parametrize("setup", ["eye_in_hand", "eye_to_hand"])
@@ -81,12 +74,12 @@ def test_eiv_jacobian_matches_finite_differences(setup, robot_deg):
     noise = NoiseModel.isotropic(robot_deg, robot_deg * 5, 0.1, 0.5)
     model = EivModel(
         setup,
-        retract(M, rng.normal(size=(n, 6)) * 0.05),
-        retract(B, rng.normal(size=(n, 6)) * 0.05),
+        lie.retract(M, rng.normal(size=(n, 6)) * 0.05),
+        lie.retract(B, rng.normal(size=(n, 6)) * 0.05),
         noise,
         random_pose(rng),
         random_pose(rng),
-        retract(M, rng.normal(size=(n, 6)) * 0.1),
+        lie.retract(M, rng.normal(size=(n, 6)) * 0.1),
     )
     x = rng.normal(size=model.n_params) * 0.3
     sqrt_w = np.sqrt(rng.uniform(0.5, 1.0, size=n))
