@@ -13,7 +13,7 @@ from __future__ import annotations
 import csv
 import io
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -86,16 +86,22 @@ def row_numbers(path: str | Path, n: int, row: Mapping[str, str], cols: Sequence
         raise ValueError(f"{path}: data row {n + 1}: {exc}") from exc
 
 
-def csv_metadata(items: Mapping[str, Any]) -> str:
-    """``# key = value`` lines that :func:`read_csv_samples` reads back (numbers exactly, lists of
-    numbers comma-separated, strings as they are)."""
-    lines = []
-    for key, v in items.items():
+def write_csv_samples(
+    path: str | Path, metadata: Mapping[str, Any], header: Sequence[str], rows: Iterable[Sequence[Any]]
+) -> None:
+    """Write a CSV sample file that :func:`read_csv_samples` reads back: *metadata* (the JSON top-level
+    keys, ``noise`` flattened into them) as ``# key = value`` lines (numbers exactly, lists of numbers
+    comma-separated, strings as they are), then the header and the rows."""
+    out = io.StringIO()
+    for key, v in {**{k: v for k, v in metadata.items() if k != "noise"}, **metadata.get("noise", {})}.items():
         if isinstance(v, str):
             text = v
         elif isinstance(v, Sequence | np.ndarray):
             text = ", ".join(repr(float(x)) for x in v)
         else:
             text = repr(float(v))
-        lines.append(f"# {key} = {text}\n")
-    return "".join(lines)
+        out.write(f"# {key} = {text}\n")
+    w = csv.writer(out, lineterminator="\n")
+    w.writerow(header)
+    w.writerows(rows)
+    Path(path).write_text(out.getvalue())

@@ -20,8 +20,6 @@ and noise keys), then a header with ``cam_x, cam_y, cam_z`` and either
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 from pathlib import Path
 from typing import Any
@@ -30,12 +28,12 @@ import numpy as np
 
 from engine.transforms import T_from_Rt, T_from_ur, pose7_from_T
 from plugins.solvers.sample_files import (
-    csv_metadata,
     length_scale,
     quat_matrix,
     read_csv_samples,
     read_json_samples,
     row_numbers,
+    write_csv_samples,
 )
 from plugins.solvers.tcp_camera.data import TcpCameraData, TcpNoiseModel
 
@@ -102,15 +100,8 @@ def load_tcp_csv(path: str | Path) -> TcpCameraData:
     return _build(meta, samples)
 
 
-def tcp_to_json_dict(data: TcpCameraData) -> dict[str, Any]:
+def _metadata(data: TcpCameraData) -> dict[str, Any]:
     nz = data.noise
-    samples = []
-    for i in range(data.n):
-        p, q = pose7_from_T(data.T_base_flange[i])
-        samples.append(
-            {"label": data.labels[i], "flange_position": p.tolist(), "flange_quat_xyzw": q.tolist(),
-             "p_cam": data.p_cam[i].tolist()}
-        )  # fmt: skip
     return {
         "format": FORMAT,
         "units": "m",
@@ -120,8 +111,18 @@ def tcp_to_json_dict(data: TcpCameraData) -> dict[str, Any]:
             "robot_position_sigma": nz.robot_position_sigma_m,
             "robot_rotation_sigma_deg": float(np.degrees(nz.robot_rotation_sigma_rad)),
         },
-        "samples": samples,
     }
+
+
+def tcp_to_json_dict(data: TcpCameraData) -> dict[str, Any]:
+    samples = []
+    for i in range(data.n):
+        p, q = pose7_from_T(data.T_base_flange[i])
+        samples.append(
+            {"label": data.labels[i], "flange_position": p.tolist(), "flange_quat_xyzw": q.tolist(),
+             "p_cam": data.p_cam[i].tolist()}
+        )  # fmt: skip
+    return {**_metadata(data), "samples": samples}
 
 
 def save_tcp_json(data: TcpCameraData, path: str | Path) -> None:
@@ -129,23 +130,8 @@ def save_tcp_json(data: TcpCameraData, path: str | Path) -> None:
 
 
 def save_tcp_csv(data: TcpCameraData, path: str | Path) -> None:
-    nz = data.noise
-    out = io.StringIO()
-    out.write(
-        csv_metadata(
-            {
-                "format": FORMAT,
-                "units": "m",
-                "camera_units": "m",
-                "camera_sigma": nz.camera_sigma_m,
-                "robot_position_sigma": nz.robot_position_sigma_m,
-                "robot_rotation_sigma_deg": np.degrees(nz.robot_rotation_sigma_rad),
-            }
-        )
-    )
-    w = csv.writer(out, lineterminator="\n")
-    w.writerow(["label", *_CSV_QUAT_HEADER])
+    rows = []
     for i in range(data.n):
         p, q = pose7_from_T(data.T_base_flange[i])
-        w.writerow([data.labels[i], *(repr(float(v)) for v in (*p, *q, *data.p_cam[i]))])
-    Path(path).write_text(out.getvalue())
+        rows.append([data.labels[i], *(repr(float(v)) for v in (*p, *q, *data.p_cam[i]))])
+    write_csv_samples(path, _metadata(data), ["label", *_CSV_QUAT_HEADER], rows)

@@ -21,8 +21,6 @@ tracker_qw`` and optionally ``label``, ``orientation`` (``fixed``/``free``), ``f
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 from pathlib import Path
 from typing import Any
@@ -32,12 +30,12 @@ from scipy.spatial.transform import Rotation
 
 from engine.transforms import T_from_Rt, pose7_from_T
 from plugins.solvers.sample_files import (
-    csv_metadata,
     length_scale,
     quat_matrix,
     read_csv_samples,
     read_json_samples,
     row_numbers,
+    write_csv_samples,
 )
 from plugins.solvers.vive_desk.data import ViveDeskData, ViveNoiseModel
 
@@ -128,9 +126,22 @@ def load_vive_csv(path: str | Path) -> ViveDeskData:
     return _build(meta, rows)
 
 
+def _metadata(data: ViveDeskData) -> dict[str, Any]:
+    nz = data.noise
+    return {
+        "format": FORMAT,
+        "units": "m",
+        "noise": {
+            "tracker_position_sigma": nz.tracker_position_sigma_m,
+            "tracker_rotation_sigma_deg": float(np.degrees(nz.tracker_rotation_sigma_rad)),
+            "fixture_rotation_sigma_deg": float(np.degrees(nz.fixture_rotation_sigma_rad)),
+            "desk_point_sigma": nz.desk_point_sigma_m,
+        },
+    }
+
+
 def vive_to_json_dict(data: ViveDeskData) -> dict[str, Any]:
     """The JSON document of *data* (metres), the inverse of :func:`load_vive_json`."""
-    nz = data.noise
     contacts = []
     for i in range(data.n):
         p, q = pose7_from_T(data.T_base_tracker[i])
@@ -146,17 +157,7 @@ def vive_to_json_dict(data: ViveDeskData) -> dict[str, Any]:
         else:
             c["fixture_quat_xyzw"] = "free"
         contacts.append(c)
-    return {
-        "format": FORMAT,
-        "units": "m",
-        "noise": {
-            "tracker_position_sigma": nz.tracker_position_sigma_m,
-            "tracker_rotation_sigma_deg": float(np.degrees(nz.tracker_rotation_sigma_rad)),
-            "fixture_rotation_sigma_deg": float(np.degrees(nz.fixture_rotation_sigma_rad)),
-            "desk_point_sigma": nz.desk_point_sigma_m,
-        },
-        "contacts": contacts,
-    }
+    return {**_metadata(data), "contacts": contacts}
 
 
 def save_vive_json(data: ViveDeskData, path: str | Path) -> None:
@@ -165,29 +166,14 @@ def save_vive_json(data: ViveDeskData, path: str | Path) -> None:
 
 def save_vive_csv(data: ViveDeskData, path: str | Path) -> None:
     """Write the CSV variant (metres, per-contact fixture orientation and offset columns)."""
-    nz = data.noise
-    out = io.StringIO()
-    out.write(
-        csv_metadata(
-            {
-                "format": FORMAT,
-                "units": "m",
-                "tracker_position_sigma": nz.tracker_position_sigma_m,
-                "tracker_rotation_sigma_deg": np.degrees(nz.tracker_rotation_sigma_rad),
-                "fixture_rotation_sigma_deg": np.degrees(nz.fixture_rotation_sigma_rad),
-                "desk_point_sigma": nz.desk_point_sigma_m,
-            }
-        )
-    )
     cols = ["label", *_CSV_REQUIRED, "orientation", "fixture_qx", "fixture_qy", "fixture_qz", "fixture_qw"]
     cols += ["offset_x", "offset_y", "offset_z"]
-    w = csv.writer(out, lineterminator="\n")
-    w.writerow(cols)
+    rows = []
     for i in range(data.n):
         p, q = pose7_from_T(data.T_base_tracker[i])
         fq = Rotation.from_matrix(data.R_desktop_tcp[i]).as_quat()
         orient = "fixed" if data.orientation_known[i] else "free"
         num = [*data.desk_points[i], *p, *q]
         extra = [*fq, *data.tcp_offsets_desktop[i]]
-        w.writerow([data.labels[i], *(repr(float(v)) for v in num), orient, *(repr(float(v)) for v in extra)])
-    Path(path).write_text(out.getvalue())
+        rows.append([data.labels[i], *(repr(float(v)) for v in num), orient, *(repr(float(v)) for v in extra)])
+    write_csv_samples(path, _metadata(data), cols, rows)
