@@ -38,7 +38,7 @@ along the template camera's x, y, z and rotation about those axes through the ce
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
 
 import numpy as np
@@ -153,31 +153,8 @@ class RegistrationResult:
         return " | ".join(parts)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dictionary (arrays become lists, NaN becomes None)."""
-        return plain(
-            {
-                "verdict": self.verdict,
-                "method": self.method,
-                "T_match": self.T_match,
-                "reasons": self.reasons,
-                "fitness": self.fitness,
-                "inlier_rmse": self.inlier_rmse,
-                "score": self.score,
-                "hessian": self.hessian,
-                "covariance": self.covariance,
-                "uncertainty_center": self.uncertainty_center,
-                "sigma_translation_m": self.sigma_translation_m,
-                "sigma_rotation_rad": self.sigma_rotation_rad,
-                "weak_directions": [vars(w) for w in self.weak_directions],
-                "hypotheses": [vars(h) for h in self.hypotheses],
-                "score_gap": self.score_gap,
-                "iterations": self.iterations,
-                "converged": self.converged,
-                "timings_s": self.timings_s,
-                "details": self.details,
-            },
-            nan_as_none=True,
-        )
+        """JSON-ready dictionary of every field (arrays become lists, NaN becomes None)."""
+        return plain(asdict(self), nan_as_none=True)
 
     def to_json(self, **kwargs: Any) -> str:
         return json.dumps(self.to_dict(), **kwargs)
