@@ -30,6 +30,8 @@ USABLE_VERDICTS: frozenset[str] = frozenset({"ok", "warning"})
 
 _MM, _DEG = 1e3, float(np.degrees(1.0))
 _DIAGNOSTIC_PREFIXES = ("closed_form_", "initial_")  # estimate entries that document the start, not the result
+_JSON_FIELDS = ("kind", "verdict", "method", "iterations", "estimate", "param_names", "covariance", "residuals",
+                "residual_names", "outliers", "reasons", "advice", "metrics")  # fmt: skip
 _ANGLE_SUFFIXES = ("rx", "ry", "rz", "wx", "wy", "wz", "theta", "alpha", "beta")
 
 
@@ -195,23 +197,7 @@ class CalibrationResult:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary (numpy arrays become nested lists)."""
-        return plain(
-            {
-                "kind": self.kind,
-                "verdict": self.verdict,
-                "method": self.method,
-                "iterations": self.iterations,
-                "estimate": self.estimate,
-                "param_names": self.param_names,
-                "covariance": self.covariance,
-                "residuals": self.residuals,
-                "residual_names": self.residual_names,
-                "outliers": self.outliers,
-                "reasons": self.reasons,
-                "advice": self.advice,
-                "metrics": self.metrics,
-            }
-        )
+        return plain({name: getattr(self, name) for name in _JSON_FIELDS})
 
     def to_json(self, **kwargs: Any) -> str:
         return json.dumps(self.to_dict(), **kwargs)

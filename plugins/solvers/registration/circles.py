@@ -19,6 +19,8 @@ import open3d as o3d
 from scipy import ndimage
 from scipy.optimize import least_squares
 
+_Rim = tuple[np.ndarray, np.ndarray, float]  # points around a hole or pin, estimated centre and radius
+
 
 @dataclass
 class Circle:
@@ -77,22 +79,18 @@ def _rim(uv: np.ndarray, center: np.ndarray, bins: int, *, outermost: bool) -> n
 
 
 def _rim_circles(
-    candidates: list[tuple[np.ndarray, np.ndarray, float]],
-    kind: str,
-    spacing_m: float,
-    rim_bins: int,
-    radius_range: tuple[float, float],
+    candidates: list[_Rim], kind: str, spacing_m: float, rim_bins: int, radii: tuple[float, float]
 ) -> list[Circle]:
     """Circles fitted to the rims of candidate (points, estimated centre, estimated radius): a hole's
     rim is its nearest points per sector, a pin cap's its farthest. Candidates whose rim has fewer
-    than 8 points, or whose fitted radius lies outside *radius_range*, are left out."""
+    than 8 points, or whose fitted radius lies outside *radii* (min, max), are left out."""
     circles: list[Circle] = []
     for uv, c_est, r_est in candidates:
         rim = _rim(uv, c_est, _bins(r_est, spacing_m, rim_bins), outermost=kind == "pin")
         if rim.shape[0] < 8:
             continue
         c, r, rms = fit_circle(rim)
-        if radius_range[0] <= r <= radius_range[1]:
+        if radii[0] <= r <= radii[1]:
             circles.append(Circle(c, r, rms, rim.shape[0], kind))
     return circles
 
@@ -117,7 +115,7 @@ def find_holes(
     occ = ndimage.binary_closing(occ, iterations=1)  # close sampling gaps of one cell
     empty, n = ndimage.label(~occ)
     border = set(np.unique(np.concatenate([empty[0], empty[-1], empty[:, 0], empty[:, -1]])).tolist())
-    candidates: list[tuple[np.ndarray, np.ndarray, float]] = []
+    candidates: list[_Rim] = []
     for lab in range(1, n + 1):
         if lab in border:
             continue
@@ -152,7 +150,7 @@ def find_pins(
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points[sel]))
     labels = np.asarray(pcd.cluster_dbscan(eps=3.0 * spacing_m, min_points=4, print_progress=False))
     band = cap_band_m or max(3.0 * spacing_m, 0.5e-3)
-    candidates: list[tuple[np.ndarray, np.ndarray, float]] = []
+    candidates: list[_Rim] = []
     for lab in range(int(labels.max(initial=-1)) + 1):
         idx = sel[labels == lab]
         h = heights[idx]
