@@ -229,11 +229,7 @@ def summarise(rows: list[dict]) -> dict:
         "above_1_2x_floor": [
             {
                 "case": r["case"],
-                "after_over_floor": r["vgr"]["after_over_floor"],
-                "named": r["vgr"]["named"],
-                "tied": r["vgr"]["tied"],
-                "tie_terms": r["vgr"]["tie_terms"],
-                "verdict": r["vgr"]["verdict"],
+                **{k: r["vgr"][k] for k in ("after_over_floor", "named", "tied", "tie_terms", "verdict")},
             }
             for r in effect_rows
             if r["vgr"]["after_over_floor"] > 1.2

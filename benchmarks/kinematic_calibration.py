@@ -30,9 +30,6 @@ Run: ``PYTHONPATH=. python benchmarks/kinematic_calibration.py [--trials 400]``
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -42,6 +39,7 @@ from scipy.stats import chi2
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
+from bench_results import machine, write_result
 from kinematic_calibration.kincal_sim import NOISE_M, measure, nominal_model, random_poses, true_robot
 
 from plugins.solvers.kinematic_calibration import (
@@ -224,18 +222,11 @@ def main() -> None:
             "trials": args.trials,
             "measurement": "tool point position (laser-tracker-like), unknown tracker frame and tool point",
         },
-        "machine": {
-            "platform": platform.platform(),
-            "python": platform.python_version(),
-            "cpus": os.cpu_count(),
-            "numpy": np.__version__,
-            "note": "shared 2-core machine, timings are noisy",
-        },
+        "machine": machine(),
         "results": results,
     }
     path = args.out
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(out, indent=2))
+    write_result(path, out)
     v, s = results["vgr"], results["seed003_gauss_newton_ridge"]
     c = v["criterion_within_1.1x_crlb"]
     lo, hi = v["aggregate_ratio_interval_95"]

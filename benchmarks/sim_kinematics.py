@@ -11,13 +11,11 @@ Run: ``PYTHONPATH=. python benchmarks/sim_kinematics.py`` -> benchmarks/results/
 
 from __future__ import annotations
 
-import json
-import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
+from bench_results import machine, write_result
 
 from plugins.robot.model_file import load_robot_model
 
@@ -92,18 +90,11 @@ def main() -> None:
         "model": "ur5e",
         "seed": SEED,
         "sizes": list(SIZES),
-        "machine": {
-            "platform": platform.platform(),
-            "python": platform.python_version(),
-            "cpus": os.cpu_count(),
-            "numpy": np.__version__,
-            "note": "shared 2-core machine, timings are noisy",
-        },
+        "machine": machine(),
         "results": results,
     }
     path = Path(__file__).parent / "results" / "sim_kinematics.json"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(out, indent=2))
+    write_result(path, out)
     for key in ("fk", "jacobian", "param_jacobian", "loop_dh_fk_reference"):
         print(key, {k: f"{v:,.0f}/s" for k, v in results[key].items()})
     print("ik", f"{results['ik_random_seed_solves_per_s']:.1f} solves/s", results["ik_successes"])

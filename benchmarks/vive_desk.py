@@ -93,7 +93,23 @@ def rms(x: np.ndarray) -> float:
 
 
 def unit(block: str) -> tuple[str, float]:
-    return ("mm", 1e3) if block.endswith("position") else ("deg", float(np.degrees(1.0)))
+    return ("deg", float(np.degrees(1.0))) if block.endswith("rotation") else ("mm", 1e3)
+
+
+def crlb_rms(crlb: np.ndarray, blocks: dict[str, slice]) -> dict[str, float]:
+    """RMS of the Cramer-Rao bound of each block, in mm or deg."""
+    return {f"{b}_{unit(b)[0]}": float(np.sqrt(np.trace(crlb[s, s])) * unit(b)[1]) for b, s in blocks.items()}
+
+
+def block_errors(E: np.ndarray, crlb: np.ndarray, blocks: dict[str, slice]) -> dict[str, float]:
+    """RMS error of each block over the trials (rows of E), in mm or deg, and its ratio to the CRLB's."""
+    d = {}
+    for b, s in blocks.items():
+        u, f = unit(b)
+        r = rms(E[:, s])
+        d[f"{b}_rms_{u}"] = r * f
+        d[f"{b}_ratio_to_crlb"] = r / float(np.sqrt(np.trace(crlb[s, s])))
+    return d
 
 
 def desk_tcp_out_error(T_BD, T_KC, T_BK, T_BD_true, T_KC_true) -> np.ndarray:
@@ -175,23 +191,14 @@ def section_crlb_identifiable(
         },
         "trials": trials,
         "information_rank": rank,
-        "crlb_rms": {},
-        "methods": {},
+        "crlb_rms": crlb_rms(crlb, BLOCKS),
+        "methods": {
+            m: {"median_time_s": float(np.median(times[m])), **block_errors(np.array(errs[m]), crlb, BLOCKS)}
+            for m in methods
+        },
         "vgr_verdicts": verdicts,
         "coverage_95": {k: v / trials for k, v in inside.items()},
     }
-    for b, s in BLOCKS.items():
-        u, f = unit(b)
-        out["crlb_rms"][f"{b}_{u}"] = float(np.sqrt(np.trace(crlb[s, s])) * f)
-    for m in methods:
-        E = np.array(errs[m])
-        d: dict = {"median_time_s": float(np.median(times[m]))}
-        for b, s in BLOCKS.items():
-            u, f = unit(b)
-            r = rms(E[:, s])
-            d[f"{b}_rms_{u}"] = r * f
-            d[f"{b}_ratio_to_crlb"] = r / float(np.sqrt(np.trace(crlb[s, s])))
-        out["methods"][m] = d
     return out
 
 
@@ -442,21 +449,9 @@ def section_tcp(trials: int, seed: int) -> dict:
         "coverage_95_9d": inside / trials,
         "mean_residual_rms_mm": float(np.mean(resid)),
         "median_time_s": float(np.median(times)),
-        "crlb_rms": {},
-        "methods": {},
+        "crlb_rms": crlb_rms(crlb, blocks),
+        "methods": {m: block_errors(np.array(lst), crlb, blocks) for m, lst in errs.items()},
     }
-    for b, s in blocks.items():
-        u, f = ("deg", float(np.degrees(1.0))) if b.endswith("rotation") else ("mm", 1e3)
-        out["crlb_rms"][f"{b}_{u}"] = float(np.sqrt(np.trace(crlb[s, s])) * f)
-    for m, lst in errs.items():
-        E = np.array(lst)
-        d = {}
-        for b, s in blocks.items():
-            u, f = ("deg", float(np.degrees(1.0))) if b.endswith("rotation") else ("mm", 1e3)
-            r = rms(E[:, s])
-            d[f"{b}_rms_{u}"] = r * f
-            d[f"{b}_ratio_to_crlb"] = r / float(np.sqrt(np.trace(crlb[s, s])))
-        out["methods"][m] = d
     return out
 
 

@@ -60,6 +60,11 @@ Vec3 = tuple[float, float, float]
 Vec6 = tuple[float, float, float, float, float, float]
 
 
+def _rate(default: float, hard_max: float, description: str) -> Any:
+    """A speed or acceleration parameter: positive, and at most its hard maximum."""
+    return Field(default, gt=0.0, le=hard_max, description=description)
+
+
 class URRobotParams(StageParams):
     """Parameters of ``ur_robot`` (units in the names: m, deg, s, m/s, rad/s)."""
 
@@ -72,38 +77,28 @@ class URRobotParams(StageParams):
     max_joint_step_deg: float = Field(30.0, gt=0.0, le=360.0, description="largest joint change per move_j, deg")
     joint_min_deg: Vec6 = Field((-360.0,) * 6, description="lower joint limits, deg")
     joint_max_deg: Vec6 = Field((360.0,) * 6, description="upper joint limits, deg")
-    move_l_speed_m_s: float = Field(
-        0.05, gt=0.0, le=HARD_MAX_LINEAR_SPEED_M_S, description="TCP speed of move_l when the command gives 0, m/s"
+    move_l_speed_m_s: float = _rate(
+        0.05, HARD_MAX_LINEAR_SPEED_M_S, "TCP speed of move_l when the command gives 0, m/s"
     )
-    move_l_speed_max_m_s: float = Field(
-        0.25, gt=0.0, le=HARD_MAX_LINEAR_SPEED_M_S, description="faster move_l commands are refused, m/s"
+    move_l_speed_max_m_s: float = _rate(0.25, HARD_MAX_LINEAR_SPEED_M_S, "faster move_l commands are refused, m/s")
+    move_l_accel_m_s2: float = _rate(
+        0.25, HARD_MAX_LINEAR_ACCEL_M_S2, "TCP acceleration of move_l when the command gives 0, m/s^2"
     )
-    move_l_accel_m_s2: float = Field(
-        0.25,
-        gt=0.0,
-        le=HARD_MAX_LINEAR_ACCEL_M_S2,
-        description="TCP acceleration of move_l when the command gives 0, m/s^2",
+    move_l_accel_max_m_s2: float = _rate(
+        1.2, HARD_MAX_LINEAR_ACCEL_M_S2, "larger move_l accelerations are refused, m/s^2"
     )
-    move_l_accel_max_m_s2: float = Field(
-        1.2, gt=0.0, le=HARD_MAX_LINEAR_ACCEL_M_S2, description="larger move_l accelerations are refused, m/s^2"
+    move_j_speed_rad_s: float = _rate(
+        0.25, HARD_MAX_JOINT_SPEED_RAD_S, "leading-joint speed of move_j by default, rad/s"
     )
-    move_j_speed_rad_s: float = Field(
-        0.25, gt=0.0, le=HARD_MAX_JOINT_SPEED_RAD_S, description="leading-joint speed of move_j by default, rad/s"
+    move_j_speed_max_rad_s: float = _rate(1.05, HARD_MAX_JOINT_SPEED_RAD_S, "faster move_j commands are refused, rad/s")
+    move_j_accel_rad_s2: float = _rate(
+        0.5, HARD_MAX_JOINT_ACCEL_RAD_S2, "leading-joint acceleration of move_j by default, rad/s^2"
     )
-    move_j_speed_max_rad_s: float = Field(
-        1.05, gt=0.0, le=HARD_MAX_JOINT_SPEED_RAD_S, description="faster move_j commands are refused, rad/s"
+    move_j_accel_max_rad_s2: float = _rate(
+        1.4, HARD_MAX_JOINT_ACCEL_RAD_S2, "larger move_j accelerations are refused, rad/s^2"
     )
-    move_j_accel_rad_s2: float = Field(
-        0.5,
-        gt=0.0,
-        le=HARD_MAX_JOINT_ACCEL_RAD_S2,
-        description="leading-joint acceleration of move_j by default, rad/s^2",
-    )
-    move_j_accel_max_rad_s2: float = Field(
-        1.4, gt=0.0, le=HARD_MAX_JOINT_ACCEL_RAD_S2, description="larger move_j accelerations are refused, rad/s^2"
-    )
-    stop_deceleration_rad_s2: float = Field(
-        2.0, gt=0.0, le=HARD_MAX_JOINT_ACCEL_RAD_S2, description="joint deceleration of a stop command (stopJ), rad/s^2"
+    stop_deceleration_rad_s2: float = _rate(
+        2.0, HARD_MAX_JOINT_ACCEL_RAD_S2, "joint deceleration of a stop command (stopJ), rad/s^2"
     )
     arrival_tolerance_m: float = Field(
         0.001, gt=0.0, description="after a move, farther than this from the target is reported as a failure, m"

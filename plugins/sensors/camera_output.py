@@ -7,7 +7,9 @@ invalid) and ``camera_info`` go out too. ``camera_info`` carries the pinhole K; 
 librealsense coefficients (k1 k2 p1 p2 k3) with ``distortion_model`` ``plumb_bob`` for none and
 brown_conrady (OpenCV's forward model), ``inverse_brown_conrady`` for RealSense's inverse model.
 
-Where the camera is (:class:`CameraMountParams`): ``T_parent_cam`` in ``parent_frame`` (``world``
+:class:`DepthCameraParams` are the parameters every adapter shares: ``frame_id``, the output
+switches (``publish_cloud``, ``publish_depth``, ``decimate``: :func:`publish_capture`) and where the
+camera is: ``T_parent_cam`` in ``parent_frame`` (``world``
 for a fixed camera, ``tcp`` for one on the flange: the hand-eye transform), published on ``frames``
 at set-up and with every capture so that a recording shows the cloud in the cell's 3D view. The
 default, identity in ``world``, says "not given" and puts the camera at the world origin.
@@ -27,28 +29,33 @@ from plugins.params import PoseSpec
 from plugins.sensors.depth_projection import DepthIntrinsics
 
 
-class CameraMountParams(StageParams):
-    """The camera's mount, shared by the depth-camera adapters (published on ``frames``)."""
+class DepthCameraParams(StageParams):
+    """The camera's mount and what its captures publish, shared by the depth-camera adapters."""
 
+    frame_id: str = Field("camera", description="frame of the published cloud")
     parent_frame: str = Field(
         "world", min_length=1, description="frame the camera is mounted in (world: fixed; tcp: on the flange)"
     )
     T_parent_cam: PoseSpec = Field(
         default_factory=PoseSpec, description="camera pose in parent_frame (mount or hand-eye), published on frames"
     )
+    publish_cloud: bool = Field(True, description="also publish each capture on the cloud port")
+    publish_depth: bool = Field(True, description="publish the depth image and camera_info when the frame has them")
+    decimate: int = Field(1, ge=1, le=64, description="keep every n-th valid point (smaller clouds)")
 
     @model_validator(mode="after")
-    def _mount_frames(self) -> CameraMountParams:
-        frame_id = getattr(self, "frame_id", "camera")
-        if self.parent_frame == frame_id:
-            raise ValueError(f"parent_frame must differ from the camera frame {frame_id!r}")
+    def _mount_frames(self) -> DepthCameraParams:
+        if self.parent_frame == self.frame_id:
+            raise ValueError(f"parent_frame must differ from the camera frame {self.frame_id!r}")
         return self
 
 
-def publish_mount(ctx: StageContext, params: CameraMountParams, frame_id: str) -> None:
+def publish_mount(ctx: StageContext, params: DepthCameraParams) -> None:
     """Publish ``parent_frame -> frame_id`` (``T_parent_cam``) on ``frames``, stamped now."""
     now = ctx.clock.now_ns()
-    edge = Transform(frame_id=params.parent_frame, child_frame_id=frame_id, T=params.T_parent_cam.T(), stamp_ns=now)
+    edge = Transform(
+        frame_id=params.parent_frame, child_frame_id=params.frame_id, T=params.T_parent_cam.T(), stamp_ns=now
+    )
     ctx.publish("frames", FrameTransforms(stamp_ns=now, transforms=[edge]))
 
 
@@ -107,3 +114,12 @@ def publish_frame(
     if publish_cloud:
         ctx.publish("cloud", cloud)
     return cloud
+
+
+def publish_capture(ctx: StageContext, params: DepthCameraParams, frame: CameraFrame) -> PointCloud:
+    """A capture as every depth-camera adapter publishes it: every ``decimate``-th point, the mount
+    on ``frames``, then the frame (:func:`publish_frame`); returns the ``capture`` reply."""
+    publish_mount(ctx, params)
+    p = params
+    frame = keep_every(frame, p.decimate)
+    return publish_frame(ctx, frame, frame_id=p.frame_id, publish_cloud=p.publish_cloud, publish_depth=p.publish_depth)

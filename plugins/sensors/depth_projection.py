@@ -15,6 +15,7 @@ Invalid depth (0, negative, NaN) gives NaN points, so the organised (H, W, 3) la
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -24,6 +25,25 @@ from numpy.typing import ArrayLike, NDArray
 DistortionModel = Literal["none", "brown_conrady", "inverse_brown_conrady"]
 SUPPORTED_MODELS: tuple[str, ...] = ("none", "brown_conrady", "inverse_brown_conrady")
 UNDISTORT_ITERATIONS = 10  # librealsense's empirically fixed count
+
+
+def check_pinhole(width: float, height: float, fx: float, fy: float, cx: float, cy: float) -> None:
+    """Raise ValueError unless the image size is positive and integral and fx, fy, cx, cy are finite
+    with positive focal lengths (pixels): the checks of every pinhole camera model."""
+    if int(width) != width or int(height) != height:
+        raise ValueError(f"image size must be integral, got {width} x {height}")
+    if width <= 0 or height <= 0:
+        raise ValueError(f"image size must be positive, got {width} x {height}")
+    vals = (fx, fy, cx, cy)
+    if not all(math.isfinite(v) for v in vals):
+        raise ValueError(f"intrinsics must be finite, got fx, fy, cx, cy = {vals}")
+    if fx <= 0 or fy <= 0:
+        raise ValueError(f"focal lengths must be positive, got fx={fx}, fy={fy}")
+
+
+def pinhole_K(fx: float, fy: float, cx: float, cy: float) -> NDArray[np.float64]:
+    """The 3x3 camera matrix."""
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
 
 @dataclass(frozen=True)
@@ -40,11 +60,7 @@ class DepthIntrinsics:
     coeffs: tuple[float, ...] = field(default=(0.0, 0.0, 0.0, 0.0, 0.0))
 
     def __post_init__(self) -> None:
-        if self.width <= 0 or self.height <= 0:
-            raise ValueError(f"image size {self.width}x{self.height} must be positive")
-        vals = (self.fx, self.fy, self.cx, self.cy)
-        if not all(np.isfinite(vals)) or self.fx <= 0 or self.fy <= 0:
-            raise ValueError(f"intrinsics fx={self.fx}, fy={self.fy}, cx={self.cx}, cy={self.cy} are not usable")
+        check_pinhole(self.width, self.height, self.fx, self.fy, self.cx, self.cy)
         if self.model not in SUPPORTED_MODELS:
             raise ValueError(
                 f"distortion model {self.model!r} is not supported for depth deprojection "
@@ -63,7 +79,7 @@ class DepthIntrinsics:
         return cls(int(width), int(height), float(A[0, 0]), float(A[1, 1]), float(A[0, 2]), float(A[1, 2]))
 
     def K(self) -> NDArray[np.float64]:
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+        return pinhole_K(self.fx, self.fy, self.cx, self.cy)
 
     @property
     def distorted(self) -> bool:

@@ -18,21 +18,17 @@ from pydantic import Field
 from engine.messages import FrameTransforms, PointCloud
 from engine.stage import Stage
 from plugins.interfaces import CAMERA_OUTPUTS, CAMERA_SERVICES
-from plugins.sensors.camera_output import CameraMountParams, keep_every, publish_frame, publish_mount
+from plugins.sensors.camera_output import DepthCameraParams, publish_capture, publish_mount
 from plugins.sensors.frame_files import FrameFileError, list_frame_files, load_frame
 
 
-class FileCameraParams(CameraMountParams):
+class FileCameraParams(DepthCameraParams):
     """Parameters of ``file_camera``."""
 
     folder: str = Field(description="folder holding the frame files (.ply, .pcd, .npz)")
     pattern: str = Field("*", description="glob of the files to play inside the folder, e.g. 'scan_*.pcd'")
     loop: bool = Field(False, description="start over after the last file (else capture fails)")
     unit_scale_m: float = Field(1.0, gt=0.0, description="metres per file unit (0.001 for files in mm)")
-    frame_id: str = Field("camera", description="frame of the published cloud")
-    publish_cloud: bool = Field(True, description="also publish each capture on the cloud port")
-    publish_depth: bool = Field(True, description="publish depth and camera_info when a file has them")
-    decimate: int = Field(1, ge=1, le=64, description="keep every n-th point (smaller clouds)")
 
 
 class FileCamera(Stage):
@@ -49,7 +45,7 @@ class FileCamera(Stage):
         self.files = list_frame_files(p.folder, p.pattern)
         self.next_index = 0
         self.ctx.event("info", "frames_found", f"{len(self.files)} frame files in {p.folder}", count=len(self.files))
-        publish_mount(self.ctx, p, p.frame_id)
+        publish_mount(self.ctx, p)
 
     def on_request(self, service: str, request: Any) -> PointCloud:
         p: FileCameraParams = self.params  # type: ignore[assignment]
@@ -61,8 +57,4 @@ class FileCamera(Stage):
             self.next_index = 0
         path = self.files[self.next_index]
         self.next_index += 1
-        frame = keep_every(load_frame(path, p.unit_scale_m), p.decimate)
-        publish_mount(self.ctx, p, p.frame_id)
-        return publish_frame(
-            self.ctx, frame, frame_id=p.frame_id, publish_cloud=p.publish_cloud, publish_depth=p.publish_depth
-        )
+        return publish_capture(self.ctx, p, load_frame(path, p.unit_scale_m))

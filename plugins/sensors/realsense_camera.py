@@ -21,13 +21,13 @@ from pydantic import Field, model_validator
 from engine.messages import FrameTransforms, PointCloud
 from engine.stage import Stage
 from plugins.interfaces import CAMERA_OUTPUTS, CAMERA_SERVICES
-from plugins.sensors.camera_output import CameraFrame, CameraMountParams, keep_every, publish_frame, publish_mount
+from plugins.sensors.camera_output import CameraFrame, DepthCameraParams, publish_capture, publish_mount
 from plugins.sensors.depth_projection import deproject_depth, normalized_rays
 from plugins.sensors.realsense_device import RealSenseConfig, RealSenseDevice
 from plugins.util.sdk import import_sdk
 
 
-class RealSenseCameraParams(CameraMountParams):
+class RealSenseCameraParams(DepthCameraParams):
     """Parameters of ``realsense_camera`` (units in names: m, s, Hz)."""
 
     serial: str | None = Field(None, description="camera serial number; None = the first camera found")
@@ -44,10 +44,6 @@ class RealSenseCameraParams(CameraMountParams):
     warmup_frames: int = Field(30, ge=0, le=1000, description="live: frames discarded at start (auto exposure)")
     discard_frames: int = Field(0, ge=0, le=100, description="live: extra frames dropped before each capture")
     timeout_s: float = Field(5.0, gt=0.0, le=60.0, description="longest wait for a frame, s")
-    frame_id: str = Field("camera", description="frame of the published cloud")
-    publish_cloud: bool = Field(True, description="also publish each capture on the cloud port")
-    publish_depth: bool = Field(True, description="publish the depth image and camera_info of each capture")
-    decimate: int = Field(1, ge=1, le=64, description="keep every n-th valid point (smaller clouds)")
 
     @model_validator(mode="after")
     def _range(self) -> RealSenseCameraParams:
@@ -93,7 +89,7 @@ class RealSenseCamera(Stage):
             depth_scale_m=self.device.depth_scale,
             model=intr.model,
         )
-        publish_mount(self.ctx, p, p.frame_id)
+        publish_mount(self.ctx, p)
 
     def teardown(self) -> None:
         if self.device is not None:
@@ -116,8 +112,4 @@ class RealSenseCamera(Stage):
             intrinsics=self.device.intrinsics,
             source=f"frame {shot.frame_number}",
         )
-        frame = keep_every(frame, p.decimate)
-        publish_mount(self.ctx, p, p.frame_id)
-        return publish_frame(
-            self.ctx, frame, frame_id=p.frame_id, publish_cloud=p.publish_cloud, publish_depth=p.publish_depth
-        )
+        return publish_capture(self.ctx, p, frame)

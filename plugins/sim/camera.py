@@ -51,6 +51,7 @@ import numpy as np
 import open3d as o3d
 
 from engine.transforms import as_transform, inv
+from plugins.sensors.depth_projection import check_pinhole, pinhole_K
 
 from .workpieces import Workpiece
 
@@ -80,19 +81,11 @@ class PinholeIntrinsics:
     cy: float
 
     def __post_init__(self) -> None:
-        if int(self.width) != self.width or int(self.height) != self.height:
-            raise ValueError(f"image size must be integral, got {self.width} x {self.height}")
-        if self.width <= 0 or self.height <= 0:
-            raise ValueError(f"image size must be positive, got {self.width} x {self.height}")
-        vals = (self.fx, self.fy, self.cx, self.cy)
-        if not all(math.isfinite(v) for v in vals):
-            raise ValueError(f"intrinsics must be finite, got fx, fy, cx, cy = {vals}")
-        if self.fx <= 0 or self.fy <= 0:
-            raise ValueError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+        check_pinhole(self.width, self.height, self.fx, self.fy, self.cx, self.cy)
 
     def K(self) -> np.ndarray:
         """3x3 camera matrix."""
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+        return pinhole_K(self.fx, self.fy, self.cx, self.cy)
 
     @property
     def horizontal_fov_rad(self) -> float:

@@ -33,6 +33,7 @@ from engine.messages import JointState, PoseStamped, TrackerPose
 from engine.recording import Recording, RecordingError
 from plugins.solvers.calibration_inputs import (
     CalibrationInputError,
+    PairingOptions,
     hand_eye_samples,
     kinematic_samples,
     min_kinematic_samples,
@@ -84,7 +85,7 @@ def _recording(path: Path) -> Recording:
     return load(path)
 
 
-def _pairing(args: argparse.Namespace) -> dict:
+def _pairing(args: argparse.Namespace) -> PairingOptions:
     return {"mode": args.pair, "max_skew_s": args.max_skew_s, "drop_unmatched": args.drop_unmatched}
 
 

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Literal, TypeVar
+from typing import Literal, TypedDict, TypeVar, Unpack
 
 import numpy as np
 
@@ -37,6 +37,14 @@ from plugins.solvers.vive_desk import ViveDeskData, ViveNoiseModel
 
 PairMode = Literal["stamp", "order"]
 MsgT = TypeVar("MsgT", bound=Message)
+
+
+class PairingOptions(TypedDict, total=False):
+    """How the conversions pair their two streams (:func:`pair_by_stamp_or_order`'s keywords)."""
+
+    mode: PairMode
+    max_skew_s: float | None
+    drop_unmatched: bool
 
 
 class CalibrationInputError(ValueError):
@@ -127,42 +135,32 @@ def _stamps(msgs: Sequence[Message]) -> list[int]:
 
 
 def _pair(
-    primary: Sequence[Message],
-    secondary: Sequence[Message],
-    names: tuple[str, str],
-    mode: PairMode,
-    max_skew_s: float | None,
-    drop_unmatched: bool,
+    primary: Sequence[Message], secondary: Sequence[Message], names: tuple[str, str], **options: Unpack[PairingOptions]
 ) -> Pairing:
     if not primary:
         raise CalibrationInputError(f"no {names[0]}")
     if not secondary:
         raise CalibrationInputError(f"no {names[1]}")
-    pairing = pair_by_stamp_or_order(
-        _stamps(primary),
-        _stamps(secondary),
-        names=names,
-        mode=mode,
-        max_skew_s=max_skew_s,
-        drop_unmatched=drop_unmatched,
-    )
+    pairing = pair_by_stamp_or_order(_stamps(primary), _stamps(secondary), names=names, **options)
     if not pairing.pairs:
         raise CalibrationInputError(f"no {names[0]} could be paired with {names[1]}")
     return pairing
 
 
+def _poses(msgs: Sequence[PoseStamped] | Sequence[TrackerPose], idx: Sequence[int]) -> np.ndarray:
+    """The 4x4 ``T`` of the messages at *idx*, stacked."""
+    return np.array([np.asarray(msgs[i].T, dtype=float) for i in idx])
+
+
 def hand_eye_samples(
     robot: Sequence[PoseStamped],
     target: Sequence[PoseStamped],
-    *,
-    mode: PairMode = "stamp",
-    max_skew_s: float | None = 0.05,
-    drop_unmatched: bool = False,
+    **pairing: Unpack[PairingOptions],
 ) -> tuple[PoseSamples, list[str]]:
     """Robot poses ``T_base_tcp`` + camera observations ``T_cam_target`` -> hand-eye samples."""
-    p = _pair(robot, target, ("robot poses", "target poses"), mode, max_skew_s, drop_unmatched)
-    M = np.array([np.asarray(robot[i].T, dtype=float) for i, _ in p.pairs])
-    B = np.array([np.asarray(target[j].T, dtype=float) for _, j in p.pairs])
+    p = _pair(robot, target, ("robot poses", "target poses"), **pairing)
+    M = _poses(robot, [i for i, _ in p.pairs])
+    B = _poses(target, [j for _, j in p.pairs])
     ids = [f"t={robot[i].stamp_ns / 1e9:.3f}s" for i, _ in p.pairs]
     return PoseSamples(M, B, ids, None, "messages"), p.notes
 
@@ -172,9 +170,7 @@ def vive_desk_data(
     trackers: Sequence[TrackerPose],
     *,
     noise: ViveNoiseModel | None = None,
-    mode: PairMode = "stamp",
-    max_skew_s: float | None = 0.05,
-    drop_unmatched: bool = False,
+    **pairing: Unpack[PairingOptions],
 ) -> tuple[ViveDeskData, list[str]]:
     """Fixture contacts + tracker poses -> Vive desk data.
 
@@ -186,9 +182,9 @@ def vive_desk_data(
     valid = [t for t in trackers if t.valid]
     if len(valid) < len(trackers):
         notes.append(f"{len(trackers) - len(valid)} tracker reading(s) flagged invalid (tracking lost) left out")
-    p = _pair(contacts, valid, ("fixture contacts", "tracker poses"), mode, max_skew_s, drop_unmatched)
-    T_dc = np.array([np.asarray(contacts[i].T, dtype=float) for i, _ in p.pairs])
-    T_bt = np.array([np.asarray(valid[j].T, dtype=float) for _, j in p.pairs])
+    p = _pair(contacts, valid, ("fixture contacts", "tracker poses"), **pairing)
+    T_dc = _poses(contacts, [i for i, _ in p.pairs])
+    T_bt = _poses(valid, [j for _, j in p.pairs])
     data = ViveDeskData.from_contacts(
         T_dc[:, :3, 3],
         T_bt,
@@ -205,15 +201,13 @@ def tcp_camera_data(
     points: Sequence[PoseStamped],
     *,
     noise: TcpNoiseModel | None = None,
-    mode: PairMode = "stamp",
-    max_skew_s: float | None = 0.05,
-    drop_unmatched: bool = False,
+    **pairing: Unpack[PairingOptions],
 ) -> tuple[TcpCameraData, list[str]]:
     """Robot poses (``T_base_flange``: the frame whose TCP offset is calibrated) + the TCP point seen
     by the camera (the translation of each point message, camera frame) -> TCP-by-camera data."""
-    p = _pair(robot, points, ("robot poses", "camera points"), mode, max_skew_s, drop_unmatched)
-    T = np.array([np.asarray(robot[i].T, dtype=float) for i, _ in p.pairs])
-    P = np.array([np.asarray(points[j].T, dtype=float)[:3, 3] for _, j in p.pairs])
+    p = _pair(robot, points, ("robot poses", "camera points"), **pairing)
+    T = _poses(robot, [i for i, _ in p.pairs])
+    P = _poses(points, [j for _, j in p.pairs])[:, :3, 3]
     return TcpCameraData.from_arrays(T, P, noise=noise), p.notes
 
 
@@ -222,18 +216,16 @@ def kinematic_samples(
     points: Sequence[PoseStamped],
     *,
     full_pose: bool = False,
-    mode: PairMode = "stamp",
-    max_skew_s: float | None = 0.05,
-    drop_unmatched: bool = False,
+    **pairing: Unpack[PairingOptions],
 ) -> tuple[KinematicSamples, list[str]]:
     """Joint states (rad) + measured tool points (instrument frame; with ``full_pose`` also the
     measured tool orientation) -> kinematic calibration samples."""
-    p = _pair(joints, points, ("joint states", "measurements"), mode, max_skew_s, drop_unmatched)
+    p = _pair(joints, points, ("joint states", "measurements"), **pairing)
     n_joints = {len(joints[i].positions) for i, _ in p.pairs}
     if len(n_joints) != 1:
         raise CalibrationInputError(f"joint states have different numbers of joints: {sorted(n_joints)}")
     q = np.array([np.asarray(joints[i].positions, dtype=float) for i, _ in p.pairs])
-    T = np.array([np.asarray(points[j].T, dtype=float) for _, j in p.pairs])
+    T = _poses(points, [j for _, j in p.pairs])
     return KinematicSamples(q, T[:, :3, 3], T[:, :3, :3] if full_pose else None), p.notes
 
 

@@ -101,13 +101,7 @@ def format_result(result: CalibrationResult, *, per_sample: bool = True) -> str:
         if res:
             lines.append("per-sample residuals:")
             lines += res
-    if result.reasons:
-        lines.append("reasons:")
-        lines += [f"  - {r}" for r in result.reasons]
-    if result.advice:
-        lines.append("advice:")
-        lines += [f"  - {a}" for a in result.advice]
-    return "\n".join(lines)
+    return "\n".join(lines + result.reason_lines())
 
 
 def summary_markdown(result: CalibrationResult, extra_sections: Mapping[str, str] | None = None) -> str:

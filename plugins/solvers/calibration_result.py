@@ -23,11 +23,15 @@ import numpy as np
 from scipy import stats
 from scipy.spatial.transform import Rotation
 
+from plugins.util.plain_data import plain
+
 Verdict = Literal["ok", "warning", "degenerate", "failed"]
 USABLE_VERDICTS: frozenset[str] = frozenset({"ok", "warning"})
 
 _MM, _DEG = 1e3, float(np.degrees(1.0))
 _DIAGNOSTIC_PREFIXES = ("closed_form_", "initial_")  # estimate entries that document the start, not the result
+_JSON_FIELDS = ("kind", "verdict", "method", "iterations", "estimate", "param_names", "covariance", "residuals",
+                "residual_names", "outliers", "reasons", "advice", "metrics")  # fmt: skip
 _ANGLE_SUFFIXES = ("rx", "ry", "rz", "wx", "wy", "wz", "theta", "alpha", "beta")
 
 
@@ -182,37 +186,18 @@ class CalibrationResult:
             rows.append(SummaryRow(label, float(value) * scale, None if s is None else s * scale, unit))
         return rows
 
+    def reason_lines(self) -> list[str]:
+        """The end of a text report: ``reasons:`` and ``advice:``, each with its ``  - item`` lines
+        (a heading only when it has items)."""
+        lines: list[str] = []
+        for title, items in (("reasons", self.reasons), ("advice", self.advice)):
+            if items:
+                lines += [f"{title}:"] + [f"  - {x}" for x in items]
+        return lines
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary (numpy arrays become nested lists)."""
-
-        def conv(x: Any) -> Any:
-            if isinstance(x, np.ndarray):
-                return x.tolist()
-            if isinstance(x, np.generic):
-                return x.item()
-            if isinstance(x, dict):
-                return {k: conv(v) for k, v in x.items()}
-            if isinstance(x, list | tuple):
-                return [conv(v) for v in x]
-            return x
-
-        return conv(
-            {
-                "kind": self.kind,
-                "verdict": self.verdict,
-                "method": self.method,
-                "iterations": self.iterations,
-                "estimate": self.estimate,
-                "param_names": self.param_names,
-                "covariance": self.covariance,
-                "residuals": self.residuals,
-                "residual_names": self.residual_names,
-                "outliers": self.outliers,
-                "reasons": self.reasons,
-                "advice": self.advice,
-                "metrics": self.metrics,
-            }
-        )
+        return plain({name: getattr(self, name) for name in _JSON_FIELDS})
 
     def to_json(self, **kwargs: Any) -> str:
         return json.dumps(self.to_dict(), **kwargs)

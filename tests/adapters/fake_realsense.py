@@ -21,31 +21,13 @@ from typing import Any
 
 import numpy as np
 
-
-class stream(enum.Enum):  # noqa: N801 (pyrealsense2's names)
-    depth = 1
-    color = 2
-
-
-class format(enum.Enum):  # noqa: N801
-    z16 = 1
-    rgb8 = 5
-
-
-class distortion(enum.Enum):  # noqa: N801
-    none = 0
-    modified_brown_conrady = 1
-    inverse_brown_conrady = 2
-    ftheta = 3
-    brown_conrady = 4
-    kannala_brandt4 = 5
-
-
-class playback_status(enum.Enum):  # noqa: N801
-    unknown = 0
-    playing = 1
-    paused = 2
-    stopped = 3
+# pyrealsense2's enums, with its names and values
+stream = enum.Enum("stream", {"depth": 1, "color": 2})
+format = enum.Enum("format", {"z16": 1, "rgb8": 5})
+distortion = enum.Enum(
+    "distortion", "none modified_brown_conrady inverse_brown_conrady ftheta brown_conrady kannala_brandt4", start=0
+)
+playback_status = enum.Enum("playback_status", "unknown playing paused stopped", start=0)
 
 
 @dataclass

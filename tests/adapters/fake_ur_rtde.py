@@ -9,6 +9,7 @@ can assert that a refused command never reached a move function.
 
 from __future__ import annotations
 
+import json
 import sys
 import types
 from dataclasses import dataclass, field
@@ -21,6 +22,8 @@ from plugins.robot.model_file import load_robot_model
 
 UR5E_HOME = np.array([0.0, -np.pi / 2, np.pi / 2, -np.pi / 2, -np.pi / 2, 0.0])
 MOVE_CALLS = ("moveL", "moveJ", "moveJ_IK")
+IP = "192.168.56.101"  # the address the tests give ur_robot
+WORKSPACE = "workspace_min_m: [-0.8, -0.6, 0.05], workspace_max_m: [0.2, 0.6, 0.8]"  # ur_robot's box, recipe YAML
 
 
 @dataclass
@@ -72,6 +75,18 @@ class FakeURController:
             return False
         self.q = np.asarray(res.q, dtype=float)
         return True
+
+
+def photo_pose(ctl: FakeURController, dx: float = 0.01) -> np.ndarray:
+    """A photo pose *dx* (m) along base x from where the fake robot's TCP stands."""
+    T = vendor_poses.T_from_ur(ctl.tcp_vector())
+    T[0, 3] += dx
+    return T
+
+
+def matrix_yaml(T: np.ndarray) -> str:
+    """*T* as a recipe YAML matrix."""
+    return json.dumps(np.round(T, 12).tolist())
 
 
 def make_modules(ctl: FakeURController) -> tuple[types.ModuleType, types.ModuleType]:

@@ -7,7 +7,6 @@ where the simulated twins would be, through the same action stages (capture_at_p
 
 from __future__ import annotations
 
-import json
 import sys
 import textwrap
 
@@ -18,7 +17,7 @@ from fake_openvr import FakeDevice, FakeOpenVR
 from fake_openvr import install as install_openvr
 from fake_realsense import FakeCamera, Intrinsics
 from fake_realsense import install as install_realsense
-from fake_ur_rtde import FakeURController
+from fake_ur_rtde import IP, WORKSPACE, FakeURController, matrix_yaml, photo_pose
 from fake_ur_rtde import install as install_ur
 from recipe_helpers import graph_from
 from shared_data import SHARED
@@ -27,28 +26,15 @@ from engine import transforms as tf
 from engine.recorder import Recorder
 from engine.replay import replay
 from engine.runner import Runner
-from plugins import vendor_poses
 
 pytestmark = pytest.mark.timeout(180)
 
 PCL = SHARED / "pcl"
-IP = "192.168.56.101"
-WORKSPACE = "workspace_min_m: [-0.8, -0.6, 0.05], workspace_max_m: [0.2, 0.6, 0.8]"
 
 
 def run(text: str, **kw):
     graph = graph_from(textwrap.dedent(text))
     return Runner(graph, **kw).run()
-
-
-def photo_pose(ctl: FakeURController, dx: float = 0.01) -> np.ndarray:
-    T = vendor_poses.T_from_ur(ctl.tcp_vector())
-    T[0, 3] += dx
-    return T
-
-
-def matrix_yaml(T: np.ndarray) -> str:
-    return json.dumps(np.round(T, 12).tolist())
 
 
 UR_FILES = """

@@ -98,8 +98,10 @@ def test_constant_depth_points_have_that_depth_and_reproject(f, c, z):
 def test_bad_intrinsics_and_shapes_are_refused_with_a_reason():
     with pytest.raises(ValueError, match=r"kannala_brandt4.*not supported"):
         DepthIntrinsics(64, 48, 50, 50, 32, 24, "kannala_brandt4")
-    with pytest.raises(ValueError, match="not usable"):
+    with pytest.raises(ValueError, match="focal lengths must be positive"):
         DepthIntrinsics(64, 48, 0.0, 50, 32, 24)
+    with pytest.raises(ValueError, match="intrinsics must be finite"):
+        DepthIntrinsics(64, 48, 50, 50, float("nan"), 24)
     with pytest.raises(ValueError, match=r"K must be \[\[fx, 0, cx\]"):
         DepthIntrinsics.from_K([[50, 1, 32], [0, 50, 24], [0, 0, 1]], 64, 48)
     with pytest.raises(ValueError, match=r"\(64, 48\).*80x60"):

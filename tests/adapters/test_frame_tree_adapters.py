@@ -8,38 +8,24 @@ tracker) and a RealSense camera fixed in the cell (world -> camera). The transfo
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 from fake_openvr import FakeDevice, FakeOpenVR
 from fake_openvr import install as install_openvr
 from fake_realsense import FakeCamera, Intrinsics
 from fake_realsense import install as install_realsense
-from fake_ur_rtde import FakeURController
+from fake_ur_rtde import IP, WORKSPACE, FakeURController, matrix_yaml, photo_pose
 from fake_ur_rtde import install as install_ur
-from frame_tree_helpers import frame_tree
-from recipe_helpers import graph_from
+from frame_tree_helpers import record, sound_frame_tree
 from shared_data import SHARED
 
 from engine import codec
 from engine import transforms as tf
-from engine.recorder import Recorder
 from engine.recording import load
-from engine.runner import Runner
-from plugins import vendor_poses
 
 pytestmark = pytest.mark.timeout(180)
 
-IP = "192.168.56.101"
-WORKSPACE = "workspace_min_m: [-0.8, -0.6, 0.05], workspace_max_m: [0.2, 0.6, 0.8]"
-
-
-def photo_matrix(ctl: FakeURController) -> str:
-    """A photo pose 10 mm from where the fake robot stands, as recipe YAML."""
-    T = vendor_poses.T_from_ur(ctl.tcp_vector())
-    T[0, 3] += 0.01
-    return json.dumps(np.round(T, 12).tolist())
+PLUGINS = ["builtin", "adapter_fixtures"]  # what the recordings list
 
 
 UR_CELL = """
@@ -97,15 +83,6 @@ stages:
 """
 
 
-def record(text: str, path):
-    graph = graph_from(text)
-    summary = Runner(
-        graph, observers=[Recorder(path, graph.recipe.record, graph.loaded, ["builtin", "adapter_fixtures"])]
-    ).run()
-    assert summary.ok, summary.stop_reason
-    return path
-
-
 def edges(path, stage: str) -> list[tuple[str, str, np.ndarray]]:
     rec = load(path)
     out = []
@@ -121,11 +98,10 @@ def test_ur_robot_file_camera_on_the_flange_and_vive_tracker_make_one_tree(monke
     install_ur(monkeypatch, ctl)
     T_lh_tracker = tf.T_from_rotvec([0.1, 0.2, -0.3], [0.4, 1.1, -1.5])
     install_openvr(monkeypatch, FakeOpenVR(devices={3: FakeDevice("LHR-TRACK01", T=T_lh_tracker)}))
-    text = UR_CELL.format(ip=IP, workspace=WORKSPACE, pcl=SHARED / "pcl", photo=photo_matrix(ctl))
-    path = record(text, tmp_path / "ur_cell.mcap")
-    tree = frame_tree(path)
-    assert not tree.problems(), "\n".join(tree.problems())
-    assert {c: next(iter(p)) for c, p in tree.parents.items()} == {
+    text = UR_CELL.format(ip=IP, workspace=WORKSPACE, pcl=SHARED / "pcl", photo=matrix_yaml(photo_pose(ctl)))
+    path = record(text, tmp_path / "ur_cell.mcap", PLUGINS)
+    tree = sound_frame_tree(path)
+    assert tree.parent_of() == {
         "base": "world",
         "tcp": "base",
         "camera": "tcp",
@@ -147,10 +123,9 @@ def test_realsense_camera_fixed_in_the_cell(monkeypatch, tmp_path):
     z16 = np.full((60, 80), 600, np.uint16)
     cam = FakeCamera(frames=[z16, z16], intrinsics=Intrinsics(80, 60, 70.0, 70.0, 39.5, 29.5))
     install_realsense(monkeypatch, cam)
-    path = record(SIM_ROBOT_REALSENSE, tmp_path / "rs.mcap")
-    tree = frame_tree(path)
-    assert not tree.problems(), "\n".join(tree.problems())
-    assert {c: next(iter(p)) for c, p in tree.parents.items()} == {
+    path = record(SIM_ROBOT_REALSENSE, tmp_path / "rs.mcap", PLUGINS)
+    tree = sound_frame_tree(path)
+    assert tree.parent_of() == {
         "base": "world",
         "tcp": "base",
         "fixed_camera": "world",

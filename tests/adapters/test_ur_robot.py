@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 from adapter_context import make_stage
-from fake_ur_rtde import FakeURController, install
+from fake_ur_rtde import IP, FakeURController, install
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
@@ -21,7 +21,6 @@ from plugins.actions.ur_robot import URRobot
 from plugins.actions.ur_rtde_driver import URConnectionError
 from plugins.util.sdk import MissingSDKError
 
-IP = "192.168.56.101"
 PARAMS = {"ip": IP, "workspace_min_m": (-0.8, -0.6, 0.05), "workspace_max_m": (0.2, 0.6, 0.8)}
 
 

@@ -44,20 +44,30 @@ def assert_replays_identically(path: Path) -> None:
     assert all(v.verdict == "identical" for v in (*report.streams, *report.requests)), bad
 
 
+def recorded_run(tmp_path_factory, recipe: str):
+    """(summary, messages, recording path) of the recipe run recorded to a fresh folder."""
+    path = tmp_path_factory.mktemp(recipe.removesuffix(".yaml")) / "run.mcap"
+    return (*run(RECIPES / recipe, record=path), path)
+
+
+def sole_result(summary, msgs):
+    """The one calibration result of a run that must have ended well."""
+    assert summary.ok, summary.stop_reason
+    (res,) = results(msgs)
+    return res
+
+
 # --------------------------------------------------------------------------- kinematics
 
 
 @pytest.fixture(scope="module")
 def kinematics_run(tmp_path_factory):
-    path = tmp_path_factory.mktemp("kin") / "kin.mcap"
-    summary, msgs = run(RECIPES / "calibrate_kinematics_sim.yaml", record=path)
-    return summary, msgs, path
+    return recorded_run(tmp_path_factory, "calibrate_kinematics_sim.yaml")
 
 
 def test_kinematic_recipe_recovers_the_injected_dh_errors(kinematics_run):
     summary, msgs, _ = kinematics_run
-    assert summary.ok, summary.stop_reason
-    (res,) = results(msgs)
+    res = sole_result(summary, msgs)
     assert res.verdict == "ok", res.reasons
     assert res.iterations <= 10 and len(res.param_names) == 27
     recipe = RECIPES / "calibrate_kinematics_sim.yaml"
@@ -115,15 +125,12 @@ def test_kinematic_recording_replays_and_the_cli_agrees_with_the_stage(kinematic
 
 @pytest.fixture(scope="module")
 def vive_run(tmp_path_factory):
-    path = tmp_path_factory.mktemp("vive") / "vive.mcap"
-    summary, msgs = run(RECIPES / "calibrate_vive_desk_sim.yaml", record=path)
-    return summary, msgs, path
+    return recorded_run(tmp_path_factory, "calibrate_vive_desk_sim.yaml")
 
 
 def test_vive_recipe_recovers_desk_and_lever_arm_within_the_reported_covariance(vive_run):
     summary, msgs, _ = vive_run
-    assert summary.ok, summary.stop_reason
-    (res,) = results(msgs)
+    res = sole_result(summary, msgs)
     assert res.verdict == "ok", res.reasons
     recipe = RECIPES / "calibrate_vive_desk_sim.yaml"
     vive, poses = stage_params(recipe, "vive"), stage_params(recipe, "poses")
@@ -170,8 +177,7 @@ def test_vive_recording_replays_and_the_cli_reads_it(vive_run, tmp_path, capsys)
 def test_tcp_recipe_finds_the_tip_and_the_camera(tmp_path, capsys):
     path = tmp_path / "tcp.mcap"
     summary, msgs = run(RECIPES / "calibrate_tcp_sim.yaml", record=path)
-    assert summary.ok, summary.stop_reason
-    (res,) = results(msgs)
+    res = sole_result(summary, msgs)
     assert res.verdict == "ok", res.reasons
     cam = stage_params(RECIPES / "calibrate_tcp_sim.yaml", "camera")
     T_cam_base = inv(pose(cam["T_world_instrument"]))
@@ -192,8 +198,7 @@ def test_tcp_recipe_finds_the_tip_and_the_camera(tmp_path, capsys):
 def test_handeye_recipe_recovers_the_camera_mount_within_the_reported_covariance(tmp_path, capsys):
     path = tmp_path / "he.mcap"
     summary, msgs = run(RECIPES / "calibrate_handeye_sim.yaml", record=path)
-    assert summary.ok, summary.stop_reason
-    (res,) = results(msgs)
+    res = sole_result(summary, msgs)
     assert res.usable, res.reasons
     assert len(msgs[("target", "pose")]) == 12  # every capture registered against the part's model
     cam = stage_params(RECIPES / "calibrate_handeye_sim.yaml", "camera")
@@ -219,8 +224,7 @@ def test_handeye_recipe_on_other_seeds_stays_accurate_even_when_samples_are_flag
     warning; the registration error depends on the view, the hand-eye camera noise model does not:
     docs/calibration.md), yet the mount is still recovered within the reported covariance."""
     summary, msgs = run(RECIPES / "calibrate_handeye_sim.yaml", [f"seed={seed}"])
-    assert summary.ok, summary.stop_reason
-    (res,) = results(msgs)
+    res = sole_result(summary, msgs)
     assert res.usable, res.reasons
     cam = stage_params(RECIPES / "calibrate_handeye_sim.yaml", "camera")
     err_x = decoupled_error(pose(cam["mount"]["pose"]), res.estimate["T_tcp_cam"])

@@ -67,24 +67,21 @@ def test_two_processes_exchange_messages_like_one(tmp_path):
             if not line.strip().startswith(("unused", "producer:", "consumer:"))
         )
     )
+
     # consumer first: it must wait for the producer (start-up barrier), not lose early messages
-    consumer = subprocess.Popen(
-        vgr("run", str(split), "--process", "consumer", "--no-progress"),
-        env=env(),
-        cwd=tmp_path,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
+    def start(process: str) -> subprocess.Popen[str]:
+        return subprocess.Popen(
+            vgr("run", str(split), "--process", process, "--no-progress"),
+            env=env(),
+            cwd=tmp_path,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+
+    consumer = start("consumer")
     time.sleep(1.0)
-    producer = subprocess.Popen(
-        vgr("run", str(split), "--process", "producer", "--no-progress"),
-        env=env(),
-        cwd=tmp_path,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
+    producer = start("producer")
     out_c, _ = consumer.communicate(timeout=60)
     out_p, _ = producer.communicate(timeout=60)
     assert consumer.returncode == 0, out_c

@@ -118,27 +118,28 @@ class SlowBatches(FakePublisher):
         self.queued.append((len(self.sender._pending), self.sender._pending_bytes))
 
 
-def test_a_slow_link_makes_the_producer_wait_and_loses_nothing(monkeypatch):
-    monkeypatch.setattr(wire, "MAX_PENDING", 8)
+def send_over_slow_link(n: int, payload: bytes) -> SlowBatches:
+    """Send *n* messages through a WireSender over SlowBatches and close it; all arrive, in order."""
     pub = SlowBatches()
     sender = pub.sender = wire.WireSender(pub, "t")
-    for seq in range(1, 201):
-        sender.send(b"y" * 10, env_of(seq))
+    for seq in range(1, n + 1):
+        sender.send(payload, env_of(seq))
     sender.close()
-    assert [e for e, _ in pub.messages()] == [env_of(s) for s in range(1, 201)]
-    assert sender.batched > 100  # the burst went through the sender thread's queue
+    assert [e for e, _ in pub.messages()] == [env_of(s) for s in range(1, n + 1)]
+    return pub
+
+
+def test_a_slow_link_makes_the_producer_wait_and_loses_nothing(monkeypatch):
+    monkeypatch.setattr(wire, "MAX_PENDING", 8)
+    pub = send_over_slow_link(200, b"y" * 10)
+    assert pub.sender is not None and pub.sender.batched > 100  # the burst went through the sender thread's queue
     assert max(n for n, _ in pub.queued) == 8  # which filled up to its bound and no further
 
 
 def test_the_queue_is_bounded_in_bytes_too(monkeypatch):
     """Few large messages fill the byte bound long before the count bound: the producer waits."""
     monkeypatch.setattr(wire, "MAX_PENDING_BYTES", 1000)
-    pub = SlowBatches()
-    sender = pub.sender = wire.WireSender(pub, "t")
-    for seq in range(1, 101):
-        sender.send(b"w" * 100, env_of(seq))
-    sender.close()
-    assert [e for e, _ in pub.messages()] == [env_of(s) for s in range(1, 101)]
+    pub = send_over_slow_link(100, b"w" * 100)
     queued_bytes = [b for _, b in pub.queued]
     assert max(queued_bytes) >= 900  # the queue did fill up to the bound ...
     assert max(queued_bytes) < 1000 + 100  # ... and no further: one payload past it at most

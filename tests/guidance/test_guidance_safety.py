@@ -215,6 +215,14 @@ def test_camera_timeout_is_not_moved() -> None:
     assert ctx.alarms() == ["capture_failed"]
 
 
+def docking(robot: Robot, **params: Any) -> tuple[Docking, ScriptedContext]:
+    """A set-up docking stage that installs at PHOTO, with *robot* as its robot, and its context."""
+    ctx = ScriptedContext({"robot": robot}, name="docking")
+    dock = Docking(ctx, Docking.Params(install_pose={"matrix": PHOTO.tolist()}, **params))
+    dock.setup()
+    return dock, ctx
+
+
 def test_not_converging_raises_an_alarm_and_does_not_dock() -> None:
     robot = Robot()
     looks = matches(*[ok(1.0, 0.1) for _ in range(4)])
@@ -223,9 +231,7 @@ def test_not_converging_raises_an_alarm_and_does_not_dock() -> None:
     assert res.verdict == "not_converged" and res.moves == 3
     assert ctx.alarms() == ["not_converged"]
     dock_robot = Robot()
-    dctx = ScriptedContext({"robot": dock_robot}, name="docking")
-    dock = Docking(dctx, Docking.Params(mode="eye_in_hand", install_pose={"matrix": PHOTO.tolist()}))
-    dock.setup()
+    dock, dctx = docking(dock_robot, mode="eye_in_hand")
     dock.on_message("guidance", res)
     (corr,) = dctx.published["correction"]
     assert isinstance(corr, Correction) and corr.verdict == "refused"
@@ -238,9 +244,7 @@ def converged(T_start: np.ndarray, T_end: np.ndarray) -> GuidanceResult:
 
 def test_docking_refuses_a_correction_beyond_its_limit() -> None:
     robot = Robot()
-    ctx = ScriptedContext({"robot": robot}, name="docking")
-    dock = Docking(ctx, Docking.Params(install_pose={"matrix": PHOTO.tolist()}, max_correction_mm=25.0))
-    dock.setup()
+    dock, ctx = docking(robot, max_correction_mm=25.0)
     far = PHOTO.copy()
     far[0, 3] += 0.026
     dock.on_message("guidance", converged(PHOTO, far))
@@ -252,24 +256,18 @@ def test_docking_refuses_nan_and_robot_refusal_is_an_alarm() -> None:
     bad = PHOTO.copy()
     bad[1, 3] = np.nan
     robot = Robot()
-    ctx = ScriptedContext({"robot": robot}, name="docking")
-    dock = Docking(ctx, Docking.Params(install_pose={"matrix": PHOTO.tolist()}))
-    dock.setup()
+    dock, ctx = docking(robot)
     dock.on_message("guidance", converged(PHOTO, bad))
     assert robot.moves == [] and ctx.alarms() == ["nan"]
 
     refusing = Robot(refuse=lambda cmd: True)
-    ctx2 = ScriptedContext({"robot": refusing}, name="docking")
-    dock2 = Docking(ctx2, Docking.Params(install_pose={"matrix": PHOTO.tolist()}))
-    dock2.setup()
+    dock2, ctx2 = docking(refusing)
     dock2.on_message("guidance", converged(PHOTO, PHOTO))
     (corr,) = ctx2.published["correction"]
     assert corr.verdict == "refused" and ctx2.alarms() == ["robot_refused"]
 
     repeated = Robot(handled_before=frozenset({"docking-1-approach", "docking-1-dock"}))
-    ctx3 = ScriptedContext({"robot": repeated}, name="docking")
-    dock3 = Docking(ctx3, Docking.Params(install_pose={"matrix": PHOTO.tolist()}))
-    dock3.setup()
+    dock3, ctx3 = docking(repeated)
     dock3.on_message("guidance", converged(PHOTO, PHOTO))
     (corr,) = ctx3.published["correction"]
     assert corr.verdict == "refused" and ctx3.alarms() == ["duplicate_command"]

@@ -15,13 +15,21 @@ from plugins.solvers.model_gap.simulate import make_case
 pytestmark = pytest.mark.timeout(300)
 
 
+def campaign_csv(effects: list[tuple[str, str]], seed: int, tmp_path) -> str:
+    """A simulated campaign with the hidden *effects*, written as the CSV ``vgr gap`` reads; its path."""
+    return str(write_gap_csv(make_case(case(effects, seed=seed)).data, tmp_path / "x.csv"))
+
+
+def gap_report(folder) -> dict:
+    return json.loads((folder / "gap_report.json").read_text(encoding="utf-8"))
+
+
 def test_vgr_gap_on_csv_writes_the_report_plots_and_table(tmp_path, capsys):
-    camp = make_case(case([("backlash", "joint3")], seed=2))
-    data = write_gap_csv(camp.data, tmp_path / "x.csv")
+    data = campaign_csv([("backlash", "joint3")], 2, tmp_path)
     out = tmp_path / "rep"
-    rc = main(["gap", "--model", "ur5e", "--data", str(data), "--report", str(out), "--noise-mm", "0.05"])
+    rc = main(["gap", "--model", "ur5e", "--data", data, "--report", str(out), "--noise-mm", "0.05"])
     assert rc == 0
-    rep = json.loads((out / "gap_report.json").read_text(encoding="utf-8"))
+    rep = gap_report(out)
     assert rep["verdict"] == "explained"
     (eff,) = rep["effects_added"]
     assert (eff["name"], eff["where"]) == ("backlash", "joint3")
@@ -37,21 +45,18 @@ def test_vgr_gap_on_csv_writes_the_report_plots_and_table(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "gap before / after (mm)" in text and "backlash@joint3" in text and "explained" in text
     # the augmented model, given back with the same data, leaves no gap
-    rc = main(["gap", "--model", str(out / "augmented_model.yaml"), "--data", str(data), "--noise-mm", "0.05",
+    rc = main(["gap", "--model", str(out / "augmented_model.yaml"), "--data", data, "--noise-mm", "0.05",
                "--report", str(tmp_path / "again")])  # fmt: skip
     assert rc == 0
-    again = json.loads((tmp_path / "again" / "gap_report.json").read_text(encoding="utf-8"))
+    again = gap_report(tmp_path / "again")
     assert again["verdict"] == "no_gap" and again["effects_added"] == []
 
 
 def test_without_a_noise_spec_the_noise_is_estimated_and_said_so(tmp_path, capsys):
-    camp = make_case(case([("joint_compliance", "joint2")], seed=4))
-    data = write_gap_csv(camp.data, tmp_path / "x.csv")
-    rc = main(
-        ["gap", "--model", "plugins/robot/robots/ur5e.yaml", "--data", str(data), "--report", str(tmp_path / "r")]
-    )
+    data = campaign_csv([("joint_compliance", "joint2")], 4, tmp_path)
+    rc = main(["gap", "--model", "plugins/robot/robots/ur5e.yaml", "--data", data, "--report", str(tmp_path / "r")])
     assert rc == 0
-    rep = json.loads((tmp_path / "r" / "gap_report.json").read_text(encoding="utf-8"))
+    rep = gap_report(tmp_path / "r")
     assert rep["noise_source"] == "estimated"
     assert rep["noise_floor_mm"] == pytest.approx(0.05 * 3**0.5, rel=0.15)  # the truth: 0.0866 mm
     assert [(e["name"], e["where"]) for e in rep["effects_added"]] == [("joint_compliance", "joint2")]
@@ -59,9 +64,8 @@ def test_without_a_noise_spec_the_noise_is_estimated_and_said_so(tmp_path, capsy
 
 
 def test_exit_code_1_when_a_gap_is_left_unexplained(tmp_path, capsys):
-    camp = make_case(case([("backlash", "joint3")], seed=2))
-    data = write_gap_csv(camp.data, tmp_path / "x.csv")
-    rc = main(["gap", "--model", "ur5e", "--data", str(data), "--noise-mm", "0.05", "--max-effects", "0", "--json"])
+    data = campaign_csv([("backlash", "joint3")], 2, tmp_path)
+    rc = main(["gap", "--model", "ur5e", "--data", data, "--noise-mm", "0.05", "--max-effects", "0", "--json"])
     assert rc == 1
     rep = json.loads(capsys.readouterr().out)
     assert rep["verdict"] == "unexplained" and rep["effects_added"] == []
@@ -71,12 +75,11 @@ def test_a_tie_exits_3_and_its_augmented_model_closes_the_gap(tmp_path, capsys):
     """A range scale with the frame fitted (exactly a uniform robot scale): exit code 3, verdict
     ``explained_up_to_tie``, the pair one tie term in gap_report.json and in augmented_model.yaml (the
     representative with ``tied_with``); given back with the same data the model leaves no gap (exit 0)."""
-    camp = make_case(case([("depth_scale", "camera")], seed=6))
-    data = write_gap_csv(camp.data, tmp_path / "x.csv")
+    data = campaign_csv([("depth_scale", "camera")], 6, tmp_path)
     out = tmp_path / "rep"
-    rc = main(["gap", "--model", "ur5e", "--data", str(data), "--report", str(out), "--noise-mm", "0.05"])
+    rc = main(["gap", "--model", "ur5e", "--data", data, "--report", str(out), "--noise-mm", "0.05"])
     assert rc == 3
-    rep = json.loads((out / "gap_report.json").read_text(encoding="utf-8"))
+    rep = gap_report(out)
     assert rep["verdict"] == "explained_up_to_tie"
     (eff,) = rep["effects_added"]
     assert eff["tied"] and eff["name"] == "depth_scale|robot_scale" and eff["where"] == "sensor|robot"
@@ -86,7 +89,7 @@ def test_a_tie_exits_3_and_its_augmented_model_closes_the_gap(tmp_path, capsys):
     model = yaml.safe_load((out / "augmented_model.yaml").read_text(encoding="utf-8"))
     (stored,) = model["effects"]
     assert f"{stored['name']}@{stored['where']}" == eff["representative"] and stored["tied_with"]
-    rc = main(["gap", "--model", str(out / "augmented_model.yaml"), "--data", str(data), "--noise-mm", "0.05",
+    rc = main(["gap", "--model", str(out / "augmented_model.yaml"), "--data", data, "--noise-mm", "0.05",
                "--json"])  # fmt: skip
     assert rc == 0
     again = json.loads(capsys.readouterr().out)
@@ -95,15 +98,13 @@ def test_a_tie_exits_3_and_its_augmented_model_closes_the_gap(tmp_path, capsys):
 
 
 def test_noise_only_csv_exits_0_with_no_gap(tmp_path, capsys):
-    camp = make_case(case([], seed=30))
-    data = write_gap_csv(camp.data, tmp_path / "x.csv")
-    assert main(["gap", "--model", "ur5e", "--data", str(data), "--noise-mm", "0.05", "--json"]) == 0
+    data = campaign_csv([], 30, tmp_path)
+    assert main(["gap", "--model", "ur5e", "--data", data, "--noise-mm", "0.05", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["verdict"] == "no_gap"
 
 
 def test_bad_options_exit_2(tmp_path):
-    camp = make_case(case([], seed=30))
-    data = str(write_gap_csv(camp.data, tmp_path / "x.csv"))
+    data = campaign_csv([], 30, tmp_path)
     base = ["gap", "--model", "ur5e", "--data", data, "--noise-mm", "0.05"]
     assert main([*base, "--folds", "1"]) == 2
     assert main([*base, "--alpha", "0.9"]) == 2

@@ -34,19 +34,19 @@ ROTATION_EPS_RAD = 1e-6
 TRANSLATION_EPS_M = 1e-7
 
 
+#: the settings every small_gicp GICP call here uses
+GICP = {
+    "registration_type": "GICP",
+    "max_correspondence_distance": MAX_CORRESPONDENCE_M,
+    "num_threads": 1,
+    "max_iterations": MAX_ITERATIONS,
+    "rotation_epsilon": ROTATION_EPS_RAD,
+    "translation_epsilon": TRANSLATION_EPS_M,
+}
+
+
 def small_gicp_gicp(current: np.ndarray, template: np.ndarray, T_init: np.ndarray) -> np.ndarray:
-    res = small_gicp.align(
-        template,
-        current,
-        init_T_target_source=T_init,
-        registration_type="GICP",
-        downsampling_resolution=VOXEL_M,
-        max_correspondence_distance=MAX_CORRESPONDENCE_M,
-        num_threads=1,
-        max_iterations=MAX_ITERATIONS,
-        rotation_epsilon=ROTATION_EPS_RAD,
-        translation_epsilon=TRANSLATION_EPS_M,
-    )
+    res = small_gicp.align(template, current, init_T_target_source=T_init, downsampling_resolution=VOXEL_M, **GICP)
     return np.array(res.T_target_source)
 
 
@@ -57,20 +57,28 @@ def _o3d_cloud(points: np.ndarray, voxel: float, normal_k: int = 20) -> o3d.geom
     return pcd
 
 
-def open3d_point_to_plane(
-    current: np.ndarray, template: np.ndarray, T_init: np.ndarray, max_correspondence_m: float = MAX_CORRESPONDENCE_M
+def _o3d_point_to_plane(
+    src: o3d.geometry.PointCloud, tgt: o3d.geometry.PointCloud, T_init: np.ndarray, max_correspondence_m: float
 ) -> np.ndarray:
-    src, tgt = _o3d_cloud(current, VOXEL_M), _o3d_cloud(template, VOXEL_M)
     crit = reg.ICPConvergenceCriteria(relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=MAX_ITERATIONS)
     res = reg.registration_icp(src, tgt, max_correspondence_m, T_init, reg.TransformationEstimationPointToPlane(), crit)
     return np.array(res.transformation)
 
 
-def kiss_icp(current: np.ndarray, template: np.ndarray, T_init: np.ndarray) -> np.ndarray:
+def open3d_point_to_plane(
+    current: np.ndarray, template: np.ndarray, T_init: np.ndarray, max_correspondence_m: float = MAX_CORRESPONDENCE_M
+) -> np.ndarray:
+    src, tgt = _o3d_cloud(current, VOXEL_M), _o3d_cloud(template, VOXEL_M)
+    return _o3d_point_to_plane(src, tgt, T_init, max_correspondence_m)
+
+
+def _kiss_map(points: np.ndarray) -> VoxelHashMap:
     vmap = VoxelHashMap(voxel_size=MAX_CORRESPONDENCE_M, max_distance=1e6, max_points_per_voxel=20)
-    vmap.add_points(
-        np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(template)).voxel_down_sample(VOXEL_M).points)
-    )
+    vmap.add_points(points)
+    return vmap
+
+
+def _kiss_align(current: np.ndarray, vmap: VoxelHashMap, T_init: np.ndarray) -> np.ndarray:
     src = np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(current)).voxel_down_sample(VOXEL_M).points)
     registration = Registration(
         max_num_iterations=MAX_ITERATIONS, convergence_criterion=TRANSLATION_EPS_M, max_num_threads=1
@@ -86,6 +94,11 @@ def kiss_icp(current: np.ndarray, template: np.ndarray, T_init: np.ndarray) -> n
     )
 
 
+def kiss_icp(current: np.ndarray, template: np.ndarray, T_init: np.ndarray) -> np.ndarray:
+    down = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(template)).voxel_down_sample(VOXEL_M)
+    return _kiss_align(current, _kiss_map(np.asarray(down.points)), T_init)
+
+
 class WarmPeers:
     """The fine peers with the template preprocessed once (the peers' own preprocessing, kept)."""
 
@@ -94,49 +107,20 @@ class WarmPeers:
             template, downsampling_resolution=VOXEL_M, num_neighbors=10, num_threads=1
         )
         self.o3d_target = _o3d_cloud(template, VOXEL_M)
-        self.kiss_map = VoxelHashMap(voxel_size=MAX_CORRESPONDENCE_M, max_distance=1e6, max_points_per_voxel=20)
-        self.kiss_map.add_points(np.asarray(self.o3d_target.points))
+        self.kiss_map = _kiss_map(np.asarray(self.o3d_target.points))
 
     def small_gicp_gicp(self, current: np.ndarray, T_init: np.ndarray) -> np.ndarray:
         source, _ = small_gicp.preprocess_points(
             current, downsampling_resolution=VOXEL_M, num_neighbors=10, num_threads=1
         )
-        res = small_gicp.align(
-            self.sg_target,
-            source,
-            self.sg_tree,
-            init_T_target_source=T_init,
-            registration_type="GICP",
-            max_correspondence_distance=MAX_CORRESPONDENCE_M,
-            num_threads=1,
-            max_iterations=MAX_ITERATIONS,
-            rotation_epsilon=ROTATION_EPS_RAD,
-            translation_epsilon=TRANSLATION_EPS_M,
-        )
+        res = small_gicp.align(self.sg_target, source, self.sg_tree, init_T_target_source=T_init, **GICP)
         return np.array(res.T_target_source)
 
     def open3d_point_to_plane(self, current: np.ndarray, T_init: np.ndarray) -> np.ndarray:
-        src = _o3d_cloud(current, VOXEL_M)
-        crit = reg.ICPConvergenceCriteria(relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=MAX_ITERATIONS)
-        res = reg.registration_icp(
-            src, self.o3d_target, MAX_CORRESPONDENCE_M, T_init, reg.TransformationEstimationPointToPlane(), crit
-        )
-        return np.array(res.transformation)
+        return _o3d_point_to_plane(_o3d_cloud(current, VOXEL_M), self.o3d_target, T_init, MAX_CORRESPONDENCE_M)
 
     def kiss_icp(self, current: np.ndarray, T_init: np.ndarray) -> np.ndarray:
-        src = np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(current)).voxel_down_sample(VOXEL_M).points)
-        registration = Registration(
-            max_num_iterations=MAX_ITERATIONS, convergence_criterion=TRANSLATION_EPS_M, max_num_threads=1
-        )
-        return np.array(
-            registration.align_points_to_map(
-                points=src,
-                voxel_map=self.kiss_map,
-                initial_guess=T_init,
-                max_correspondance_distance=MAX_CORRESPONDENCE_M,
-                kernel=MAX_CORRESPONDENCE_M / 3.0,
-            )
-        )
+        return _kiss_align(current, self.kiss_map, T_init)
 
 
 def open3d_fpfh_ransac(current: np.ndarray, template: np.ndarray, voxel: float, seed: int) -> np.ndarray:

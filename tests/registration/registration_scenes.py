@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cache
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -87,6 +88,15 @@ def capture(name: str, T_cam_part: np.ndarray, cam: DepthCameraModel, rng: np.ra
     """Render the part at ``T_cam_part`` (camera at the world origin)."""
     cap = cam.render([(workpiece(name), T_cam_part)], np.eye(4), rng)
     return Capture(cap.points, T_cam_part)
+
+
+def capture_pair(
+    name: str, cam: DepthCameraModel, rng: np.random.Generator, **perturbation: Any
+) -> tuple[Capture, Capture]:
+    """(template, current): captures at the nominal pose and at a pose perturbed from it by
+    :func:`perturbed_pose` with *perturbation* (``max_shift_m``, ``max_tilt_deg``, ``spin_deg``)."""
+    template = capture(name, nominal_pose(name), cam, rng)
+    return template, capture(name, perturbed_pose(name, rng, **perturbation), cam, rng)
 
 
 def model_template(name: str, T_cam_part: np.ndarray, spacing_m: float, rng: np.random.Generator) -> Capture:

@@ -28,9 +28,7 @@ from plugins.solvers.registration import (
 def pair():
     cam = scenes.camera(640, 480)
     rng = np.random.default_rng(0)
-    tmpl = scenes.capture("feature_part", scenes.nominal_pose("feature_part"), cam, rng)
-    pose = scenes.perturbed_pose("feature_part", rng, max_shift_m=0.02, max_tilt_deg=10, spin_deg=None)
-    cur = scenes.capture("feature_part", pose, cam, rng)
+    tmpl, cur = scenes.capture_pair("feature_part", cam, rng, max_shift_m=0.02, max_tilt_deg=10, spin_deg=None)
     T0 = scenes.true_match(tmpl, cur) @ tf.T_from_rotvec([0.01, 0.01, 0.02], [0.001, 0.0, 0.0])
     return tmpl.points, cur.points, T0
 
@@ -110,9 +108,7 @@ def test_global_with_the_edge_stage_is_bit_identical_at_two_threads():
     """The planar plate seen from above takes the contour edge stage (edges.py): same bits too."""
     cam = scenes.camera(640, 480)
     rng = np.random.default_rng(12)
-    tmpl = scenes.capture("planar_plate", scenes.nominal_pose("planar_plate"), cam, rng)
-    pose = scenes.perturbed_pose("planar_plate", rng, max_shift_m=0.02, max_tilt_deg=0, spin_deg=None)
-    cur = scenes.capture("planar_plate", pose, cam, rng)
+    tmpl, cur = scenes.capture_pair("planar_plate", cam, rng, max_shift_m=0.02, max_tilt_deg=0, spin_deg=None)
     out = []
     for threads in (1, 2):
         res = register_global(cur.points, tmpl.points, GlobalParams(fine=FineParams(num_threads=threads), seed=1))

@@ -26,20 +26,26 @@ def _success(err: tuple[float, float]) -> bool:
     return err[0] < 0.5 and err[1] < 0.5
 
 
+def plate_captures(part: str, seed: int, n: int):
+    """Seed 004's set-up for *part*: the CAD-model template, then *n* captures at random poses, each
+    registered with PLANAR; yields (result, template capture, current capture)."""
+    cam = scenes.camera(640, 480)
+    rng = np.random.default_rng(seed)
+    tmpl = scenes.model_template(part, scenes.nominal_pose(part), 0.0007, rng)
+    template = prepare_cloud(tmpl.points, PLANAR.fine.preprocess)
+    for _ in range(n):
+        pose = scenes.perturbed_pose(part, rng, max_shift_m=0.04, max_tilt_deg=20, spin_deg=None)
+        cur = scenes.capture(part, pose, cam, rng)
+        yield register_global(cur.points, template, PLANAR), tmpl, cur
+
+
 @pytest.mark.slow
 def test_seed_004_table_planar_plate_40_poses():
     """(a) FPFH + RANSAC + ICP (Open3D) vs (b) vgr's planar-corrected method, same 40 captures.
     Paper: (a) 25 %, (b) 100 %. vgr must reach 100 % and beat (a); the 200-pose version is in
     benchmarks/registration.py."""
-    cam = scenes.camera(640, 480)
-    rng = np.random.default_rng(404)
-    tmpl = scenes.model_template("planar_plate", scenes.nominal_pose("planar_plate"), 0.0007, rng)
-    template = prepare_cloud(tmpl.points, PLANAR.fine.preprocess)
     ok_vgr = ok_base = 0
-    for k in range(40):
-        pose = scenes.perturbed_pose("planar_plate", rng, max_shift_m=0.04, max_tilt_deg=20, spin_deg=None)
-        cur = scenes.capture("planar_plate", pose, cam, rng)
-        res = register_global(cur.points, template, PLANAR)
+    for k, (res, tmpl, cur) in enumerate(plate_captures("planar_plate", 404, 40)):
         if res.verdict == "ok" and _success(scenes.match_error(res.T_match, tmpl, cur, "planar_plate")):
             ok_vgr += 1
         T_base = peers.paper_baseline(cur.points, tmpl.points, coarse_voxel=0.004, seed=k)
@@ -49,14 +55,7 @@ def test_seed_004_table_planar_plate_40_poses():
 
 
 def test_symmetric_plate_is_reported_ambiguous_with_the_truth_among_the_candidates():
-    cam = scenes.camera(640, 480)
-    rng = np.random.default_rng(5)
-    tmpl = scenes.model_template("symmetric_plate", scenes.nominal_pose("symmetric_plate"), 0.0007, rng)
-    template = prepare_cloud(tmpl.points, PLANAR.fine.preprocess)
-    for _ in range(6):
-        pose = scenes.perturbed_pose("symmetric_plate", rng, max_shift_m=0.04, max_tilt_deg=20, spin_deg=None)
-        cur = scenes.capture("symmetric_plate", pose, cam, rng)
-        res = register_global(cur.points, template, PLANAR)
+    for res, tmpl, cur in plate_captures("symmetric_plate", 5, 6):
         assert res.verdict == "ambiguous", res.summary()
         assert res.T_match is None and not res.usable
         assert res.score_gap < PLANAR.ambiguity_gap
@@ -68,14 +67,7 @@ def test_symmetric_plate_is_reported_ambiguous_with_the_truth_among_the_candidat
 
 
 def test_asymmetric_plate_is_not_ambiguous():
-    cam = scenes.camera(640, 480)
-    rng = np.random.default_rng(6)
-    tmpl = scenes.model_template("planar_plate", scenes.nominal_pose("planar_plate"), 0.0007, rng)
-    template = prepare_cloud(tmpl.points, PLANAR.fine.preprocess)
-    for _ in range(4):
-        pose = scenes.perturbed_pose("planar_plate", rng, max_shift_m=0.04, max_tilt_deg=20, spin_deg=None)
-        cur = scenes.capture("planar_plate", pose, cam, rng)
-        res = register_global(cur.points, template, PLANAR)
+    for res, _, _ in plate_captures("planar_plate", 6, 4):
         assert res.verdict == "ok", res.summary()
         assert res.score_gap > 1.5 * PLANAR.ambiguity_gap  # measured >= 0.2 (symmetric plate: <= 0.02)
 

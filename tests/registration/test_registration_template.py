@@ -32,9 +32,7 @@ T_PHOTO = tf.T_from_rotvec([0.1, -0.2, 0.3], [0.4, 0.1, 0.6])
 def captures():
     cam = scenes.camera(640, 480)
     rng = np.random.default_rng(9)
-    tmpl = scenes.capture("feature_part", scenes.nominal_pose("feature_part"), cam, rng)
-    pose = scenes.perturbed_pose("feature_part", rng, max_shift_m=0.005, max_tilt_deg=2, spin_deg=2)
-    return tmpl, scenes.capture("feature_part", pose, cam, rng)
+    return scenes.capture_pair("feature_part", cam, rng, max_shift_m=0.005, max_tilt_deg=2, spin_deg=2)
 
 
 def test_cloud_template_round_trip_and_use(tmp_path, captures):

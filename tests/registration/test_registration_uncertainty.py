@@ -89,9 +89,7 @@ def _plate_errors(rng, n: int) -> list[np.ndarray]:
     cam = scenes.camera(640, 480)
     z = []
     for _ in range(n):
-        tmpl = scenes.capture("planar_plate", scenes.nominal_pose("planar_plate"), cam, rng)
-        pose = scenes.perturbed_pose("planar_plate", rng, max_shift_m=0.02, max_tilt_deg=0, spin_deg=10)
-        cur = scenes.capture("planar_plate", pose, cam, rng)
+        tmpl, cur = scenes.capture_pair("planar_plate", cam, rng, max_shift_m=0.02, max_tilt_deg=0, spin_deg=10)
         res = register_global(cur.points, prepare_cloud(tmpl.points), GlobalParams(seed=1))
         assert res.verdict == "ok" and res.method.endswith("+edges"), res.summary()
         z.append(_error_z(res, scenes.true_match(tmpl, cur)))

@@ -1,4 +1,5 @@
-"""Read the frame tree a recording shows in a 3D view, and every frame id its messages name.
+"""Record a run and read the frame tree its recording shows in a 3D view, and every frame id its
+messages name.
 
 The tree is made of the transforms published on ports named ``frames`` (FrameTransforms); ``truth/``
 ports are ground truth (alternative poses of the same frames) and not part of it. Every message
@@ -12,10 +13,14 @@ from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from recipe_helpers import graph_from
+
 from engine import codec
 from engine.messages import FrameTransforms, Message, Transform
 from engine.plugin_manager import load_registry
+from engine.recorder import Recorder
 from engine.recording import load
+from engine.runner import Runner
 
 ROOT = "world"
 
@@ -35,6 +40,10 @@ class FrameTree:
                 break
             chain.append(parent)
         return chain
+
+    def parent_of(self) -> dict[str, str]:
+        """Each frame's parent (the first, where a frame has several: see :meth:`problems`)."""
+        return {child: next(iter(p)) for child, p in self.parents.items()}
 
     def problems(self) -> list[str]:
         """What keeps the published frames from being one tree rooted at ``world``."""
@@ -84,3 +93,19 @@ def frame_tree(path: str | Path) -> FrameTree:
                     tree.parents[child].add(parent)
                     tree.edges_by[(parent, child)].add(topic)
     return tree
+
+
+def sound_frame_tree(path: str | Path) -> FrameTree:
+    """:func:`frame_tree` of a recording that must form one tree under ``world``."""
+    tree = frame_tree(path)
+    assert not tree.problems(), "\n".join(tree.problems())
+    return tree
+
+
+def record(text: str, path: Path, plugins: list[str]) -> Path:
+    """Run the recipe *text* recorded to *path* (*plugins*: the plugin modules the recording lists);
+    the run must end well."""
+    graph = graph_from(text)
+    summary = Runner(graph, observers=[Recorder(path, graph.recipe.record, graph.loaded, plugins)]).run()
+    assert summary.ok, summary.stop_reason
+    return path

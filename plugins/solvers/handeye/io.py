@@ -96,6 +96,19 @@ def _pose_from_json(obj: Any, where: str) -> F64:
     return A
 
 
+def _in_metres(
+    path: Path, M: list[F64], B: list[F64], ids: list[str], setup: str | None, length_unit: str | None
+) -> PoseSamples:
+    """The loaded poses as samples, translations converted from *length_unit* to metres."""
+    if not M:
+        raise HandEyeInputError(f"{path}: no samples")
+    s = _scale(length_unit)
+    Ma, Ba = np.array(M), np.array(B)
+    Ma[:, :3, 3] *= s
+    Ba[:, :3, 3] *= s
+    return PoseSamples(Ma, Ba, ids, setup, str(path))
+
+
 def load_pose_pairs_json(path: str | Path, *, length_unit: str | None = None) -> PoseSamples:
     """Load the MoveIt list-of-pairs JSON or the vgr samples JSON (see module docstring)."""
     path = Path(path)
@@ -124,13 +137,7 @@ def load_pose_pairs_json(path: str | Path, *, length_unit: str | None = None) ->
         ids = [str(k) for k in range(len(M))]
     else:
         raise HandEyeInputError(f"{path}: JSON must be a list of pose pairs or a {VGR_FORMAT} object")
-    if not M:
-        raise HandEyeInputError(f"{path}: no samples")
-    s = _scale(length_unit)
-    Ma, Ba = np.array(M), np.array(B)
-    Ma[:, :3, 3] *= s
-    Ba[:, :3, 3] *= s
-    return PoseSamples(Ma, Ba, ids, setup, str(path))
+    return _in_metres(path, M, B, ids, setup, length_unit)
 
 
 def _csv_pose(row: dict[str, str], prefix: str, where: str) -> F64:
@@ -167,13 +174,7 @@ def load_pose_pairs_csv(path: str | Path, *, length_unit: str = "m") -> PoseSamp
         M.append(_csv_pose(row, "base_tcp_", where))
         B.append(_csv_pose(row, "cam_target_", where))
         ids.append(row.get("id") or str(k))
-    if not M:
-        raise HandEyeInputError(f"{path}: no samples")
-    s = _scale(length_unit)
-    Ma, Ba = np.array(M), np.array(B)
-    Ma[:, :3, 3] *= s
-    Ba[:, :3, 3] *= s
-    return PoseSamples(Ma, Ba, ids, None, str(path))
+    return _in_metres(path, M, B, ids, None, length_unit)
 
 
 def load_pose_pairs(path: str | Path, *, length_unit: str | None = None) -> PoseSamples:

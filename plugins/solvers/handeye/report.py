@@ -123,10 +123,4 @@ def format_report(result: CalibrationResult, *, per_sample: bool = True) -> str:
     if per_sample and result.residuals is not None:
         lines.append("per-sample residuals:")
         lines += residual_table(result)
-    if result.reasons:
-        lines.append("reasons:")
-        lines += [f"  - {r}" for r in result.reasons]
-    if result.advice:
-        lines.append("advice:")
-        lines += [f"  - {a}" for a in result.advice]
-    return "\n".join(lines)
+    return "\n".join(lines + result.reason_lines())

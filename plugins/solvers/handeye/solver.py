@@ -18,6 +18,7 @@ Pipeline of :func:`calibrate_hand_eye` / :func:`calibrate_robot_world`:
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TypedDict, Unpack
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -39,6 +40,7 @@ F64 = NDArray[np.float64]
 __all__ = [
     "RESIDUAL_NAMES",
     "AccuracyTargets",
+    "SolverOptions",
     "calibrate_hand_eye",
     "calibrate_robot_world",
 ]
@@ -63,16 +65,17 @@ def _calibrate(
     T_base_tcp: Sequence[ArrayLike] | ArrayLike,
     T_cam_target: Sequence[ArrayLike] | ArrayLike,
     *,
-    setup: Setup,
-    noise: NoiseModel | None,
-    estimate_noise: bool | None,
     init: str,
-    loss: Loss,
-    covariance_scale: CovarianceScale,
-    motion_thresholds: MotionThresholds | None,
-    accuracy: AccuracyTargets,
-    seed: int,
+    setup: Setup = "eye_in_hand",
+    noise: NoiseModel | None = None,
+    estimate_noise: bool | None = None,
+    loss: Loss = "huber",
+    covariance_scale: CovarianceScale = "auto",
+    motion_thresholds: MotionThresholds | None = None,
+    accuracy: AccuracyTargets | None = None,
+    seed: int = 0,
 ) -> CalibrationResult:
+    accuracy = accuracy or AccuracyTargets()
     setup = check_setup(setup)
     if init != "auto" and init not in CLOSED_FORM_METHODS:
         raise ValueError(f"init must be 'auto' or one of {list(CLOSED_FORM_METHODS)}, got {init!r}")
@@ -169,34 +172,44 @@ def _calibrate(
     )  # fmt: skip
 
 
+class SolverOptions(TypedDict, total=False):
+    """Keyword options of :func:`calibrate_hand_eye` and :func:`calibrate_robot_world` besides ``init``."""
+
+    setup: Setup
+    noise: NoiseModel | None
+    estimate_noise: bool | None
+    loss: Loss
+    covariance_scale: CovarianceScale
+    motion_thresholds: MotionThresholds | None
+    accuracy: AccuracyTargets | None
+    seed: int
+
+
 def calibrate_hand_eye(
     T_base_tcp: Sequence[ArrayLike] | ArrayLike,
     T_cam_target: Sequence[ArrayLike] | ArrayLike,
     *,
-    setup: Setup = "eye_in_hand",
-    noise: NoiseModel | None = None,
-    estimate_noise: bool | None = None,
     init: str = "auto",
-    loss: Loss = "huber",
-    covariance_scale: CovarianceScale = "auto",
-    motion_thresholds: MotionThresholds | None = None,
-    accuracy: AccuracyTargets | None = None,
-    seed: int = 0,
+    **options: Unpack[SolverOptions],
 ) -> CalibrationResult:
     """Hand-eye calibration (AX = XB) from robot poses T_base_tcp and camera observations T_cam_target.
 
     Args:
         T_base_tcp: robot flange/TCP poses in the base frame, ``(n, 4, 4)`` in metres.
         T_cam_target: calibration target poses seen by the camera, ``(n, 4, 4)`` in metres.
-        setup: ``"eye_in_hand"`` (estimates ``T_tcp_cam`` and the fixed ``T_base_target``) or
-            ``"eye_to_hand"`` (estimates ``T_base_cam`` and the target on the flange ``T_tcp_target``).
-        noise: declared robot / camera noise; ``None`` estimates it from the data.
-        estimate_noise: force noise estimation on or off (default: on exactly when ``noise`` is None).
         init: ``"auto"`` (best of all closed forms) or one of ``tsai_lenz``, ``park_martin``,
             ``daniilidis``, ``shah``.
-        loss: ``"huber"`` (default), ``"cauchy"`` or ``"linear"`` (plain ML, no down-weighting).
-        covariance_scale: see the module docstring.
-        seed: seed of the random choice of pose triples in the outlier consensus (``consensus``).
+        options (:class:`SolverOptions`, all optional):
+            setup: ``"eye_in_hand"`` (default; estimates ``T_tcp_cam`` and the fixed ``T_base_target``)
+                or ``"eye_to_hand"`` (estimates ``T_base_cam`` and the target on the flange ``T_tcp_target``).
+            noise: declared robot / camera noise; ``None`` (default) estimates it from the data.
+            estimate_noise: force noise estimation on or off (default: on exactly when ``noise`` is None).
+            loss: ``"huber"`` (default), ``"cauchy"`` or ``"linear"`` (plain ML, no down-weighting).
+            covariance_scale: ``"auto"`` (default), ``"a_priori"`` or ``"a_posteriori"``; see the
+                module docstring.
+            motion_thresholds: of the motion analysis before solving (default ``MotionThresholds()``).
+            accuracy: the accuracy targets of the verdict (default ``AccuracyTargets()``).
+            seed: seed of the random choice of pose triples in the outlier consensus (``consensus``), 0.
 
     Returns:
         CalibrationResult with estimate ``{x_name, y_name, "setup"}``, 12x12 covariance, per-sample
@@ -205,26 +218,15 @@ def calibrate_hand_eye(
     Raises:
         HandEyeInputError: unusable input (NaN, shapes, non-rigid poses, millimetres, mixed units).
     """
-    return _calibrate(
-        "hand_eye", T_base_tcp, T_cam_target, setup=setup, noise=noise, estimate_noise=estimate_noise,
-        init=init, loss=loss, covariance_scale=covariance_scale, motion_thresholds=motion_thresholds,
-        accuracy=accuracy or AccuracyTargets(), seed=seed,
-    )  # fmt: skip
+    return _calibrate("hand_eye", T_base_tcp, T_cam_target, init=init, **options)
 
 
 def calibrate_robot_world(
     T_base_tcp: Sequence[ArrayLike] | ArrayLike,
     T_cam_target: Sequence[ArrayLike] | ArrayLike,
     *,
-    setup: Setup = "eye_in_hand",
-    noise: NoiseModel | None = None,
-    estimate_noise: bool | None = None,
     init: str = "shah",
-    loss: Loss = "huber",
-    covariance_scale: CovarianceScale = "auto",
-    motion_thresholds: MotionThresholds | None = None,
-    accuracy: AccuracyTargets | None = None,
-    seed: int = 0,
+    **options: Unpack[SolverOptions],
 ) -> CalibrationResult:
     """Robot-world + hand-eye calibration (AX = ZB): X and Z estimated jointly, both reported.
 
@@ -233,8 +235,4 @@ def calibrate_robot_world(
     (eye-in-hand) or ``T_tcp_target`` (eye-to-hand). Initialised with Shah's Kronecker closed form by
     default; the ML refinement and the result are those of the hand-eye solver.
     """
-    return _calibrate(
-        "robot_world", T_base_tcp, T_cam_target, setup=setup, noise=noise, estimate_noise=estimate_noise,
-        init=init, loss=loss, covariance_scale=covariance_scale, motion_thresholds=motion_thresholds,
-        accuracy=accuracy or AccuracyTargets(), seed=seed,
-    )  # fmt: skip
+    return _calibrate("robot_world", T_base_tcp, T_cam_target, init=init, **options)

@@ -46,6 +46,7 @@ from plugins.solvers.kinematic_calibration import (
     candidate_parameters,
 )
 from plugins.solvers.kinematic_calibration.calibrate import initial_frames
+from plugins.util.plain_data import plain
 
 from .data import GapData
 
@@ -536,22 +537,10 @@ class KinematicGapProblem:
 
     def save_model(self, path: Path) -> Path:
         path = Path(path)
-        path.write_text(yaml.safe_dump(_plain(self.gap_model_dict()), sort_keys=False), encoding="utf-8")
+        path.write_text(yaml.safe_dump(plain(self.gap_model_dict()), sort_keys=False), encoding="utf-8")
         return path
-
-
-def _plain(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _plain(x.tolist())
-    if isinstance(x, np.generic):
-        return x.item()
-    return x
 
 
 def effect_config(effect: Any) -> dict[str, Any]:
     """A catalog effect as the plain mapping ``effects_from_config`` reads (lists for tuples)."""
-    return _plain(asdict(effect))
+    return plain(asdict(effect))

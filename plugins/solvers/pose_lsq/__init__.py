@@ -1,8 +1,8 @@
 """Small least-squares helpers shared by the Vive desk and TCP-by-camera calibrations.
 
 Owns: covariance / rank / identifiability of a whitened least-squares problem, residual
-consistency (chi-square) and studentised per-sample outlier tests, and input checks (finite arrays,
-rotations, metre-vs-millimetre magnitude).
+consistency (chi-square) and studentised per-sample outlier tests (also against the data's own
+scale), and input checks (finite arrays, rotations, metre-vs-millimetre magnitude).
 
 Perturbation convention used by these solvers ("decoupled", documented in docs/vive_and_tcp.md):
 a pose ``T_a_b = [R, t]`` is perturbed as ``t' = t + v`` and ``R' = exp(w) R`` with ``v``, ``w``
@@ -20,6 +20,7 @@ from plugins.solvers.pose_lsq.stats import (
     analyse_identifiability,
     chi2_consistency,
     marginal_covariance,
+    robust_block_pvalues,
     robust_variance_factor,
     studentised_block_tests,
 )
@@ -35,6 +36,7 @@ __all__ = [
     "finite_array",
     "looks_like_millimetres",
     "marginal_covariance",
+    "robust_block_pvalues",
     "robust_variance_factor",
     "studentised_block_tests",
 ]

@@ -146,3 +146,12 @@ def robust_variance_factor(stats: ArrayLike, dofs: ArrayLike) -> float:
     if not ok.any():
         return 1.0
     return float(np.median(st[ok]) / np.median(chi2.median(df[ok])))
+
+
+def robust_block_pvalues(stats: ArrayLike, dofs: ArrayLike) -> tuple[F64, float]:
+    """(p-values, factor) of the block tests of :func:`studentised_block_tests` against the data's
+    own residual scale: the statistics divided by ``factor = max(1, robust_variance_factor)``, for
+    when the noise model is too optimistic. Untestable blocks (dof 0) keep p-value 1."""
+    factor = max(1.0, robust_variance_factor(stats, dofs))
+    df = np.asarray(dofs)
+    return np.where(df > 0, chi2.sf(np.asarray(stats, dtype=float) / factor, np.maximum(df, 1)), 1.0), factor

@@ -19,6 +19,8 @@ import open3d as o3d
 from scipy import ndimage
 from scipy.optimize import least_squares
 
+_Rim = tuple[np.ndarray, np.ndarray, float]  # points around a hole or pin, estimated centre and radius
+
 
 @dataclass
 class Circle:
@@ -76,6 +78,23 @@ def _rim(uv: np.ndarray, center: np.ndarray, bins: int, *, outermost: bool) -> n
     return uv[order[first]]
 
 
+def _rim_circles(
+    candidates: list[_Rim], kind: str, spacing_m: float, rim_bins: int, radii: tuple[float, float]
+) -> list[Circle]:
+    """Circles fitted to the rims of candidate (points, estimated centre, estimated radius): a hole's
+    rim is its nearest points per sector, a pin cap's its farthest. Candidates whose rim has fewer
+    than 8 points, or whose fitted radius lies outside *radii* (min, max), are left out."""
+    circles: list[Circle] = []
+    for uv, c_est, r_est in candidates:
+        rim = _rim(uv, c_est, _bins(r_est, spacing_m, rim_bins), outermost=kind == "pin")
+        if rim.shape[0] < 8:
+            continue
+        c, r, rms = fit_circle(rim)
+        if radii[0] <= r <= radii[1]:
+            circles.append(Circle(c, r, rms, rim.shape[0], kind))
+    return circles
+
+
 def find_holes(
     plane_uv: np.ndarray,
     *,
@@ -96,7 +115,7 @@ def find_holes(
     occ = ndimage.binary_closing(occ, iterations=1)  # close sampling gaps of one cell
     empty, n = ndimage.label(~occ)
     border = set(np.unique(np.concatenate([empty[0], empty[-1], empty[:, 0], empty[:, -1]])).tolist())
-    circles: list[Circle] = []
+    candidates: list[_Rim] = []
     for lab in range(1, n + 1):
         if lab in border:
             continue
@@ -106,13 +125,8 @@ def find_holes(
             continue
         c_est = lo + (cells.mean(axis=0) + 0.5) * cell
         near = np.linalg.norm(plane_uv - c_est, axis=1) < r_est + 4 * cell
-        rim = _rim(plane_uv[near], c_est, _bins(r_est, spacing_m, rim_bins), outermost=False)
-        if rim.shape[0] < 8:
-            continue
-        c, r, rms = fit_circle(rim)
-        if min_radius_m <= r <= max_radius_m:
-            circles.append(Circle(c, r, rms, rim.shape[0], "hole"))
-    return circles
+        candidates.append((plane_uv[near], c_est, r_est))
+    return _rim_circles(candidates, "hole", spacing_m, rim_bins, (min_radius_m, max_radius_m))
 
 
 def find_pins(
@@ -136,7 +150,7 @@ def find_pins(
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points[sel]))
     labels = np.asarray(pcd.cluster_dbscan(eps=3.0 * spacing_m, min_points=4, print_progress=False))
     band = cap_band_m or max(3.0 * spacing_m, 0.5e-3)
-    circles: list[Circle] = []
+    candidates: list[_Rim] = []
     for lab in range(int(labels.max(initial=-1)) + 1):
         idx = sel[labels == lab]
         h = heights[idx]
@@ -145,11 +159,5 @@ def find_pins(
         if uv.shape[0] < 8:
             continue
         c_est = uv.mean(axis=0)
-        r_est = float(np.max(np.linalg.norm(uv - c_est, axis=1)))
-        rim = _rim(uv, c_est, _bins(r_est, spacing_m, rim_bins), outermost=True)
-        if rim.shape[0] < 8:
-            continue
-        c, r, rms = fit_circle(rim)
-        if min_radius_m <= r <= max_radius_m:
-            circles.append(Circle(c, r, rms, rim.shape[0], "pin"))
-    return circles
+        candidates.append((uv, c_est, float(np.max(np.linalg.norm(uv - c_est, axis=1)))))
+    return _rim_circles(candidates, "pin", spacing_m, rim_bins, (min_radius_m, max_radius_m))

@@ -38,12 +38,13 @@ along the template camera's x, y, z and rotation about those axes through the ce
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
 
 import numpy as np
 
 from engine import transforms as tf
+from plugins.util.plain_data import plain
 
 Verdict = Literal["ok", "ambiguous", "failed"]
 
@@ -152,46 +153,8 @@ class RegistrationResult:
         return " | ".join(parts)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dictionary (arrays become lists, NaN becomes None)."""
-
-        def conv(x: Any) -> Any:
-            if isinstance(x, np.ndarray):
-                return conv(x.tolist())
-            if isinstance(x, np.generic):
-                return conv(x.item())
-            if isinstance(x, float):
-                return x if np.isfinite(x) else None
-            if isinstance(x, dict):
-                return {str(k): conv(v) for k, v in x.items()}
-            if isinstance(x, list | tuple):
-                return [conv(v) for v in x]
-            if isinstance(x, WeakDirection | Hypothesis):
-                return conv(dict(x.__dict__))
-            return x
-
-        return conv(
-            {
-                "verdict": self.verdict,
-                "method": self.method,
-                "T_match": self.T_match,
-                "reasons": self.reasons,
-                "fitness": self.fitness,
-                "inlier_rmse": self.inlier_rmse,
-                "score": self.score,
-                "hessian": self.hessian,
-                "covariance": self.covariance,
-                "uncertainty_center": self.uncertainty_center,
-                "sigma_translation_m": self.sigma_translation_m,
-                "sigma_rotation_rad": self.sigma_rotation_rad,
-                "weak_directions": self.weak_directions,
-                "hypotheses": self.hypotheses,
-                "score_gap": self.score_gap,
-                "iterations": self.iterations,
-                "converged": self.converged,
-                "timings_s": self.timings_s,
-                "details": self.details,
-            }
-        )
+        """JSON-ready dictionary of every field (arrays become lists, NaN becomes None)."""
+        return plain(asdict(self), nan_as_none=True)
 
     def to_json(self, **kwargs: Any) -> str:
         return json.dumps(self.to_dict(), **kwargs)

@@ -1,8 +1,9 @@
 """What every calibration solver stage shares: sample buffers, when to solve, what to publish.
 
-A subclass declares its data ports (``DATA_PORTS``, plus the ``solve`` trigger port every solver has),
-and implements :meth:`CalibrationStage.calibrate` (messages -> CalibrationResult, notes) and
-:meth:`CalibrationStage.transforms` (which estimated transforms go downstream, with frame names).
+A subclass declares its data ports and their message types (``DATA_PORTS``; its ``inputs`` are those
+plus the ``solve`` trigger port every solver has), and implements :meth:`CalibrationStage.calibrate`
+(messages -> CalibrationResult, notes) and :meth:`CalibrationStage.transforms` (which estimated
+transforms go downstream, with frame names).
 
 * Messages of the data ports are kept in arrival order (per port: publication order).
 * A message on ``solve`` calibrates from everything received so far; so does the end of all inputs
@@ -26,8 +27,9 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 from pydantic import Field
 
-from engine.messages import CalibrationResultMsg, Message, Transform
+from engine.messages import CalibrationResultMsg, Message, Request, Transform
 from engine.stage import Stage, StageParams
+from plugins.solvers.calibration_inputs import PairingOptions
 from plugins.solvers.calibration_result import CalibrationResult
 
 SOLVE_PORT = "solve"
@@ -67,9 +69,13 @@ class CalibrationStage(Stage):
 
     role = "solver"
     KIND: ClassVar[str] = ""
-    DATA_PORTS: ClassVar[tuple[str, ...]] = ()
+    DATA_PORTS: ClassVar[dict[str, type[Message]]] = {}
     outputs: ClassVar = {"result": CalibrationResultMsg, "transform": Transform}
     Params: ClassVar[type[StageParams]] = PairingParams
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        cls.inputs = {**cls.DATA_PORTS, SOLVE_PORT: Request}
 
     def setup(self) -> None:
         self.buffers: dict[str, list[Any]] = {p: [] for p in self.DATA_PORTS}
@@ -99,9 +105,17 @@ class CalibrationStage(Stage):
         if self._waiting is not None or (p.solve_on_finish and (self._new_samples or self.solves == 0)):
             self._solve(self._waiting[1] + ", at the end of input" if self._waiting else "end of input")
 
-    def pairing(self) -> dict[str, Any]:
+    def pairing(self) -> PairingOptions:
         p: PairingParams = self.params  # type: ignore[assignment]
         return {"mode": p.pair, "max_skew_s": p.max_skew_s, "drop_unmatched": p.drop_unmatched}
+
+    def streams(self) -> list[list[Any]]:
+        """The messages received on each data port, in ``DATA_PORTS`` order."""
+        return [self.buffers[p] for p in self.DATA_PORTS]
+
+    def frame_of(self, port: str, default: str) -> str:
+        """The frame the first message on *port* names, else *default*."""
+        return self.buffers[port][0].frame_id or default
 
     # -- subclass API --------------------------------------------------------------------------
     def calibrate(self) -> tuple[CalibrationResult, list[str]]:

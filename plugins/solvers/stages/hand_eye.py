@@ -16,11 +16,11 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import Field
 
-from engine.messages import PoseStamped, Request
+from engine.messages import PoseStamped
 from plugins.solvers.calibration_inputs import CalibrationInputError, hand_eye_samples
 from plugins.solvers.calibration_result import CalibrationResult
 from plugins.solvers.handeye import NoiseModel, calibrate_hand_eye, calibrate_robot_world
-from plugins.solvers.stages.base import SOLVE_PORT, CalibrationStage, PairingParams
+from plugins.solvers.stages.base import CalibrationStage, PairingParams
 
 
 class HandEyeCalibration(CalibrationStage):
@@ -28,8 +28,7 @@ class HandEyeCalibration(CalibrationStage):
 
     type_name = "handeye_calibration"
     KIND = "hand_eye"
-    DATA_PORTS = ("robot_pose", "target_pose")
-    inputs: ClassVar = {"robot_pose": PoseStamped, "target_pose": PoseStamped, SOLVE_PORT: Request}
+    DATA_PORTS: ClassVar = {"robot_pose": PoseStamped, "target_pose": PoseStamped}
 
     class Params(PairingParams):
         setup: Literal["eye_in_hand", "eye_to_hand"] = "eye_in_hand"
@@ -44,7 +43,7 @@ class HandEyeCalibration(CalibrationStage):
 
     def calibrate(self) -> tuple[CalibrationResult, list[str]]:
         p: HandEyeCalibration.Params = self.params  # type: ignore[assignment]
-        samples, notes = hand_eye_samples(self.buffers["robot_pose"], self.buffers["target_pose"], **self.pairing())
+        samples, notes = hand_eye_samples(*self.streams(), **self.pairing())
         n = len(samples.T_base_tcp)
         if n < 3:
             raise CalibrationInputError(f"{n} pose pair(s): hand-eye calibration needs at least 3 (better 10-15)")
@@ -62,8 +61,7 @@ class HandEyeCalibration(CalibrationStage):
 
     def transforms(self, result: CalibrationResult) -> list[tuple[np.ndarray, str, str]]:
         p: HandEyeCalibration.Params = self.params  # type: ignore[assignment]
-        base = self.buffers["robot_pose"][0].frame_id or "base"
-        cam = self.buffers["target_pose"][0].frame_id or "camera"
+        base, cam = self.frame_of("robot_pose", "base"), self.frame_of("target_pose", "camera")
         e = result.estimate
         if p.setup == "eye_in_hand":
             return [(e["T_tcp_cam"], p.tcp_frame, cam), (e["T_base_target"], base, p.target_frame)]

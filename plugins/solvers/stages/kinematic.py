@@ -21,14 +21,14 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import Field
 
-from engine.messages import JointState, PoseStamped, Request
+from engine.messages import JointState, PoseStamped
 from plugins.params import PoseSpec
 from plugins.robot.model_file import load_robot_model
 from plugins.solvers.calibration_inputs import CalibrationInputError, kinematic_samples, min_kinematic_samples
 from plugins.solvers.calibration_report import format_result, kinematic_table, write_kinematic_files, write_report_dir
 from plugins.solvers.calibration_result import CalibrationResult
 from plugins.solvers.kinematic_calibration import KinematicCalibration, KinematicCalibrationConfig, calibrate_kinematics
-from plugins.solvers.stages.base import SOLVE_PORT, CalibrationStage, PairingParams
+from plugins.solvers.stages.base import CalibrationStage, PairingParams
 
 
 class KinematicCalibrationStage(CalibrationStage):
@@ -36,8 +36,7 @@ class KinematicCalibrationStage(CalibrationStage):
 
     type_name = "kinematic_calibration"
     KIND = "kinematic"
-    DATA_PORTS = ("joint_state", "point")
-    inputs: ClassVar = {"joint_state": JointState, "point": PoseStamped, SOLVE_PORT: Request}
+    DATA_PORTS: ClassVar = {"joint_state": JointState, "point": PoseStamped}
 
     class Params(PairingParams):
         model: str = Field("ur5e", description="nominal robot model: shipped name or model file")
@@ -64,9 +63,7 @@ class KinematicCalibrationStage(CalibrationStage):
     def calibrate(self) -> tuple[CalibrationResult, list[str]]:
         p: KinematicCalibrationStage.Params = self.params  # type: ignore[assignment]
         self.last = None
-        samples, notes = kinematic_samples(
-            self.buffers["joint_state"], self.buffers["point"], full_pose=p.measurement == "pose", **self.pairing()
-        )
+        samples, notes = kinematic_samples(*self.streams(), full_pose=p.measurement == "pose", **self.pairing())
         need = min_kinematic_samples(self.model.dof, samples.full_pose)
         if samples.n_samples < need:
             raise CalibrationInputError(
@@ -86,7 +83,7 @@ class KinematicCalibrationStage(CalibrationStage):
 
     def transforms(self, result: CalibrationResult) -> list[tuple[np.ndarray, str, str]]:
         p: KinematicCalibrationStage.Params = self.params  # type: ignore[assignment]
-        meas = self.buffers["point"][0].frame_id or "instrument"
+        meas = self.frame_of("point", "instrument")
         e = result.estimate
         return [(e["T_meas_base"], meas, p.base_frame), (e["T_flange_tcp"], p.flange_frame, p.tcp_frame)]
 

@@ -15,11 +15,11 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import Field
 
-from engine.messages import PoseStamped, Request
+from engine.messages import PoseStamped
 from engine.transforms import T_from_Rt
 from plugins.solvers.calibration_inputs import tcp_camera_data
 from plugins.solvers.calibration_result import CalibrationResult
-from plugins.solvers.stages.base import SOLVE_PORT, CalibrationStage, PairingParams
+from plugins.solvers.stages.base import CalibrationStage, PairingParams
 from plugins.solvers.tcp_camera import TcpNoiseModel, calibrate_tcp_camera
 
 
@@ -28,8 +28,7 @@ class TcpCalibration(CalibrationStage):
 
     type_name = "tcp_calibration"
     KIND = "tcp_camera"
-    DATA_PORTS = ("robot_pose", "point")
-    inputs: ClassVar = {"robot_pose": PoseStamped, "point": PoseStamped, SOLVE_PORT: Request}
+    DATA_PORTS: ClassVar = {"robot_pose": PoseStamped, "point": PoseStamped}
 
     class Params(PairingParams):
         camera_sigma_m: tuple[float, float, float] = Field((3e-4, 3e-4, 3e-4), description="per camera axis")
@@ -42,12 +41,11 @@ class TcpCalibration(CalibrationStage):
     def calibrate(self) -> tuple[CalibrationResult, list[str]]:
         p: TcpCalibration.Params = self.params  # type: ignore[assignment]
         noise = TcpNoiseModel(p.camera_sigma_m, p.robot_position_sigma_m, float(np.radians(p.robot_rotation_sigma_deg)))
-        data, notes = tcp_camera_data(self.buffers["robot_pose"], self.buffers["point"], noise=noise, **self.pairing())
+        data, notes = tcp_camera_data(*self.streams(), noise=noise, **self.pairing())
         return calibrate_tcp_camera(data, loss=p.loss), notes
 
     def transforms(self, result: CalibrationResult) -> list[tuple[np.ndarray, str, str]]:
         p: TcpCalibration.Params = self.params  # type: ignore[assignment]
-        base = self.buffers["robot_pose"][0].frame_id or "base"
-        cam = self.buffers["point"][0].frame_id or "camera"
+        base, cam = self.frame_of("robot_pose", "base"), self.frame_of("point", "camera")
         T_flange_tcp = T_from_Rt(np.eye(3), result.estimate["p_flange_tcp"])  # the point, flange orientation
         return [(result.estimate["T_base_cam"], base, cam), (T_flange_tcp, p.flange_frame, p.tcp_frame)]

@@ -27,12 +27,12 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import Field
 
-from engine.messages import Blob, CalibrationResultMsg, PoseStamped, Request, TrackerPose
+from engine.messages import Blob, CalibrationResultMsg, PoseStamped, TrackerPose
 from engine.stage import Stage, StageParams
 from plugins.params import PoseSpec
 from plugins.solvers.calibration_inputs import vive_desk_data
 from plugins.solvers.calibration_result import CalibrationResult
-from plugins.solvers.stages.base import SOLVE_PORT, CalibrationStage, PairingParams
+from plugins.solvers.stages.base import CalibrationStage, PairingParams
 from plugins.solvers.vive_desk import DesktopTcpConverter, TrackerTcpPrior, ViveNoiseModel, calibrate_vive_desk
 
 
@@ -41,8 +41,7 @@ class ViveDeskCalibration(CalibrationStage):
 
     type_name = "vive_desk_calibration"
     KIND = "vive_desk"
-    DATA_PORTS = ("contact", "tracker_pose")
-    inputs: ClassVar = {"contact": PoseStamped, "tracker_pose": TrackerPose, SOLVE_PORT: Request}
+    DATA_PORTS: ClassVar = {"contact": PoseStamped, "tracker_pose": TrackerPose}
 
     class Params(PairingParams):
         tracker_position_sigma_m: float = Field(0.5e-3, gt=0.0, description="tracker position noise per axis")
@@ -62,16 +61,13 @@ class ViveDeskCalibration(CalibrationStage):
             fixture_rotation_sigma_rad=float(np.radians(p.fixture_rotation_sigma_deg)),
             desk_point_sigma_m=p.desk_point_sigma_m,
         )
-        data, notes = vive_desk_data(
-            self.buffers["contact"], self.buffers["tracker_pose"], noise=noise, **self.pairing()
-        )
+        data, notes = vive_desk_data(*self.streams(), noise=noise, **self.pairing())
         prior = None if p.prior_T_tracker_tcp is None else TrackerTcpPrior(p.prior_T_tracker_tcp.T(), p.prior_sigma_m)
         return calibrate_vive_desk(data, prior=prior), notes
 
     def transforms(self, result: CalibrationResult) -> list[tuple[np.ndarray, str, str]]:
         p: ViveDeskCalibration.Params = self.params  # type: ignore[assignment]
-        base = self.buffers["tracker_pose"][0].frame_id or "lighthouse"
-        desk = self.buffers["contact"][0].frame_id or "desktop"
+        base, desk = self.frame_of("tracker_pose", "lighthouse"), self.frame_of("contact", "desktop")
         e = result.estimate
         return [(e["T_base_desktop"], base, desk), (e["T_tracker_tcp"], p.tracker_frame, p.tcp_frame)]
 

@@ -20,48 +20,34 @@ and noise keys), then a header with ``cam_x, cam_y, cam_z`` and either
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 from engine.transforms import T_from_Rt, pose7_from_T
+from plugins.solvers.sample_files import (
+    length_scale,
+    quat_matrix,
+    read_csv_samples,
+    read_json_samples,
+    row_numbers,
+    write_csv_samples,
+)
 from plugins.solvers.tcp_camera.data import TcpCameraData, TcpNoiseModel
 from plugins.vendor_poses import T_from_ur
 
-F64 = NDArray[np.float64]
 FORMAT = "vgr.tcp_camera/1"
-_UNITS = {"m": 1.0, "mm": 1e-3}
 _CSV_QUAT_HEADER = [
     "flange_x", "flange_y", "flange_z", "flange_qx", "flange_qy", "flange_qz", "flange_qw",
     "cam_x", "cam_y", "cam_z",
 ]  # fmt: skip
 
 
-def _scale(units: Any, key: str) -> float:
-    if units not in _UNITS:
-        raise ValueError(f"{key} must be 'm' or 'mm', got {units!r}")
-    return _UNITS[units]
-
-
-def _quat(q: ArrayLike, where: str) -> F64:
-    q = np.asarray(q, dtype=float).reshape(-1)
-    if q.shape != (4,) or not np.all(np.isfinite(q)):
-        raise ValueError(f"{where}: quaternion must be 4 finite numbers (x, y, z, w)")
-    n = float(np.linalg.norm(q))
-    if abs(n - 1.0) > 1e-3:
-        raise ValueError(f"{where}: quaternion norm is {n:.4f}, not 1 (wrong columns or order?)")
-    return Rotation.from_quat(q / n).as_matrix()
-
-
 def _build(meta: dict[str, Any], samples: list[dict[str, Any]]) -> TcpCameraData:
-    k_r = _scale(meta.get("units", "m"), "units")
-    k_c = _scale(meta.get("camera_units", "m"), "camera_units")
+    k_r = length_scale(meta.get("units", "m"))
+    k_c = length_scale(meta.get("camera_units", "m"), "camera_units")
     if not samples:
         raise ValueError("no samples in the file")
     T, P, labels = [], [], []
@@ -77,7 +63,7 @@ def _build(meta: dict[str, Any], samples: list[dict[str, Any]]) -> TcpCameraData
             u = np.asarray(s["ur_pose"], dtype=float).reshape(6)
             Ti = T_from_ur(np.concatenate([u[:3] * k_r, u[3:]]))
         else:
-            Ti = T_from_Rt(_quat(s["flange_quat_xyzw"], where), np.asarray(s["flange_position"], float) * k_r)
+            Ti = T_from_Rt(quat_matrix(s["flange_quat_xyzw"], where), np.asarray(s["flange_position"], float) * k_r)
         T.append(Ti)
         P.append(np.asarray(s["p_cam"], dtype=float) * k_c)
     cam_sigma = np.broadcast_to(np.asarray(meta.get("camera_sigma", 0.3e-3 / k_c), dtype=float), (3,)) * k_c
@@ -90,30 +76,11 @@ def _build(meta: dict[str, Any], samples: list[dict[str, Any]]) -> TcpCameraData
 
 
 def load_tcp_json(path: str | Path) -> TcpCameraData:
-    d = json.loads(Path(path).read_text())
-    if d.get("format", FORMAT) != FORMAT:
-        raise ValueError(f"{path}: format {d.get('format')!r} is not {FORMAT!r}")
-    return _build({**d, **d.get("noise", {})}, list(d.get("samples", [])))
+    return _build(*read_json_samples(path, FORMAT, "samples"))
 
 
 def load_tcp_csv(path: str | Path) -> TcpCameraData:
-    meta: dict[str, Any] = {}
-    body = []
-    for line in Path(path).read_text().splitlines():
-        s = line.strip()
-        if s.startswith("#"):
-            if "=" in s:
-                key, val = s[1:].split("=", 1)
-                parts = [p.strip() for p in val.split(",")]
-                try:
-                    nums = [float(p) for p in parts]
-                    meta[key.strip()] = nums if len(nums) > 1 else nums[0]
-                except ValueError:
-                    meta[key.strip()] = val.strip()
-        elif s:
-            body.append(line)
-    reader = csv.DictReader(io.StringIO("\n".join(body)))
-    header = [h.strip() for h in reader.fieldnames or []]
+    meta, header, rows = read_csv_samples(path)
     need = ["flange_x", "flange_y", "flange_z", "cam_x", "cam_y", "cam_z"]
     quat_cols = ["flange_qx", "flange_qy", "flange_qz", "flange_qw"]
     ur_cols = ["flange_rx", "flange_ry", "flange_rz"]
@@ -122,34 +89,20 @@ def load_tcp_csv(path: str | Path) -> TcpCameraData:
         raise ValueError(f"{path}: CSV header needs {need} and either {quat_cols} or {ur_cols}; missing {missing}")
     use_quat = all(c in header for c in quat_cols)
     samples = []
-    for n, raw in enumerate(reader):
-        r = {k.strip(): (v or "").strip() for k, v in raw.items() if k is not None}
-        try:
-            pos = [float(r[c]) for c in ("flange_x", "flange_y", "flange_z")]
-            s: dict[str, Any] = {
-                "label": r.get("label", ""),
-                "p_cam": [float(r[c]) for c in ("cam_x", "cam_y", "cam_z")],
-            }
-            if use_quat:
-                s["flange_position"] = pos
-                s["flange_quat_xyzw"] = [float(r[c]) for c in quat_cols]
-            else:
-                s["ur_pose"] = pos + [float(r[c]) for c in ur_cols]
-        except ValueError as exc:
-            raise ValueError(f"{path}: data row {n + 1}: {exc}") from exc
+    for n, r in enumerate(rows):
+        pos = row_numbers(path, n, r, ("flange_x", "flange_y", "flange_z"))
+        s: dict[str, Any] = {"label": r.get("label", ""), "p_cam": row_numbers(path, n, r, ("cam_x", "cam_y", "cam_z"))}
+        if use_quat:
+            s["flange_position"] = pos
+            s["flange_quat_xyzw"] = row_numbers(path, n, r, quat_cols)
+        else:
+            s["ur_pose"] = pos + row_numbers(path, n, r, ur_cols)
         samples.append(s)
     return _build(meta, samples)
 
 
-def tcp_to_json_dict(data: TcpCameraData) -> dict[str, Any]:
+def _metadata(data: TcpCameraData) -> dict[str, Any]:
     nz = data.noise
-    samples = []
-    for i in range(data.n):
-        p, q = pose7_from_T(data.T_base_flange[i])
-        samples.append(
-            {"label": data.labels[i], "flange_position": p.tolist(), "flange_quat_xyzw": q.tolist(),
-             "p_cam": data.p_cam[i].tolist()}
-        )  # fmt: skip
     return {
         "format": FORMAT,
         "units": "m",
@@ -159,8 +112,18 @@ def tcp_to_json_dict(data: TcpCameraData) -> dict[str, Any]:
             "robot_position_sigma": nz.robot_position_sigma_m,
             "robot_rotation_sigma_deg": float(np.degrees(nz.robot_rotation_sigma_rad)),
         },
-        "samples": samples,
     }
+
+
+def tcp_to_json_dict(data: TcpCameraData) -> dict[str, Any]:
+    samples = []
+    for i in range(data.n):
+        p, q = pose7_from_T(data.T_base_flange[i])
+        samples.append(
+            {"label": data.labels[i], "flange_position": p.tolist(), "flange_quat_xyzw": q.tolist(),
+             "p_cam": data.p_cam[i].tolist()}
+        )  # fmt: skip
+    return {**_metadata(data), "samples": samples}
 
 
 def save_tcp_json(data: TcpCameraData, path: str | Path) -> None:
@@ -168,15 +131,8 @@ def save_tcp_json(data: TcpCameraData, path: str | Path) -> None:
 
 
 def save_tcp_csv(data: TcpCameraData, path: str | Path) -> None:
-    nz = data.noise
-    out = io.StringIO()
-    out.write(f"# format = {FORMAT}\n# units = m\n# camera_units = m\n")
-    out.write(f"# camera_sigma = {', '.join(repr(float(v)) for v in nz.camera_sigma_m)}\n")
-    out.write(f"# robot_position_sigma = {float(nz.robot_position_sigma_m)!r}\n")
-    out.write(f"# robot_rotation_sigma_deg = {float(np.degrees(nz.robot_rotation_sigma_rad))!r}\n")
-    w = csv.writer(out, lineterminator="\n")
-    w.writerow(["label", *_CSV_QUAT_HEADER])
+    rows = []
     for i in range(data.n):
         p, q = pose7_from_T(data.T_base_flange[i])
-        w.writerow([data.labels[i], *(repr(float(v)) for v in (*p, *q, *data.p_cam[i]))])
-    Path(path).write_text(out.getvalue())
+        rows.append([data.labels[i], *(repr(float(v)) for v in (*p, *q, *data.p_cam[i]))])
+    write_csv_samples(path, _metadata(data), ["label", *_CSV_QUAT_HEADER], rows)

@@ -24,7 +24,6 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import OptimizeResult, least_squares
 from scipy.spatial.distance import pdist
-from scipy.stats import chi2 as chi2_dist
 
 from engine.transforms import T_from_Rt, exp_so3, hat, inv, so3_left_jacobian
 from plugins.solvers.calibration_result import CalibrationResult
@@ -36,7 +35,7 @@ from plugins.solvers.pose_lsq import (
     combine_verdict,
     looks_like_millimetres,
     marginal_covariance,
-    robust_variance_factor,
+    robust_block_pvalues,
     studentised_block_tests,
 )
 from plugins.solvers.tcp_camera.data import TcpCameraData
@@ -199,8 +198,7 @@ def _flag_outliers(data: TcpCameraData, problem: _Problem, th: TcpThresholds) ->
         r, J = problem.residual_and_jacobian(np.zeros(9))
         stats, dofs, pvals = studentised_block_tests(J, r, [np.arange(3 * i, 3 * i + 3) for i in range(keep.size)])
         if chi2_consistency(float(r @ r), r.size - 9)[1] < th.chi2_p_value:
-            factor = max(1.0, robust_variance_factor(stats, dofs))
-            pvals = np.where(dofs > 0, chi2_dist.sf(stats / factor, np.maximum(dofs, 1)), 1.0)
+            pvals, factor = robust_block_pvalues(stats, dofs)
         worst = int(np.argmin(pvals))
         if pvals[worst] >= th.outlier_p_value or dofs[worst] == 0 or keep.size <= 5:
             break

@@ -21,42 +21,29 @@ tracker_qw`` and optionally ``label``, ``orientation`` (``fixed``/``free``), ``f
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from engine.transforms import T_from_Rt, pose7_from_T
+from plugins.solvers.sample_files import (
+    length_scale,
+    quat_matrix,
+    read_csv_samples,
+    read_json_samples,
+    row_numbers,
+    write_csv_samples,
+)
 from plugins.solvers.vive_desk.data import ViveDeskData, ViveNoiseModel
 
-F64 = NDArray[np.float64]
 FORMAT = "vgr.vive_desk/1"
-_UNITS = {"m": 1.0, "mm": 1e-3}
 _CSV_REQUIRED = [
     "desk_x", "desk_y", "desk_z", "tracker_x", "tracker_y", "tracker_z",
     "tracker_qx", "tracker_qy", "tracker_qz", "tracker_qw",
 ]  # fmt: skip
-
-
-def _quat_matrix(q: ArrayLike, where: str) -> F64:
-    q = np.asarray(q, dtype=float).reshape(-1)
-    if q.shape != (4,) or not np.all(np.isfinite(q)):
-        raise ValueError(f"{where}: quaternion must be 4 finite numbers (x, y, z, w), got {q.tolist()}")
-    n = float(np.linalg.norm(q))
-    if abs(n - 1.0) > 1e-3:
-        raise ValueError(f"{where}: quaternion norm is {n:.4f}, not 1 (wrong columns or order?)")
-    return Rotation.from_quat(q / n).as_matrix()
-
-
-def _unit_scale(units: str) -> float:
-    if units not in _UNITS:
-        raise ValueError(f"units must be 'm' or 'mm', got {units!r}")
-    return _UNITS[units]
 
 
 def _noise(meta: dict[str, Any], k: float) -> ViveNoiseModel:
@@ -74,10 +61,10 @@ def _noise(meta: dict[str, Any], k: float) -> ViveNoiseModel:
 
 
 def _build(meta: dict[str, Any], rows: list[dict[str, Any]]) -> ViveDeskData:
-    k = _unit_scale(str(meta.get("units", "m")))
+    k = length_scale(str(meta.get("units", "m")))
     if not rows:
         raise ValueError("no contacts in the file")
-    R_default = _quat_matrix(meta.get("fixture_quat_xyzw", [0, 0, 0, 1]), "fixture_quat_xyzw")
+    R_default = quat_matrix(meta.get("fixture_quat_xyzw", [0, 0, 0, 1]), "fixture_quat_xyzw")
     off_z = float(meta.get("contact_offset_z", 0.12 / k)) * k
     P, T, R, off, known, labels = [], [], [], [], [], []
     for i, c in enumerate(rows):
@@ -91,13 +78,13 @@ def _build(meta: dict[str, Any], rows: list[dict[str, Any]]) -> ViveDeskData:
             Ti[:3, 3] *= k
         else:
             Ti = T_from_Rt(
-                _quat_matrix(c["tracker_quat_xyzw"], f"{where} tracker_quat_xyzw"),
+                quat_matrix(c["tracker_quat_xyzw"], f"{where} tracker_quat_xyzw"),
                 np.asarray(c["tracker_position"], dtype=float) * k,
             )
         T.append(Ti)
         fq = c.get("fixture_quat_xyzw")
         known.append(fq != "free")
-        R.append(R_default if fq in (None, "free") else _quat_matrix(fq, f"{where} fixture_quat_xyzw"))
+        R.append(R_default if fq in (None, "free") else quat_matrix(fq, f"{where} fixture_quat_xyzw"))
         off.append(np.asarray(c.get("tcp_offset", [0.0, 0.0, off_z / k]), dtype=float) * k)
     return ViveDeskData.from_contacts(
         np.array(P),
@@ -112,69 +99,49 @@ def _build(meta: dict[str, Any], rows: list[dict[str, Any]]) -> ViveDeskData:
 
 def load_vive_json(path: str | Path) -> ViveDeskData:
     """Read a ``vgr.vive_desk/1`` JSON file (see module docstring)."""
-    d = json.loads(Path(path).read_text())
-    if d.get("format", FORMAT) != FORMAT:
-        raise ValueError(f"{path}: format {d.get('format')!r} is not {FORMAT!r}")
-    meta = {**d, **d.get("noise", {})}
-    return _build(meta, list(d.get("contacts", [])))
-
-
-def _parse_meta_value(v: str) -> Any:
-    parts = [p.strip() for p in v.split(",")]
-    try:
-        nums = [float(p) for p in parts]
-    except ValueError:
-        return v.strip()
-    return nums if len(nums) > 1 else nums[0]
+    return _build(*read_json_samples(path, FORMAT, "contacts"))
 
 
 def load_vive_csv(path: str | Path) -> ViveDeskData:
     """Read the CSV variant (``# key = value`` metadata, then a header row; see module docstring)."""
-    text = Path(path).read_text()
-    meta: dict[str, Any] = {}
-    body: list[str] = []
-    for line in text.splitlines():
-        s = line.strip()
-        if s.startswith("#"):
-            if "=" in s:
-                key, val = s[1:].split("=", 1)
-                meta[key.strip()] = _parse_meta_value(val)
-        elif s:
-            body.append(line)
-    reader = csv.DictReader(io.StringIO("\n".join(body)))
-    header = [h.strip() for h in (reader.fieldnames or [])]
+    meta, header, csv_rows = read_csv_samples(path)
     missing = [c for c in _CSV_REQUIRED if c not in header]
     if missing:
         raise ValueError(f"{path}: CSV header lacks columns {missing}")
     rows = []
-    for n, raw in enumerate(reader):
-        r = {k.strip(): (v or "").strip() for k, v in raw.items() if k is not None}
-
-        def num(cols: list[str], r: dict[str, str] = r, n: int = n) -> list[float]:
-            try:
-                return [float(r[c]) for c in cols]
-            except ValueError as exc:
-                raise ValueError(f"{path}: data row {n + 1}: {exc}") from exc
-
+    for n, r in enumerate(csv_rows):
         c: dict[str, Any] = {
             "label": r.get("label", ""),
-            "desk_point": num(["desk_x", "desk_y", "desk_z"]),
-            "tracker_position": num(["tracker_x", "tracker_y", "tracker_z"]),
-            "tracker_quat_xyzw": num(["tracker_qx", "tracker_qy", "tracker_qz", "tracker_qw"]),
+            "desk_point": row_numbers(path, n, r, ["desk_x", "desk_y", "desk_z"]),
+            "tracker_position": row_numbers(path, n, r, ["tracker_x", "tracker_y", "tracker_z"]),
+            "tracker_quat_xyzw": row_numbers(path, n, r, ["tracker_qx", "tracker_qy", "tracker_qz", "tracker_qw"]),
         }
         if r.get("orientation", "fixed").lower() == "free":
             c["fixture_quat_xyzw"] = "free"
         elif r.get("fixture_qw"):
-            c["fixture_quat_xyzw"] = num(["fixture_qx", "fixture_qy", "fixture_qz", "fixture_qw"])
+            c["fixture_quat_xyzw"] = row_numbers(path, n, r, ["fixture_qx", "fixture_qy", "fixture_qz", "fixture_qw"])
         if r.get("offset_x"):
-            c["tcp_offset"] = num(["offset_x", "offset_y", "offset_z"])
+            c["tcp_offset"] = row_numbers(path, n, r, ["offset_x", "offset_y", "offset_z"])
         rows.append(c)
     return _build(meta, rows)
 
 
+def _metadata(data: ViveDeskData) -> dict[str, Any]:
+    nz = data.noise
+    return {
+        "format": FORMAT,
+        "units": "m",
+        "noise": {
+            "tracker_position_sigma": nz.tracker_position_sigma_m,
+            "tracker_rotation_sigma_deg": float(np.degrees(nz.tracker_rotation_sigma_rad)),
+            "fixture_rotation_sigma_deg": float(np.degrees(nz.fixture_rotation_sigma_rad)),
+            "desk_point_sigma": nz.desk_point_sigma_m,
+        },
+    }
+
+
 def vive_to_json_dict(data: ViveDeskData) -> dict[str, Any]:
     """The JSON document of *data* (metres), the inverse of :func:`load_vive_json`."""
-    nz = data.noise
     contacts = []
     for i in range(data.n):
         p, q = pose7_from_T(data.T_base_tracker[i])
@@ -190,17 +157,7 @@ def vive_to_json_dict(data: ViveDeskData) -> dict[str, Any]:
         else:
             c["fixture_quat_xyzw"] = "free"
         contacts.append(c)
-    return {
-        "format": FORMAT,
-        "units": "m",
-        "noise": {
-            "tracker_position_sigma": nz.tracker_position_sigma_m,
-            "tracker_rotation_sigma_deg": float(np.degrees(nz.tracker_rotation_sigma_rad)),
-            "fixture_rotation_sigma_deg": float(np.degrees(nz.fixture_rotation_sigma_rad)),
-            "desk_point_sigma": nz.desk_point_sigma_m,
-        },
-        "contacts": contacts,
-    }
+    return {**_metadata(data), "contacts": contacts}
 
 
 def save_vive_json(data: ViveDeskData, path: str | Path) -> None:
@@ -209,22 +166,14 @@ def save_vive_json(data: ViveDeskData, path: str | Path) -> None:
 
 def save_vive_csv(data: ViveDeskData, path: str | Path) -> None:
     """Write the CSV variant (metres, per-contact fixture orientation and offset columns)."""
-    nz = data.noise
-    out = io.StringIO()
-    out.write(f"# format = {FORMAT}\n# units = m\n")
-    out.write(f"# tracker_position_sigma = {nz.tracker_position_sigma_m!r}\n")
-    out.write(f"# tracker_rotation_sigma_deg = {float(np.degrees(nz.tracker_rotation_sigma_rad))!r}\n")
-    out.write(f"# fixture_rotation_sigma_deg = {float(np.degrees(nz.fixture_rotation_sigma_rad))!r}\n")
-    out.write(f"# desk_point_sigma = {nz.desk_point_sigma_m!r}\n")
     cols = ["label", *_CSV_REQUIRED, "orientation", "fixture_qx", "fixture_qy", "fixture_qz", "fixture_qw"]
     cols += ["offset_x", "offset_y", "offset_z"]
-    w = csv.writer(out, lineterminator="\n")
-    w.writerow(cols)
+    rows = []
     for i in range(data.n):
         p, q = pose7_from_T(data.T_base_tracker[i])
         fq = Rotation.from_matrix(data.R_desktop_tcp[i]).as_quat()
         orient = "fixed" if data.orientation_known[i] else "free"
         num = [*data.desk_points[i], *p, *q]
         extra = [*fq, *data.tcp_offsets_desktop[i]]
-        w.writerow([data.labels[i], *(repr(float(v)) for v in num), orient, *(repr(float(v)) for v in extra)])
-    Path(path).write_text(out.getvalue())
+        rows.append([data.labels[i], *(repr(float(v)) for v in num), orient, *(repr(float(v)) for v in extra)])
+    write_csv_samples(path, _metadata(data), cols, rows)

@@ -26,7 +26,6 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import null_space
 from scipy.optimize import least_squares
-from scipy.stats import chi2 as chi2_dist
 
 from engine.transforms import as_transform, exp_so3
 from plugins.solvers.calibration_result import CalibrationResult
@@ -37,7 +36,7 @@ from plugins.solvers.pose_lsq import (
     chi2_consistency,
     combine_verdict,
     marginal_covariance,
-    robust_variance_factor,
+    robust_block_pvalues,
     studentised_block_tests,
 )
 from plugins.solvers.vive_desk.checks import (
@@ -293,8 +292,7 @@ def calibrate_vive_desk(
     blocks = problem.sample_row_blocks()
     stats, dofs, pvals = studentised_block_tests(J, r, blocks)
     if p_chi2 < th.chi2_p_value:  # noise model too optimistic: test against the data's own scale
-        factor = max(1.0, robust_variance_factor(stats, dofs))
-        pvals = np.where(dofs > 0, chi2_dist.sf(stats / factor, np.maximum(dofs, 1)), 1.0)
+        pvals, factor = robust_block_pvalues(stats, dofs)
         metrics["robust_variance_factor"] = factor
     outliers = (pvals < th.outlier_p_value) & (dofs > 0)
     metrics["n_untestable_samples"] = float(np.count_nonzero(dofs == 0))
