@@ -29,10 +29,10 @@ from typing import Any
 
 from engine.bus import Bus, active_key, control_key, ready_key, started_key
 from engine.clock import Clock, make_clock
-from engine.codec import Envelope
-from engine.graph import Graph, ServiceEdge
-from engine.messages import Event, Message
+from engine.graph import Graph
+from engine.messages import Event
 from engine.runtime import StageRuntime, StageStats
+from engine.stage_host import MessageObserver
 
 log = logging.getLogger("vgr.runner")
 
@@ -43,39 +43,11 @@ class RunError(RuntimeError):
     """The run could not start (bus, stage construction, start-up barrier)."""
 
 
-class Observer:
-    """Sees everything a process's stages do, in the order they do it (recorder, tests).
-
-    Calls come from stage threads; an observer must be quick and thread-safe.
-    """
+class Observer(MessageObserver):
+    """Sees a process's run: its start, every message of its stages (see MessageObserver), its end."""
 
     def on_start(self, runner: Runner) -> None:
         """The stages exist and are declared; nothing has run yet."""
-
-    def on_publish(self, stage: str, port: str, payload: bytes, envelope: bytes, msg: Message) -> None:
-        """*stage* published *msg* on *port* (encoded: payload + envelope)."""
-
-    def on_receive(self, src_stage: str, src_port: str, payload: bytes, envelope: bytes) -> None:
-        """A message of a stage in another process arrived here (before it is delivered)."""
-
-    def on_deliver(self, stage: str, port: str, env: Envelope) -> None:
-        """*stage* is about to handle message ``env.seq`` of its input *port*."""
-
-    def on_stage_finish(self, stage: str) -> None:
-        """All inputs of *stage* have ended; its ``finish()`` is about to run."""
-
-    def on_service(
-        self,
-        stage: str,
-        client: str,
-        edge: ServiceEdge,
-        req_payload: bytes,
-        req_env: bytes,
-        reply_payload: bytes,
-        reply_env: bytes,
-        error: str,
-    ) -> None:
-        """*stage* called ``edge.provider.edge.service`` through *client*; the exchange is complete."""
 
     def on_finish(self, runner: Runner, summary: RunSummary) -> None:
         """The run is over (sessions closed); *summary* may be annotated (artifacts)."""
@@ -164,13 +136,14 @@ class Runner:
             level = {"result": logging.INFO, "warning": logging.WARNING}.get(ev.level, logging.ERROR)
             logging.getLogger(f"vgr.stage.{ev.stage}").log(level, "[%s] %s", ev.code, ev.message)
 
-    def stage_done(self, rt: StageRuntime) -> None:
+    def stage_done(self, stage: str) -> None:
         self._progress.set()
 
-    def stage_failed(self, rt: StageRuntime) -> None:
-        self.failed_stages.append(rt.name)
+    def stage_failed(self, stage: str) -> None:
+        rt = self.runtimes[stage]
+        self.failed_stages.append(stage)
         if self.graph.recipe.on_error == "stop":
-            self.stop(f"stage {rt.name!r} failed: {rt.stats.error}")
+            self.stop(f"stage {stage!r} failed: {rt.stats.error}")
         else:
             rt.close_outputs()
             rt.data_done.set()
@@ -251,7 +224,7 @@ class Runner:
                 ) from exc
             rt.declare_outputs()
         for rt in self.runtimes.values():
-            rt.declare_inputs()
+            rt.declare_inputs(self.runtimes)
         if self.multi_process:
             self.bus.subscribe(control_key(self.run_id), self._on_control)
             if any(rt.driven for rt in self.runtimes.values()):

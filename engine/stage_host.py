@@ -1,0 +1,101 @@
+"""The interfaces between a run's owner, a stage's runtime and the stage's ports.
+
+* :class:`StageHost`: what a :class:`~engine.runtime.StageRuntime` needs of the runner of its
+  process (engine.runner.Runner, which owns the bus, the stages' lifetime and the run's end);
+* :class:`PortOwner`: what a stage's ports (engine.output_port, engine.remote_input) need of their
+  stage's runtime;
+* :class:`MessageObserver`: what the runtime and the ports tell a run observer (the recorder, tests)
+  of the stages' traffic; engine.runner.Observer adds the run's start and end.
+
+Each side depends on these protocols, never on the other's module, so the engine's imports have no
+circle (tests/engine_core/test_import_graph.py checks it).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from contextlib import AbstractContextManager
+from typing import TYPE_CHECKING, Any, Protocol
+
+if TYPE_CHECKING:
+    import threading
+
+    from engine.bus import Bus
+    from engine.clock import Clock
+    from engine.codec import Envelope
+    from engine.graph import Graph, ServiceEdge, StageNode
+    from engine.messages import Event, Message
+
+Deliver = Callable[[Any], None]  # hands one message of an input port (or its END) to the stage
+
+
+class MessageObserver:
+    """Sees every message the stages of a process publish, receive, handle and exchange, in order.
+
+    Calls come from stage threads; an observer must be quick and thread-safe.
+    """
+
+    def on_publish(self, stage: str, port: str, payload: bytes, envelope: bytes, msg: Message) -> None:
+        """*stage* published *msg* on *port* (encoded: payload + envelope)."""
+
+    def on_receive(self, src_stage: str, src_port: str, payload: bytes, envelope: bytes) -> None:
+        """A message of a stage in another process arrived here (before it is delivered)."""
+
+    def on_deliver(self, stage: str, port: str, env: Envelope) -> None:
+        """*stage* is about to handle message ``env.seq`` of its input *port*."""
+
+    def on_stage_finish(self, stage: str) -> None:
+        """All inputs of *stage* have ended; its ``finish()`` is about to run."""
+
+    def on_service(
+        self,
+        stage: str,
+        client: str,
+        edge: ServiceEdge,
+        req_payload: bytes,
+        req_env: bytes,
+        reply_payload: bytes,
+        reply_env: bytes,
+        error: str,
+    ) -> None:
+        """*stage* called ``edge.provider.edge.service`` through *client*; the exchange is complete."""
+
+
+class StageHost(Protocol):
+    """What a stage's runtime uses of the runner of its process."""
+
+    graph: Graph
+    run_id: str
+    seed: int
+    clock: Clock
+    stop_event: threading.Event  # set once the run stops
+    started: bool  # every stage of the process has been set up
+    driven: set[str]  # sources and the stages downstream of them (they hold the run open)
+
+    @property
+    def bus(self) -> Bus: ...
+
+    @property
+    def observers(self) -> Sequence[MessageObserver]: ...  # fixed before the run starts
+
+    def note_event(self, ev: Event) -> None:
+        """Keep a stage's event for the run's summary (and log it)."""
+
+    def stage_done(self, stage: str) -> None:
+        """*stage* has handled all its data (its outputs have ended)."""
+
+    def stage_failed(self, stage: str) -> None:
+        """*stage* failed (its error is in its stats): stop the run or go on, as the recipe says."""
+
+
+class PortOwner(Protocol):
+    """What a port (engine.output_port, engine.remote_input) uses of its stage's runtime."""
+
+    name: str
+    node: StageNode
+    host: StageHost
+
+    @property
+    def lock(self) -> AbstractContextManager[Any]: ...  # held while the stage handles a message
+
+    def event(self, level: str, code: str, message: str, **details: Any) -> None: ...
