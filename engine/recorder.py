@@ -44,8 +44,8 @@ from engine.runner import Observer, Runner, RunSummary
 from engine.schemas import proto_class
 
 if TYPE_CHECKING:
-    from engine.graph import ServiceEdge
     from engine.messages import Message
+    from engine.stage_host import ServiceCall
 
 log = logging.getLogger("vgr.recorder")
 
@@ -204,32 +204,22 @@ class Recorder(Observer):
     def on_stage_finish(self, stage: str) -> None:
         self._q.put(("finish", stage, self._now()))
 
-    def on_service(
-        self,
-        stage: str,
-        client: str,
-        edge: ServiceEdge,
-        req_payload: bytes,
-        req_env: bytes,
-        reply_payload: bytes,
-        reply_env: bytes,
-        error: str,
-    ) -> None:
-        req = codec.decode_envelope(req_env)
-        reply_type = codec.decode_envelope(reply_env).type_name if reply_env else ""
+    def on_service(self, call: ServiceCall) -> None:
+        req = codec.decode_envelope(call.req_env)
+        reply_type = codec.decode_envelope(call.reply_env).type_name if call.reply_env else ""
         self._q.put(
             (
                 "svc",
-                stage,
-                client,
-                edge.provider,
-                edge.service,
+                call.stage,
+                call.client,
+                call.edge.provider,
+                call.edge.service,
                 req.type_name,
-                req_payload,
+                call.req_payload,
                 req.seq,
                 reply_type,
-                reply_payload,
-                error,
+                call.reply_payload,
+                call.error,
                 self._now(),
             )
         )

@@ -53,7 +53,7 @@ from engine.messages import Event, Message, canonical, detach, freeze_arrays
 from engine.output_port import OutputPort
 from engine.remote_input import RemoteInput
 from engine.stage import EVENTS_PORT, ServiceError, ServiceTimeoutError, Stage, StageContext, stage_rng
-from engine.stage_host import StageHost
+from engine.stage_host import ServiceCall, StageHost
 
 log = logging.getLogger("vgr.runtime")
 LOCAL_QUEUE_DEPTH = 64  # messages a local producer may run ahead of its consumer
@@ -201,8 +201,10 @@ class StageRuntime(StageContext):
             error = str(exc)
             raise ServiceError(f"{self.name} -> {edge.provider}.{edge.service}: {exc}") from None
         finally:
-            for obs in self._observers:
-                obs.on_service(self.name, client, edge, payload, att, reply_payload, reply_att, error)
+            if self._observers:
+                done = ServiceCall(self.name, client, edge, payload, att, reply_payload, reply_att, error)
+                for obs in self._observers:
+                    obs.on_service(done)
         if not isinstance(reply, spec.reply):
             raise ServiceError(
                 f"{edge.provider}.{edge.service} replied {type(reply).__name__}, expected {spec.reply.TYPE}"

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
 if TYPE_CHECKING:
@@ -27,6 +28,20 @@ if TYPE_CHECKING:
     from engine.messages import Event, Message
 
 Deliver = Callable[[Any], None]  # hands one message of an input port (or its END) to the stage
+
+
+@dataclass(frozen=True, slots=True)
+class ServiceCall:
+    """A completed service call: *stage* called ``edge.provider.edge.service`` through *client*."""
+
+    stage: str
+    client: str
+    edge: ServiceEdge
+    req_payload: bytes
+    req_env: bytes
+    reply_payload: bytes  # empty (and reply_env too) when no reply came
+    reply_env: bytes
+    error: str  # why the call failed; empty when it was answered
 
 
 class MessageObserver:
@@ -47,18 +62,8 @@ class MessageObserver:
     def on_stage_finish(self, stage: str) -> None:
         """All inputs of *stage* have ended; its ``finish()`` is about to run."""
 
-    def on_service(
-        self,
-        stage: str,
-        client: str,
-        edge: ServiceEdge,
-        req_payload: bytes,
-        req_env: bytes,
-        reply_payload: bytes,
-        reply_env: bytes,
-        error: str,
-    ) -> None:
-        """*stage* called ``edge.provider.edge.service`` through *client*; the exchange is complete."""
+    def on_service(self, call: ServiceCall) -> None:
+        """A stage's service call is complete (answered or failed)."""
 
 
 class StageHost(Protocol):
