@@ -52,7 +52,7 @@ from engine.inbox import END, STOP, PortInbox
 from engine.messages import Event, Message, canonical, detach, freeze_arrays
 from engine.output_port import OutputPort
 from engine.remote_input import RemoteInput
-from engine.stage import EVENTS_PORT, ServiceError, ServiceTimeoutError, Stage, StageContext, stage_rng
+from engine.stage import EVENTS_PORT, ServiceError, ServiceTimeoutError, Stage, StageContext
 from engine.stage_host import ServiceCall, StageHost
 
 log = logging.getLogger("vgr.runtime")
@@ -98,16 +98,12 @@ class StageRuntime(StageContext):
     PortOwner for its ports), run by *host*."""
 
     def __init__(self, host: StageHost, node: StageNode) -> None:
+        path = host.graph.loaded.path
+        recipe_dir = path.resolve().parent if path is not None and path.is_file() else None
+        log = logging.getLogger(f"vgr.stage.{node.name}")
+        super().__init__(node.name, host.run_id, host.seed, host.clock, log, recipe_dir)
         self.host = host
         self.node = node
-        self.name = node.name
-        self.run_id = host.run_id
-        self.seed = host.seed
-        self.rng = stage_rng(host.seed, node.name)
-        self.clock = host.clock
-        self.log = logging.getLogger(f"vgr.stage.{node.name}")
-        path = host.graph.loaded.path
-        self.recipe_dir = path.resolve().parent if path is not None and path.is_file() else None
         self.lock = threading.RLock()  # serialises the stage's handlers
         self.inline = node.spec.dispatch == "auto"
         self.stats = StageStats(

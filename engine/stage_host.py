@@ -83,14 +83,12 @@ class StageHost(Protocol):
     @property
     def observers(self) -> Sequence[MessageObserver]: ...  # fixed before the run starts
 
-    def note_event(self, ev: Event) -> None:
-        """Keep a stage's event for the run's summary (and log it)."""
-
-    def stage_done(self, stage: str) -> None:
-        """*stage* has handled all its data (its outputs have ended)."""
-
-    def stage_failed(self, stage: str) -> None:
-        """*stage* failed (its error is in its stats): stop the run or go on, as the recipe says."""
+    # what a stage's runtime tells its host: an event for the run's summary; that *stage* has handled
+    # all its data (its outputs have ended); that it failed (its error is in its stats), upon which
+    # the host stops the run or goes on, as the recipe says
+    def note_event(self, ev: Event) -> None: ...
+    def stage_done(self, stage: str) -> None: ...
+    def stage_failed(self, stage: str) -> None: ...
 
 
 class PortOwner(Protocol):
