@@ -257,20 +257,23 @@ def _rank(c: CandidateScore) -> tuple:
 
 def write_json(result: GapResult, path: str | Path) -> Path:
     path = Path(path)
-    path.write_text(json.dumps(_jsonable(report_dict(result)), indent=2), encoding="utf-8")
+    path.write_text(json.dumps(plain(report_dict(result), finite=True), indent=2), encoding="utf-8")
     return path
 
 
-def _jsonable(x: Any) -> Any:
+def plain(x: Any, *, finite: bool = False) -> Any:
+    """*x* in plain Python for a JSON or YAML file (the report, the augmented model file): str keys,
+    lists for tuples and arrays, numpy scalars as Python numbers; with *finite* (JSON has no NaN),
+    a Python float that is not finite becomes None."""
     if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
+        return {str(k): plain(v, finite=finite) for k, v in x.items()}
     if isinstance(x, list | tuple):
-        return [_jsonable(v) for v in x]
+        return [plain(v, finite=finite) for v in x]
     if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
+        return plain(x.tolist(), finite=finite)
     if isinstance(x, np.generic):
         return x.item()
-    if isinstance(x, float) and not np.isfinite(x):
+    if finite and isinstance(x, float) and not np.isfinite(x):
         return None
     return x
 

@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from engine.gap.interfaces import Candidate, Feature, FittedEffect, GapInputError, Linearisation
+from engine.gap.report import plain
 from plugins.sim.kinematics import RobotModel
 from plugins.sim.measurement_effects import apply_range_distortion, range_distortion_jacobian
 from plugins.sim.model_file import model_to_dict
@@ -536,22 +537,10 @@ class KinematicGapProblem:
 
     def save_model(self, path: Path) -> Path:
         path = Path(path)
-        path.write_text(yaml.safe_dump(_plain(self.gap_model_dict()), sort_keys=False), encoding="utf-8")
+        path.write_text(yaml.safe_dump(plain(self.gap_model_dict()), sort_keys=False), encoding="utf-8")
         return path
-
-
-def _plain(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _plain(x.tolist())
-    if isinstance(x, np.generic):
-        return x.item()
-    return x
 
 
 def effect_config(effect: Any) -> dict[str, Any]:
     """A catalog effect as the plain mapping ``effects_from_config`` reads (lists for tuples)."""
-    return _plain(asdict(effect))
+    return plain(asdict(effect))
