@@ -227,7 +227,7 @@ class Runner:
             rt.declare_inputs(self.runtimes)
         if self.multi_process:
             self.bus.subscribe(control_key(self.run_id), self._on_control)
-            if any(rt.driven for rt in self.runtimes.values()):
+            if self.driven & self.runtimes.keys():
                 self._tokens["active"] = self.bus.token(active_key(self.run_id, self.process))
         for name in local:
             self._tokens[name] = self.bus.token(ready_key(self.run_id, name))
@@ -252,7 +252,7 @@ class Runner:
         self.started = True
         for name in local:
             rt = self.runtimes[name]
-            if not rt.driven and not rt.node.cls.inputs:
+            if name not in self.driven and not rt.node.cls.inputs:
                 rt.data_done.set()  # pure service providers do not hold the run open
             rt.start_threads()
         if self.multi_process:
@@ -314,7 +314,15 @@ class Runner:
             live.close()
 
     def _local_driven_done(self) -> bool:
-        return all(rt.data_done.is_set() or rt.waits_only_on_undriven() for rt in self.runtimes.values() if rt.driven)
+        driven = (rt for name, rt in self.runtimes.items() if name in self.driven)
+        return all(rt.data_done.is_set() or self._waits_only_on_undriven(rt) for rt in driven)
+
+    def _waits_only_on_undriven(self, rt: StageRuntime) -> bool:
+        """True when every input of *rt* still open comes from a stage nothing drives (a device's truth
+        stream, say): those end only when the run ends, so that stage must not hold the run open."""
+        srcs = {e.dst_port: e.src for e in self.graph.inputs_of(rt.name)}
+        pending = set(rt.pending_inputs)
+        return bool(pending) and all(srcs.get(port) not in self.driven for port in pending)
 
     def _remote_active(self) -> bool:
         if not self.multi_process:
@@ -337,7 +345,7 @@ class Runner:
         # the data is complete everywhere: service-only stages end their streams, consumers drain
         for name in self.graph.stages_in(self.process):
             rt = self.runtimes[name]
-            if not rt.driven and not rt.node.cls.inputs:
+            if name not in self.driven and not rt.node.cls.inputs:
                 rt.close_outputs()
         deadline = time.monotonic() + STOP_GRACE_S
         while not all(rt.data_done.is_set() for rt in self.runtimes.values()):

@@ -238,19 +238,6 @@ class StageRuntime(StageContext):
                 key = wire_key(self.run_id, edge.src, edge.src_port)
                 self.inboxes[edge.dst_port] = RemoteInput(self, edge.dst_port, key, deliver)
 
-    @property
-    def driven(self) -> bool:
-        return self.name in self.host.driven
-
-    def waits_only_on_undriven(self) -> bool:
-        """True when every input still open comes from a stage nothing drives (a device's truth
-        stream, say): those end only when the run ends, so this stage must not hold the run open."""
-        pending = set(self.pending_inputs)
-        if not pending:
-            return False
-        srcs = {e.dst_port: e.src for e in self.host.graph.inputs_of(self.name)}
-        return all(srcs.get(port) not in self.host.driven for port in pending)
-
     def start_threads(self) -> None:
         """Start the threads that read inputs and serve requests (not a source's run())."""
         for port, box in self.inboxes.items():

@@ -75,7 +75,6 @@ class StageHost(Protocol):
     clock: Clock
     stop_event: threading.Event  # set once the run stops
     started: bool  # every stage of the process has been set up
-    driven: set[str]  # sources and the stages downstream of them (they hold the run open)
 
     @property
     def bus(self) -> Bus: ...
