@@ -23,8 +23,10 @@ import json
 import logging
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
+from functools import partial
 from typing import Any
 
 from engine.bus import Bus, active_key, control_key, ready_key, started_key
@@ -265,50 +267,41 @@ class Runner:
         the first messages do not pile up in a process still setting up (they would not be lost,
         only late). A process slower than ``ready_timeout_s`` is warned about, not waited for."""
         self._tokens["started"] = self.bus.token(started_key(self.run_id, self.process))
-        expected = {started_key(self.run_id, p) for p in self.graph.processes()}
-        deadline = time.monotonic() + self.ready_timeout_s
-        live = self.bus.watch_alive(started_key(self.run_id, "*"))
-        try:
-            while not self.stop_event.is_set():
-                keys, version = live.snapshot()
-                missing = expected - keys
-                if not missing:
-                    return
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    log.warning(
-                        "starting the sources although process(es) %s not set up after %g s",
-                        ", ".join(sorted(k.rsplit("/", 1)[-1] for k in missing)),
-                        self.ready_timeout_s,
-                    )
-                    return
-                live.wait(version, min(left, 0.5))
-        finally:
-            live.close()
+        missing = self._wait_alive(partial(started_key, self.run_id), set(self.graph.processes()))
+        if missing and not self.stop_event.is_set():
+            log.warning(
+                "starting the sources although process(es) %s not set up after %g s",
+                ", ".join(sorted(missing)),
+                self.ready_timeout_s,
+            )
 
     def _barrier(self) -> None:
-        """Wait until every stage of the recipe is declared, in whichever process. A liveliness
-        subscriber reports each stage's token as it appears, so every process passes the barrier
-        as soon as the last one is up (no polling delay between the processes' starts)."""
-        expected = set(self.graph.nodes)
+        """Wait until every stage of the recipe is declared, in whichever process."""
+        missing = self._wait_alive(partial(ready_key, self.run_id), set(self.graph.nodes))
+        if missing and self.stop_event.is_set():
+            raise RunError(f"run stopped while waiting for stages: {self.stop_reason}")
+        if missing:
+            where = ", ".join(f"{m} (process {self.graph.nodes[m].spec.process})" for m in sorted(missing))
+            raise RunError(
+                f"after {self.ready_timeout_s:g} s these stages are not running: {where}. "
+                f"Start `vgr run RECIPE --process NAME` for each process, with the same run id "
+                f"({self.run_id}) and zenoh endpoints that connect them."
+            )
+
+    def _wait_alive(self, key: Callable[[str], str], names: set[str]) -> set[str]:
+        """Wait until the liveliness token ``key(name)`` of each of *names* is up, the run stops, or
+        ``ready_timeout_s`` has passed; returns the names still missing. A liveliness subscriber
+        reports each token as it appears, so every process goes on as soon as the last one is up
+        (no polling delay between the processes' starts)."""
         deadline = time.monotonic() + self.ready_timeout_s
-        live = self.bus.watch_alive(ready_key(self.run_id, "*"))
+        live = self.bus.watch_alive(key("*"))
         try:
             while True:
                 keys, version = live.snapshot()
-                missing = expected - {k.rsplit("/", 1)[-1] for k in keys}
-                if not missing:
-                    return
-                if self.stop_event.is_set():
-                    raise RunError(f"run stopped while waiting for stages: {self.stop_reason}")
+                missing = {n for n in names if key(n) not in keys}
                 left = deadline - time.monotonic()
-                if left <= 0:
-                    where = ", ".join(f"{m} (process {self.graph.nodes[m].spec.process})" for m in sorted(missing))
-                    raise RunError(
-                        f"after {self.ready_timeout_s:g} s these stages are not running: {where}. "
-                        f"Start `vgr run RECIPE --process NAME` for each process, with the same run id "
-                        f"({self.run_id}) and zenoh endpoints that connect them."
-                    )
+                if not missing or left <= 0 or self.stop_event.is_set():
+                    return missing
                 live.wait(version, min(left, 0.5))  # (0.5 s: notice a stop without a token change)
         finally:
             live.close()
