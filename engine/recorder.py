@@ -207,22 +207,7 @@ class Recorder(Observer):
     def on_service(self, call: ServiceCall) -> None:
         req = codec.decode_envelope(call.req_env)
         reply_type = codec.decode_envelope(call.reply_env).type_name if call.reply_env else ""
-        self._q.put(
-            (
-                "svc",
-                call.stage,
-                call.client,
-                call.edge.provider,
-                call.edge.service,
-                req.type_name,
-                call.req_payload,
-                req.seq,
-                reply_type,
-                call.reply_payload,
-                call.error,
-                self._now(),
-            )
-        )
+        self._q.put(("svc", call, req.type_name, req.seq, reply_type, self._now()))
 
     def on_finish(self, runner: Runner, summary: RunSummary) -> None:
         self._q.put(("end", summary))
@@ -326,18 +311,19 @@ class Recorder(Observer):
                 channel_id=cid, log_time=log_time, data=pb.SerializeToString(), publish_time=log_time
             )
         elif kind == "svc":
-            (_, stage, client, provider, service, req_type, req, req_seq, reply_type, reply, error, log_time) = item
+            _, call, req_type, req_seq, reply_type, log_time = item
+            stage, client, provider, service = call.stage, call.client, call.edge.provider, call.edge.service
             pb = proto_class("vgr.v1.ServiceExchange")(
                 caller=stage,
                 client=client,
                 provider=provider,
                 service=service,
                 request_type=req_type,
-                request=bytes(req),
+                request=bytes(call.req_payload),
                 request_seq=req_seq,
                 reply_type=reply_type,
-                reply=bytes(reply),
-                error=error,
+                reply=bytes(call.reply_payload),
+                error=call.error,
             )
             cid = self._channel(
                 service_topic(stage, client),
