@@ -1,15 +1,9 @@
-"""The interfaces between a run's owner, a stage's runtime and the stage's ports.
-
-* :class:`StageHost`: what a :class:`~engine.runtime.StageRuntime` needs of the runner of its
-  process (engine.runner.Runner, which owns the bus, the stages' lifetime and the run's end);
-* :class:`PortOwner`: what a stage's ports (engine.output_port, engine.remote_input) need of their
-  stage's runtime;
-* :class:`MessageObserver`: what the runtime and the ports tell a run observer (the recorder, tests)
-  of the stages' traffic; engine.runner.Observer adds the run's start and end.
-
-Each side depends on these protocols, never on the other's module, so the engine's imports have no
-circle (tests/engine_core/test_import_graph.py checks it).
-"""
+"""The interfaces between a run's owner, a stage's runtime and the stage's ports: what a
+:class:`~engine.runtime.StageRuntime` needs of the runner of its process (:class:`StageHost`; the
+runner owns the bus, the stages' lifetime and the run's end), what a stage's ports need of their
+runtime (:class:`PortOwner`), and what both tell a run observer (:class:`MessageObserver`). Each side
+depends on these, never on the other's module: the engine's imports have no circle
+(tests/engine_core/test_import_graph.py)."""
 
 from __future__ import annotations
 
