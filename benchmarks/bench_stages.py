@@ -26,6 +26,15 @@ def make_payload(base: bytes) -> bytes:
     return b"".join((time.monotonic_ns().to_bytes(8, "little"), memoryview(base)[8:]))
 
 
+def pace(slot: float, interval_s: float) -> float:
+    """Sleep until the next send slot, *interval_s* after *slot* (``time.perf_counter()`` seconds),
+    and return it; the same pacing for vgr and for raw zenoh."""
+    slot += interval_s
+    while (d := slot - time.perf_counter()) > 0:
+        time.sleep(d)
+    return slot
+
+
 class BenchSource(Stage):
     """Publishes `count` Blobs of `size` bytes, paced by `interval_s` (0 = as fast as possible)."""
 
@@ -53,9 +62,7 @@ class BenchSource(Stage):
             if i == warmup:
                 cpu0 = time.process_time()
             if interval:
-                nxt += interval
-                while (d := nxt - time.perf_counter()) > 0:
-                    time.sleep(d)
+                nxt = pace(nxt, interval)
             ctx.publish("out", Blob(data=make_payload(base)))
         if p.output:
             Path(p.output).write_text(json.dumps({"cpu_s": [cpu0, time.process_time()]}))

@@ -61,7 +61,7 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path[:0] = [str(HERE), str(ROOT)]
 
-from bench_stages import make_payload  # noqa: E402
+from bench_stages import make_payload, pace  # noqa: E402
 from wire_floor import BATCH, floor_subscriber_main, send_batched  # noqa: E402
 
 BENCH_KEY = "bench/data"  # key of the raw and typed-floor runs
@@ -166,9 +166,7 @@ def send(pub: zenoh.Publisher, size: int, count: int, interval_s: float) -> tupl
         if i == WARMUP:
             cpu0 = time.process_time()
         if interval_s:
-            nxt += interval_s
-            while (d := nxt - time.perf_counter()) > 0:
-                time.sleep(d)
+            nxt = pace(nxt, interval_s)
         pub.put(make_payload(base))
     return cpu0, time.process_time()
 
@@ -245,6 +243,25 @@ stages:
 """
 
 
+def recipe(tmp: str, processes: tuple[str, str], size: int, count: int, interval_s: float) -> tuple[str, Path, Path]:
+    """The benchmark recipe with source and sink in *processes*, and the files where sink and source
+    write their figures (in *tmp*)."""
+    out, src_out = Path(tmp) / "sink.json", Path(tmp) / "src.json"
+    p_pub, p_sub = processes
+    text = RECIPE.format(
+        port=free_port(),
+        p_pub=p_pub,
+        p_sub=p_sub,
+        size=size,
+        count=count,
+        interval=interval_s,
+        warmup=WARMUP,
+        out=out,
+        src_out=src_out,
+    )
+    return text, out, src_out
+
+
 def vgr_in_process(size: int, count: int, interval_s: float) -> dict[str, float]:
     from engine.graph import build_graph
     from engine.plugin_manager import load_registry
@@ -252,18 +269,7 @@ def vgr_in_process(size: int, count: int, interval_s: float) -> dict[str, float]
     from engine.runner import Runner
 
     with tempfile.TemporaryDirectory() as tmp:
-        out, src_out = Path(tmp) / "sink.json", Path(tmp) / "src.json"
-        text = RECIPE.format(
-            port=free_port(),
-            p_pub="main",
-            p_sub="main",
-            size=size,
-            count=count,
-            interval=interval_s,
-            warmup=WARMUP,
-            out=out,
-            src_out=src_out,
-        )
+        text, out, src_out = recipe(tmp, ("main", "main"), size, count, interval_s)
         text = text.replace("processes:", "unused_processes:")
         text = "\n".join(x for x in text.splitlines() if not x.strip().startswith(("unused", "pub:", "sub:")))
         loaded = load_recipe("bench.yaml", text=text)
@@ -279,24 +285,12 @@ def vgr_in_process(size: int, count: int, interval_s: float) -> dict[str, float]
 def vgr_cross_process(size: int, count: int, interval_s: float) -> dict[str, float]:
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(HERE), str(ROOT), os.environ.get("PYTHONPATH", "")]))
     with tempfile.TemporaryDirectory() as tmp:
-        out, src_out = Path(tmp) / "sink.json", Path(tmp) / "src.json"
-        recipe = Path(tmp) / "bench.yaml"
-        recipe.write_text(
-            RECIPE.format(
-                port=free_port(),
-                p_pub="pub",
-                p_sub="sub",
-                size=size,
-                count=count,
-                interval=interval_s,
-                warmup=WARMUP,
-                out=out,
-                src_out=src_out,
-            )
-        )
+        text, out, src_out = recipe(tmp, ("pub", "sub"), size, count, interval_s)
+        recipe_file = Path(tmp) / "bench.yaml"
+        recipe_file.write_text(text)
         # no recording: the recorder's cost is measured by benchmarks/record_replay.py, and the in-process
         # runs here have none either
-        cmd = [sys.executable, "-m", "engine.cli", "run", str(recipe), "--no-progress", "--no-record", "--process"]
+        cmd = [sys.executable, "-m", "engine.cli", "run", str(recipe_file), "--no-progress", "--no-record", "--process"]
         sub = subprocess.Popen([*cmd, "sub"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         pub = subprocess.Popen([*cmd, "pub"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         _, err_pub = pub.communicate(timeout=600)

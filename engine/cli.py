@@ -201,17 +201,11 @@ def cmd_plugins(args: argparse.Namespace) -> int:
             caption_justify="left",
             show_header=True,
         )
-        t.add_column("kind")
-        t.add_column("name")
-        t.add_column("type / default")
-        for k, v in d["inputs"].items():
-            t.add_row("input", k, v)
-        for k, v in d["outputs"].items():
-            t.add_row("output", k, v)
-        for k, v in d["services"].items():
-            t.add_row("service", k, v)
-        for k, v in d["uses"].items():
-            t.add_row("uses", k, v)
+        for col in ("kind", "name", "type / default"):
+            t.add_column(col)
+        for kind, key in (("input", "inputs"), ("output", "outputs"), ("service", "services"), ("uses", "uses")):
+            for k, v in d[key].items():
+                t.add_row(kind, k, v)
         for k, v in d["params"].items():
             dflt = "required" if v["required"] else f"= {v['default']!r}"
             t.add_row(

@@ -106,39 +106,30 @@ def compare_stream(
 ) -> StreamVerdict:
     """Compare the (seq, payload) lists of one topic."""
     verdict, first, worst = IDENTICAL, "", 0.0
+
+    def stream(outcome: str, detail: str, max_abs_diff: float = 0.0) -> StreamVerdict:
+        return StreamVerdict(topic, len(recorded), len(replayed), outcome, detail, max_abs_diff)
+
     for i, ((sa, pa), (sb, pb)) in enumerate(zip(recorded, replayed, strict=False)):
         where = f"{topic}[seq {sa}]"
         if sa != sb:
-            return StreamVerdict(
-                topic,
-                len(recorded),
-                len(replayed),
-                DIFFERENT,
-                f"{topic}[message {i}]: seq {sa} recorded vs {sb} replayed",
-            )
+            return stream(DIFFERENT, f"{topic}[message {i}]: seq {sa} recorded vs {sb} replayed")
         if bytes(pa) == bytes(pb):
             continue
         cls = codec.registry.get(type_name)
         try:
             ma, mb = codec.decode_payload(cls, pa), codec.decode_payload(cls, pb)
         except codec.CodecError as exc:
-            return StreamVerdict(topic, len(recorded), len(replayed), DIFFERENT, f"{where}: undecodable: {exc}")
+            return stream(DIFFERENT, f"{where}: undecodable: {exc}")
         v, d, m = compare_messages(ma, mb, where, rtol, atol)
         worst = max(worst, m)
         if v == DIFFERENT:
-            return StreamVerdict(topic, len(recorded), len(replayed), DIFFERENT, d, worst)
+            return stream(DIFFERENT, d, worst)
         if v == WITHIN:
             verdict = WITHIN
         elif v == IDENTICAL and verdict == IDENTICAL:
             verdict = WITHIN  # bytes differ only in ignored fields
             first = first or f"{where}: differs only in ignored fields ({', '.join(sorted(IGNORED_FIELDS))})"
     if len(recorded) != len(replayed):
-        return StreamVerdict(
-            topic,
-            len(recorded),
-            len(replayed),
-            DIFFERENT,
-            f"{topic}: {len(recorded)} messages recorded, {len(replayed)} replayed",
-            worst,
-        )
-    return StreamVerdict(topic, len(recorded), len(replayed), verdict, first, worst)
+        return stream(DIFFERENT, f"{topic}: {len(recorded)} messages recorded, {len(replayed)} replayed", worst)
+    return stream(verdict, first, worst)

@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import graphlib
 import itertools
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 from pydantic import ValidationError
 
@@ -112,11 +114,66 @@ class Graph:
         return "\n".join(lines)
 
 
-def _split_ref(ref: str) -> tuple[str, str] | None:
-    if not isinstance(ref, str) or ref.count(".") != 1:
+@dataclass(frozen=True)
+class _Wiring:
+    """What a wiring reference ``<stage>.<what>`` names in the stage it names: an output port (a data
+    input's reference) or a service (a service client's), and how problems with it are worded."""
+
+    what: str
+    offered: Callable[[type[Stage]], Mapping[str, Any]]
+    missing: str  # the stage offers no such thing (format fields a, type, b, names)
+    truth_prefix: str
+    truth: str  # a stage of a role other than TRUTH_READERS wired to simulation ground truth
+
+
+_INPUT = _Wiring(
+    "port",
+    lambda cls: cls.all_outputs(),
+    "stage {a!r} ({type}) has no output {b!r} (outputs: {names})",
+    TRUTH_PREFIX,
+    "is simulation ground truth: only sensor, device and sink stages may read it",
+)
+_CLIENT = _Wiring(
+    "service",
+    lambda cls: cls.services,
+    "stage {a!r} offers no service {b!r} (services: {names})",
+    TRUTH_SERVICE,
+    "gives simulation ground truth: only sensor, device and sink stages may call it",
+)
+
+
+def _wired_to(
+    loaded: LoadedRecipe,
+    path: tuple[str, ...],
+    ref: str,
+    wiring: _Wiring,
+    reader: type[Stage],
+    classes: dict[str, type[Stage]],
+    problems: list[Problem],
+) -> tuple[str, str, Any] | None:
+    """``(stage, name, what the stage offers under that name)`` for the reference *ref* at *path* of
+    a stage of type *reader*; None when there is a problem with it (added to *problems*, except when
+    the named stage's type is unknown: that is a problem of its own)."""
+    parts = ref.split(".") if isinstance(ref, str) else []
+    if len(parts) != 2 or not all(parts):
+        problems.append(loaded.problem(path, f"{ref!r} must be written <stage>.<{wiring.what}>"))
         return None
-    a, b = ref.split(".")
-    return (a, b) if a and b else None
+    a, b = parts
+    if a not in loaded.recipe.stages:
+        problems.append(loaded.problem(path, f"no stage named {a!r}", nearest(a, loaded.recipe.stages)))
+        return None
+    if a not in classes:
+        return None
+    offered = wiring.offered(classes[a])
+    if b not in offered:
+        names = ", ".join(offered) or "none"
+        missing = wiring.missing.format(a=a, type=classes[a].type_name, b=b, names=names)
+        problems.append(loaded.problem(path, missing, nearest(b, offered)))
+        return None
+    if b.startswith(wiring.truth_prefix) and reader.role not in TRUTH_READERS:
+        problems.append(loaded.problem(path, f"{a}.{b} {wiring.truth}, not a {reader.role} stage"))
+        return None
+    return a, b, offered[b]
 
 
 def build_graph(loaded: LoadedRecipe, registry: Registry) -> Graph:
@@ -172,37 +229,10 @@ def build_graph(loaded: LoadedRecipe, registry: Registry) -> Graph:
                     )
                 )
                 continue
-            parsed = _split_ref(ref)
-            if parsed is None:
-                problems.append(loaded.problem(path, f"{ref!r} must be written <stage>.<port>"))
+            wired = _wired_to(loaded, path, ref, _INPUT, cls, classes, problems)
+            if wired is None:
                 continue
-            src, src_port = parsed
-            if src not in recipe.stages:
-                problems.append(loaded.problem(path, f"no stage named {src!r}", nearest(src, recipe.stages)))
-                continue
-            if src not in classes:
-                continue  # that stage already has a problem of its own
-            outs = classes[src].all_outputs()
-            if src_port not in outs:
-                problems.append(
-                    loaded.problem(
-                        path,
-                        f"stage {src!r} ({classes[src].type_name}) has no output "
-                        f"{src_port!r} (outputs: {', '.join(outs)})",
-                        nearest(src_port, outs),
-                    )
-                )
-                continue
-            if src_port.startswith(TRUTH_PREFIX) and cls.role not in TRUTH_READERS:
-                problems.append(
-                    loaded.problem(
-                        path,
-                        f"{src}.{src_port} is simulation ground truth: only sensor, "
-                        f"device and sink stages may read it, not a {cls.role} stage",
-                    )
-                )
-                continue
-            out_type = outs[src_port]
+            src, src_port, out_type = wired
             if not issubclass(out_type, in_type):
                 problems.append(
                     loaded.problem(
@@ -239,36 +269,10 @@ def build_graph(loaded: LoadedRecipe, registry: Registry) -> Graph:
                     )
                 )
                 continue
-            parsed = _split_ref(ref)
-            if parsed is None:
-                problems.append(loaded.problem(path, f"{ref!r} must be written <stage>.<service>"))
+            wired = _wired_to(loaded, path, ref, _CLIENT, cls, classes, problems)
+            if wired is None:
                 continue
-            prov, svc = parsed
-            if prov not in recipe.stages:
-                problems.append(loaded.problem(path, f"no stage named {prov!r}", nearest(prov, recipe.stages)))
-                continue
-            if prov not in classes:
-                continue
-            offered = classes[prov].services
-            if svc not in offered:
-                problems.append(
-                    loaded.problem(
-                        path,
-                        f"stage {prov!r} offers no service {svc!r} (services: {', '.join(offered) or 'none'})",
-                        nearest(svc, offered),
-                    )
-                )
-                continue
-            if svc.startswith(TRUTH_SERVICE) and cls.role not in TRUTH_READERS:
-                problems.append(
-                    loaded.problem(
-                        path,
-                        f"{prov}.{svc} gives simulation ground truth: only sensor, "
-                        f"device and sink stages may call it, not a {cls.role} stage",
-                    )
-                )
-                continue
-            have = offered[svc]
+            prov, svc, have = wired
             if not (issubclass(need.request, have.request) and issubclass(have.reply, need.reply)):
                 problems.append(
                     loaded.problem(

@@ -5,7 +5,8 @@ engine.runtime.StageRuntime._offerer). Consumers in other vgr processes get the 
 through ``wire`` (engine.wire.WireSender, on the internal key ``vgr/<run>/_wire/<stage>/<port>``);
 the public key ``vgr/<run>/<stage>/<port>`` is put to, one message per sample, only while a foreign
 subscriber (a robot controller, a viewer) listens there — zenoh's matching status says when. The
-publish path itself is the stage runtime's (engine.runtime.StageRuntime.publish).
+publish path itself is the stage runtime's (engine.runtime.StageRuntime.publish); the port sees that
+runtime only as its :class:`~engine.stage_host.PortOwner`.
 """
 
 from __future__ import annotations
@@ -18,14 +19,14 @@ from engine.bus import data_key, wire_key
 from engine.wire import WireSender
 
 if TYPE_CHECKING:
-    from engine.runtime import StageRuntime
+    from engine.stage_host import PortOwner
 
 
 class OutputPort:
     """Output *port* of stage runtime *rt*: its zenoh publishers, local consumers, sequence counter
     and lock (seq order == delivery order == wire order)."""
 
-    def __init__(self, rt: StageRuntime, port: str) -> None:
+    def __init__(self, rt: PortOwner, port: str) -> None:
         self.port = port
         self.type = rt.node.cls.all_outputs()[port]
         self.format = codec.DataFormat(self.type.TYPE)  # envelope of this port's messages, packed in one call
@@ -33,20 +34,21 @@ class OutputPort:
         self.seq = 0
         self.closed = False
         self.local: list[Any] = []  # offer functions of the consumers' inputs in this process
-        graph = rt.runner.graph
+        host = rt.host
+        graph = host.graph
         self.remote_consumers = any(
             graph.nodes[e.dst].spec.process != rt.node.spec.process for e in graph.consumers_of(rt.name, port)
         )
-        self.publisher = rt.runner.bus.remote_publisher(data_key(rt.run_id, rt.name, port))
+        self.publisher = host.bus.remote_publisher(data_key(host.run_id, rt.name, port))
         self.put = self.publisher.put
         self.wire = (
-            WireSender(rt.runner.bus.remote_publisher(wire_key(rt.run_id, rt.name, port)), f"{rt.name}.{port}")
+            WireSender(host.bus.remote_publisher(wire_key(host.run_id, rt.name, port)), f"{rt.name}.{port}")
             if self.remote_consumers
             else None
         )
         self.send = self.wire.send if self.wire is not None else None
         self.external = bool(self.publisher.matching_status.matching)
-        self.observed = bool(rt.runner.observers)  # observers are fixed before a run starts
+        self.observed = bool(host.observers)  # observers are fixed before a run starts
         self._update()
         self._listener = self.publisher.declare_matching_listener(self._on_matching)
 

@@ -44,8 +44,8 @@ from engine.runner import Observer, Runner, RunSummary
 from engine.schemas import proto_class
 
 if TYPE_CHECKING:
-    from engine.graph import ServiceEdge
     from engine.messages import Message
+    from engine.stage_host import ServiceCall
 
 log = logging.getLogger("vgr.recorder")
 
@@ -204,35 +204,10 @@ class Recorder(Observer):
     def on_stage_finish(self, stage: str) -> None:
         self._q.put(("finish", stage, self._now()))
 
-    def on_service(
-        self,
-        stage: str,
-        client: str,
-        edge: ServiceEdge,
-        req_payload: bytes,
-        req_env: bytes,
-        reply_payload: bytes,
-        reply_env: bytes,
-        error: str,
-    ) -> None:
-        req = codec.decode_envelope(req_env)
-        reply_type = codec.decode_envelope(reply_env).type_name if reply_env else ""
-        self._q.put(
-            (
-                "svc",
-                stage,
-                client,
-                edge.provider,
-                edge.service,
-                req.type_name,
-                req_payload,
-                req.seq,
-                reply_type,
-                reply_payload,
-                error,
-                self._now(),
-            )
-        )
+    def on_service(self, call: ServiceCall) -> None:
+        req = codec.decode_envelope(call.req_env)
+        reply_type = codec.decode_envelope(call.reply_env).type_name if call.reply_env else ""
+        self._q.put(("svc", call, req.type_name, req.seq, reply_type, self._now()))
 
     def on_finish(self, runner: Runner, summary: RunSummary) -> None:
         self._q.put(("end", summary))
@@ -323,44 +298,38 @@ class Recorder(Observer):
             self.messages_written += 1
         elif kind == "deliver":
             _, stage, port, src_topic, seq, log_time = item
-            pb = proto_class("vgr.v1.Delivery")(stage=stage, port=port, source_topic=src_topic, seq=seq)
-            cid = self._channel(TOPIC_DELIVERIES, "vgr.v1.Delivery", {"kind": "deliveries"})
-            self._writer.add_message(
-                channel_id=cid, log_time=log_time, data=pb.SerializeToString(), publish_time=log_time
-            )
+            fields = {"stage": stage, "port": port, "source_topic": src_topic, "seq": seq}
+            self._add_record(TOPIC_DELIVERIES, "vgr.v1.Delivery", {"kind": "deliveries"}, log_time, fields)
         elif kind == "finish":
             _, stage, log_time = item
-            pb = proto_class("vgr.v1.StageFinish")(stage=stage)
-            cid = self._channel(TOPIC_FINISH, "vgr.v1.StageFinish", {"kind": "finish"})
-            self._writer.add_message(
-                channel_id=cid, log_time=log_time, data=pb.SerializeToString(), publish_time=log_time
-            )
+            self._add_record(TOPIC_FINISH, "vgr.v1.StageFinish", {"kind": "finish"}, log_time, {"stage": stage})
         elif kind == "svc":
-            (_, stage, client, provider, service, req_type, req, req_seq, reply_type, reply, error, log_time) = item
-            pb = proto_class("vgr.v1.ServiceExchange")(
-                caller=stage,
-                client=client,
-                provider=provider,
-                service=service,
-                request_type=req_type,
-                request=bytes(req),
-                request_seq=req_seq,
-                reply_type=reply_type,
-                reply=bytes(reply),
-                error=error,
-            )
-            cid = self._channel(
-                service_topic(stage, client),
-                "vgr.v1.ServiceExchange",
-                {"stage": stage, "client": client, "provider": provider, "service": service},
-            )
-            self._writer.add_message(
-                channel_id=cid,
-                log_time=log_time,
-                data=pb.SerializeToString(),
-                publish_time=log_time,
-                sequence=req_seq & 0xFFFFFFFF,
-            )
+            _, call, req_type, req_seq, reply_type, log_time = item
+            stage, client, provider, service = call.stage, call.client, call.edge.provider, call.edge.service
+            fields = {
+                "caller": stage,
+                "client": client,
+                "provider": provider,
+                "service": service,
+                "request_type": req_type,
+                "request": bytes(call.req_payload),
+                "request_seq": req_seq,
+                "reply_type": reply_type,
+                "reply": bytes(call.reply_payload),
+                "error": call.error,
+            }
+            meta = {"stage": stage, "client": client, "provider": provider, "service": service}
+            topic = service_topic(stage, client)
+            self._add_record(topic, "vgr.v1.ServiceExchange", meta, log_time, fields, sequence=req_seq & 0xFFFFFFFF)
+
+    def _add_record(
+        self, topic: str, type_name: str, meta: dict[str, str], log_time: int, fields: dict[str, Any], sequence: int = 0
+    ) -> None:
+        """Write the engine's own record *type_name* (a vgr.v1 protobuf made of *fields*) on *topic*,
+        published at its *log_time*."""
+        data = proto_class(type_name)(**fields).SerializeToString()
+        cid = self._channel(topic, type_name, meta)
+        self._writer.add_message(channel_id=cid, log_time=log_time, data=data, publish_time=log_time, sequence=sequence)
 
     def _close(self, summary: RunSummary) -> None:
         try:

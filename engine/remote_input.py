@@ -5,7 +5,8 @@ The port is a zenoh subscriber with a FIFO channel handler on the producer's int
 no GIL, never blocking below the channel's large capacity), and the port's pump thread
 (:meth:`RemoteInput.pump`) takes the samples out in publication order, unpacks batches
 (engine.wire), decodes the messages and hands them to the stage through the runtime's deliver
-function for the port, under the stage's lock. Samples already waiting are taken without releasing
+function for the port, under the stage's lock. The port sees its runtime only as its
+:class:`~engine.stage_host.PortOwner`. Samples already waiting are taken without releasing
 the GIL; only an empty channel makes the thread block.
 
 A sample that cannot be decoded is a warning event and is skipped; a damaged batch loses only its
@@ -25,23 +26,25 @@ from engine.messages import Message
 from engine.wire import BATCH_ENVELOPE, iter_batch
 
 if TYPE_CHECKING:
-    from engine.runtime import StageRuntime
+    from engine.stage_host import Deliver, PortOwner
 
 _DATA, _EOS = Kind.DATA, Kind.EOS  # (an Enum attribute lookup costs more than the test)
 _decode_payload, _StructError = codec.decode_payload, struct.error
 
 
 class RemoteInput:
-    """Input *port* of stage runtime *rt*, fed from zenoh key *key* by a stage of another process.
+    """Input *port* of stage runtime *rt*, fed from zenoh key *key* by a stage of another process;
+    *deliver* hands each message (and the END) to the stage.
 
     ``close()`` undeclares the subscriber: the pump then gets what was already queued and an error,
     and ends."""
 
-    def __init__(self, rt: StageRuntime, port: str, key: str) -> None:
+    def __init__(self, rt: PortOwner, port: str, key: str, deliver: Deliver) -> None:
         self.rt = rt
         self.port = port
+        self.deliver = deliver
         self.closed = False
-        self.subscriber, self.channel = rt.runner.bus.subscribe_remote(key)
+        self.subscriber, self.channel = rt.host.bus.subscribe_remote(key)
 
     def close(self) -> None:
         if not self.closed:
@@ -58,7 +61,7 @@ class RemoteInput:
         else takes the general path (:meth:`_decode_other`)."""
         rt = self.rt
         try_recv, recv = self.channel.try_recv, self.channel.recv
-        stop_is_set, lock, deliver = rt._stop_event.is_set, rt.lock, rt._deliver[self.port]
+        stop_is_set, lock, deliver = rt.host.stop_event.is_set, rt.lock, self.deliver
         decode = self._decoder()
         while True:
             try:
@@ -96,18 +99,18 @@ class RemoteInput:
             sample = att = payload = items = msg = None
 
     def _undecodable(self, exc: CodecError) -> None:
-        if not self.rt._stop_event.is_set():
+        if not self.rt.host.stop_event.is_set():
             self.rt.event("warning", "undecodable_message", f"ignored a message on input {self.port!r}: {exc}")
 
     def _decoder(self) -> Any:
         """``decode(raw_env, payload)``: the port's message, END, or None (ignore); raises
         CodecError. Run observers (the recorder) see every data message as it arrives."""
         rt = self.rt
-        observers = rt._observers
+        observers = rt.host.observers
         cls = rt.node.cls.inputs[self.port]
         fmt = codec.DataFormat(cls.TYPE)
         unpack, head, name = fmt.unpack, fmt.head, fmt.name
-        src = next(e for e in rt.runner.graph.inputs_of(rt.name) if e.dst_port == self.port)
+        src = next(e for e in rt.host.graph.inputs_of(rt.name) if e.dst_port == self.port)
         decode_other = self._decode_other
 
         def decode(raw_env: bytes, payload: bytes | memoryview) -> Message | object | None:
@@ -136,6 +139,6 @@ class RemoteInput:
             return END
         if env.kind != _DATA:
             return None
-        for obs in self.rt._observers:
+        for obs in self.rt.host.observers:
             obs.on_receive(src.src, src.src_port, payload, raw_env)
         return codec.decode(payload, env)

@@ -33,7 +33,7 @@ from engine.plugin_manager import Registry, load_registry
 from engine.recipe import load_recipe
 from engine.recorder import topic_of
 from engine.recording import Exchange, RecordedMessage, Recording, load
-from engine.stage import EVENTS_PORT, PLAYBACK_ROLES, ServiceError, ServiceTimeoutError, StageContext, stage_rng
+from engine.stage import EVENTS_PORT, PLAYBACK_ROLES, ServiceError, ServiceTimeoutError, StageContext
 
 log = logging.getLogger("vgr.replay")
 
@@ -83,16 +83,12 @@ def _find_recipe_dir(recipe_file: str, recording: Path) -> Path | None:
 
 class _ReplayContext(StageContext):
     def __init__(self, replayer: Replayer, node: StageNode) -> None:
+        recipe_file = replayer.rec.metadata.get("vgr.run", {}).get("recipe_file", "")
+        recipe_dir = _find_recipe_dir(recipe_file, replayer.rec.path)
+        log = logging.getLogger(f"vgr.replay.{node.name}")
+        super().__init__(node.name, replayer.run_id, replayer.graph.recipe.seed, replayer.clock, log, recipe_dir)
         self.replayer = replayer
         self.node = node
-        self.name = node.name
-        self.run_id = replayer.run_id
-        self.seed = replayer.graph.recipe.seed
-        self.rng = stage_rng(self.seed, node.name)
-        self.clock = replayer.clock
-        self.log = logging.getLogger(f"vgr.replay.{node.name}")
-        recipe_file = replayer.rec.metadata.get("vgr.run", {}).get("recipe_file", "")
-        self.recipe_dir = _find_recipe_dir(recipe_file, replayer.rec.path)
         self.seq: dict[str, int] = defaultdict(int)
         self.causal_stamp = 0
         self.failed = False

@@ -23,16 +23,18 @@ import json
 import logging
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
+from functools import partial
 from typing import Any
 
 from engine.bus import Bus, active_key, control_key, ready_key, started_key
 from engine.clock import Clock, make_clock
-from engine.codec import Envelope
-from engine.graph import Graph, ServiceEdge
-from engine.messages import Event, Message
+from engine.graph import Graph
+from engine.messages import Event
 from engine.runtime import StageRuntime, StageStats
+from engine.stage_host import MessageObserver
 
 log = logging.getLogger("vgr.runner")
 
@@ -43,39 +45,11 @@ class RunError(RuntimeError):
     """The run could not start (bus, stage construction, start-up barrier)."""
 
 
-class Observer:
-    """Sees everything a process's stages do, in the order they do it (recorder, tests).
-
-    Calls come from stage threads; an observer must be quick and thread-safe.
-    """
+class Observer(MessageObserver):
+    """Sees a process's run: its start, every message of its stages (see MessageObserver), its end."""
 
     def on_start(self, runner: Runner) -> None:
         """The stages exist and are declared; nothing has run yet."""
-
-    def on_publish(self, stage: str, port: str, payload: bytes, envelope: bytes, msg: Message) -> None:
-        """*stage* published *msg* on *port* (encoded: payload + envelope)."""
-
-    def on_receive(self, src_stage: str, src_port: str, payload: bytes, envelope: bytes) -> None:
-        """A message of a stage in another process arrived here (before it is delivered)."""
-
-    def on_deliver(self, stage: str, port: str, env: Envelope) -> None:
-        """*stage* is about to handle message ``env.seq`` of its input *port*."""
-
-    def on_stage_finish(self, stage: str) -> None:
-        """All inputs of *stage* have ended; its ``finish()`` is about to run."""
-
-    def on_service(
-        self,
-        stage: str,
-        client: str,
-        edge: ServiceEdge,
-        req_payload: bytes,
-        req_env: bytes,
-        reply_payload: bytes,
-        reply_env: bytes,
-        error: str,
-    ) -> None:
-        """*stage* called ``edge.provider.edge.service`` through *client*; the exchange is complete."""
 
     def on_finish(self, runner: Runner, summary: RunSummary) -> None:
         """The run is over (sessions closed); *summary* may be annotated (artifacts)."""
@@ -164,13 +138,14 @@ class Runner:
             level = {"result": logging.INFO, "warning": logging.WARNING}.get(ev.level, logging.ERROR)
             logging.getLogger(f"vgr.stage.{ev.stage}").log(level, "[%s] %s", ev.code, ev.message)
 
-    def stage_done(self, rt: StageRuntime) -> None:
+    def stage_done(self, stage: str) -> None:
         self._progress.set()
 
-    def stage_failed(self, rt: StageRuntime) -> None:
-        self.failed_stages.append(rt.name)
+    def stage_failed(self, stage: str) -> None:
+        rt = self.runtimes[stage]
+        self.failed_stages.append(stage)
         if self.graph.recipe.on_error == "stop":
-            self.stop(f"stage {rt.name!r} failed: {rt.stats.error}")
+            self.stop(f"stage {stage!r} failed: {rt.stats.error}")
         else:
             rt.close_outputs()
             rt.data_done.set()
@@ -251,10 +226,10 @@ class Runner:
                 ) from exc
             rt.declare_outputs()
         for rt in self.runtimes.values():
-            rt.declare_inputs()
+            rt.declare_inputs(self.runtimes)
         if self.multi_process:
             self.bus.subscribe(control_key(self.run_id), self._on_control)
-            if any(rt.driven for rt in self.runtimes.values()):
+            if self.driven & self.runtimes.keys():
                 self._tokens["active"] = self.bus.token(active_key(self.run_id, self.process))
         for name in local:
             self._tokens[name] = self.bus.token(ready_key(self.run_id, name))
@@ -279,7 +254,7 @@ class Runner:
         self.started = True
         for name in local:
             rt = self.runtimes[name]
-            if not rt.driven and not rt.node.cls.inputs:
+            if name not in self.driven and not rt.node.cls.inputs:
                 rt.data_done.set()  # pure service providers do not hold the run open
             rt.start_threads()
         if self.multi_process:
@@ -292,56 +267,55 @@ class Runner:
         the first messages do not pile up in a process still setting up (they would not be lost,
         only late). A process slower than ``ready_timeout_s`` is warned about, not waited for."""
         self._tokens["started"] = self.bus.token(started_key(self.run_id, self.process))
-        expected = {started_key(self.run_id, p) for p in self.graph.processes()}
-        deadline = time.monotonic() + self.ready_timeout_s
-        live = self.bus.watch_alive(started_key(self.run_id, "*"))
-        try:
-            while not self.stop_event.is_set():
-                keys, version = live.snapshot()
-                missing = expected - keys
-                if not missing:
-                    return
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    log.warning(
-                        "starting the sources although process(es) %s not set up after %g s",
-                        ", ".join(sorted(k.rsplit("/", 1)[-1] for k in missing)),
-                        self.ready_timeout_s,
-                    )
-                    return
-                live.wait(version, min(left, 0.5))
-        finally:
-            live.close()
+        missing = self._wait_alive(partial(started_key, self.run_id), set(self.graph.processes()))
+        if missing and not self.stop_event.is_set():
+            log.warning(
+                "starting the sources although process(es) %s not set up after %g s",
+                ", ".join(sorted(missing)),
+                self.ready_timeout_s,
+            )
 
     def _barrier(self) -> None:
-        """Wait until every stage of the recipe is declared, in whichever process. A liveliness
-        subscriber reports each stage's token as it appears, so every process passes the barrier
-        as soon as the last one is up (no polling delay between the processes' starts)."""
-        expected = set(self.graph.nodes)
+        """Wait until every stage of the recipe is declared, in whichever process."""
+        missing = self._wait_alive(partial(ready_key, self.run_id), set(self.graph.nodes))
+        if missing and self.stop_event.is_set():
+            raise RunError(f"run stopped while waiting for stages: {self.stop_reason}")
+        if missing:
+            where = ", ".join(f"{m} (process {self.graph.nodes[m].spec.process})" for m in sorted(missing))
+            raise RunError(
+                f"after {self.ready_timeout_s:g} s these stages are not running: {where}. "
+                f"Start `vgr run RECIPE --process NAME` for each process, with the same run id "
+                f"({self.run_id}) and zenoh endpoints that connect them."
+            )
+
+    def _wait_alive(self, key: Callable[[str], str], names: set[str]) -> set[str]:
+        """Wait until the liveliness token ``key(name)`` of each of *names* is up, the run stops, or
+        ``ready_timeout_s`` has passed; returns the names still missing. A liveliness subscriber
+        reports each token as it appears, so every process goes on as soon as the last one is up
+        (no polling delay between the processes' starts)."""
         deadline = time.monotonic() + self.ready_timeout_s
-        live = self.bus.watch_alive(ready_key(self.run_id, "*"))
+        live = self.bus.watch_alive(key("*"))
         try:
             while True:
                 keys, version = live.snapshot()
-                missing = expected - {k.rsplit("/", 1)[-1] for k in keys}
-                if not missing:
-                    return
-                if self.stop_event.is_set():
-                    raise RunError(f"run stopped while waiting for stages: {self.stop_reason}")
+                missing = {n for n in names if key(n) not in keys}
                 left = deadline - time.monotonic()
-                if left <= 0:
-                    where = ", ".join(f"{m} (process {self.graph.nodes[m].spec.process})" for m in sorted(missing))
-                    raise RunError(
-                        f"after {self.ready_timeout_s:g} s these stages are not running: {where}. "
-                        f"Start `vgr run RECIPE --process NAME` for each process, with the same run id "
-                        f"({self.run_id}) and zenoh endpoints that connect them."
-                    )
+                if not missing or left <= 0 or self.stop_event.is_set():
+                    return missing
                 live.wait(version, min(left, 0.5))  # (0.5 s: notice a stop without a token change)
         finally:
             live.close()
 
     def _local_driven_done(self) -> bool:
-        return all(rt.data_done.is_set() or rt.waits_only_on_undriven() for rt in self.runtimes.values() if rt.driven)
+        driven = (rt for name, rt in self.runtimes.items() if name in self.driven)
+        return all(rt.data_done.is_set() or self._waits_only_on_undriven(rt) for rt in driven)
+
+    def _waits_only_on_undriven(self, rt: StageRuntime) -> bool:
+        """True when every input of *rt* still open comes from a stage nothing drives (a device's truth
+        stream, say): those end only when the run ends, so that stage must not hold the run open."""
+        srcs = {e.dst_port: e.src for e in self.graph.inputs_of(rt.name)}
+        pending = set(rt.pending_inputs)
+        return bool(pending) and all(srcs.get(port) not in self.driven for port in pending)
 
     def _remote_active(self) -> bool:
         if not self.multi_process:
@@ -364,7 +338,7 @@ class Runner:
         # the data is complete everywhere: service-only stages end their streams, consumers drain
         for name in self.graph.stages_in(self.process):
             rt = self.runtimes[name]
-            if not rt.driven and not rt.node.cls.inputs:
+            if name not in self.driven and not rt.node.cls.inputs:
                 rt.close_outputs()
         deadline = time.monotonic() + STOP_GRACE_S
         while not all(rt.data_done.is_set() for rt in self.runtimes.values()):

@@ -1,6 +1,7 @@
 """One stage at run time: its context (publish, call, events), its locks and counters, its threads.
 
-The runner (engine.runner) creates a :class:`StageRuntime` per stage of this process.
+The runner (engine.runner) creates a :class:`StageRuntime` per stage of this process; the runtime
+sees it only as its :class:`~engine.stage_host.StageHost`.
 
 Data path of ``publish(port, msg)``:
 
@@ -38,9 +39,10 @@ import logging
 import threading
 import time
 import traceback
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from time import perf_counter
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from engine import codec
 from engine.bus import overdue_ms, service_key, wire_key
@@ -50,10 +52,8 @@ from engine.inbox import END, STOP, PortInbox
 from engine.messages import Event, Message, canonical, detach, freeze_arrays
 from engine.output_port import OutputPort
 from engine.remote_input import RemoteInput
-from engine.stage import EVENTS_PORT, ServiceError, ServiceTimeoutError, Stage, StageContext, stage_rng
-
-if TYPE_CHECKING:
-    from engine.runner import Runner
+from engine.stage import EVENTS_PORT, ServiceError, ServiceTimeoutError, Stage, StageContext
+from engine.stage_host import ServiceCall, StageHost
 
 log = logging.getLogger("vgr.runtime")
 LOCAL_QUEUE_DEPTH = 64  # messages a local producer may run ahead of its consumer
@@ -94,19 +94,16 @@ class StageStats:
 
 
 class StageRuntime(StageContext):
-    """The engine side of one stage in this process (implements StageContext)."""
+    """The engine side of one stage in this process (implements StageContext for the stage and
+    PortOwner for its ports), run by *host*."""
 
-    def __init__(self, runner: Runner, node: StageNode) -> None:
-        self.runner = runner
+    def __init__(self, host: StageHost, node: StageNode) -> None:
+        path = host.graph.loaded.path
+        recipe_dir = path.resolve().parent if path is not None and path.is_file() else None
+        log = logging.getLogger(f"vgr.stage.{node.name}")
+        super().__init__(node.name, host.run_id, host.seed, host.clock, log, recipe_dir)
+        self.host = host
         self.node = node
-        self.name = node.name
-        self.run_id = runner.run_id
-        self.seed = runner.seed
-        self.rng = stage_rng(runner.seed, node.name)
-        self.clock = runner.clock
-        self.log = logging.getLogger(f"vgr.stage.{node.name}")
-        path = runner.graph.loaded.path
-        self.recipe_dir = path.resolve().parent if path is not None and path.is_file() else None
         self.lock = threading.RLock()  # serialises the stage's handlers
         self.inline = node.spec.dispatch == "auto"
         self.stats = StageStats(
@@ -126,10 +123,10 @@ class StageRuntime(StageContext):
         self.data_done = threading.Event()
         self.threads: list[threading.Thread] = []
         self.stage: Stage | None = None
-        self.clients = {e.client_name: e for e in runner.graph.service_edges if e.client == node.name}
+        self.clients = {e.client_name: e for e in host.graph.service_edges if e.client == node.name}
         self._causal = _Causal()  # stamp of the input being handled on this thread
-        self._stop_event = runner.stop_event
-        self._observers = runner.observers  # the runner's list (fixed before the run starts)
+        self._stop_event = host.stop_event
+        self._observers = host.observers  # the host's list (fixed before the run starts)
         self._call_seq: dict[str, int] = {}  # requests sent per service client
 
     # -- StageContext ------------------------------------------------------------------------
@@ -138,7 +135,7 @@ class StageRuntime(StageContext):
         return self._stop_event.is_set()
 
     def sleep(self, seconds: float) -> bool:
-        return self.clock.sleep(seconds, self.runner.stop_event)
+        return self.clock.sleep(seconds, self._stop_event)
 
     def publish(self, port: str, msg: Message) -> None:
         out = self.outputs.get(port)
@@ -191,7 +188,7 @@ class StageRuntime(StageContext):
         self.stats.calls_made += 1
         reply_payload, reply_att, error = b"", b"", ""
         try:
-            reply_payload, reply_att = self.runner.bus.request(key, payload, att, timeout_s)
+            reply_payload, reply_att = self.host.bus.request(key, payload, att, timeout_s)
             reply = codec.decode(reply_payload, codec.decode_envelope(reply_att))
         except TimeoutError as exc:
             error = str(exc)
@@ -200,8 +197,10 @@ class StageRuntime(StageContext):
             error = str(exc)
             raise ServiceError(f"{self.name} -> {edge.provider}.{edge.service}: {exc}") from None
         finally:
-            for obs in self.runner.observers:
-                obs.on_service(self.name, client, edge, payload, att, reply_payload, reply_att, error)
+            if self._observers:
+                done = ServiceCall(self.name, client, edge, payload, att, reply_payload, reply_att, error)
+                for obs in self._observers:
+                    obs.on_service(done)
         if not isinstance(reply, spec.reply):
             raise ServiceError(
                 f"{edge.provider}.{edge.service} replied {type(reply).__name__}, expected {spec.reply.TYPE}"
@@ -214,7 +213,7 @@ class StageRuntime(StageContext):
     def event(self, level: str, code: str, message: str, **details: Any) -> None:
         tb = details.pop("traceback", "")
         ev = Event(level=level, code=code, stage=self.name, message=message, traceback=tb, details=details)
-        self.runner.note_event(ev)
+        self.host.note_event(ev)
         out = self.outputs.get(EVENTS_PORT)
         if out is not None and not out.closed:
             self.publish(EVENTS_PORT, ev)
@@ -224,32 +223,20 @@ class StageRuntime(StageContext):
         for port in self.node.cls.all_outputs():
             self.outputs[port] = OutputPort(self, port)
         for svc in self.node.cls.services:
-            self.queryables[svc] = self.runner.bus.queryable(service_key(self.run_id, self.name, svc))
+            self.queryables[svc] = self.host.bus.queryable(service_key(self.run_id, self.name, svc))
 
-    def declare_inputs(self) -> None:
-        """Create the input queues; local producers are linked to them, remote ones subscribed."""
-        for edge in self.runner.graph.inputs_of(self.name):
-            producer = self.runner.runtimes.get(edge.src)
-            self._deliver[edge.dst_port] = self._deliverer(edge.dst_port)
+    def declare_inputs(self, local: Mapping[str, StageRuntime]) -> None:
+        """Create the input queues; producers among the *local* stages (this process's, their outputs
+        declared) are linked to them, remote ones subscribed."""
+        for edge in self.host.graph.inputs_of(self.name):
+            producer = local.get(edge.src)
+            deliver = self._deliver[edge.dst_port] = self._deliverer(edge.dst_port)
             if producer is not None:  # same process
                 self.inboxes[edge.dst_port] = PortInbox(edge.dst_port, LOCAL_QUEUE_DEPTH)
                 producer.outputs[edge.src_port].local.append(self._offerer(edge.dst_port))
             else:
                 key = wire_key(self.run_id, edge.src, edge.src_port)
-                self.inboxes[edge.dst_port] = RemoteInput(self, edge.dst_port, key)
-
-    @property
-    def driven(self) -> bool:
-        return self.name in self.runner.driven
-
-    def waits_only_on_undriven(self) -> bool:
-        """True when every input still open comes from a stage nothing drives (a device's truth
-        stream, say): those end only when the run ends, so this stage must not hold the run open."""
-        pending = set(self.pending_inputs)
-        if not pending:
-            return False
-        srcs = {e.dst_port: e.src for e in self.runner.graph.inputs_of(self.name)}
-        return all(srcs.get(port) not in self.runner.driven for port in pending)
+                self.inboxes[edge.dst_port] = RemoteInput(self, edge.dst_port, key, deliver)
 
     def start_threads(self) -> None:
         """Start the threads that read inputs and serve requests (not a source's run())."""
@@ -279,12 +266,12 @@ class StageRuntime(StageContext):
         thread runs the handler at once; otherwise the message is queued for the port's pump."""
         box = self.inboxes[port]
         assert isinstance(box, PortInbox)
-        deliver, runner, inline = self._deliver[port], self.runner, self.inline
+        deliver, host, inline = self._deliver[port], self.host, self.inline
         claim, done, put = box.claim_idle, box.release, box.put
         acquire, release = self.lock.acquire, self.lock.release
 
         def offer(msg: Message | object) -> None:
-            if not runner.started:  # published during setup(): delivered once every stage is set up
+            if not host.started:  # published during setup(): delivered once every stage is set up
                 put(msg, block=False)
                 return
             if inline and claim():
@@ -369,7 +356,7 @@ class StageRuntime(StageContext):
         if self.pending_inputs or self.data_done.is_set():
             return
         if not self.failed and self.stage is not None:
-            for obs in self.runner.observers:
+            for obs in self._observers:
                 obs.on_stage_finish(self.name)
             try:
                 self.stage.finish()
@@ -391,7 +378,7 @@ class StageRuntime(StageContext):
             self._mark_data_done()
 
     def _service_pump(self, svc: str, queryable: Any) -> None:
-        stop = self.runner.stop_event
+        stop = self._stop_event
         spec = self.node.cls.services[svc]
         while True:
             arrived_ns, query = queryable.recv_timed()
@@ -449,7 +436,7 @@ class StageRuntime(StageContext):
         if self.stats.state == "running":
             self.stats.state = "finished"
         self.data_done.set()
-        self.runner.stage_done(self)
+        self.host.stage_done(self.name)
 
     def close_outputs(self) -> None:
         """Send end-of-stream on every data output (not ``events``, which closes at teardown)."""
@@ -474,7 +461,7 @@ class StageRuntime(StageContext):
                 offer(END)
 
     def fail(self, exc: BaseException, where: str) -> None:
-        """Record a stage failure as an error Event with traceback and tell the runner."""
+        """Record a stage failure as an error Event with traceback and tell the host."""
         self.failed = True
         self.stats.errors += 1
         self.stats.state = "failed"
@@ -485,7 +472,7 @@ class StageRuntime(StageContext):
             self.event("error", "stage_exception", self.stats.error, traceback=tb, where=where)
         except Exception:  # publishing the event must not hide the original failure
             log.exception("could not publish the error event of %s", self.name)
-        self.runner.stage_failed(self)
+        self.host.stage_failed(self.name)
 
     def wake(self) -> None:
         """Unblock every pump thread of this stage (the run is stopping)."""
@@ -501,7 +488,7 @@ class StageRuntime(StageContext):
             except Exception as exc:
                 self.stats.errors += 1
                 self.stats.error = self.stats.error or f"teardown: {exc}"
-                self.runner.note_event(
+                self.host.note_event(
                     Event(
                         level="error",
                         code="teardown_exception",

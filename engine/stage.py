@@ -77,7 +77,8 @@ class ServiceTimeoutError(ServiceError):
 class StageContext:
     """The engine's side of a stage: publish, call services, raise events, read the clock.
 
-    Implemented by the runner; stages only use this interface.
+    Implemented by the runner (engine.runtime), the replay and a detached context; stages only use
+    this interface.
     """
 
     name: str
@@ -87,6 +88,15 @@ class StageContext:
     clock: Clock
     log: logging.Logger
     recipe_dir: Path | None = None  # folder of the recipe file: relative paths in parameters start here
+
+    def __init__(
+        self, name: str, run_id: str, seed: int, clock: Clock, log: logging.Logger, recipe_dir: Path | None
+    ) -> None:
+        """The identity of stage *name* in run *run_id*; its random generator follows from *seed*
+        and its name, the same in a run, its replay and a detached run."""
+        self.name, self.run_id, self.seed = name, run_id, seed
+        self.rng = stage_rng(seed, name)
+        self.clock, self.log, self.recipe_dir = clock, log, recipe_dir
 
     def publish(self, port: str, msg: Message) -> None:
         """Publish *msg* on output *port* (seq and, if unset, stamp are filled in)."""

@@ -31,6 +31,10 @@ class _Builder:
         self.problems: list[Problem] = []
         self.count = 0
 
+    def _key_problem(self, message: str, path: Path, knode: yaml.Node) -> None:
+        line, col = _mark(knode)
+        self.problems.append(Problem(message, ".".join(map(str, path)), self.file, line, col))
+
     def build(self, node: yaml.Node, path: Path, depth: int = 0) -> Any:
         self.count += 1
         if self.count > MAX_NODES:
@@ -51,30 +55,12 @@ class _Builder:
             for knode, vnode in node.value:
                 key = self.loader.construct_object(knode, deep=True)
                 if not isinstance(key, str | int | float | bool) or key is None:
-                    line, col = _mark(knode)
-                    self.problems.append(
-                        Problem(
-                            "mapping keys must be plain scalars",
-                            ".".join(map(str, path)),
-                            self.file,
-                            line,
-                            col,
-                        )
-                    )
+                    self._key_problem("mapping keys must be plain scalars", path, knode)
                     continue
                 key = str(key) if not isinstance(key, str) else key
                 sub = (*path, key)
                 if key in out:
-                    line, col = _mark(knode)
-                    self.problems.append(
-                        Problem(
-                            f"duplicate key {key!r} (the first one would be silently lost)",
-                            ".".join(map(str, sub)),
-                            self.file,
-                            line,
-                            col,
-                        )
-                    )
+                    self._key_problem(f"duplicate key {key!r} (the first one would be silently lost)", sub, knode)
                     continue
                 self.locations[sub] = _mark(knode)
                 out[key] = self.build(vnode, sub, depth + 1)
@@ -105,9 +91,7 @@ def load_with_locations(text: str, file: str | None = None) -> tuple[Any, Locati
                 )
             ]
         ) from None
-    except yaml.YAMLError as exc:
-        raise RecipeError([Problem(f"YAML error: {exc}", file=file)]) from None
-    except (RecursionError, ValueError) as exc:
+    except (yaml.YAMLError, RecursionError, ValueError) as exc:
         raise RecipeError([Problem(f"YAML error: {exc}", file=file)]) from None
     if node is None:
         return None, {}

@@ -34,6 +34,7 @@ from engine.messages import PointCloud
 from engine.plugin_manager import load_registry
 from engine.recipe import load_recipe
 from engine.runner import Observer, Runner
+from engine.stage_host import ServiceCall
 from engine.transforms import T_from_Rt, inv
 from plugins.actions import guidance_math as gm
 from plugins.actions.messages import GuidanceResult
@@ -113,9 +114,9 @@ class _GuidanceResults(Observer):
         if isinstance(msg, GuidanceResult):
             self.results[stage] = msg
 
-    def on_service(self, stage, client, edge, req_payload, req_env, reply_payload, reply_env, error) -> None:  # type: ignore[no-untyped-def,override]
-        if self.keep_captures and edge.service == "capture" and not error:
-            cloud = codec.decode(reply_payload, codec.decode_envelope(reply_env))
+    def on_service(self, call: ServiceCall) -> None:
+        if self.keep_captures and call.edge.service == "capture" and not call.error:
+            cloud = codec.decode(call.reply_payload, codec.decode_envelope(call.reply_env))
             if isinstance(cloud, PointCloud):
                 self.captures.append(cloud)
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy import stats
@@ -65,10 +66,7 @@ def plot_histograms(result: GapResult, path: Path) -> Path:
     ax.legend(fontsize=8)
     ax.set_title("error per sample")
     fig.suptitle(f"vgr gap: {result.verdict}", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def plot_rounds(result: GapResult, features: list[Feature], path: Path) -> Path:
@@ -105,10 +103,7 @@ def plot_rounds(result: GapResult, features: list[Feature], path: Path) -> Path:
         ax.set_title(f"{g.label} ({g.unit})" if g.unit else g.label, fontsize=9)
         ax.set_ylabel(f"RMS ({u})")
         ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def _masks(f: Feature, labels: list[str]) -> list[np.ndarray]:
@@ -210,7 +205,12 @@ def plot_effect(result: GapResult, it: Iteration, path: Path) -> Path | None:
         )
     ax.set_title(title, fontsize=9 if it.added.tied else 10)
     ax.legend(fontsize=8)
+    return _save(fig, path)
+
+
+def _save(fig: Any, path: Path) -> Path:
+    """Write figure *fig* to *path* (laid out, 100 dpi) and free it."""
     fig.tight_layout()
     fig.savefig(path, dpi=100)
-    plt.close(fig)
+    _plt().close(fig)
     return path

@@ -42,6 +42,8 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from engine.plain_data import plain
+
 from .interfaces import FittedEffect
 from .localise import FeatureGap
 from .selection import CandidateScore
@@ -69,6 +71,11 @@ def _finite(x: float) -> float | None:
     return float(x) if np.isfinite(x) else None
 
 
+def _fields(obj: Any, *names: str) -> dict[str, Any]:
+    """``{name: obj.name}`` for each of *names*: what the report carries as the result has it."""
+    return {n: getattr(obj, n) for n in names}
+
+
 def _comparison(c: Comparison, s: float) -> dict[str, Any]:
     return {
         "rms": c.rms * s,
@@ -87,39 +94,23 @@ def _comparison(c: Comparison, s: float) -> dict[str, Any]:
 
 def _score(sc: CandidateScore, s: float) -> dict[str, Any]:
     return {
-        "name": sc.name,
-        "where": sc.where,
-        "k": sc.k,
-        "k_shape": sc.k_shape,
-        "independent_fraction": sc.independent_fraction,
+        **_fields(sc, "name", "where", "k", "k_shape", "independent_fraction"),
         "confounded_with": [{"param": n, "coef": c} for n, c in sc.confounded_with],
-        "absorbed": sc.absorbed,
-        "unavailable": sc.unavailable,
-        "delta_rss": sc.delta_rss,
+        **_fields(sc, "absorbed", "unavailable", "delta_rss"),
         "delta_bic": _finite(sc.delta_bic),
         "f_stat": _finite(sc.f_stat),
         "p_value": sc.p_value,
         "p_value_corrected": sc.p_adjusted,
         "cv_rms": _finite(sc.cv_rms * s),
         "cv_gain": sc.cv_gain * s,
-        "cv_z": sc.cv_z,
-        "shape": sc.shape,
-        "eligible": sc.eligible,
-        "reasons": sc.reasons,
+        **_fields(sc, "cv_z", "shape", "eligible", "reasons"),
     }
 
 
 def _feature(g: FeatureGap, s: float) -> dict[str, Any]:
     return {
         "feature": g.name,
-        "label": g.label,
-        "unit": g.unit,
-        "mean_chi2": g.mean_chi2,
-        "mean_p": g.mean_p,
-        "spread_chi2": g.spread_chi2,
-        "spread_p": g.spread_p,
-        "log10_p": g.log10_p,
-        "z": g.z,
+        **_fields(g, "label", "unit", "mean_chi2", "mean_p", "spread_chi2", "spread_p", "log10_p", "z"),
         "bins": [{"range": b.label, "n": b.n, "rms": b.rms * s, "mean": [v * s for v in b.mean]} for b in g.bins],
     }
 
@@ -136,11 +127,9 @@ def report_dict(result: GapResult) -> dict[str, Any]:
     for fe, sc in result.effects:  # values and sigmas of the final joint refit
         e: dict[str, Any] = {"name": fe.tie_name, "where": fe.tie_where, "tied": fe.tied}
         if fe.tied:
-            e |= {"label": fe.label, "members": fe.members, "representative": fe.representative}
+            e |= _fields(fe, "label", "members", "representative")
         e |= {
-            "params": fe.params,
-            "param_std": fe.param_std,
-            "units": fe.units,
+            **_fields(fe, "params", "param_std", "units"),
             f"cv_rms_gain_{u}": sc.cv_gain * s,
             "delta_bic": sc.delta_bic,
             "p_value_corrected": sc.p_adjusted,
@@ -183,10 +172,7 @@ def report_dict(result: GapResult) -> dict[str, Any]:
         ],
         "decision_rule": {
             "alpha_familywise": sel.alpha,
-            "bic_margin": sel.bic_margin,
-            "cv_folds": sel.cv_folds,
-            "cv_z": sel.cv_z,
-            "absorbed_tol": sel.absorbed_tol,
+            **_fields(sel, "bic_margin", "cv_folds", "cv_z", "absorbed_tol"),
             "chi2_alpha": result.config.chi2_alpha,
             "max_effects": result.config.max_effects,
             "seed": sel.seed,
@@ -257,22 +243,8 @@ def _rank(c: CandidateScore) -> tuple:
 
 def write_json(result: GapResult, path: str | Path) -> Path:
     path = Path(path)
-    path.write_text(json.dumps(_jsonable(report_dict(result)), indent=2), encoding="utf-8")
+    path.write_text(json.dumps(plain(report_dict(result), nan_as_none=True), indent=2), encoding="utf-8")
     return path
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, float) and not np.isfinite(x):
-        return None
-    return x
 
 
 # --------------------------------------------------------------------------- terminal

@@ -23,7 +23,7 @@ import numpy as np
 from scipy import stats
 from scipy.spatial.transform import Rotation
 
-from plugins.util.plain_data import plain
+from engine.plain_data import plain
 
 Verdict = Literal["ok", "warning", "degenerate", "failed"]
 USABLE_VERDICTS: frozenset[str] = frozenset({"ok", "warning"})

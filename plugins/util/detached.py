@@ -14,18 +14,14 @@ from typing import Any
 
 from engine.clock import SimClock
 from engine.messages import Event, Message
-from engine.stage import ServiceError, Stage, StageContext, stage_rng
+from engine.stage import ServiceError, Stage, StageContext
 
 
 class DetachedContext(StageContext):
     """A StageContext for one stage outside a run (see the module docstring)."""
 
     def __init__(self, name: str, seed: int = 0, recipe_dir: Path | None = None) -> None:
-        self.name, self.run_id, self.seed = name, "detached", seed
-        self.rng = stage_rng(seed, name)
-        self.clock = SimClock()
-        self.log = logging.getLogger(f"vgr.detached.{name}")
-        self.recipe_dir = recipe_dir
+        super().__init__(name, "detached", seed, SimClock(), logging.getLogger(f"vgr.detached.{name}"), recipe_dir)
         self.published: list[tuple[str, Message]] = []
         self.events: list[Event] = []
 

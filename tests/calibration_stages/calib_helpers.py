@@ -36,8 +36,10 @@ class Keep(Observer):
     def on_publish(self, stage, port, payload, envelope, msg):
         self.msgs[(stage, port)].append(msg)
 
-    def on_service(self, stage, client, edge, payload, att, reply_payload, reply_att, error):
-        self.msgs[(stage, f"_svc/{client}")].append(codec.decode(payload, codec.decode_envelope(att)))
+    def on_service(self, call):
+        self.msgs[(call.stage, f"_svc/{call.client}")].append(
+            codec.decode(call.req_payload, codec.decode_envelope(call.req_env))
+        )
 
 
 def run(

@@ -64,7 +64,8 @@ def _levels(text: str) -> tuple[str, ...]:
 
 def cmd_gap(args: argparse.Namespace) -> int:
     from engine.gap import GapConfig, SelectionConfig
-    from engine.gap.report import _jsonable, report_dict
+    from engine.gap.report import report_dict
+    from engine.plain_data import plain
 
     from .analyse import analyse_gap, families_from_registry
 
@@ -91,5 +92,5 @@ def cmd_gap(args: argparse.Namespace) -> int:
         data_options={k: v for k, v in opts.items() if v is not None},
     )
     if args.json:
-        print(json.dumps(_jsonable(report_dict(result)), indent=2))
+        print(json.dumps(plain(report_dict(result), nan_as_none=True), indent=2))
     return EXIT_CODES[result.verdict]

@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from engine.gap.interfaces import Candidate, Feature, FittedEffect, GapInputError, Linearisation
+from engine.plain_data import plain
 from plugins.robot.effects.measurement import apply_range_distortion, range_distortion_jacobian
 from plugins.robot.kinematics import RobotModel
 from plugins.robot.model_file import model_to_dict
@@ -46,7 +47,6 @@ from plugins.solvers.kinematic_calibration import (
     candidate_parameters,
 )
 from plugins.solvers.kinematic_calibration.calibrate import initial_frames
-from plugins.util.plain_data import plain
 
 from .data import GapData
 

@@ -18,8 +18,9 @@ from typing import ClassVar
 from pydantic import Field
 
 from engine.gap import GapConfig, GapInputError, SelectionConfig
-from engine.gap.report import _jsonable, report_dict
+from engine.gap.report import report_dict
 from engine.messages import CalibrationResultMsg, JointState, TrackerPose
+from engine.plain_data import plain
 from engine.plugin_manager import PluginError
 from engine.stage import Stage, StageParams
 
@@ -92,6 +93,6 @@ class ModelGap(Stage):
                 method="vgr gap: calibration + candidate effects, F-test/BIC/k-fold CV with a decisive margin",
                 reasons=[result.reason],
                 metrics=metrics,
-                result_json=json.dumps(_jsonable(rep)),
+                result_json=json.dumps(plain(rep, nan_as_none=True)),
             ),
         )

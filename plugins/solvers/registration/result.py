@@ -44,7 +44,7 @@ from typing import Any, Literal
 import numpy as np
 
 from engine import transforms as tf
-from plugins.util.plain_data import plain
+from engine.plain_data import plain
 
 Verdict = Literal["ok", "ambiguous", "failed"]
 

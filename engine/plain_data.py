@@ -1,4 +1,5 @@
-"""Plain Python data from results that hold numpy values: what ``json`` and ``yaml`` writers take.
+"""Plain Python data from results that hold numpy values: what ``json`` and ``yaml`` writers take
+(the model-gap report, calibration and registration results).
 
 :func:`plain` turns arrays into (nested) lists, numpy scalars into Python numbers, tuples into
 lists and mapping keys into strings, recursively; with ``nan_as_none`` non-finite floats become
