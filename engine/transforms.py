@@ -239,37 +239,40 @@ def transform_points(T: ArrayLike, points: ArrayLike) -> F64:
 
 # --------------------------------------------------------------------------- SO(3) Jacobians
 # exp(w + d) = exp(J_l(w) d) exp(w) = exp(w) exp(J_r(w) d) to first order in d; J_r(w) = J_l(-w).
-# Each takes w (3,) -> (3, 3) or (n, 3) -> (n, 3, 3). The coefficients are computed without
-# cancellation: (1 - cos t) / t^2 through the half angle, the other two by their Taylor series to
-# t^4 below 0.05 rad, where the closed forms' rounding (eps / t^2) and the series' truncation meet.
+# Each takes w (3,) -> (3, 3) or (n, 3) -> (n, 3, 3). The coefficients are the closed forms, with
+# the leading term of their series below a switch angle; these are the formulas exp_se3 and the
+# inverse kinematics have always used, so recordings replay bit for bit. Their rounding near the
+# switch (about eps / t in J_l's entries) stays below 1e-8 (tests/test_transforms.py).
 
 
 def _so3_jacobian(w: ArrayLike, coeffs: Callable[[F64], tuple[F64, F64]]) -> F64:
     """``I + a(t) [w]x + b(t) [w]x^2`` with ``(a, b) = coeffs(t)``, ``t = |w|``."""
     W = hat(w)
-    th = np.linalg.norm(np.asarray(w, dtype=float).reshape(W.shape[:-1]), axis=-1)
-    a, b = coeffs(th)
+    w = np.asarray(w, dtype=float).reshape(W.shape[:-1])
+    th = np.linalg.norm(w) if w.ndim == 1 else np.linalg.norm(w, axis=-1)
+    a, b = coeffs(np.asarray(th))
     return np.eye(3) + np.asarray(a)[..., None, None] * W + np.asarray(b)[..., None, None] * (W @ W)
 
 
-_SERIES_BELOW_RAD = 0.05
-
-
 def _left_coeffs(th: F64) -> tuple[F64, F64]:
-    """``(1 - cos t) / t^2`` and ``(t - sin t) / t^3``."""
-    small = th < _SERIES_BELOW_RAD
+    """``(1 - cos t) / t^2`` and ``(t - sin t) / t^3``; 1/2 and 1/6 below 1e-8 rad."""
+    if th.ndim == 0:  # one rotation: Python-float powers (numpy's t**3 can differ from pow() by an ulp)
+        t = float(th)
+        return (0.5, 1.0 / 6.0) if t < 1e-8 else ((1.0 - np.cos(t)) / t**2, (t - np.sin(t)) / t**3)
+    small = th < 1e-8
     t = np.where(small, 1.0, th)
-    a = 0.5 * np.sinc(th / (2.0 * np.pi)) ** 2  # 2 sin^2(t/2) / t^2 (np.sinc(x) = sin(pi x) / (pi x))
-    b = np.where(small, 1.0 / 6.0 - th**2 / 120.0 + th**4 / 5040.0, (t - np.sin(t)) / t**3)
-    return a, b
+    return np.where(small, 0.5, (1.0 - np.cos(t)) / t**2), np.where(small, 1.0 / 6.0, (t - np.sin(t)) / t**3)
 
 
 def _left_inv_coeffs(th: F64) -> tuple[F64, F64]:
-    """``-1/2`` and ``1/t^2 - 1 / (2 t tan(t/2))``."""
-    small = th < _SERIES_BELOW_RAD
+    """``-1/2`` and ``1/t^2 - (1 + cos t) / (2 t sin t)``; -1/2 and 1/12 below 1e-6 rad."""
+    if th.ndim == 0:
+        t = float(th)
+        return -0.5, 1.0 / 12.0 if t < 1e-6 else 1.0 / t**2 - (1.0 + np.cos(t)) / (2.0 * t * np.sin(t))
+    small = th < 1e-6
     t = np.where(small, 1.0, th)
-    c = np.where(small, 1.0 / 12.0 + th**2 / 720.0 + th**4 / 30240.0, 1.0 / t**2 - 1.0 / (2.0 * t * np.tan(0.5 * t)))
-    return np.full_like(th, -0.5), c
+    c = np.where(small, 1.0 / 12.0, 1.0 / t**2 - (1.0 + np.cos(t)) / (2.0 * t * np.sin(t)))
+    return np.full_like(th, -0.5, dtype=float), c
 
 
 def so3_left_jacobian(w: ArrayLike) -> F64:
@@ -278,7 +281,7 @@ def so3_left_jacobian(w: ArrayLike) -> F64:
 
 
 def so3_left_jacobian_inv(w: ArrayLike) -> F64:
-    """``J_l(w)^-1 = I - [w]x / 2 + (1/t^2 - 1/(2 t tan(t/2))) [w]x^2``: maps an angular velocity to
+    """``J_l(w)^-1 = I - [w]x / 2 + (1/t^2 - (1 + cos t)/(2 t sin t)) [w]x^2``: maps an angular velocity to
     the rate of the rotation vector; ``log(exp(e) exp(w)) = w + J_l^-1(w) e`` to first order."""
     return _so3_jacobian(w, _left_inv_coeffs)
 
@@ -307,7 +310,7 @@ def log_se3(T: ArrayLike) -> F64:
     """Logarithm of a 4x4 transform as a twist (v, w)."""
     T = np.asarray(T, dtype=float)
     w = log_so3(T[:3, :3])
-    v = so3_left_jacobian_inv(w) @ T[:3, 3]
+    v = np.linalg.solve(so3_left_jacobian(w), T[:3, 3])
     return np.concatenate([v, w])
 
 
