@@ -50,8 +50,14 @@ class Message:
         result: Self = codec_of(cls).from_proto(cls, pb, bulk)
         return result
 
-    def __init_subclass__(cls, **kwargs: Any) -> None:
+    def __init_subclass__(cls, *, schema: str | None = None, **kwargs: Any) -> None:
+        """``class Pose(Message, schema="foxglove.PoseInFrame")``: a message type, named ``TYPE`` on
+        the wire (its class name unless it sets another), carried by protobuf ``SCHEMA``."""
         super().__init_subclass__(**kwargs)
+        if schema is not None:
+            cls.SCHEMA = schema
+        if "TYPE" not in cls.__dict__:
+            cls.TYPE = cls.__name__
         cls._pb_class = None  # each class looks up its own SCHEMA (a subclass may name another)
         install(cls)  # its generated to_proto / from_proto, written on first use
 

@@ -29,13 +29,11 @@ _PACKED_DTYPES = {v: k for k, v in _PACKED_TYPES.items()}
 
 
 @dataclass(kw_only=True, eq=False)
-class PointCloud(Message):
+class PointCloud(Message, schema="foxglove.PointCloud"):
     """Unorganised point cloud: ``points`` (N, 3) float32/float64 in ``frame_id``, optional
-    ``normals`` (N, 3) of the same dtype and ``colors`` (N, 3) uint8. Schema foxglove.PointCloud."""
+    ``normals`` (N, 3) of the same dtype and ``colors`` (N, 3) uint8."""
 
-    TYPE: ClassVar[str] = "PointCloud"
     WIRE_EXACT: ClassVar[bool] = True
-    SCHEMA: ClassVar[str] = "foxglove.PointCloud"
     BULK: ClassVar[int | None] = 6
 
     points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
@@ -137,13 +135,11 @@ _IMAGE_ENCODINGS = {
 
 
 @dataclass(kw_only=True, eq=False)
-class Image(Message):
+class Image(Message, schema="foxglove.RawImage"):
     """Raw image (H, W) or (H, W, C). Depth images use encoding ``32FC1`` in metres with NaN for
-    invalid pixels. Schema foxglove.RawImage."""
+    invalid pixels."""
 
-    TYPE: ClassVar[str] = "Image"
     WIRE_EXACT: ClassVar[bool] = True
-    SCHEMA: ClassVar[str] = "foxglove.RawImage"
     BULK: ClassVar[int | None] = 6
 
     data: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.float32))
@@ -176,11 +172,9 @@ class Image(Message):
 
 
 @dataclass(kw_only=True, eq=False)
-class CameraInfo(Message):
-    """Pinhole intrinsics of a camera (no distortion unless D is given). Schema foxglove.CameraCalibration."""
+class CameraInfo(Message, schema="foxglove.CameraCalibration"):
+    """Pinhole intrinsics of a camera (no distortion unless D is given)."""
 
-    TYPE: ClassVar[str] = "CameraInfo"
-    SCHEMA: ClassVar[str] = "foxglove.CameraCalibration"
     WIRE: ClassVar[WireMap] = {"K": Wire(shape=(3, 3)), "D": Wire(shape=(-1,))}
 
     width: int = 0
@@ -199,22 +193,18 @@ class CameraInfo(Message):
 
 
 @dataclass(kw_only=True, eq=False)
-class PoseStamped(Message):
-    """Pose ``T`` (4x4) of an entity in ``frame_id``. Schema foxglove.PoseInFrame."""
+class PoseStamped(Message, schema="foxglove.PoseInFrame"):
+    """Pose ``T`` (4x4) of an entity in ``frame_id``."""
 
-    TYPE: ClassVar[str] = "PoseStamped"
-    SCHEMA: ClassVar[str] = "foxglove.PoseInFrame"
     WIRE: ClassVar[WireMap] = {"T": "pose"}
 
     T: np.ndarray = field(default_factory=lambda: np.eye(4))
 
 
 @dataclass(kw_only=True, eq=False)
-class Transform(Message):
-    """``T`` = T_parent_child with parent ``frame_id``. Schema foxglove.FrameTransform."""
+class Transform(Message, schema="foxglove.FrameTransform"):
+    """``T`` = T_parent_child with parent ``frame_id``."""
 
-    TYPE: ClassVar[str] = "Transform"
-    SCHEMA: ClassVar[str] = "foxglove.FrameTransform"
     WIRE: ClassVar[WireMap] = {
         "frame_id": "parent_frame_id",
         "T": Wire(position="translation", orientation="rotation"),
@@ -225,11 +215,8 @@ class Transform(Message):
 
 
 @dataclass(kw_only=True, eq=False)
-class FrameTransforms(Message):
-    """A set of transforms (the frame tree of the cell). Schema foxglove.FrameTransforms."""
-
-    TYPE: ClassVar[str] = "FrameTransforms"
-    SCHEMA: ClassVar[str] = "foxglove.FrameTransforms"
+class FrameTransforms(Message, schema="foxglove.FrameTransforms"):
+    """A set of transforms (the frame tree of the cell)."""
 
     transforms: list[Transform] = field(default_factory=list)
 
@@ -240,11 +227,8 @@ class FrameTransforms(Message):
 
 
 @dataclass(kw_only=True, eq=False)
-class JointState(Message):
-    """Joint positions (rad or m), velocities and efforts by joint name. Schema foxglove.JointStates."""
-
-    TYPE: ClassVar[str] = "JointState"
-    SCHEMA: ClassVar[str] = "foxglove.JointStates"
+class JointState(Message, schema="foxglove.JointStates"):
+    """Joint positions (rad or m), velocities and efforts by joint name."""
 
     names: list[str] = field(default_factory=list)
     positions: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -288,11 +272,8 @@ class Mesh:
 
 
 @dataclass(kw_only=True, eq=False)
-class SceneMeshes(Message):
-    """Meshes of the cell (workpieces, fixtures) for Foxglove's 3D view. Schema foxglove.SceneUpdate."""
-
-    TYPE: ClassVar[str] = "SceneMeshes"
-    SCHEMA: ClassVar[str] = "foxglove.SceneUpdate"
+class SceneMeshes(Message, schema="foxglove.SceneUpdate"):
+    """Meshes of the cell (workpieces, fixtures) for Foxglove's 3D view."""
 
     meshes: list[Mesh] = field(default_factory=list)
 

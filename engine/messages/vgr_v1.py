@@ -17,12 +17,10 @@ from engine.schemas import ProtoMessage
 
 
 @dataclass(kw_only=True, eq=False)
-class Blob(Message):
-    """Opaque bytes (transport benchmarks, file contents). Schema vgr.v1.Blob."""
+class Blob(Message, schema="vgr.v1.Blob"):
+    """Opaque bytes (transport benchmarks, file contents)."""
 
-    TYPE: ClassVar[str] = "Blob"
     WIRE_EXACT: ClassVar[bool] = True
-    SCHEMA: ClassVar[str] = "vgr.v1.Blob"
     BULK: ClassVar[int | None] = 4
 
     data: bytes | memoryview = b""
@@ -30,11 +28,9 @@ class Blob(Message):
 
 
 @dataclass(kw_only=True, eq=False)
-class TrackerPose(Message):
-    """Pose ``T`` = T_frame_tracker of a tracked device (Vive). Schema vgr.v1.TrackerPose."""
+class TrackerPose(Message, schema="vgr.v1.TrackerPose"):
+    """Pose ``T`` = T_frame_tracker of a tracked device (Vive)."""
 
-    TYPE: ClassVar[str] = "TrackerPose"
-    SCHEMA: ClassVar[str] = "vgr.v1.TrackerPose"
     WIRE: ClassVar[WireMap] = {"T": "pose"}
 
     serial: str = ""
@@ -48,11 +44,9 @@ EVENT_LEVELS = ("debug", "info", "result", "warning", "error", "alarm")
 
 
 @dataclass(kw_only=True, eq=False)
-class Event(Message):
+class Event(Message, schema="vgr.v1.Event"):
     """Log line, error or alarm. ``code`` is machine-readable; ``details`` is JSON-serialisable."""
 
-    TYPE: ClassVar[str] = "Event"
-    SCHEMA: ClassVar[str] = "vgr.v1.Event"
     WIRE: ClassVar[WireMap] = {"level": Wire(unset_is_default=True), "details": "details_json"}
 
     level: str = "info"
@@ -68,12 +62,11 @@ class Event(Message):
 
 
 @dataclass(kw_only=True, eq=False)
-class CalibrationResultMsg(Message):
+class CalibrationResultMsg(Message, schema="vgr.v1.CalibrationResult"):
     """A calibration result on the wire: verdict, named transforms, metrics, and the complete
     result as JSON (plugins.solvers.calibration_result.CalibrationResult.to_json())."""
 
     TYPE: ClassVar[str] = "CalibrationResult"
-    SCHEMA: ClassVar[str] = "vgr.v1.CalibrationResult"
 
     kind: str = ""
     verdict: str = ""
@@ -88,11 +81,9 @@ ROBOT_COMMAND_KINDS = ("move_j", "move_l", "stop", "state")
 
 
 @dataclass(kw_only=True, eq=False)
-class RobotCommand(Message):
+class RobotCommand(Message, schema="vgr.v1.RobotCommand"):
     """A robot command with an id; a controller executes each id at most once."""
 
-    TYPE: ClassVar[str] = "RobotCommand"
-    SCHEMA: ClassVar[str] = "vgr.v1.RobotCommand"
     WIRE: ClassVar[WireMap] = {"T": "pose"}
 
     command_id: str = ""
@@ -109,11 +100,9 @@ class RobotCommand(Message):
 
 
 @dataclass(kw_only=True, eq=False)
-class RobotReply(Message):
+class RobotReply(Message, schema="vgr.v1.RobotReply"):
     """The controller's answer to a RobotCommand: accepted or refused (with the error), final state."""
 
-    TYPE: ClassVar[str] = "RobotReply"
-    SCHEMA: ClassVar[str] = "vgr.v1.RobotReply"
     WIRE: ClassVar[WireMap] = {"T": "pose"}
 
     command_id: str = ""
@@ -126,11 +115,9 @@ class RobotReply(Message):
 
 
 @dataclass(kw_only=True, eq=False)
-class Correction(Message):
+class Correction(Message, schema="vgr.v1.Correction"):
     """A pose correction (``T``) with its size and the verdict of the safety checks."""
 
-    TYPE: ClassVar[str] = "Correction"
-    SCHEMA: ClassVar[str] = "vgr.v1.Correction"
     WIRE: ClassVar[WireMap] = {"T": "pose"}
 
     kind: str = ""
@@ -146,12 +133,10 @@ class Correction(Message):
 
 
 @dataclass(kw_only=True, eq=False)
-class Request(Message):
+class Request(Message, schema="vgr.v1.Request"):
     """A generic service request: a command word and JSON arguments."""
 
-    TYPE: ClassVar[str] = "Request"
     WIRE_EXACT: ClassVar[bool] = True
-    SCHEMA: ClassVar[str] = "vgr.v1.Request"
     WIRE: ClassVar[WireMap] = {"args": "args_json"}
 
     command: str = ""

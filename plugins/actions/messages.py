@@ -10,7 +10,6 @@ to the schema by name and type (engine.messages.mapping).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import ClassVar
 
 import numpy as np
 
@@ -45,11 +44,8 @@ VERDICTS = ("converged", "not_converged", "refused", "failed")
 
 
 @dataclass(kw_only=True, eq=False)
-class GuidanceResult(Message):
+class GuidanceResult(Message, schema="vgr.v1.GuidanceResult"):
     """Outcome of one guidance run; only ``converged`` may be used for docking."""
-
-    TYPE: ClassVar[str] = "GuidanceResult"
-    SCHEMA: ClassVar[str] = "vgr.v1.GuidanceResult"
 
     mode: str = "eye_in_hand"
     verdict: str = "failed"

@@ -58,16 +58,12 @@ message Everything {
 
 
 @dataclass(kw_only=True, eq=False)
-class Item(m.Message):
-    TYPE: ClassVar[str] = "MappingTestItem"
-    SCHEMA: ClassVar[str] = "vgrtest.Item"
+class Item(m.Message, schema="vgrtest.Item"):
     label: str = ""
 
 
 @dataclass(kw_only=True, eq=False)
-class Everything(m.Message):
-    TYPE: ClassVar[str] = "MappingTestEverything"
-    SCHEMA: ClassVar[str] = "vgrtest.Everything"
+class Everything(m.Message, schema="vgrtest.Everything"):
     BULK: ClassVar[int | None] = 19
     WIRE: ClassVar[m.WireMap] = {
         "T": "pose",
@@ -106,6 +102,8 @@ def roundtrip(msg: m.Message, split: bool = False, monkeypatch: Any = None) -> A
 
 def test_a_new_message_type_is_a_dataclass_and_a_schema():
     codec.MessageRegistry().add(Everything)  # its code is generated, and checked, where it is registered
+    assert (Everything.TYPE, Everything.SCHEMA) == ("Everything", "vgrtest.Everything")  # TYPE: the class name
+    assert m.CalibrationResultMsg.TYPE == "CalibrationResult"  # ... unless the class sets another
     assert "def to_proto(self):" in wire_source(Everything) and "self.local" not in wire_source(Everything)
 
 
@@ -175,15 +173,11 @@ def test_a_hand_written_encoding_may_extend_the_generated_one():
 
 def test_a_field_that_does_not_fit_its_schema_fails_where_it_is_registered():
     @dataclass(kw_only=True, eq=False)
-    class Typo(m.Message):
-        TYPE: ClassVar[str] = "MappingTestTypo"
-        SCHEMA: ClassVar[str] = "vgrtest.Item"
+    class Typo(m.Message, schema="vgrtest.Item"):
         lable: str = ""
 
     @dataclass(kw_only=True, eq=False)
-    class Misfit(m.Message):
-        TYPE: ClassVar[str] = "MappingTestMisfit"
-        SCHEMA: ClassVar[str] = "vgrtest.Item"
+    class Misfit(m.Message, schema="vgrtest.Item"):
         WIRE: ClassVar[m.WireMap] = {"label": "timestamp"}
         label: str = ""
 

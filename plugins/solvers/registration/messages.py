@@ -42,11 +42,9 @@ message MatchResult {                // a point-cloud matcher's answer (plugins/
 
 
 @dataclass(kw_only=True, eq=False)
-class MatchResult(Message):
+class MatchResult(Message, schema="vgr.v1.MatchResult"):
     """A matcher's verdict and ``T_match`` (None unless the verdict is ok)."""
 
-    TYPE: ClassVar[str] = "MatchResult"
-    SCHEMA: ClassVar[str] = "vgr.v1.MatchResult"
     WIRE: ClassVar[WireMap] = {"T_match": Wire(presence="has_match")}
 
     method: str = ""
