@@ -1,7 +1,8 @@
 """How a message dataclass's fields travel in its protobuf schema: declared once per class, not copied.
 
-A message type is a dataclass naming its ``SCHEMA``. Each dataclass field travels in the protobuf
-field of the same name, encoded as its annotation and that field's type say:
+A message type is a dataclass naming its schema (``class Blob(Message, schema="vgr.v1.Blob")``).
+Each dataclass field travels in the protobuf field of the same name, encoded as its annotation and
+that field's type say:
 
 =====================================  ==================================  ===============================
 dataclass field                        protobuf field                      encoding
@@ -29,7 +30,7 @@ From the fields, ``WIRE`` and the schema's descriptor, :func:`codec_of` writes t
 ``__init__``), so a message costs what hand-written copying cost; :func:`wire_source` shows it. A
 class with a genuinely special encoding writes its own; it may call ``super()`` for the generated one.
 
-Also here: the helpers that hand-written encodings share (stamps, poses, packed arrays, JSON).
+Also here: the helpers that hand-written encodings share (stamps, poses, array bytes, JSON).
 """
 
 from __future__ import annotations
@@ -275,6 +276,8 @@ def _field(code: _Code, f: Any, hint: Any, spec: Wire, pf: Any) -> str:
     t = next(x for x in members if x is not type(None)) if optional and len(members) == 2 else hint
     origin, targs = get_origin(t), get_args(t)
     if spec.position or spec.orientation:
+        if not (spec.position and spec.orientation and t is np.ndarray):
+            raise MappingError("a pose on two fields needs an array and both `position` and `orientation`")
         parts = f"pb.{spec.position}, pb.{spec.orientation}"
         code.enc.append(f"_set_pose_parts({parts}, {a})")
         return f"_pose_from_parts({parts})"
@@ -284,14 +287,14 @@ def _field(code: _Code, f: Any, hint: Any, spec: Wire, pf: Any) -> str:
         code.enc += [f"{ts} = {p}", f"{ts}.seconds, {ts}.nanos = divmod(int({a}), 1_000_000_000)"]
         code.dec.append(f"{ts} = {p}")
         return f"{ts}.seconds * 1_000_000_000 + {ts}.nanos"
-    if sub == _POSE and not rep:
+    if sub == _POSE and not rep and t is np.ndarray:
         if spec.presence:
             code.enc.append(f"pb.{spec.presence} = {a} is not None")
         code.enc += [f"if {a} is not None:", f"    _set_pose({p}, {a})"] if optional else [f"_set_pose({p}, {a})"]
         if spec.presence:
             return f"(_get_pose({p}) if pb.{spec.presence} else None)"
         return f"(_get_pose({p}) if pb.HasField({pf.name!r}) else None)" if optional else f"_get_pose({p})"
-    if sub == _POSE and origin is list:
+    if sub == _POSE and origin is list and targs == (np.ndarray,):
         code.enc += [f"for _v in {a}:", f"    _set_pose({p}.add(), _v)"]
         return f"[_get_pose(_m) for _m in {p}]"
     if sub and rep and origin is dict and "name" in pf.message_type.fields_by_name:

@@ -182,6 +182,10 @@ def test_a_field_that_does_not_fit_its_schema_fails_where_it_is_registered():
         label: str = ""
 
     @dataclass(kw_only=True, eq=False)
+    class NotAPose(m.Message, schema="foxglove.PoseInFrame"):
+        pose: str = ""
+
+    @dataclass(kw_only=True, eq=False)
     class NoBulk(Item):
         BULK: ClassVar[int | None] = 2
 
@@ -189,5 +193,7 @@ def test_a_field_that_does_not_fit_its_schema_fails_where_it_is_registered():
         codec.MessageRegistry().add(Typo)
     with pytest.raises(MappingError, match=r"label -> vgrtest\.Item\.timestamp"):
         codec.MessageRegistry().add(Misfit)
+    with pytest.raises(MappingError, match=r"no encoding of <class 'str'> in a foxglove\.Pose field"):
+        codec.MessageRegistry().add(NotAPose)
     with pytest.raises(MappingError, match="no field maps to its BULK"):
         codec.MessageRegistry().add(NoBulk)
