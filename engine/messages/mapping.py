@@ -2,28 +2,12 @@
 
 A message type is a dataclass naming its schema (``class Blob(Message, schema="vgr.v1.Blob")``).
 Each dataclass field travels in the protobuf field of the same name, encoded as its annotation and
-that field's type say:
-
-=====================================  ==================================  ===============================
-dataclass field                        protobuf field                      encoding
-=====================================  ==================================  ===============================
-``int`` (``stamp_ns``)                 ``google.protobuf.Timestamp``       seconds and nanos
-str, int, float, bool, bytes           scalar of that kind                 copied
-dict, list, Any                        string                              JSON, sorted keys
-``np.ndarray`` (4x4) [``| None``]      ``foxglove.Pose``                   position and quaternion; None:
-                                                                           absent (or ``presence`` false)
-``np.ndarray`` [``| None``]            repeated double                     its values; None: none
-``list[str]``, ``list[float]``         repeated string, double             element by element
-``list[np.ndarray]`` (4x4 each)        repeated ``foxglove.Pose``          a pose each
-``dict[str, np.ndarray]`` / ``float``  repeated ``{name, <pose|value>}``   an entry each, in order
-``list[M]``, M a message type          repeated M's schema                 M's own mapping
-bytes, memoryview, ``np.ndarray``      bytes field number ``BULK``         the codec appends it (codec.py)
-=====================================  ==================================  ===============================
-
-The class variable ``WIRE`` (merged along the class's bases; Message maps ``stamp_ns`` to
-``timestamp`` and keeps ``seq`` off the wire) says what the name and type cannot: a protobuf name
-(``{"T": "pose"}``), ``None`` for a field that does not travel, or a :class:`Wire` with options.
-``stamp_ns`` and ``frame_id`` travel only where the schema has their fields.
+that field's type say (scalars copied, ``stamp_ns`` as a Timestamp, 4x4 arrays as poses, arrays and
+lists on repeated fields, dicts as named entries or JSON, message lists by their own mapping, one
+bytes or array field as ``BULK``: the table is in docs/messages.md). The class variable ``WIRE``
+(merged along the bases) says what name and type cannot: another protobuf name, ``None`` (not on
+the wire), or a :class:`Wire` with options. ``stamp_ns`` and ``frame_id`` travel where the schema
+has their fields; ``seq`` never does.
 
 From the fields, ``WIRE`` and the schema's descriptor, :func:`codec_of` writes the class's
 ``to_proto`` / ``from_proto`` as Python source once, on first use (as ``dataclasses`` writes
