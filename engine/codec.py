@@ -25,6 +25,7 @@ from enum import IntEnum
 from typing import Any, NamedTuple
 
 from engine.messages import BUILTIN_MESSAGE_TYPES, WIRE_CACHE, Message
+from engine.messages.mapping import generate_now
 from engine.schemas import SCHEMA_VERSION, proto_class
 
 __all__ = [
@@ -131,14 +132,16 @@ class MessageRegistry:
 
     def __init__(self) -> None:
         self._types: dict[str, type[Message]] = {}
-        for t in BUILTIN_MESSAGE_TYPES:
-            self.add(t)
+        for t in BUILTIN_MESSAGE_TYPES:  # (their mappings are written on first use; a test checks them all)
+            self.add(t, generate=False)
 
-    def add(self, cls: type[Message]) -> None:
+    def add(self, cls: type[Message], *, generate: bool = True) -> None:
         old = self._types.get(cls.TYPE)
         if old is not None and old is not cls:
             raise ValueError(f"message type {cls.TYPE!r} is defined twice ({old.__module__}, {cls.__module__})")
         proto_class(cls.SCHEMA)  # fails early if the schema is unknown
+        if generate:
+            generate_now(cls)  # ... or if its fields do not fit it (engine.messages.mapping)
         self._types[cls.TYPE] = cls
 
     def get(self, name: str) -> type[Message]:

@@ -4,13 +4,15 @@ Every message carries its source's timestamp ``stamp_ns`` (integer ns), a per-po
 ``seq`` (set by the publisher) and the ``frame_id`` its geometry is expressed in. Arrays are numpy;
 received arrays may be read-only views of the wire buffer, so stages never modify inputs in place.
 
-Each class names its protobuf ``SCHEMA`` (see engine.schemas) and converts with ``to_proto`` /
-``from_proto``. A class whose payload is one large array names the bytes field that holds it in
-``BULK``: the codec then moves that array without an extra protobuf copy (engine.codec).
+Each class names its protobuf ``SCHEMA`` (see engine.schemas); its fields map to the schema's by
+name and type, ``WIRE`` naming the rest, and ``to_proto`` / ``from_proto`` are generated from that
+(engine.messages.mapping). A class whose payload is one large array names the bytes field that
+holds it in ``BULK``: the codec then moves that array without an extra protobuf copy (engine.codec).
 
 Where things are (import them from here, ``engine.messages``):
 
 * ``base`` — :class:`Message` and the hand-over rules of publish (canonical, detach, freeze);
+* ``mapping`` — how a message's fields travel in its schema (:class:`Wire`), and the protobuf helpers;
 * ``geometry`` — types on Foxglove's schemas (point cloud, image, camera info, pose, transforms,
   joint state, scene meshes), which Foxglove's 3D view shows;
 * ``vgr_v1`` — types on vgr's own schemas (blob, tracker pose, event, calibration result, robot
@@ -19,20 +21,7 @@ Where things are (import them from here, ``engine.messages``):
 
 from __future__ import annotations
 
-from engine.messages.base import (
-    WIRE_CACHE,
-    Bulk,
-    Message,
-    array_fields,
-    canonical,
-    detach,
-    freeze,
-    freeze_arrays,
-    get_pose,
-    get_stamp,
-    set_pose,
-    set_stamp,
-)
+from engine.messages.base import WIRE_CACHE, Message, array_fields, canonical, detach, freeze, freeze_arrays
 from engine.messages.geometry import (
     CameraInfo,
     FrameTransforms,
@@ -44,6 +33,7 @@ from engine.messages.geometry import (
     SceneMeshes,
     Transform,
 )
+from engine.messages.mapping import Bulk, Wire, WireMap, get_pose, get_stamp, set_pose, set_stamp
 from engine.messages.vgr_v1 import (
     EVENT_LEVELS,
     ROBOT_COMMAND_KINDS,
@@ -100,6 +90,8 @@ __all__ = [
     "SceneMeshes",
     "TrackerPose",
     "Transform",
+    "Wire",
+    "WireMap",
     "array_fields",
     "canonical",
     "detach",

@@ -1,9 +1,9 @@
 """The base of every message type and what the engine does with any message.
 
-:class:`Message` (stamp, seq, frame id; ``to_proto`` / ``from_proto``; ``BULK`` and ``WIRE_EXACT``),
-the helpers message classes share to fill their protobuf (stamps, poses, packed arrays), and the
-hand-over rules of publish: :func:`canonical` (what a receiver will see), :func:`detach` and
-:func:`freeze_arrays` (a published message is never changed under a consumer's feet).
+:class:`Message` (stamp, seq, frame id; ``to_proto`` / ``from_proto``, generated from the class's
+fields by engine.messages.mapping; ``BULK`` and ``WIRE_EXACT``) and the hand-over rules of publish:
+:func:`canonical` (what a receiver will see), :func:`detach` and :func:`freeze_arrays` (a published
+message is never changed under a consumer's feet).
 """
 
 from __future__ import annotations
@@ -13,60 +13,8 @@ from typing import Any, ClassVar, Self
 
 import numpy as np
 
-from engine import transforms as tf
+from engine.messages.mapping import Bulk, WireMap, codec_of, install, mapped
 from engine.schemas import ProtoMessage, proto_class
-
-Bulk = memoryview | bytes | None
-
-
-def _bytes_of(arr: np.ndarray) -> memoryview:
-    """Flat uint8 view of a C-contiguous array (copies only when the array is not contiguous)."""
-    return memoryview(np.ascontiguousarray(arr).reshape(-1).view(np.uint8))
-
-
-_PACKED_TYPES = {  # foxglove.PackedElementField.NumericType
-    np.dtype("uint8"): 1,
-    np.dtype("int8"): 2,
-    np.dtype("uint16"): 3,
-    np.dtype("int16"): 4,
-    np.dtype("uint32"): 5,
-    np.dtype("int32"): 6,
-    np.dtype("float32"): 7,
-    np.dtype("float64"): 8,
-}
-_PACKED_DTYPES = {v: k for k, v in _PACKED_TYPES.items()}
-
-
-# --------------------------------------------------------------------------- proto helpers
-# Public: plugins defining their own message types (engine.schemas.define_proto) use them too.
-
-
-def set_stamp(pb: Any, stamp_ns: int) -> None:
-    ts = pb.timestamp  # (each attribute access of a sub-message builds a new wrapper)
-    ts.seconds, ts.nanos = divmod(int(stamp_ns), 1_000_000_000)
-
-
-def get_stamp(pb: Any) -> int:
-    ts = pb.timestamp
-    return ts.seconds * 1_000_000_000 + ts.nanos  # (protobuf integer fields read as int)
-
-
-def set_pose(pose_pb: Any, T: np.ndarray) -> None:
-    T = np.asarray(T, dtype=float)
-    p, q = T[:3, 3], tf.quat_xyzw_from_R(T[:3, :3])
-    pose_pb.position.x, pose_pb.position.y, pose_pb.position.z = (float(v) for v in p)
-    o = pose_pb.orientation
-    o.x, o.y, o.z, o.w = (float(v) for v in q)
-
-
-def get_pose(pose_pb: Any) -> np.ndarray:
-    p, o = pose_pb.position, pose_pb.orientation
-    if (o.x, o.y, o.z, o.w) == (0.0, 0.0, 0.0, 0.0):
-        return tf.T_from_Rt(np.eye(3), (p.x, p.y, p.z))  # unset orientation means identity
-    return tf.T_from_pose7((p.x, p.y, p.z), (o.x, o.y, o.z, o.w))
-
-
-# --------------------------------------------------------------------------- base
 
 
 @dataclass(kw_only=True, eq=False)
@@ -80,23 +28,38 @@ class Message:
     # then hands the object over as is. False (poses travel as quaternions, which round by an ulp):
     # publish hands over the wire form, so a local consumer, a remote one and a replay see the same.
     WIRE_EXACT: ClassVar[bool] = False
+    # dataclass field -> protobuf field name, Wire options, or None (not on the wire); merged along
+    # the bases. Fields not named here travel in the field of their name (engine.messages.mapping).
+    WIRE: ClassVar[WireMap] = {"stamp_ns": "timestamp", "seq": None}
     _pb_class: ClassVar[Any] = None  # protobuf class of SCHEMA, looked up on first use (per class)
 
     stamp_ns: int = 0
     seq: int = 0
     frame_id: str = ""
 
+    @mapped
     def to_proto(self) -> tuple[ProtoMessage, Bulk]:
-        """Protobuf message *without* the bulk field, and the bulk bytes (or None)."""
-        raise NotImplementedError
+        """Protobuf message *without* the bulk field, and the bulk bytes (or None). Generated from
+        the class's fields and ``WIRE`` unless the class writes its own (which may call this)."""
+        return codec_of(type(self)).to_proto(self)
 
     @classmethod
+    @mapped
     def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
-        raise NotImplementedError
+        """The message of protobuf *pb* (whose bulk field, if split off, is *bulk*)."""
+        result: Self = codec_of(cls).from_proto(cls, pb, bulk)
+        return result
 
-    def __init_subclass__(cls, **kwargs: Any) -> None:
+    def __init_subclass__(cls, *, schema: str | None = None, **kwargs: Any) -> None:
+        """``class Pose(Message, schema="foxglove.PoseInFrame")``: a message type, named ``TYPE`` on
+        the wire (its class name unless it sets another), carried by protobuf ``SCHEMA``."""
         super().__init_subclass__(**kwargs)
+        if schema is not None:
+            cls.SCHEMA = schema
+        if "TYPE" not in cls.__dict__:
+            cls.TYPE = cls.__name__
         cls._pb_class = None  # each class looks up its own SCHEMA (a subclass may name another)
+        install(cls)  # its generated to_proto / from_proto, written on first use
 
     @classmethod
     def proto(cls) -> Any:

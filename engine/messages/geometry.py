@@ -1,5 +1,8 @@
 """Message types on Foxglove's well-known schemas, so a recording opens in Foxglove's 3D view:
-point clouds, images and their camera model, poses, transforms, joint states and scene meshes."""
+point clouds, images and their camera model, poses, transforms, joint states and scene meshes.
+
+Camera models, poses and transforms map to their schemas by field (engine.messages.mapping); point
+clouds, images, joint states and meshes pack their arrays in Foxglove's layouts by hand."""
 
 from __future__ import annotations
 
@@ -8,29 +11,29 @@ from typing import Any, ClassVar, Self
 
 import numpy as np
 
-from engine import transforms as tf
-from engine.messages.base import (
-    _PACKED_DTYPES,
-    _PACKED_TYPES,
-    Bulk,
-    Message,
-    _bytes_of,
-    get_pose,
-    get_stamp,
-    set_pose,
-    set_stamp,
-)
+from engine.messages.base import Message
+from engine.messages.mapping import Bulk, Wire, WireMap, _bytes_of, get_stamp, set_stamp
 from engine.schemas import ProtoMessage
+
+_PACKED_TYPES = {  # foxglove.PackedElementField.NumericType
+    np.dtype("uint8"): 1,
+    np.dtype("int8"): 2,
+    np.dtype("uint16"): 3,
+    np.dtype("int16"): 4,
+    np.dtype("uint32"): 5,
+    np.dtype("int32"): 6,
+    np.dtype("float32"): 7,
+    np.dtype("float64"): 8,
+}
+_PACKED_DTYPES = {v: k for k, v in _PACKED_TYPES.items()}
 
 
 @dataclass(kw_only=True, eq=False)
-class PointCloud(Message):
+class PointCloud(Message, schema="foxglove.PointCloud"):
     """Unorganised point cloud: ``points`` (N, 3) float32/float64 in ``frame_id``, optional
-    ``normals`` (N, 3) of the same dtype and ``colors`` (N, 3) uint8. Schema foxglove.PointCloud."""
+    ``normals`` (N, 3) of the same dtype and ``colors`` (N, 3) uint8."""
 
-    TYPE: ClassVar[str] = "PointCloud"
     WIRE_EXACT: ClassVar[bool] = True
-    SCHEMA: ClassVar[str] = "foxglove.PointCloud"
     BULK: ClassVar[int | None] = 6
 
     points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
@@ -132,13 +135,11 @@ _IMAGE_ENCODINGS = {
 
 
 @dataclass(kw_only=True, eq=False)
-class Image(Message):
+class Image(Message, schema="foxglove.RawImage"):
     """Raw image (H, W) or (H, W, C). Depth images use encoding ``32FC1`` in metres with NaN for
-    invalid pixels. Schema foxglove.RawImage."""
+    invalid pixels."""
 
-    TYPE: ClassVar[str] = "Image"
     WIRE_EXACT: ClassVar[bool] = True
-    SCHEMA: ClassVar[str] = "foxglove.RawImage"
     BULK: ClassVar[int | None] = 6
 
     data: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.float32))
@@ -171,11 +172,10 @@ class Image(Message):
 
 
 @dataclass(kw_only=True, eq=False)
-class CameraInfo(Message):
-    """Pinhole intrinsics of a camera (no distortion unless D is given). Schema foxglove.CameraCalibration."""
+class CameraInfo(Message, schema="foxglove.CameraCalibration"):
+    """Pinhole intrinsics of a camera (no distortion unless D is given)."""
 
-    TYPE: ClassVar[str] = "CameraInfo"
-    SCHEMA: ClassVar[str] = "foxglove.CameraCalibration"
+    WIRE: ClassVar[WireMap] = {"K": Wire(shape=(3, 3)), "D": Wire(shape=(-1,))}
 
     width: int = 0
     height: int = 0
@@ -184,124 +184,51 @@ class CameraInfo(Message):
     distortion_model: str = "plumb_bob"
 
     def to_proto(self) -> tuple[ProtoMessage, Bulk]:
-        pb = self.proto()
-        set_stamp(pb, self.stamp_ns)
-        pb.frame_id, pb.width, pb.height = self.frame_id, self.width, self.height
-        pb.distortion_model = self.distortion_model
-        K = np.asarray(self.K, dtype=float)
-        pb.K.extend(K.ravel().tolist())
-        pb.D.extend(np.asarray(self.D, dtype=float).ravel().tolist())
+        pb, bulk = super().to_proto()  # and R, P of an unrectified camera (not read back)
         pb.R.extend(np.eye(3).ravel().tolist())
         P = np.zeros((3, 4))
-        P[:, :3] = K
+        P[:, :3] = np.asarray(self.K, dtype=float)
         pb.P.extend(P.ravel().tolist())
-        return pb, None
-
-    @classmethod
-    def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
-        return cls(
-            stamp_ns=get_stamp(pb),
-            frame_id=pb.frame_id,
-            width=pb.width,
-            height=pb.height,
-            K=np.array(pb.K, dtype=float).reshape(3, 3),
-            D=np.array(pb.D, dtype=float),
-            distortion_model=pb.distortion_model,
-        )
+        return pb, bulk
 
 
 @dataclass(kw_only=True, eq=False)
-class PoseStamped(Message):
-    """Pose ``T`` (4x4) of an entity in ``frame_id``. Schema foxglove.PoseInFrame."""
+class PoseStamped(Message, schema="foxglove.PoseInFrame"):
+    """Pose ``T`` (4x4) of an entity in ``frame_id``."""
 
-    TYPE: ClassVar[str] = "PoseStamped"
-    SCHEMA: ClassVar[str] = "foxglove.PoseInFrame"
+    WIRE: ClassVar[WireMap] = {"T": "pose"}
 
     T: np.ndarray = field(default_factory=lambda: np.eye(4))
 
-    def to_proto(self) -> tuple[ProtoMessage, Bulk]:
-        pb = self.proto()
-        set_stamp(pb, self.stamp_ns)
-        pb.frame_id = self.frame_id
-        set_pose(pb.pose, self.T)
-        return pb, None
-
-    @classmethod
-    def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
-        return cls(stamp_ns=get_stamp(pb), frame_id=pb.frame_id, T=get_pose(pb.pose))
-
 
 @dataclass(kw_only=True, eq=False)
-class Transform(Message):
-    """``T`` = T_parent_child with parent ``frame_id``. Schema foxglove.FrameTransform."""
+class Transform(Message, schema="foxglove.FrameTransform"):
+    """``T`` = T_parent_child with parent ``frame_id``."""
 
-    TYPE: ClassVar[str] = "Transform"
-    SCHEMA: ClassVar[str] = "foxglove.FrameTransform"
+    WIRE: ClassVar[WireMap] = {
+        "frame_id": "parent_frame_id",
+        "T": Wire(position="translation", orientation="rotation"),
+    }
 
     child_frame_id: str = ""
     T: np.ndarray = field(default_factory=lambda: np.eye(4))
 
-    def to_proto(self) -> tuple[ProtoMessage, Bulk]:
-        pb = self.proto()
-        _fill_frame_transform(pb, self)
-        return pb, None
-
-    @classmethod
-    def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
-        return cls(**_read_frame_transform(pb))
-
-
-def _fill_frame_transform(pb: Any, t: Transform) -> None:
-    set_stamp(pb, t.stamp_ns)
-    pb.parent_frame_id, pb.child_frame_id = t.frame_id, t.child_frame_id
-    T = np.asarray(t.T, dtype=float)
-    p, q = T[:3, 3], tf.quat_xyzw_from_R(T[:3, :3])
-    pb.translation.x, pb.translation.y, pb.translation.z = (float(v) for v in p)
-    pb.rotation.x, pb.rotation.y, pb.rotation.z, pb.rotation.w = (float(v) for v in q)
-
-
-def _read_frame_transform(pb: Any) -> dict[str, Any]:
-    r, t = pb.rotation, pb.translation
-    T = (
-        tf.T_from_pose7((t.x, t.y, t.z), (r.x, r.y, r.z, r.w))
-        if (r.x, r.y, r.z, r.w) != (0, 0, 0, 0)
-        else (tf.T_from_Rt(np.eye(3), (t.x, t.y, t.z)))
-    )
-    return {
-        "stamp_ns": get_stamp(pb),
-        "frame_id": pb.parent_frame_id,
-        "child_frame_id": pb.child_frame_id,
-        "T": T,
-    }
-
 
 @dataclass(kw_only=True, eq=False)
-class FrameTransforms(Message):
-    """A set of transforms (the frame tree of the cell). Schema foxglove.FrameTransforms."""
-
-    TYPE: ClassVar[str] = "FrameTransforms"
-    SCHEMA: ClassVar[str] = "foxglove.FrameTransforms"
+class FrameTransforms(Message, schema="foxglove.FrameTransforms"):
+    """A set of transforms (the frame tree of the cell)."""
 
     transforms: list[Transform] = field(default_factory=list)
 
-    def to_proto(self) -> tuple[ProtoMessage, Bulk]:
-        pb = self.proto()
-        for t in self.transforms:
-            _fill_frame_transform(pb.transforms.add(), t)
-        return pb, None
-
     @classmethod
     def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
-        ts = [Transform(**_read_frame_transform(t)) for t in pb.transforms]
-        return cls(stamp_ns=ts[0].stamp_ns if ts else 0, transforms=ts)
+        ts = [Transform.from_proto(t, None) for t in pb.transforms]
+        return cls(stamp_ns=ts[0].stamp_ns if ts else 0, transforms=ts)  # the schema has no stamp of its own
 
 
 @dataclass(kw_only=True, eq=False)
-class JointState(Message):
-    """Joint positions (rad or m), velocities and efforts by joint name. Schema foxglove.JointStates."""
-
-    TYPE: ClassVar[str] = "JointState"
-    SCHEMA: ClassVar[str] = "foxglove.JointStates"
+class JointState(Message, schema="foxglove.JointStates"):
+    """Joint positions (rad or m), velocities and efforts by joint name."""
 
     names: list[str] = field(default_factory=list)
     positions: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -345,11 +272,8 @@ class Mesh:
 
 
 @dataclass(kw_only=True, eq=False)
-class SceneMeshes(Message):
-    """Meshes of the cell (workpieces, fixtures) for Foxglove's 3D view. Schema foxglove.SceneUpdate."""
-
-    TYPE: ClassVar[str] = "SceneMeshes"
-    SCHEMA: ClassVar[str] = "foxglove.SceneUpdate"
+class SceneMeshes(Message, schema="foxglove.SceneUpdate"):
+    """Meshes of the cell (workpieces, fixtures) for Foxglove's 3D view."""
 
     meshes: list[Mesh] = field(default_factory=list)
 

@@ -3,18 +3,18 @@
 Carries the mode, the verdict (``converged`` | ``not_converged`` | ``refused`` | ``failed``), the
 start and end TCP poses the docking formulas need (``T_start``, ``T_end``, T_base_tcp as the robot
 reports them), the per-look residuals (what the matcher still saw, in mm and degrees) and each usable
-look's ``T_match`` (so a report or a benchmark can redo the arithmetic of any look).
+look's ``T_match`` (so a report or a benchmark can redo the arithmetic of any look). The fields map
+to the schema by name and type (engine.messages.mapping).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Self
 
 import numpy as np
 
-from engine.messages import Bulk, Message, get_pose, get_stamp, set_pose, set_stamp
-from engine.schemas import ProtoMessage, define_proto
+from engine.messages import Message
+from engine.schemas import define_proto
 
 define_proto(
     "vgr/v1/guidance.proto",
@@ -44,11 +44,8 @@ VERDICTS = ("converged", "not_converged", "refused", "failed")
 
 
 @dataclass(kw_only=True, eq=False)
-class GuidanceResult(Message):
+class GuidanceResult(Message, schema="vgr.v1.GuidanceResult"):
     """Outcome of one guidance run; only ``converged`` may be used for docking."""
-
-    TYPE: ClassVar[str] = "GuidanceResult"
-    SCHEMA: ClassVar[str] = "vgr.v1.GuidanceResult"
 
     mode: str = "eye_in_hand"
     verdict: str = "failed"
@@ -71,44 +68,3 @@ class GuidanceResult(Message):
     @property
     def converged(self) -> bool:
         return self.verdict == "converged"
-
-    def to_proto(self) -> tuple[ProtoMessage, Bulk]:
-        pb = self.proto()
-        set_stamp(pb, self.stamp_ns)
-        pb.frame_id, pb.mode, pb.verdict, pb.moves, pb.job = (
-            self.frame_id,
-            self.mode,
-            self.verdict,
-            self.moves,
-            self.job,
-        )
-        pb.reasons.extend(self.reasons)
-        set_pose(pb.T_start, self.T_start)
-        set_pose(pb.T_end, self.T_end)
-        pb.residual_mm.extend(float(x) for x in self.residual_mm)
-        pb.residual_deg.extend(float(x) for x in self.residual_deg)
-        pb.match_verdicts.extend(self.match_verdicts)
-        for T in self.matches:
-            set_pose(pb.matches.add(), T)
-        pb.translation_tol_mm, pb.rotation_tol_deg = self.translation_tol_mm, self.rotation_tol_deg
-        return pb, None
-
-    @classmethod
-    def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
-        return cls(
-            stamp_ns=get_stamp(pb),
-            frame_id=pb.frame_id,
-            mode=pb.mode,
-            verdict=pb.verdict,
-            reasons=list(pb.reasons),
-            T_start=get_pose(pb.T_start),
-            T_end=get_pose(pb.T_end),
-            moves=pb.moves,
-            residual_mm=list(pb.residual_mm),
-            residual_deg=list(pb.residual_deg),
-            match_verdicts=list(pb.match_verdicts),
-            job=pb.job,
-            matches=[get_pose(m) for m in pb.matches],
-            translation_tol_mm=pb.translation_tol_mm,
-            rotation_tol_deg=pb.rotation_tol_deg,
-        )

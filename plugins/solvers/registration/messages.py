@@ -3,19 +3,19 @@
 Carries the verdict, ``T_match`` (current -> template, see plugins.solvers.registration.result)
 when the verdict is ``ok``, the quality figures, the per-axis one-sigma uncertainty, and the full
 :class:`RegistrationResult` as JSON. Registered through the ``vgr_message_types`` hook, like any
-plugin's message type.
+plugin's message type; its fields map to the schema by name and type (engine.messages.mapping).
 """
 
 from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Self
+from typing import Any, ClassVar
 
 import numpy as np
 
-from engine.messages import Bulk, Message, get_pose, get_stamp, set_pose, set_stamp
-from engine.schemas import ProtoMessage, define_proto
+from engine.messages import Message, Wire, WireMap
+from engine.schemas import define_proto
 
 from .result import RegistrationResult
 
@@ -42,11 +42,10 @@ message MatchResult {                // a point-cloud matcher's answer (plugins/
 
 
 @dataclass(kw_only=True, eq=False)
-class MatchResult(Message):
+class MatchResult(Message, schema="vgr.v1.MatchResult"):
     """A matcher's verdict and ``T_match`` (None unless the verdict is ok)."""
 
-    TYPE: ClassVar[str] = "MatchResult"
-    SCHEMA: ClassVar[str] = "vgr.v1.MatchResult"
+    WIRE: ClassVar[WireMap] = {"T_match": Wire(presence="has_match")}
 
     method: str = ""
     verdict: str = "failed"
@@ -82,32 +81,3 @@ class MatchResult(Message):
 
     def details(self) -> dict[str, Any]:
         return json.loads(self.result_json) if self.result_json else {}
-
-    def to_proto(self) -> tuple[ProtoMessage, Bulk]:
-        pb = self.proto()
-        set_stamp(pb, self.stamp_ns)
-        pb.frame_id, pb.method, pb.verdict, pb.result_json = self.frame_id, self.method, self.verdict, self.result_json
-        pb.reasons.extend(self.reasons)
-        pb.has_match = self.T_match is not None
-        if self.T_match is not None:
-            set_pose(pb.T_match, self.T_match)
-        pb.fitness, pb.inlier_rmse_m, pb.score_gap = self.fitness, self.inlier_rmse_m, self.score_gap
-        if self.sigma is not None:
-            pb.sigma.extend(np.asarray(self.sigma, dtype=float).tolist())
-        return pb, None
-
-    @classmethod
-    def from_proto(cls, pb: Any, bulk: Bulk) -> Self:
-        return cls(
-            stamp_ns=get_stamp(pb),
-            frame_id=pb.frame_id,
-            method=pb.method,
-            verdict=pb.verdict,
-            reasons=list(pb.reasons),
-            T_match=get_pose(pb.T_match) if pb.has_match else None,
-            fitness=pb.fitness,
-            inlier_rmse_m=pb.inlier_rmse_m,
-            sigma=np.array(pb.sigma) if len(pb.sigma) else None,
-            score_gap=pb.score_gap,
-            result_json=pb.result_json,
-        )
