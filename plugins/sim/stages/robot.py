@@ -108,17 +108,11 @@ class SimRobot(Stage):
                 speed=cmd.speed or p.move_l_speed_m_s,
                 accel=cmd.acceleration or p.move_l_accel_m_s2,
             )
-        elif cmd.joints is not None:
-            res = self.ctl.move_j(
+        elif cmd.joints is not None or cmd.T is not None:  # move_j to joints, or to a pose through IK
+            move_j = self.ctl.move_j if cmd.joints is not None else self.ctl.move_j_pose
+            res = move_j(
                 cmd.command_id,
-                cmd.joints,
-                speed=cmd.speed or p.move_j_speed_rad_s,
-                accel=cmd.acceleration or p.move_j_accel_rad_s2,
-            )
-        elif cmd.T is not None:
-            res = self.ctl.move_j_pose(
-                cmd.command_id,
-                cmd.T,
+                cmd.joints if cmd.joints is not None else cmd.T,
                 speed=cmd.speed or p.move_j_speed_rad_s,
                 accel=cmd.acceleration or p.move_j_accel_rad_s2,
             )

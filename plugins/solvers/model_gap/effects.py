@@ -42,18 +42,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from engine.gap.interfaces import Design, Signature
-from plugins.robot.effects import (
-    Backlash,
-    BaseFrameError,
-    EncoderEccentricity,
-    GeometricErrors,
-    JointCompliance,
-    JointOffset,
-    LinkLength,
-    RobotEffect,
-    ThermalDrift,
-    ToolOffsetError,
-)
+from plugins.robot import effects as fx
+from plugins.robot.effects import RobotEffect
 from plugins.robot.effects.measurement import MEASUREMENT_CATALOG
 from plugins.robot.kinematics import RobotModel
 
@@ -218,7 +208,7 @@ class _Family:
         return self._candidates(problem)
 
     def _unavailable(self, problem: KinematicGapProblem, reason: str):
-        return RobotCandidate(self.name, "*", JointOffset(), (), (), np.zeros((0, 0)), np.zeros(0), np.zeros(0),
+        return RobotCandidate(self.name, "*", fx.JointOffset(), (), (), np.zeros((0, 0)), np.zeros(0), np.zeros(0),
                               unavailable=reason)  # fmt: skip
 
     def _candidates(self, problem: KinematicGapProblem) -> list:
@@ -253,7 +243,7 @@ class JointOffsetFamily(_Family):
 
     def _candidates(self, problem):
         return _per_joint(
-            self.name, problem, lambda j: JointOffset((j,), (0.0,)), ("offset_joint{j}",), ("rad",), "q{j}"
+            self.name, problem, lambda j: fx.JointOffset((j,), (0.0,)), ("offset_joint{j}",), ("rad",), "q{j}"
         )
 
 
@@ -267,7 +257,9 @@ class LinkLengthFamily(_Family):
                 self._unavailable(problem, f"needs a dh/mdh model, {problem.model.name} is {problem.model.convention}")
             ]
         values = dict(zip(problem.model.param_names, problem.model.param_values, strict=True))
-        out = _per_joint(self.name, problem, lambda j: LinkLength((j,), (0.0,)), ("length_joint{j}",), ("m",), "q{j}")
+        out = _per_joint(
+            self.name, problem, lambda j: fx.LinkLength((j,), (0.0,)), ("length_joint{j}",), ("m",), "q{j}"
+        )
         for c in out:
             c.joint = None  # a length, not a joint angle: the signature uses the effect's own column
         return [c for c in out if max(abs(values[f"{c.where}.a"]), abs(values[f"{c.where}.d"])) >= 1e-6]
@@ -284,7 +276,7 @@ class JointComplianceFamily(_Family):
         out = _per_joint(
             self.name,
             problem,
-            lambda j: JointCompliance((j,), (0.0,)),
+            lambda j: fx.JointCompliance((j,), (0.0,)),
             ("compliance_joint{j}",),
             ("rad/(N m)",),
             "tau{j}",
@@ -301,7 +293,7 @@ class BacklashFamily(_Family):
         return _per_joint(
             self.name,
             problem,
-            lambda j: Backlash((j,), (0.0,)),
+            lambda j: fx.Backlash((j,), (0.0,)),
             ("backlash_joint{j}",),
             ("rad",),
             "dir{j}",
@@ -318,7 +310,7 @@ class EncoderEccentricityFamily(_Family):
         return _per_joint(
             self.name,
             problem,
-            lambda j: EncoderEccentricity((j,), (0.0,), (0.0,)),
+            lambda j: fx.EncoderEccentricity((j,), (0.0,), (0.0,)),
             ("ecc_sin_joint{j}", "ecc_cos_joint{j}"),
             ("rad", "rad"),
             "q{j}",
@@ -356,14 +348,14 @@ class ThermalDriftFamily(_Family):
         if k:
             out.append(
                 RobotCandidate(
-                    self.name, "robot", ThermalDrift(tuple(names), (0.0,) * k, 1800.0), ("strain", "time_constant"),
+                    self.name, "robot", fx.ThermalDrift(tuple(names), (0.0,) * k, 1800.0), ("strain", "time_constant"),
                     ("1", "s"), robot_map, np.array([-np.inf]), np.array([np.inf]), ("time_constant",), regressor="t_s",
                     **bounds,
                 )
             )  # fmt: skip
         out.append(
             RobotCandidate(
-                self.name, "base", ThermalDrift(("base.tz",), (0.0,), 1800.0), ("drift_base_tz", "time_constant"),
+                self.name, "base", fx.ThermalDrift(("base.tz",), (0.0,), 1800.0), ("drift_base_tz", "time_constant"),
                 ("m", "s"), np.eye(2), np.array([-np.inf]), np.array([np.inf]), ("time_constant",), regressor="t_s",
                 **bounds,
             )
@@ -435,7 +427,7 @@ class RobotScaleFamily(_Family):
         names = tuple(offsets)
         return [
             RobotCandidate(
-                self.name, "robot", GeometricErrors(names, (0.0,) * len(names)), ("scale",), ("1",),
+                self.name, "robot", fx.GeometricErrors(names, (0.0,) * len(names)), ("scale",), ("1",),
                 np.array([[offsets[n]] for n in names]), np.array([-np.inf]), np.array([np.inf]), regressor="reach",
                 tie_advice={"depth_scale": SCALE_TIE_ADVICE},
             )
@@ -450,7 +442,7 @@ class BaseFrameFamily(_Family):
         names = tuple(f"base.{c}" for c in ("tx", "ty", "tz", "rx", "ry", "rz"))
         return [
             RobotCandidate(
-                self.name, "base", BaseFrameError(), names, ("m", "m", "m", "rad", "rad", "rad"), np.eye(6),
+                self.name, "base", fx.BaseFrameError(), names, ("m", "m", "m", "rad", "rad", "rad"), np.eye(6),
                 np.full(6, -np.inf), np.full(6, np.inf), regressor="reach",
             )
         ]  # fmt: skip
@@ -464,7 +456,7 @@ class ToolOffsetFamily(_Family):
         comps = ("tx", "ty", "tz")
         return [
             RobotCandidate(
-                self.name, "tool", ToolOffsetError(comps, (0.0,) * 3), tuple(f"tool.{c}" for c in comps), ("m",) * 3,
+                self.name, "tool", fx.ToolOffsetError(comps, (0.0,) * 3), tuple(f"tool.{c}" for c in comps), ("m",) * 3,
                 np.eye(3), np.full(3, -np.inf), np.full(3, np.inf), regressor="reach",
             )
         ]  # fmt: skip

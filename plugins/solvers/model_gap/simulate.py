@@ -32,19 +32,8 @@ from itertools import combinations
 import numpy as np
 
 from engine.transforms import inv
-from plugins.robot.effects import (
-    Backlash,
-    BaseFrameError,
-    EncoderEccentricity,
-    GeometricErrors,
-    JointCompliance,
-    JointOffset,
-    LinkLength,
-    RobotEffect,
-    SampleContext,
-    ThermalDrift,
-    ToolOffsetError,
-)
+from plugins.robot import effects as fx
+from plugins.robot.effects import RobotEffect, SampleContext
 from plugins.robot.effects.measurement import apply_range_distortion
 from plugins.robot.kinematics import RobotModel
 from plugins.robot.model_file import load_robot_model
@@ -175,30 +164,30 @@ def _unit_effect(e: HiddenEffect, model: RobotModel, rng: np.random.Generator) -
     j = int(e.where[5:]) if e.where.startswith("joint") else 0
     u = 1e-4
     if e.name == "joint_offset":
-        return JointOffset((j,), (sign * u,)), {}
+        return fx.JointOffset((j,), (sign * u,)), {}
     if e.name == "link_length":
-        return LinkLength((j,), (sign * u,)), {}
+        return fx.LinkLength((j,), (sign * u,)), {}
     if e.name == "joint_compliance":
-        return JointCompliance((j,), (1e-6,)), {}
+        return fx.JointCompliance((j,), (1e-6,)), {}
     if e.name == "backlash":
-        return Backlash((j,), (u,)), {}
+        return fx.Backlash((j,), (u,)), {}
     if e.name == "encoder_eccentricity":
         phase = rng.uniform(0, 2 * np.pi)
-        return EncoderEccentricity((j,), (u * np.cos(phase),), (u * np.sin(phase),)), {}
+        return fx.EncoderEccentricity((j,), (u * np.cos(phase),), (u * np.sin(phase),)), {}
     if e.name == "thermal_drift" and e.where == "base":  # the pedestal / table grows
-        return ThermalDrift(("base.tz",), (sign * u,), 1800.0), {}
+        return fx.ThermalDrift(("base.tz",), (sign * u,), 1800.0), {}
     if e.name == "thermal_drift":
-        return ThermalDrift.linear_expansion(model, 1.0, expansion_per_k=sign * u, time_constant_s=1800.0), {}
+        return fx.ThermalDrift.linear_expansion(model, 1.0, expansion_per_k=sign * u, time_constant_s=1800.0), {}
     if e.name == "robot_scale":  # every length and the tool point of the true robot times 1 + s
         offsets = uniform_scale_offsets(model)
-        return GeometricErrors(tuple(offsets), tuple(sign * u * v for v in offsets.values())), {}
+        return fx.GeometricErrors(tuple(offsets), tuple(sign * u * v for v in offsets.values())), {}
     if e.name == "base_frame":
-        return BaseFrameError(
+        return fx.BaseFrameError(
             offsets=tuple(np.concatenate([u * _random_unit(rng), u * _random_unit(rng)]).tolist())
         ), {}
     if e.name == "tool_offset":
         d = _random_unit(rng) if e.direction is None else np.asarray(e.direction, float) / np.linalg.norm(e.direction)
-        return ToolOffsetError(("tx", "ty", "tz"), tuple((u * d).tolist())), {}
+        return fx.ToolOffsetError(("tx", "ty", "tz"), tuple((u * d).tolist())), {}
     if e.name == "time_latency":  # the measurement stream lags the joint stream
         return None, {e.name: 1e-3}
     if e.name in _MEASUREMENT:
@@ -212,7 +201,7 @@ _SIGNED = ("joint_offset", "link_length", "thermal_drift", "depth_scale", "depth
 def _scaled(effect: RobotEffect, factor: float) -> RobotEffect:
     """The effect ``factor`` times larger (a thermal drift's time constant is a shape, not a size)."""
     x = effect.pack() * factor
-    if isinstance(effect, ThermalDrift):
+    if isinstance(effect, fx.ThermalDrift):
         x[-1] = effect.time_constant_s
     return effect.unpack(x)
 
