@@ -16,7 +16,7 @@ from fake_realsense import FakeCamera, Intrinsics
 from fake_realsense import install as install_realsense
 from fake_ur_rtde import IP, WORKSPACE, FakeURController, matrix_yaml, photo_pose
 from fake_ur_rtde import install as install_ur
-from frame_tree_helpers import record, sound_frame_tree
+from frame_tree_helpers import ROBOT_FRAMES, record, sound_frame_tree
 from shared_data import SHARED
 
 from engine import codec
@@ -101,13 +101,7 @@ def test_ur_robot_file_camera_on_the_flange_and_vive_tracker_make_one_tree(monke
     text = UR_CELL.format(ip=IP, workspace=WORKSPACE, pcl=SHARED / "pcl", photo=matrix_yaml(photo_pose(ctl)))
     path = record(text, tmp_path / "ur_cell.mcap", PLUGINS)
     tree = sound_frame_tree(path)
-    assert tree.parent_of() == {
-        "base": "world",
-        "tcp": "base",
-        "camera": "tcp",
-        "lighthouse": "world",
-        "tracker": "lighthouse",
-    }
+    assert tree.parent_of() == {**ROBOT_FRAMES, "camera": "tcp", "lighthouse": "world", "tracker": "lighthouse"}
     cam = edges(path, "camera")
     assert len(cam) == 3  # at set-up and with each of the 2 captures
     for parent, child, T in cam:
@@ -125,11 +119,7 @@ def test_realsense_camera_fixed_in_the_cell(monkeypatch, tmp_path):
     install_realsense(monkeypatch, cam)
     path = record(SIM_ROBOT_REALSENSE, tmp_path / "rs.mcap", PLUGINS)
     tree = sound_frame_tree(path)
-    assert tree.parent_of() == {
-        "base": "world",
-        "tcp": "base",
-        "fixed_camera": "world",
-    }
+    assert tree.parent_of() == {**ROBOT_FRAMES, "fixed_camera": "world"}
     assert "fixed_camera" in tree.named_by and any("cloud" in t or "srv" in t for t in tree.named_by["fixed_camera"])
 
 

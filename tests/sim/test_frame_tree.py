@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from frame_tree_helpers import record, sound_frame_tree
+from frame_tree_helpers import ROBOT_FRAMES, record, sound_frame_tree
 from recipe_helpers import header, stages
 
 from engine import codec
@@ -85,8 +85,7 @@ def streaming(tmp_path_factory):
 def test_every_frame_named_in_a_recording_of_the_simulated_cell_hangs_in_one_tree_under_world(cell):
     tree = sound_frame_tree(cell)
     assert tree.parent_of() == {
-        "base": "world",
-        "tcp": "base",
+        **ROBOT_FRAMES,
         "camera": "tcp",
         "part": "world",
         "fixed_camera": "world",
@@ -104,7 +103,7 @@ def test_every_frame_named_in_a_recording_of_the_simulated_cell_hangs_in_one_tre
 
 def test_a_streaming_tracker_puts_each_reading_on_the_frames(streaming):
     tree = sound_frame_tree(streaming)
-    assert tree.parent_of() == {"base": "world", "tcp": "base", "lighthouse": "world", "vive_tracker": "lighthouse"}
+    assert tree.parent_of() == {**ROBOT_FRAMES, "lighthouse": "world", "vive_tracker": "lighthouse"}
     rec = load(streaming)
 
     def decoded(port):
