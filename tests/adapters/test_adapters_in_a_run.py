@@ -13,13 +13,14 @@ import textwrap
 import numpy as np
 import pytest
 from adapter_fixtures import SEEN
+from adapter_recipes import SIM_PHOTO, adapter_header, capture_at_pose, ur_robot
 from fake_openvr import FakeDevice, FakeOpenVR
 from fake_openvr import install as install_openvr
 from fake_realsense import FakeCamera, Intrinsics
 from fake_realsense import install as install_realsense
 from fake_ur_rtde import IP, WORKSPACE, FakeURController, matrix_yaml, photo_pose
 from fake_ur_rtde import install as install_ur
-from recipe_helpers import graph_from
+from recipe_helpers import graph_from, stages
 from shared_data import SHARED
 
 from engine import transforms as tf
@@ -37,36 +38,31 @@ def run(text: str, **kw):
     return Runner(graph, **kw).run()
 
 
-UR_FILES = """
-name: ur_files
-plugins: [adapter_fixtures]
-run_id: {rid}
-clock: sim
-stages:
-  robot:
-    type: ur_robot
-    params: {{ip: {ip}, {workspace}}}
-  camera:
-    type: file_camera
-    params: {{folder: {pcl}, pattern: "*.pcd"}}
-  start: {{type: trigger, params: {{count: 3}}}}
-  capture:
-    type: capture_at_pose
-    inputs: {{trigger: start.out}}
-    uses: {{robot: robot.move, camera: camera.capture}}
-    params: {{photo_pose: {{matrix: {photo}}}}}
-  clouds: {{type: ta_collect_cloud, inputs: {{in: capture.cloud}}}}
-  poses: {{type: ta_collect_pose, inputs: {{in: capture.pose}}}}
-  tcp: {{type: ta_collect_pose, inputs: {{in: robot.tcp_pose}}}}
-  joints: {{type: ta_collect_joints, inputs: {{in: robot.joint_state}}}}
-"""
+def ur_files(rid: str, photo: str, robot_params: str = WORKSPACE) -> str:
+    """The UR robot and the file camera: 3 captures at *photo* (a YAML matrix); the clouds and poses
+    captured and the robot's TCP poses and joint states collected."""
+    return adapter_header("ur_files", rid) + stages(
+        ur_robot(robot_params),
+        f"""
+        camera:
+          type: file_camera
+          params: {{folder: {PCL}, pattern: "*.pcd"}}
+        """,
+        capture_at_pose(photo, count=3),
+        """
+        clouds: {type: ta_collect_cloud, inputs: {in: capture.cloud}}
+        poses: {type: ta_collect_pose, inputs: {in: capture.pose}}
+        tcp: {type: ta_collect_pose, inputs: {in: robot.tcp_pose}}
+        joints: {type: ta_collect_joints, inputs: {in: robot.joint_state}}
+        """,
+    )
 
 
 def test_capture_at_pose_with_the_ur_adapter_and_the_file_camera(monkeypatch):
     ctl = FakeURController()
     install_ur(monkeypatch, ctl)
     T_photo = photo_pose(ctl)
-    s = run(UR_FILES.format(rid="adp-ur1", ip=IP, workspace=WORKSPACE, pcl=PCL, photo=matrix_yaml(T_photo)))
+    s = run(ur_files("adp-ur1", matrix_yaml(T_photo)))
     assert s.ok, s.stop_reason
     seen = SEEN["adp-ur1"]
     assert [len(c.points) for c in seen["clouds"]] == [397, 361, 13704]
@@ -90,46 +86,43 @@ def test_a_second_run_with_the_same_command_journal_does_not_take_old_ids_for_mo
     the same journal gets 'already handled' replies: it must alarm and capture nothing, not carry on
     as if the robot had moved to the photo pose."""
     journal = tmp_path / "ur.jsonl"
-    workspace = WORKSPACE + f", command_journal: {journal}"
+    robot_params = WORKSPACE + f", command_journal: {journal}"
     for rid in ("adp-j1", "adp-j2"):
         ctl = FakeURController()
         install_ur(monkeypatch, ctl)
-        text = UR_FILES.format(rid=rid, ip=IP, workspace=workspace, pcl=PCL, photo=matrix_yaml(photo_pose(ctl)))
-        s = run(text)
+        s = run(ur_files(rid, matrix_yaml(photo_pose(ctl)), robot_params))
         moves = ctl.move_calls()
     assert len(SEEN["adp-j1"]["clouds"]) == 3  # the first run moved and captured
     assert moves == [] and not SEEN["adp-j2"].get("clouds")  # the second moved nothing, captured nothing
     assert [e.code for e in s.events if e.level == "alarm"] == ["duplicate_command"] * 3
 
 
-ROBOT_SCRIPT = """
-name: ur_script
-plugins: [adapter_fixtures]
-run_id: {rid}
-clock: sim
-stages:
-  robot:
-    type: ur_robot
-    params: {{ip: {ip}, {workspace}}}
-  start: {{type: trigger, params: {{count: 1}}}}
-  script:
-    type: ta_robot_script
-    inputs: {{trigger: start.out}}
-    uses: {{robot: robot.move, state: robot.state}}
-    params:
-      steps:
-        - {{id: a, offset_m: [0.01, 0, 0]}}
-        - {{id: a, offset_m: [0.02, 0, 0]}}
-        - {{id: far, offset_m: [0.2, 0, 0]}}
-        - {{id: fast, offset_m: [0.01, 0, 0], speed: 5.0}}
-        - {{id: b, offset_m: [0.0, 0.01, 0], kind: move_j}}
-"""
+def robot_script(rid: str) -> str:
+    """The UR robot driven by ta_robot_script: a command id sent twice, a step too far, a move too
+    fast and a joint move."""
+    return adapter_header("ur_script", rid) + stages(
+        ur_robot(),
+        """
+        start: {type: trigger, params: {count: 1}}
+        script:
+          type: ta_robot_script
+          inputs: {trigger: start.out}
+          uses: {robot: robot.move, state: robot.state}
+          params:
+            steps:
+              - {id: a, offset_m: [0.01, 0, 0]}
+              - {id: a, offset_m: [0.02, 0, 0]}
+              - {id: far, offset_m: [0.2, 0, 0]}
+              - {id: fast, offset_m: [0.01, 0, 0], speed: 5.0}
+              - {id: b, offset_m: [0.0, 0.01, 0], kind: move_j}
+        """,
+    )
 
 
 def test_robot_contract_over_the_bus_idempotent_ids_and_refusals(monkeypatch):
     ctl = FakeURController()
     install_ur(monkeypatch, ctl)
-    s = run(ROBOT_SCRIPT.format(rid="adp-ur2", ip=IP, workspace=WORKSPACE))
+    s = run(robot_script("adp-ur2"))
     assert s.ok, s.stop_reason
     rows = SEEN["adp-ur2"]["script"]
     assert rows[0][:2] == ("state", True)
@@ -147,7 +140,7 @@ def test_robot_contract_over_the_bus_idempotent_ids_and_refusals(monkeypatch):
 def test_an_unreachable_robot_fails_the_run_with_the_ip_and_what_to_check(monkeypatch):
     ctl = FakeURController(receive_connect_error=RuntimeError("connect: No route to host"))
     install_ur(monkeypatch, ctl)
-    s = run(ROBOT_SCRIPT.format(rid="adp-ur3", ip=IP, workspace=WORKSPACE))
+    s = run(robot_script("adp-ur3"))
     assert not s.ok
     text = s.stop_reason + " ".join(e.message + e.traceback for e in s.events)
     assert f"cannot connect to the UR controller at {IP}" in text and f"ping {IP}" in text
@@ -155,35 +148,30 @@ def test_an_unreachable_robot_fails_the_run_with_the_ip_and_what_to_check(monkey
 
 def test_a_missing_sdk_fails_the_run_naming_the_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "rtde_receive", None)
-    s = run(ROBOT_SCRIPT.format(rid="adp-ur4", ip=IP, workspace=WORKSPACE))
+    s = run(robot_script("adp-ur4"))
     assert not s.ok
     text = s.stop_reason + " ".join(e.message + e.traceback for e in s.events)
     assert "pip install 'vgr[ur]'" in text
 
 
-TRACKER = """
-name: tracker
-plugins: [adapter_fixtures]
-run_id: {rid}
-clock: sim
-stages:
+TRACKER = adapter_header("tracker", "adp-vive") + stages("""
   tracker:
     type: vive_tracker
-    params: {{serial: LHR-TRACK01, stream_hz: 10, duration_s: 1.0}}
-  start: {{type: trigger, params: {{count: 2}}}}
+    params: {serial: LHR-TRACK01, stream_hz: 10, duration_s: 1.0}
+  start: {type: trigger, params: {count: 2}}
   sampler:
     type: ta_tracker_sampler
-    inputs: {{trigger: start.out}}
-    uses: {{tracker: tracker.sample}}
-  stream: {{type: ta_collect_tracker, inputs: {{in: tracker.pose}}}}
-"""
+    inputs: {trigger: start.out}
+    uses: {tracker: tracker.sample}
+  stream: {type: ta_collect_tracker, inputs: {in: tracker.pose}}
+""")
 
 
 def test_vive_tracker_streams_and_samples_in_a_run(monkeypatch):
     T = tf.T_from_rotvec([0.1, 0.2, -0.3], [0.4, 1.1, -1.5])
     state = FakeOpenVR(devices={3: FakeDevice("LHR-TRACK01", T=T), 0: FakeDevice("HMD", device_class=1)})
     install_openvr(monkeypatch, state)
-    s = run(TRACKER.format(rid="adp-vive"))
+    s = run(TRACKER)
     assert s.ok, s.stop_reason
     stream, samples = SEEN["adp-vive"]["stream"], SEEN["adp-vive"]["sampler"]
     assert len(stream) == 10 and len(samples) == 2
@@ -194,25 +182,16 @@ def test_vive_tracker_streams_and_samples_in_a_run(monkeypatch):
     assert state.shutdowns == 1 and set(state.universes) == {2}
 
 
-SIM_ROBOT_REALSENSE = """
-name: sim_rs
-plugins: [adapter_fixtures]
-run_id: {rid}
-clock: sim
-stages:
-  robot: {{type: sim_robot, params: {{model: ur5e}}}}
-  camera:
-    type: realsense_camera
-    params: {{width: 80, height: 60, warmup_frames: 2}}
-  start: {{type: trigger, params: {{count: 2}}}}
-  capture:
-    type: capture_at_pose
-    inputs: {{trigger: start.out}}
-    uses: {{robot: robot.move, camera: camera.capture}}
-    params:
-      photo_pose: {{matrix: [[0, 1, 0, -0.49], [1, 0, 0, -0.14], [0, 0, -1, 0.45], [0, 0, 0, 1]]}}
-  clouds: {{type: ta_collect_cloud, inputs: {{in: capture.cloud}}}}
-"""
+SIM_ROBOT_REALSENSE = adapter_header("sim_rs", "adp-rs") + stages(
+    """
+    robot: {type: sim_robot, params: {model: ur5e}}
+    camera:
+      type: realsense_camera
+      params: {width: 80, height: 60, warmup_frames: 2}
+    """,
+    capture_at_pose(SIM_PHOTO, count=2),
+    "clouds: {type: ta_collect_cloud, inputs: {in: capture.cloud}}",
+)
 
 
 def test_realsense_camera_in_place_of_the_sim_camera(monkeypatch):
@@ -221,7 +200,7 @@ def test_realsense_camera_in_place_of_the_sim_camera(monkeypatch):
     farther = np.where(z16 > 0, z16 + 100, 0).astype(np.uint16)
     cam = FakeCamera(frames=[z16, farther], intrinsics=Intrinsics(80, 60, 70.0, 70.0, 39.5, 29.5))
     install_realsense(monkeypatch, cam)
-    s = run(SIM_ROBOT_REALSENSE.format(rid="adp-rs"))
+    s = run(SIM_ROBOT_REALSENSE)
     assert s.ok, s.stop_reason
     clouds = SEEN["adp-rs"]["clouds"]
     assert [len(c.points) for c in clouds] == [70 * 60, 70 * 60]
@@ -233,10 +212,7 @@ def test_realsense_camera_in_place_of_the_sim_camera(monkeypatch):
 def test_a_recording_of_the_adapters_replays_without_any_sdk(monkeypatch, tmp_path):
     ctl = FakeURController()
     install_ur(monkeypatch, ctl)
-    text = textwrap.dedent(
-        UR_FILES.format(rid="adp-rec", ip=IP, workspace=WORKSPACE, pcl=PCL, photo=matrix_yaml(photo_pose(ctl)))
-    )
-    graph = graph_from(text)
+    graph = graph_from(ur_files("adp-rec", matrix_yaml(photo_pose(ctl))))
     path = tmp_path / "cell.mcap"
     rec = Recorder(path, graph.recipe.record, graph.loaded, ["builtin", "adapter_fixtures"])
     assert Runner(graph, observers=[rec]).run().ok

@@ -10,13 +10,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from adapter_recipes import SIM_PHOTO, adapter_header, capture_at_pose, ur_robot
 from fake_openvr import FakeDevice, FakeOpenVR
 from fake_openvr import install as install_openvr
 from fake_realsense import FakeCamera, Intrinsics
 from fake_realsense import install as install_realsense
-from fake_ur_rtde import IP, WORKSPACE, FakeURController, matrix_yaml, photo_pose
+from fake_ur_rtde import WORKSPACE, FakeURController, matrix_yaml, photo_pose
 from fake_ur_rtde import install as install_ur
-from frame_tree_helpers import record, sound_frame_tree
+from frame_tree_helpers import ROBOT_FRAMES, record, sound_frame_tree
+from recipe_helpers import stages
 from shared_data import SHARED
 
 from engine import codec
@@ -26,61 +28,50 @@ from engine.recording import load
 pytestmark = pytest.mark.timeout(180)
 
 PLUGINS = ["builtin", "adapter_fixtures"]  # what the recordings list
+PCL = SHARED / "pcl"
 
 
-UR_CELL = """
-name: ur_cell
-plugins: [adapter_fixtures]
-run_id: adp-frames
-clock: sim
-stages:
-  robot:
-    type: ur_robot
-    params: {{ip: {ip}, {workspace}, T_world_base: {{xyz_m: [0.1, 0.2, 0.8]}}}}
-  camera:
-    type: file_camera
-    params: {{folder: {pcl}, pattern: "*.pcd", parent_frame: tcp, T_parent_cam: {{xyz_m: [0.0, 0.06, 0.03]}}}}
-  tracker:
-    type: vive_tracker
-    params:
-      serial: LHR-TRACK01
-      stream_hz: 10
-      duration_s: 0.5
-      T_parent_lighthouse: {{xyz_m: [1.0, -0.5, 2.0], rpy_deg: [90, 0, 0]}}
-  start: {{type: trigger, params: {{count: 2}}}}
-  capture:
-    type: capture_at_pose
-    inputs: {{trigger: start.out}}
-    uses: {{robot: robot.move, camera: camera.capture}}
-    params: {{photo_pose: {{matrix: {photo}}}}}
-  sampler:
-    type: ta_tracker_sampler
-    inputs: {{trigger: start.out}}
-    uses: {{tracker: tracker.sample}}
-"""
+def ur_cell(photo: str) -> str:
+    """The UR robot placed in the world, the file camera on its flange and a Vive tracker: 2 captures
+    at *photo* (a YAML matrix) and 2 tracker samples."""
+    return adapter_header("ur_cell", "adp-frames") + stages(
+        ur_robot(WORKSPACE + ", T_world_base: {xyz_m: [0.1, 0.2, 0.8]}"),
+        f"""
+        camera:
+          type: file_camera
+          params: {{folder: {PCL}, pattern: "*.pcd", parent_frame: tcp, T_parent_cam: {{xyz_m: [0.0, 0.06, 0.03]}}}}
+        tracker:
+          type: vive_tracker
+          params:
+            serial: LHR-TRACK01
+            stream_hz: 10
+            duration_s: 0.5
+            T_parent_lighthouse: {{xyz_m: [1.0, -0.5, 2.0], rpy_deg: [90, 0, 0]}}
+        """,
+        capture_at_pose(photo, count=2),
+        """
+        sampler:
+          type: ta_tracker_sampler
+          inputs: {trigger: start.out}
+          uses: {tracker: tracker.sample}
+        """,
+    )
 
-SIM_ROBOT_REALSENSE = """
-name: sim_rs_frames
-plugins: [adapter_fixtures]
-clock: sim
-stages:
-  robot: {type: sim_robot, params: {model: ur5e}}
-  camera:
-    type: realsense_camera
-    params:
-      width: 80
-      height: 60
-      warmup_frames: 2
-      frame_id: fixed_camera
-      T_parent_cam: {xyz_m: [-0.5, -0.1, 1.2], rpy_deg: [180, 0, 0]}
-  start: {type: trigger, params: {count: 1}}
-  capture:
-    type: capture_at_pose
-    inputs: {trigger: start.out}
-    uses: {robot: robot.move, camera: camera.capture}
-    params:
-      photo_pose: {matrix: [[0, 1, 0, -0.49], [1, 0, 0, -0.14], [0, 0, -1, 0.45], [0, 0, 0, 1]]}
-"""
+
+SIM_ROBOT_REALSENSE = adapter_header("sim_rs_frames") + stages(
+    """
+    robot: {type: sim_robot, params: {model: ur5e}}
+    camera:
+      type: realsense_camera
+      params:
+        width: 80
+        height: 60
+        warmup_frames: 2
+        frame_id: fixed_camera
+        T_parent_cam: {xyz_m: [-0.5, -0.1, 1.2], rpy_deg: [180, 0, 0]}
+    """,
+    capture_at_pose(SIM_PHOTO, count=1),
+)
 
 
 def edges(path, stage: str) -> list[tuple[str, str, np.ndarray]]:
@@ -98,16 +89,9 @@ def test_ur_robot_file_camera_on_the_flange_and_vive_tracker_make_one_tree(monke
     install_ur(monkeypatch, ctl)
     T_lh_tracker = tf.T_from_rotvec([0.1, 0.2, -0.3], [0.4, 1.1, -1.5])
     install_openvr(monkeypatch, FakeOpenVR(devices={3: FakeDevice("LHR-TRACK01", T=T_lh_tracker)}))
-    text = UR_CELL.format(ip=IP, workspace=WORKSPACE, pcl=SHARED / "pcl", photo=matrix_yaml(photo_pose(ctl)))
-    path = record(text, tmp_path / "ur_cell.mcap", PLUGINS)
+    path = record(ur_cell(matrix_yaml(photo_pose(ctl))), tmp_path / "ur_cell.mcap", PLUGINS)
     tree = sound_frame_tree(path)
-    assert tree.parent_of() == {
-        "base": "world",
-        "tcp": "base",
-        "camera": "tcp",
-        "lighthouse": "world",
-        "tracker": "lighthouse",
-    }
+    assert tree.parent_of() == {**ROBOT_FRAMES, "camera": "tcp", "lighthouse": "world", "tracker": "lighthouse"}
     cam = edges(path, "camera")
     assert len(cam) == 3  # at set-up and with each of the 2 captures
     for parent, child, T in cam:
@@ -125,11 +109,7 @@ def test_realsense_camera_fixed_in_the_cell(monkeypatch, tmp_path):
     install_realsense(monkeypatch, cam)
     path = record(SIM_ROBOT_REALSENSE, tmp_path / "rs.mcap", PLUGINS)
     tree = sound_frame_tree(path)
-    assert tree.parent_of() == {
-        "base": "world",
-        "tcp": "base",
-        "fixed_camera": "world",
-    }
+    assert tree.parent_of() == {**ROBOT_FRAMES, "fixed_camera": "world"}
     assert "fixed_camera" in tree.named_by and any("cloud" in t or "srv" in t for t in tree.named_by["fixed_camera"])
 
 

@@ -44,10 +44,16 @@ def assert_replays_identically(path: Path) -> None:
     assert all(v.verdict == "identical" for v in (*report.streams, *report.requests)), bad
 
 
-def recorded_run(tmp_path_factory, recipe: str):
-    """(summary, messages, recording path) of the recipe run recorded to a fresh folder."""
-    path = tmp_path_factory.mktemp(recipe.removesuffix(".yaml")) / "run.mcap"
-    return (*run(RECIPES / recipe, record=path), path)
+def recorded_run(recipe: str):
+    """A module-scoped fixture: (summary, messages, recording path) of the recipe run once, recorded
+    to a fresh folder."""
+
+    @pytest.fixture(scope="module")
+    def fixture(tmp_path_factory):
+        path = tmp_path_factory.mktemp(recipe.removesuffix(".yaml")) / "run.mcap"
+        return (*run(RECIPES / recipe, record=path), path)
+
+    return fixture
 
 
 def sole_result(summary, msgs):
@@ -57,18 +63,22 @@ def sole_result(summary, msgs):
     return res
 
 
+def ok_result(summary, msgs):
+    """The one calibration result of a run that must have ended well, with the verdict ok."""
+    res = sole_result(summary, msgs)
+    assert res.verdict == "ok", res.reasons
+    return res
+
+
 # --------------------------------------------------------------------------- kinematics
 
 
-@pytest.fixture(scope="module")
-def kinematics_run(tmp_path_factory):
-    return recorded_run(tmp_path_factory, "calibrate_kinematics_sim.yaml")
+kinematics_run = recorded_run("calibrate_kinematics_sim.yaml")
 
 
 def test_kinematic_recipe_recovers_the_injected_dh_errors(kinematics_run):
     summary, msgs, _ = kinematics_run
-    res = sole_result(summary, msgs)
-    assert res.verdict == "ok", res.reasons
+    res = ok_result(summary, msgs)
     assert res.iterations <= 10 and len(res.param_names) == 27
     recipe = RECIPES / "calibrate_kinematics_sim.yaml"
     robot, tracker = stage_params(recipe, "robot"), stage_params(recipe, "tracker")
@@ -123,15 +133,12 @@ def test_kinematic_recording_replays_and_the_cli_agrees_with_the_stage(kinematic
 # --------------------------------------------------------------------------- Vive desk
 
 
-@pytest.fixture(scope="module")
-def vive_run(tmp_path_factory):
-    return recorded_run(tmp_path_factory, "calibrate_vive_desk_sim.yaml")
+vive_run = recorded_run("calibrate_vive_desk_sim.yaml")
 
 
 def test_vive_recipe_recovers_desk_and_lever_arm_within_the_reported_covariance(vive_run):
     summary, msgs, _ = vive_run
-    res = sole_result(summary, msgs)
-    assert res.verdict == "ok", res.reasons
+    res = ok_result(summary, msgs)
     recipe = RECIPES / "calibrate_vive_desk_sim.yaml"
     vive, poses = stage_params(recipe, "vive"), stage_params(recipe, "poses")
     T_lh_desk = inv(pose(vive["T_world_lighthouse"])) @ pose(poses["frame"])  # robot base = world
@@ -177,8 +184,7 @@ def test_vive_recording_replays_and_the_cli_reads_it(vive_run, tmp_path, capsys)
 def test_tcp_recipe_finds_the_tip_and_the_camera(tmp_path, capsys):
     path = tmp_path / "tcp.mcap"
     summary, msgs = run(RECIPES / "calibrate_tcp_sim.yaml", record=path)
-    res = sole_result(summary, msgs)
-    assert res.verdict == "ok", res.reasons
+    res = ok_result(summary, msgs)
     cam = stage_params(RECIPES / "calibrate_tcp_sim.yaml", "camera")
     T_cam_base = inv(pose(cam["T_world_instrument"]))
     tip = np.asarray(cam["point_tcp_m"])

@@ -5,6 +5,7 @@ from __future__ import annotations
 import textwrap
 
 import pytest
+from recipe_helpers import header, stages
 
 from engine.errors import RecipeError
 from engine.graph import build_graph
@@ -116,13 +117,10 @@ def test_unknown_source_stage_and_port_suggest_names():
 
 
 def test_port_type_mismatch_is_rejected():
-    text = """\
-    name: x
-    plugins: [stage_fixtures]
-    stages:
+    text = header("x", plugins=["stage_fixtures"]) + stages("""
       a: {type: synthetic_cloud}
       b: {type: t_collector, inputs: {in: a.cloud}}
-    """
+    """)
     (p,) = problems_of(text)
     assert p == (
         at(text, 5, "in:") + "stages.b.inputs.in: type mismatch: a.cloud produces PointCloud, input 'in' needs Request"
@@ -130,29 +128,23 @@ def test_port_type_mismatch_is_rejected():
 
 
 def test_cycles_are_rejected_with_the_cycle_spelled_out():
-    text = """\
-    name: loop
-    plugins: [stage_fixtures]
-    stages:
+    text = header("loop", plugins=["stage_fixtures"]) + stages("""
       a: {type: t_merge, inputs: {a: src.out, b: c.out}}
       b: {type: t_relay, inputs: {in: a.out}}
       c: {type: t_relay, inputs: {in: b.out}}
       src: {type: t_counter}
-    """
+    """)
     (p,) = problems_of(text)
     # located at the wiring that closes the loop (b's input from a), with the loop spelled out
     assert p.startswith(at(text, 5, "in:") + "stages.b.inputs.in: data cycle: a -> b -> c -> a"), p
 
 
 def test_service_wiring_errors():
-    text = """\
-    name: svc
-    plugins: [stage_fixtures]
-    stages:
+    text = header("svc", plugins=["stage_fixtures"]) + stages("""
       src: {type: t_counter}
       echo: {type: t_echo}
       call: {type: t_caller, inputs: {in: src.out}, uses: {svc: echo.ecko}}
-    """
+    """)
     (p,) = problems_of(text)
     assert p.startswith(at(text, 6, "svc:") + "stages.call.uses.svc: "), p
     assert "offers no service 'ecko'" in p and "did you mean 'echo'" in p
@@ -210,14 +202,11 @@ def test_missing_file_is_a_clear_error(tmp_path):
 
 
 def test_service_and_data_edges_forming_a_wait_cycle_are_rejected():
-    ok = """\
-    name: waitloop
-    plugins: [stage_fixtures]
-    stages:
+    ok = header("waitloop", plugins=["stage_fixtures"]) + stages("""
       src: {type: t_counter}
       rs: {type: t_relay_service, inputs: {in: src.out}}
       call: {type: t_caller, inputs: {in: src.out}, uses: {svc: rs.echo}}
-    """
+    """)
     loaded = load_recipe("r.yaml", text=textwrap.dedent(ok))
     build_graph(loaded, load_registry(loaded.recipe.plugins))  # no cycle: fine
     text = ok.replace("inputs: {in: src.out}, uses", "inputs: {in: rs.out}, uses")

@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 import pytest
-from recipe_helpers import graph_from
+from recipe_helpers import graph_from, header, stages
 from stage_fixtures import COLLECTED
 
 from engine.runner import Runner
@@ -59,18 +59,13 @@ def test_stage_exception_becomes_an_error_event_with_traceback_and_stops_the_run
 
 
 def test_on_error_continue_lets_the_healthy_branch_finish():
-    text = """
-    name: branches
-    plugins: [stage_fixtures]
-    run_id: cont1
-    on_error: continue
-    stages:
+    text = header("branches", plugins=["stage_fixtures"], run_id="cont1", on_error="continue") + stages("""
       src: {type: t_counter, params: {n: 30}}
       bad: {type: t_relay, inputs: {in: src.out}, params: {fail_at: 3}}
       good: {type: t_relay, inputs: {in: src.out}}
       sink_bad: {type: t_collector, inputs: {in: bad.out}}
       sink_good: {type: t_collector, inputs: {in: good.out}}
-    """
+    """)
     _, s = run(text)
     assert len(COLLECTED["cont1"]["sink_good"]) == 30
     assert len(COLLECTED["cont1"]["sink_bad"]) == 3
@@ -115,11 +110,7 @@ def test_a_request_whose_caller_gave_up_while_it_queued_is_not_served():
     """Two callers of one busy service, 0.2 s timeouts, 0.5 s per request: the first request is
     served (it started in time), the second waits ~0.3 s behind it, its caller gives up, and the
     provider then skips it (a robot must not start a move nobody waits for any more)."""
-    text = """
-    name: expiry
-    plugins: [stage_fixtures]
-    run_id: exp1
-    stages:
+    text = header("expiry", plugins=["stage_fixtures"], run_id="exp1") + stages("""
       src: {type: t_counter, params: {n: 1}}
       echo: {type: t_echo, params: {delay_s: 0.5}}
       a: {type: t_caller, inputs: {in: src.out}, uses: {svc: echo.echo}, params: {timeout_s: 0.2}}
@@ -128,7 +119,7 @@ def test_a_request_whose_caller_gave_up_while_it_queued_is_not_served():
       sb: {type: t_collector, inputs: {in: b.out}}
       slow: {type: t_counter, params: {n: 2, rate_hz: 1}}  # keeps the run going past the queue's end
       ss: {type: t_collector, inputs: {in: slow.out}}
-    """
+    """)
     _, s = run(text)
     rows = COLLECTED["exp1"]["sa"] + COLLECTED["exp1"]["sb"]
     assert [r["args"]["error"] for r in rows] == ["ServiceTimeoutError"] * 2
@@ -138,15 +129,11 @@ def test_a_request_whose_caller_gave_up_while_it_queued_is_not_served():
 
 
 def test_stop_from_another_thread_ends_an_endless_run_promptly():
-    text = """
-    name: endless
-    plugins: [stage_fixtures]
-    run_id: stop1
-    stages:
+    text = header("endless", plugins=["stage_fixtures"], run_id="stop1") + stages("""
       src: {type: t_counter, params: {forever: true, rate_hz: 2000}}
       mid: {type: t_relay, inputs: {in: src.out}}
       sink: {type: t_collector, inputs: {in: mid.out}}
-    """
+    """)
     runner = Runner(graph_from(text))
     threading.Timer(0.5, runner.stop, args=("test stop",)).start()
     t0 = time.monotonic()
@@ -158,16 +145,12 @@ def test_stop_from_another_thread_ends_an_endless_run_promptly():
 
 
 def test_merge_keeps_per_port_order():
-    text = """
-    name: merge
-    plugins: [stage_fixtures]
-    run_id: merge1
-    stages:
+    text = header("merge", plugins=["stage_fixtures"], run_id="merge1") + stages("""
       a: {type: t_counter, params: {n: 50}}
       b: {type: t_counter, params: {n: 70}}
       m: {type: t_merge, inputs: {a: a.out, b: b.out}}
       sink: {type: t_collector, inputs: {in: m.out}}
-    """
+    """)
     _, s = run(text)
     rows = COLLECTED["merge1"]["sink"]
     assert s.ok
@@ -213,17 +196,13 @@ def test_published_arrays_are_frozen_and_republishing_does_not_mutate_inputs():
 def test_inline_and_threaded_dispatch_give_identical_results():
     rows = {}
     for mode in ("auto", "thread"):
-        text = f"""
-        name: d
-        plugins: [stage_fixtures]
-        run_id: disp_{mode}
-        stages:
+        text = header("d", plugins=["stage_fixtures"], run_id=f"disp_{mode}") + stages(f"""
           a: {{type: t_counter, params: {{n: 300}}}}
           b: {{type: t_counter, params: {{n: 200}}}}
           m: {{type: t_merge, inputs: {{a: a.out, b: b.out}}, dispatch: {mode}}}
           r: {{type: t_relay, inputs: {{in: m.out}}, dispatch: {mode}}}
           sink: {{type: t_collector, inputs: {{in: r.out}}, dispatch: {mode}}}
-        """
+        """)
         _, s = run(text)
         assert s.ok
         got = COLLECTED[f"disp_{mode}"]["sink"]

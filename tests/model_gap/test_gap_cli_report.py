@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 import yaml
@@ -24,12 +25,18 @@ def gap_report(folder) -> dict:
     return json.loads((folder / "gap_report.json").read_text(encoding="utf-8"))
 
 
-def test_vgr_gap_on_csv_writes_the_report_plots_and_table(tmp_path, capsys):
-    data = campaign_csv([("backlash", "joint3")], 2, tmp_path)
+def gap_with_report(effects: list[tuple[str, str]], seed: int, tmp_path, exit_code: int) -> tuple[str, Path, dict]:
+    """``vgr gap`` on the UR5e model with a 0.05 mm noise spec and a report folder, on a simulated
+    campaign with the hidden *effects*; it must exit with *exit_code*. The CSV's path, the report
+    folder and its gap_report.json."""
+    data = campaign_csv(effects, seed, tmp_path)
     out = tmp_path / "rep"
-    rc = main(["gap", "--model", "ur5e", "--data", data, "--report", str(out), "--noise-mm", "0.05"])
-    assert rc == 0
-    rep = gap_report(out)
+    assert main(["gap", "--model", "ur5e", "--data", data, "--report", str(out), "--noise-mm", "0.05"]) == exit_code
+    return data, out, gap_report(out)
+
+
+def test_vgr_gap_on_csv_writes_the_report_plots_and_table(tmp_path, capsys):
+    data, out, rep = gap_with_report([("backlash", "joint3")], 2, tmp_path, exit_code=0)
     assert rep["verdict"] == "explained"
     (eff,) = rep["effects_added"]
     assert (eff["name"], eff["where"]) == ("backlash", "joint3")
@@ -75,11 +82,7 @@ def test_a_tie_exits_3_and_its_augmented_model_closes_the_gap(tmp_path, capsys):
     """A range scale with the frame fitted (exactly a uniform robot scale): exit code 3, verdict
     ``explained_up_to_tie``, the pair one tie term in gap_report.json and in augmented_model.yaml (the
     representative with ``tied_with``); given back with the same data the model leaves no gap (exit 0)."""
-    data = campaign_csv([("depth_scale", "camera")], 6, tmp_path)
-    out = tmp_path / "rep"
-    rc = main(["gap", "--model", "ur5e", "--data", data, "--report", str(out), "--noise-mm", "0.05"])
-    assert rc == 3
-    rep = gap_report(out)
+    data, out, rep = gap_with_report([("depth_scale", "camera")], 6, tmp_path, exit_code=3)
     assert rep["verdict"] == "explained_up_to_tie"
     (eff,) = rep["effects_added"]
     assert eff["tied"] and eff["name"] == "depth_scale|robot_scale" and eff["where"] == "sensor|robot"

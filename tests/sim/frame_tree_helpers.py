@@ -23,6 +23,7 @@ from engine.recording import load
 from engine.runner import Runner
 
 ROOT = "world"
+ROBOT_FRAMES = {"base": "world", "tcp": "base"}  # child -> parent: what a robot stage (simulated or UR) publishes
 
 
 @dataclass

@@ -12,18 +12,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from frame_tree_helpers import record, sound_frame_tree
+from frame_tree_helpers import ROBOT_FRAMES, record, sound_frame_tree
+from recipe_helpers import header, stages
 
 from engine import codec
 from engine.recording import load
 
 pytestmark = pytest.mark.timeout(180)
 
-CELL = """
-name: frame_tree
-seed: 5
-clock: sim
-stages:
+CELL = header("frame_tree", seed=5, clock="sim") + stages("""
   robot: {type: sim_robot, params: {model: ur5e}}
   hand_camera:
     type: sim_camera
@@ -62,21 +59,17 @@ stages:
     inputs: {trigger: poses.done}
     uses: {robot: robot.move, camera: fixed_camera.capture}
     params: {photo_pose: {matrix: [[1, 0, 0, -0.45], [0, -1, 0, -0.15], [0, 0, -1, 0.35], [0, 0, 0, 1]]}}
-"""
+""")
 
 
 # A tracker streaming on its own (its readings are published: they go on frames too); held in a
 # fixture, as streaming next to a moving robot would advance the one simulated clock twice.
-STREAMING = """
-name: frame_tree_stream
-seed: 6
-clock: sim
-stages:
+STREAMING = header("frame_tree_stream", seed=6, clock="sim") + stages("""
   robot: {type: sim_robot, params: {model: ur5e}}
   vive:
     type: sim_tracker
     params: {stream_hz: 50, duration_s: 0.2, T_world_tcp: {xyz_m: [0.3, 0.1, 0.5]}, tracker_frame: vive_tracker}
-"""
+""")
 
 
 @pytest.fixture(scope="module")
@@ -92,8 +85,7 @@ def streaming(tmp_path_factory):
 def test_every_frame_named_in_a_recording_of_the_simulated_cell_hangs_in_one_tree_under_world(cell):
     tree = sound_frame_tree(cell)
     assert tree.parent_of() == {
-        "base": "world",
-        "tcp": "base",
+        **ROBOT_FRAMES,
         "camera": "tcp",
         "part": "world",
         "fixed_camera": "world",
@@ -111,7 +103,7 @@ def test_every_frame_named_in_a_recording_of_the_simulated_cell_hangs_in_one_tre
 
 def test_a_streaming_tracker_puts_each_reading_on_the_frames(streaming):
     tree = sound_frame_tree(streaming)
-    assert tree.parent_of() == {"base": "world", "tcp": "base", "lighthouse": "world", "vive_tracker": "lighthouse"}
+    assert tree.parent_of() == {**ROBOT_FRAMES, "lighthouse": "world", "vive_tracker": "lighthouse"}
     rec = load(streaming)
 
     def decoded(port):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from recipe_helpers import graph_from
+from recipe_helpers import graph_from, header, stages
 
 from engine.errors import RecipeError
 from engine.runner import Observer, Runner
@@ -13,11 +13,7 @@ from plugins.sim.workpieces import make_workpiece
 
 pytestmark = pytest.mark.timeout(120)
 
-CELL = """
-name: cell
-seed: 3
-clock: sim
-stages:
+CELL = header("cell", seed=3, clock="sim") + stages("""
   robot: {{type: sim_robot, params: {{model: ur5e}}}}
   camera:
     type: sim_camera
@@ -33,7 +29,7 @@ stages:
     inputs: {{trigger: start.out}}
     uses: {{robot: robot.move, camera: camera.capture}}
     params: {{photo_pose: {{matrix: [[0, 1, 0, {x}], [1, 0, 0, -0.14], [0, 0, -1, 0.45], [0, 0, 0, 1]]}}}}
-"""
+""")
 
 
 class Keep(Observer):
