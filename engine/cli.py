@@ -75,7 +75,10 @@ def print_summary(summary: RunSummary) -> None:
             out.print(ev.traceback, markup=False, highlight=False)
     for name, path in summary.artifacts.items():
         out.print(f"{name}: {escape(path)}", highlight=False, soft_wrap=True)
-    if summary.ok:
+    if summary.outcome == "refused":
+        alarms = [ev for ev in summary.events if ev.level == "alarm"]
+        out.print(f"[red]run finished, refused[/]: {len(alarms)} alarm(s), first: {escape(alarms[0].stage)}")
+    elif summary.ok:
         out.print("[green]run finished[/]")
     else:
         out.print(f"[red]run failed[/]: {escape(summary.stop_reason or 'a stage failed')}", soft_wrap=True)
@@ -149,9 +152,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     incomplete = "recording_error" in summary.artifacts
     if incomplete:  # said even when the run was interrupted
         console.print(f"[red]the recording is incomplete[/]: {escape(summary.artifacts['recording_error'])}")
-    if summary.stop_reason and "interrupted" in summary.stop_reason:
-        return EXIT_INTERRUPTED
-    if incomplete:
+    if incomplete and summary.outcome != "interrupted":
         return EXIT_FAILED
     return summary.exit_code
 
@@ -161,7 +162,9 @@ def _summary_dict(s: RunSummary) -> dict[str, Any]:
         "run_id": s.run_id,
         "recipe": s.recipe,
         "process": s.process,
-        "ok": s.ok,
+        "ok": s.outcome == "ok",
+        "outcome": s.outcome,
+        "exit_code": s.exit_code,
         "stop_reason": s.stop_reason,
         "wall_s": s.wall_s,
         "artifacts": s.artifacts,

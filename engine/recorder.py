@@ -337,6 +337,7 @@ class Recorder(Observer):
                 "vgr.summary",
                 {
                     "ok": str(summary.ok).lower(),
+                    "outcome": summary.outcome,
                     "stop_reason": summary.stop_reason or "",
                     "wall_s": f"{summary.wall_s:.3f}",
                     "stages": json.dumps(

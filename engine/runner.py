@@ -55,6 +55,10 @@ class Observer(MessageObserver):
         """The run is over (sessions closed); *summary* may be annotated (artifacts)."""
 
 
+# exit codes of `vgr run` by outcome; 2 (invalid recipe) is decided before a run exists
+OUTCOME_EXIT_CODES = {"ok": 0, "failed": 1, "refused": 3, "interrupted": 130}
+
+
 @dataclass
 class RunSummary:
     run_id: str
@@ -68,8 +72,22 @@ class RunSummary:
     artifacts: dict[str, str] = field(default_factory=dict)  # e.g. recording path
 
     @property
+    def outcome(self) -> str:
+        """What the job came to, for a cell controller: ``ok``; ``refused`` (the run went through but
+        a stage raised an alarm: a dock, move or calibration step was refused, so its motion was not
+        done); ``failed`` (a stage failed); ``interrupted`` (Ctrl-C or a stop request)."""
+        if self.stop_reason and "interrupted" in self.stop_reason:
+            return "interrupted"
+        if not self.ok:
+            return "failed"
+        if any(e.level == "alarm" for e in self.events):
+            return "refused"
+        return "ok"
+
+    @property
     def exit_code(self) -> int:
-        return 0 if self.ok else 1
+        """The exit code of ``vgr run`` for :attr:`outcome` (README, *Command line*)."""
+        return OUTCOME_EXIT_CODES[self.outcome]
 
 
 def _driven_stages(graph: Graph) -> set[str]:

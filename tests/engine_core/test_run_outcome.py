@@ -1,0 +1,58 @@
+"""`vgr run` tells a cell controller what the job came to: its exit code and --json `outcome`.
+
+A refused dock must not look like a success to a PLC: an alarm (a stage refused its motion) exits 3,
+a failed stage 1, an interrupted run 130, and only a clean run 0 (README, *Command line*).
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from engine.cli import main
+from engine.messages import Event
+from engine.runner import OUTCOME_EXIT_CODES, RunSummary
+
+
+def summary(ok: bool = True, stop_reason: str | None = None, levels: tuple[str, ...] = ()) -> RunSummary:
+    events = [Event(level=lv, stage="s", code="c", message="m") for lv in levels]
+    return RunSummary("r", "recipe", "main", ok, stop_reason, [], 0.1, events)
+
+
+@pytest.mark.parametrize(
+    ("kw", "outcome", "code"),
+    [
+        ({}, "ok", 0),
+        ({"levels": ("info", "result", "warning")}, "ok", 0),  # a warning is not a refusal
+        ({"levels": ("warning", "alarm")}, "refused", 3),
+        ({"ok": False, "stop_reason": "stage 'x' failed", "levels": ("alarm", "error")}, "failed", 1),
+        ({"ok": False, "stop_reason": "interrupted (Ctrl-C)", "levels": ("alarm",)}, "interrupted", 130),
+    ],
+)
+def test_outcome_and_exit_code_of_a_summary(kw, outcome, code):
+    s = summary(**kw)
+    assert (s.outcome, s.exit_code) == (outcome, code)
+    assert OUTCOME_EXIT_CODES[outcome] == code
+
+
+def test_a_refused_dock_exits_3_and_says_refused_in_json(capsys):
+    # guidance may move at most 1 mm per step: the first correction (~20 mm) is refused, nothing docks
+    argv = ["run", "recipes/eye_in_hand_dock.yaml", "-p", "guidance.max_step_mm=1", "--no-progress", "--json"]
+    assert main(argv) == 3
+    out = json.loads(capsys.readouterr().out)
+    assert (out["outcome"], out["exit_code"], out["ok"]) == ("refused", 3, False)
+    alarms = {(e["stage"], e["code"]) for e in out["events"] if e["level"] == "alarm"}
+    assert alarms == {("guidance", "correction_limit"), ("docking", "guidance_not_usable")}, alarms
+
+
+def test_a_refused_run_says_so_in_its_last_line(capsys):
+    assert main(["run", "recipes/eye_in_hand_dock.yaml", "-p", "guidance.max_step_mm=1", "--no-progress"]) == 3
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    assert last.startswith("run finished, refused") and "alarm" in last
+
+
+def test_a_clean_run_exits_0_with_outcome_ok(capsys):
+    assert main(["run", "recipes/demo.yaml", "-p", "source.frames=3", "--no-progress", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert (out["outcome"], out["exit_code"], out["ok"]) == ("ok", 0, True)
