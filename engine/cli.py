@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import re
 import signal
 import sys
 import threading
@@ -320,7 +321,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_INTERRUPTED
 
 
+# a value such as -470,-80,0 or -0.5 or -1e-3 (argparse takes "-470,..." for an option otherwise)
+_NEGATIVE_VALUE = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(,\s*-?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)*$")
+
+
+def join_negative_values(argv: Sequence[str]) -> list[str]:
+    """``--pose -470,-80,0`` -> ``--pose=-470,-80,0``: a long option followed by a negative number or
+    list of numbers takes it as its value, as a user writing it means."""
+    out: list[str] = []
+    for a in argv:
+        if out and _NEGATIVE_VALUE.match(a) and out[-1].startswith("--") and "=" not in out[-1]:
+            out[-1] = f"{out[-1]}={a}"
+        else:
+            out.append(a)
+    return out
+
+
 def _main(argv: list[str], own_process: bool = False) -> int:
+    argv = join_negative_values(argv)
     verb = next((a for a in argv if not a.startswith("-")), None)
     parser = build_parser(verb)
     args = parser.parse_args(argv)

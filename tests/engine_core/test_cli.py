@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from engine.cli import main
 
@@ -75,3 +77,31 @@ def test_every_lazily_loaded_verb_is_defined_by_its_module(capsys):
             parser.parse_args([verb, "--help"])
         assert e.value.code == 0
         assert f"vgr {verb}" in capsys.readouterr().out
+
+
+@given(st.lists(st.floats(-1e6, 1e6, allow_nan=False), min_size=1, max_size=6))
+def test_a_long_option_takes_a_negative_number_list_as_its_value(values):
+    from engine.cli import join_negative_values
+
+    text = ",".join(repr(v) if v < 0 else repr(-v - 1.0) for v in values)  # starts with "-"
+    assert join_negative_values(["teach", "install", "r.yaml", "--pose", text]) == [
+        "teach",
+        "install",
+        "r.yaml",
+        f"--pose={text}",
+    ]
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["run", "r.yaml", "--no-progress", "-p", "a.b=-1"],  # not after a long option
+        ["run", "r.yaml", "--json", "--run-id", "x"],  # not a number
+        ["teach", "install", "r.yaml", "--pose=-1,2,3,0,0,0"],  # already joined
+        ["run", "r.yaml", "-p", "-1"],  # a short option is left to argparse
+    ],
+)
+def test_other_arguments_are_left_as_they_are(argv):
+    from engine.cli import join_negative_values
+
+    assert join_negative_values(argv) == argv

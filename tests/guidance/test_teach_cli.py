@@ -49,6 +49,13 @@ def test_install_pose_from_a_pendant_reading(recipe: Path) -> None:
     assert np.allclose(T, T_from_ur(ur), atol=2e-6)
 
 
+def test_negative_values_after_the_option_are_the_pose_not_options(recipe: Path) -> None:
+    ur = [-0.47, -0.07, 0.15, -3.0, 0.2, -0.1]  # typed as a pendant shows it: "--pose -0.47,..."
+    assert main(["teach", "install", str(recipe), "--pose", ",".join(map(str, ur))]) == 0
+    T = np.array(vars_of(recipe)["install_pose"]["matrix"])
+    assert np.allclose(T, T_from_ur(ur), atol=2e-6)
+
+
 def test_stage_parameter_when_there_is_no_variable(tmp_path: Path) -> None:
     text = (
         (RECIPES / "eye_to_hand_dock.yaml")
