@@ -29,6 +29,7 @@ $(STAMP): pyproject.toml | sysdeps
 
 demo: install
 	$(BIN)/vgr run recipes/eye_in_hand_dock.yaml
+	@echo "vgr is in $(BIN): 'source $(BIN)/activate' puts it on PATH"
 
 test: install
 	$(BIN)/python -m pytest
