@@ -191,3 +191,27 @@ def test_recorded_streams_give_the_range_so_depth_effects_are_testable():
     )
     not_testable = {c.name for c in res.iterations[0].scores if c.unavailable}
     assert {"depth_scale", "depth_bias"} <= not_testable
+
+
+def test_payload_option_fills_a_csv_without_the_column_and_never_replaces_one(tmp_path):
+    from plugins.solvers.model_gap.data import load_gap_data
+
+    header, rows = _rows()
+    k = header.index("payload_kg")
+    without = _write(tmp_path, header[:k] + header[k + 1 :], [r[:k] + r[k + 1 :] for r in rows], "no_payload.csv")
+    data = load_gap_data(without, payload_kg=2.5)
+    np.testing.assert_array_equal(data.samples.payload_kg, np.full(len(rows), 2.5))
+    assert load_gap_data(without).samples.payload_kg is None
+    with pytest.raises(GapDataError, match="already has a payload"):
+        load_gap_data(_write(tmp_path, header, rows), payload_kg=2.5)
+
+
+@pytest.mark.parametrize("bad", [-1.0, float("nan"), float("inf")])
+def test_a_payload_that_is_not_a_mass_is_refused(tmp_path, bad):
+    from plugins.solvers.model_gap.data import load_gap_data
+
+    header, rows = _rows()
+    k = header.index("payload_kg")
+    without = _write(tmp_path, header[:k] + header[k + 1 :], [r[:k] + r[k + 1 :] for r in rows])
+    with pytest.raises(GapDataError, match="payload must be finite and >= 0 kg"):
+        load_gap_data(without, payload_kg=bad)

@@ -42,6 +42,8 @@ def test_recipe_names_the_hidden_compliance_and_writes_the_report(tmp_path):
     assert rep["rms_after_mm"] <= 1.2 * rep["noise_floor_mm"] < rep["rms_before_mm"]
     assert res.metrics["effects_added"] == 1.0
     assert (tmp_path / "rep" / "gap_report.json").is_file()
+    est, sd = compliance(rep)  # the stage's payload_kg parameter: the estimate within its sigma
+    assert abs(est - TRUE_COMPLIANCE) <= sd, (est, sd)
 
 
 def test_recipe_without_the_hidden_effect_finds_no_gap():
@@ -70,3 +72,21 @@ def test_vgr_gap_reads_the_recording_of_the_recipe(tmp_path, capsys):
     assert "/campaign/joint_state" in rep["problem"]["data"]["source"]
     assert [(e["name"], e["where"]) for e in rep["effects_added"]] == [("joint_compliance", "joint2")]
     assert rep["rms_after_mm"] <= 1.2 * rep["noise_floor_mm"]
+    # the payload the robot carried (2 kg, from the recorded recipe) loads joint 2: the compliance
+    # estimate matches the truth within its own sigma
+    est, sd = compliance(rep)
+    assert abs(est - TRUE_COMPLIANCE) <= sd, (est, sd)
+    # told there was no payload, the same data give a compliance several sigma off
+    assert (
+        main(["gap", "--model", "ur5e", "--data", str(rec), "--noise-mm", "0.05", "--payload-kg", "0", "--json"]) == 0
+    )
+    est0, sd0 = compliance(json.loads(capsys.readouterr().out))
+    assert abs(est0 - TRUE_COMPLIANCE) > 3 * sd0, (est0, sd0)
+
+
+TRUE_COMPLIANCE = 6.0e-6  # rad/(N m) on joint 2, recipes/model_gap_sim.yaml
+
+
+def compliance(rep: dict) -> tuple[float, float]:
+    (e,) = [e for e in rep["effects_added"] if e["name"] == "joint_compliance"]
+    return e["params"]["compliance_joint2"], e["param_std"]["compliance_joint2"]

@@ -51,6 +51,12 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the cross-validation folds")
     p.add_argument("--joint-topic", help="recordings: the JointState topic (default: the only one)")
     p.add_argument("--measurement-topic", help="recordings: the TrackerPose/PoseStamped topic of the measurements")
+    p.add_argument(
+        "--payload-kg",
+        type=float,
+        help="mass at the TCP for every sample, kg (default: the CSV's payload_kg column, or the robot "
+        "stage's payload_kg in a recording's recipe)",
+    )
     p.add_argument("--sensor", default="sensor", help="CSV: the name of the measuring sensor (where latency acts)")
     p.add_argument("--json", action="store_true", help="print gap_report.json to stdout instead of tables")
     p.add_argument("--plugin", action="append", metavar="MODULE", help="also load effects from this plugin module")
@@ -79,7 +85,12 @@ def cmd_gap(args: argparse.Namespace) -> int:
         SelectionConfig(alpha=args.alpha, cv_folds=args.folds, seed=args.seed), max_effects=args.max_effects
     )
     console = None if args.json else Console(width=None if sys.stdout.isatty() else 160)
-    opts = {"joint_topic": args.joint_topic, "measurement_topic": args.measurement_topic, "sensor": args.sensor}
+    opts = {
+        "joint_topic": args.joint_topic,
+        "measurement_topic": args.measurement_topic,
+        "sensor": args.sensor,
+        "payload_kg": args.payload_kg,
+    }
     result = analyse_gap(
         args.model,
         args.data,

@@ -28,8 +28,9 @@ from __future__ import annotations
 import csv
 import difflib
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -321,8 +322,10 @@ def read_gap_mcap(
     joint_topic: str | None = None,
     measurement_topic: str | None = None,
     max_interp_gap_s: float = 10.0,
+    payload_kg: float | None = None,
 ) -> GapData:
-    """Pair a recording's joint states with its measurements (see the module docstring)."""
+    """Pair a recording's joint states with its measurements (see the module docstring). The payload
+    is *payload_kg* if given, else the robot stage's ``payload_kg`` parameter in the recorded recipe."""
     from engine import codec
     from engine.recording import RecordingError, load
 
@@ -371,6 +374,42 @@ def read_gap_mcap(
     data = pair_streams(js, ms, max_interp_gap_s=max_interp_gap_s)
     data.sensor = measurement_topic.strip("/").split("/")[0]
     data.source = f"{path} ({joint_topic} + {measurement_topic})"
+    payload = payload_kg if payload_kg is not None else recorded_payload_kg(rec, robot_stage)
+    if payload is not None:
+        data = with_payload(data, payload)
+    return data
+
+
+def recorded_payload_kg(rec: Any, joint_stage: str) -> float | None:
+    """The ``payload_kg`` parameter of the stage that published the joints, or else of the robot it
+    commands (a measurement campaign publishes the joints of the robot stage it uses), from the
+    recording's own recipe with its overrides; None when neither has one."""
+    from engine.errors import RecipeError
+    from engine.recipe import load_recipe
+
+    if not rec.recipe_text:
+        return None
+    try:
+        loaded = load_recipe(f"{rec.path}#recipe", list(rec.overrides), text=rec.recipe_text)
+    except RecipeError:  # a recipe this version cannot read: the payload is then not known from it
+        return None
+    stages = loaded.recipe.stages
+    first = stages.get(joint_stage)
+    used = [] if first is None else [ref.split(".")[0] for ref in first.uses.values()]
+    for name in (joint_stage, *used):
+        value = stages[name].params.get("payload_kg") if name in stages else None
+        if isinstance(value, int | float):
+            return float(value)
+    return None
+
+
+def with_payload(data: GapData, payload_kg: float) -> GapData:
+    """*data* with the same payload (kg at the TCP) at every sample; refuses to replace one it has."""
+    if not (np.isfinite(payload_kg) and payload_kg >= 0):
+        raise GapDataError(f"payload must be finite and >= 0 kg, got {payload_kg}")
+    if data.samples.payload_kg is not None:
+        raise GapDataError(f"{data.source or 'the data'} already has a payload per sample; not replacing it")
+    data.samples = replace(data.samples, payload_kg=np.full(data.n_samples, float(payload_kg)))
     return data
 
 
@@ -453,11 +492,14 @@ def _approach_directions(q_states: F64, k: np.ndarray, qd: F64) -> F64:
     return np.where(moving, np.sign(qd), out)
 
 
-def load_gap_data(path: str | Path, **kw) -> GapData:
-    """CSV or MCAP by file suffix."""
+def load_gap_data(path: str | Path, *, payload_kg: float | None = None, **kw) -> GapData:
+    """CSV or MCAP by file suffix. *payload_kg* (kg at the TCP, every sample) replaces what a
+    recording's recipe says; a CSV with a ``payload_kg`` column keeps its own and refuses it."""
     p = Path(path)
     if p.suffix.lower() == ".mcap":
-        return read_gap_mcap(p, **{k: v for k, v in kw.items() if k in ("joint_topic", "measurement_topic")})
+        opts = {k: v for k, v in kw.items() if k in ("joint_topic", "measurement_topic")}
+        return read_gap_mcap(p, payload_kg=payload_kg, **opts)
     if p.suffix.lower() in (".csv", ".txt"):
-        return read_gap_csv(p, **{k: v for k, v in kw.items() if k == "sensor"})
+        data = read_gap_csv(p, **{k: v for k, v in kw.items() if k == "sensor"})
+        return data if payload_kg is None else with_payload(data, payload_kg)
     raise GapDataError(f"{p}: unknown data format {p.suffix!r}; give a .csv file or a .mcap recording")

@@ -25,7 +25,7 @@ from engine.plugin_manager import PluginError
 from engine.stage import Stage, StageParams
 
 from .analyse import analyse_gap, families_from_registry
-from .data import GapDataError, pair_streams
+from .data import GapDataError, pair_streams, with_payload
 
 
 class ModelGap(Stage):
@@ -44,6 +44,7 @@ class ModelGap(Stage):
         max_effects: int = Field(4, ge=0, le=20)
         alpha: float = Field(1e-3, gt=0.0, lt=0.5, description="family-wise false-positive rate per round")
         cv_folds: int = Field(5, ge=2, le=20)
+        payload_kg: float | None = Field(None, ge=0.0, description="mass at the TCP during the campaign (kg)")
         effect_plugins: list[str] = Field(
             [], description="extra plugin modules whose vgr_model_effects join the catalog (like vgr gap --plugin)"
         )
@@ -62,6 +63,8 @@ class ModelGap(Stage):
         try:
             data = pair_streams(self.joints, self.measurements)
             data.sensor, data.source = "tracker", f"stage {self.ctx.name} ({sensor} frame)"
+            if p.payload_kg is not None:
+                data = with_payload(data, p.payload_kg)
             cfg = GapConfig(
                 SelectionConfig(alpha=p.alpha, cv_folds=p.cv_folds, seed=self.ctx.seed), max_effects=p.max_effects
             )
