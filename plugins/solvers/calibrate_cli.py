@@ -387,7 +387,7 @@ def main(argv: list[str] | None = None) -> int:
     """``python -m plugins.solvers.calibrate_cli KIND DATA ...`` (the same as ``vgr calibrate``)."""
     parser = argparse.ArgumentParser(
         prog="vgr calibrate",
-        description=__doc__.split("\n")[0],
+        description="Every calibration of vgr from a plain file or a vgr recording.",
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

@@ -105,3 +105,20 @@ def test_other_arguments_are_left_as_they_are(argv):
     from engine.cli import join_negative_values
 
     assert join_negative_values(argv) == argv
+
+
+def _verbs() -> list[str]:
+    from engine.cli import VERB_MODULES
+
+    return ["run", "validate", "graph", "plugins", "schemas", *VERB_MODULES]
+
+
+@pytest.mark.parametrize("verb", _verbs())
+def test_help_texts_are_plain_text_without_markup(verb, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main([verb, "--help"])
+    assert exc.value.code == 0
+    text = capsys.readouterr().out
+    assert text.startswith("usage: vgr"), text[:200]
+    for markup in ("``", ":mod:", ":func:", ":class:", ":meth:"):
+        assert markup not in text, f"vgr {verb} --help shows {markup!r}:\n{text}"

@@ -30,7 +30,10 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "gap",
         help="compare a robot model with measurements, name the missing effect, add it (model-gap workflow)",
-        description=__doc__.split("\n\n")[0],
+        description="Compare a robot model with measurements, name the missing physical effect, add it and "
+        "show the gap shrink (docs/model_gap.md).",
+        epilog="exit codes: 0 the gap is explained or there is none, 1 a gap remains unexplained, 2 bad "
+        "input, 3 explained up to a tie (part of the gap is one of several effects the data cannot tell apart)",
     )
     p.add_argument("--model", required=True, help="shipped robot name, robot model file or augmented model file")
     p.add_argument("--data", required=True, help="CSV (q1_deg.., x_mm, y_mm, z_mm, ...) or a .mcap recording")
