@@ -7,7 +7,7 @@ BLAS runs single-threaded in vgr (``VGR_BLAS_THREADS`` overrides; an explicit
 ``OPENBLAS_NUM_THREADS`` / ``MKL_NUM_THREADS`` wins): its linear algebra is on small or thin
 matrices, where a threaded OpenBLAS is slower, not faster (a 60k x 3 point transform took 24 ms with
 2 threads against 2 ms with one, on the 2-core CI machine), and a thread count must never change a
-result (DESIGN.md, determinism). The variables are set before numpy loads when vgr is imported
+result (docs/design.md, determinism). The variables are set before numpy loads when vgr is imported
 first; otherwise the BLAS thread pool is limited at import through threadpoolctl.
 
 OpenBLAS picks its kernels by CPU at load time, and kernels for different CPUs round differently:

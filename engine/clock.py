@@ -1,7 +1,7 @@
 """Clocks of a run: wall time for real cells, simulated time for the simulated cell and replay.
 
 Stages read time only through ``ctx.clock`` so that a simulated run and a replay never depend on
-the wall clock (DESIGN.md, determinism). Times are integer nanoseconds.
+the wall clock (docs/design.md, determinism). Times are integer nanoseconds.
 
 * :class:`WallClock`  ``time.time_ns()``; ``sleep`` really waits (interruptible by the run's stop).
 * :class:`SimClock`   starts at a fixed epoch; ``sleep(dt)`` and ``advance_to(t)`` move it forward at

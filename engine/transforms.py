@@ -1,6 +1,6 @@
 """Rigid transforms in SE(3) and SO(3): vgr's one geometry module and its frame conventions.
 
-Conventions (DESIGN.md, not optional):
+Conventions (docs/design.md, not optional):
 
 * ``T_a_b`` is the pose of frame *b* in frame *a*; it maps points from *b* to *a*:
   ``p_a = T_a_b @ p_b``.  Chains therefore read left to right: ``T_a_c = T_a_b @ T_b_c``.

@@ -9,7 +9,7 @@ the eye-in-hand look at the target first, then the eye-to-hand look at the gripp
 triggered by a ``done`` whose verdict is not ``converged`` moves nothing: it publishes a refused
 result (alarm ``upstream_not_converged``), so the pairing downstream still holds.
 
-Safety (DESIGN.md): no motion from a failed or ambiguous match, a NaN anywhere, a step or a total
+Safety (docs/design.md): no motion from a failed or ambiguous match, a NaN anywhere, a step or a total
 correction beyond the limits, or a refused/unanswered robot; each ends the run with an ``alarm``
 event and a result whose verdict is not ``converged``, so nothing docks. Not converging within
 ``max_iterations`` raises an alarm too. Robot command ids are ``<stage>-<job>-<k>``: a replayed or

@@ -4,7 +4,7 @@ Services ``move`` (RobotCommand -> RobotReply) and ``state``; outputs ``joint_st
 (T_base_tcp in ``base``) and ``frames`` (world -> base -> tcp), published at set-up and after every
 command. A recipe switches between this stage and ``sim_robot`` by ``type:`` and parameters only.
 
-Safety (DESIGN.md): nothing moves on doubt. Before a move the stage checks the controller (connected,
+Safety (docs/design.md): nothing moves on doubt. Before a move the stage checks the controller (connected,
 safety mode NORMAL/REDUCED, no protective or emergency stop, arm RUNNING, control script running)
 and the target (:mod:`plugins.actions.ur_motion_checks`: finite rigid pose, inside the workspace box,
 within the step limits, speeds within the maxima); a failed check refuses the command with the

@@ -1,6 +1,6 @@
 """Simulated time: a clock that only moves when the simulation advances it (never the wall clock).
 
-Time is kept in integer nanoseconds (DESIGN.md timestamps) and read in seconds by the sim models.
+Time is kept in integer nanoseconds (docs/design.md timestamps) and read in seconds by the sim models.
 Anything that needs "now" takes a callable returning seconds, so a :class:`SimClock`'s
 :meth:`~SimClock.now_s`, a replay clock or a test lambda all fit.
 """

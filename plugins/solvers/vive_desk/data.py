@@ -1,6 +1,6 @@
 """Input data of the Vive desk calibration: contact samples, the fixture model and the noise model.
 
-Frames (seed 001, DESIGN.md naming): ``base`` = the Vive base station (lighthouse / OpenVR universe)
+Frames (seed 001, docs/design.md naming): ``base`` = the Vive base station (lighthouse / OpenVR universe)
 frame, ``desktop`` = the desk frame (FLU: x forward, y left, z up), ``tracker`` = the Vive tracker,
 ``tcp`` = the tool centre point rigidly attached to the tracker.
 
