@@ -6,7 +6,9 @@ asks its ``state`` service for ``T_base_tcp`` and writes it into the recipe in p
 ``vars.photo_pose`` / ``vars.install_pose`` if the recipe has that variable, else the
 ``photo_pose`` / ``install_pose`` parameter of the guidance / docking stage. Only that value's text
 changes; comments and layout are kept, and the old value is printed. ``--pose x,y,z,rx,ry,rz``
-(m, rotation vector rad; the UR pendant's notation) stores a pose read elsewhere instead.
+(m, rotation vector rad; the UR pendant's notation) stores a pose read elsewhere instead, refused
+when the robot cannot reach it (an adapter's workspace box, a robot model's reach, 10 m for any
+robot): a pendant's millimetres typed as metres are caught.
 
 Teaching a new photo pose invalidates the matcher template (captured at the old one): the verb
 says so. Nothing moves the robot.
@@ -60,10 +62,9 @@ def _stage_of(doc: dict[str, Any], types: str | tuple[str, ...]) -> str | None:
     return names[0] if names else None
 
 
-def robot_pose(recipe: Path, robot: str | None) -> np.ndarray:
-    """T_base_tcp reported by the recipe's robot stage (started alone, then closed)."""
-    loaded = load_recipe(str(recipe))
-    doc = loaded.recipe
+def robot_stage(recipe: Path, robot: str | None) -> tuple[str, Any]:
+    """(name, spec) of the recipe's robot stage: *robot*, else the one the first robot client uses."""
+    doc = load_recipe(str(recipe)).recipe
     if robot is None:
         users = [s for s in doc.stages.values() if "robot" in s.uses]
         if not users:
@@ -71,7 +72,48 @@ def robot_pose(recipe: Path, robot: str | None) -> np.ndarray:
         robot = users[0].uses["robot"].split(".")[0]
     if robot not in doc.stages:
         raise TeachError(f"no stage {robot!r} in {recipe} (stages: {', '.join(doc.stages)})")
-    spec = doc.stages[robot]
+    return robot, doc.stages[robot]
+
+
+# farther than this from any robot's base is a number in the wrong unit, whatever the robot
+MAX_PLAUSIBLE_REACH_M = 10.0
+
+
+def reach_problem(name: str, spec: Any, T_base_tcp: np.ndarray) -> str | None:
+    """Why the robot stage *name* cannot reach *T_base_tcp*, or None: outside an adapter's workspace
+    box (``workspace_min_m`` / ``workspace_max_m``), beyond a robot model's reach (``model``: the sum
+    of its link lengths and the tool's), or beyond any robot's reach."""
+    t = np.asarray(T_base_tcp, dtype=float)[:3, 3]
+    dist = float(np.linalg.norm(t))
+    hint = "were the numbers millimetres? --pose takes metres"
+    params = spec.params
+    if "workspace_min_m" in params and "workspace_max_m" in params:
+        lo, hi = np.asarray(params["workspace_min_m"], float), np.asarray(params["workspace_max_m"], float)
+        if np.any(t < lo) or np.any(t > hi):
+            box = f"{lo.tolist()}..{hi.tolist()} m"
+            return f"the pose {np.round(t, 4).tolist()} m is outside {name}'s workspace box {box} ({hint})"
+    elif isinstance(params.get("model"), str):
+        from plugins.params import PoseSpec
+        from plugins.robot.model_file import load_robot_model
+
+        model = load_robot_model(params["model"])
+        tool = params.get("T_flange_tcp")
+        if tool is not None:
+            model = model.with_tool(PoseSpec.model_validate(tool).T())
+        reach = model.chain.reach_bound(skip_groups=("base",))
+        if dist > reach:
+            robot = params["model"]
+            return f"the pose is {dist:.3f} m from {name}'s base, beyond the {robot}'s reach {reach:.3f} m ({hint})"
+    if dist > MAX_PLAUSIBLE_REACH_M:
+        return f"the pose is {dist:.1f} m from the robot's base, beyond any robot's reach ({hint})"
+    return None
+
+
+def robot_pose(recipe: Path, robot: str | None) -> np.ndarray:
+    """T_base_tcp reported by the recipe's robot stage (started alone, then closed)."""
+    loaded = load_recipe(str(recipe))
+    doc = loaded.recipe
+    robot, spec = robot_stage(recipe, robot)
     cls = load_registry(doc.plugins).stage(spec.type)
     if "state" not in cls.services:
         raise TeachError(f"stage {robot!r} ({spec.type}) has no state service")
@@ -145,6 +187,8 @@ def cmd_teach(args: argparse.Namespace) -> int:
             if len(vals) != 6 or not np.all(np.isfinite(vals)):
                 raise TeachError("--pose must be 6 finite numbers x,y,z,rx,ry,rz (m, rotation vector rad)")
             T = T_from_ur(vals)
+            if (problem := reach_problem(*robot_stage(recipe, args.robot), T)) is not None:
+                raise TeachError(problem)
         else:
             T = robot_pose(recipe, args.robot)
         new_text, where, old = taught_text(recipe, args.what, T, args.stage)

@@ -56,6 +56,30 @@ def test_negative_values_after_the_option_are_the_pose_not_options(recipe: Path)
     assert np.allclose(T, T_from_ur(ur), atol=2e-6)
 
 
+def test_a_pose_beyond_the_robots_reach_is_refused_and_the_recipe_kept(recipe: Path, capsys) -> None:
+    text = recipe.read_text()
+    # the pendant's millimetres typed where metres are expected: 470 m from the base
+    assert main(["teach", "install", str(recipe), "--pose", "-470,-70,150,0,3.14,0"]) == 2
+    said = capsys.readouterr().out
+    assert "cannot teach" in said and "beyond the ur5e's reach" in said and "millimetres" in said
+    assert recipe.read_text() == text
+    assert main(["teach", "install", str(recipe), "--pose", "1.2,0.6,0.3,0,3.14,0"]) == 2  # 1.38 m: too far
+    assert recipe.read_text() == text
+
+
+def test_reach_checks_an_adapters_workspace_box_and_any_robots_reach() -> None:
+    from types import SimpleNamespace
+
+    from plugins.actions.teach_cli import reach_problem
+
+    ur = SimpleNamespace(params={"workspace_min_m": [-0.8, -0.6, 0.05], "workspace_max_m": [0.2, 0.6, 0.8]})
+    assert reach_problem("robot", ur, T_from_ur([-0.47, -0.07, 0.15, 0, 3.14, 0])) is None
+    assert "outside robot's workspace box" in reach_problem("robot", ur, T_from_ur([-0.47, -0.07, 0.01, 0, 3.14, 0]))
+    unknown = SimpleNamespace(params={})
+    assert reach_problem("arm", unknown, T_from_ur([2.5, 0, 1, 0, 0, 0])) is None  # a large robot may
+    assert "beyond any robot's reach" in reach_problem("arm", unknown, T_from_ur([-470, -70, 150, 0, 0, 0]))
+
+
 def test_stage_parameter_when_there_is_no_variable(tmp_path: Path) -> None:
     text = (
         (RECIPES / "eye_to_hand_dock.yaml")
