@@ -258,3 +258,14 @@ def test_target_pose_reads_the_model_from_a_mesh_file(tmp_path):
     assert summary.ok and len(msgs[("target", "pose")]) == 12
     (res,) = results(msgs)
     assert res.usable
+
+
+@pytest.mark.parametrize("fixture", ["kinematics_run", "vive_run"])
+def test_the_calibration_result_is_printed_at_the_end_of_the_run(fixture, request):
+    """The answer is a `result` event (printed by `vgr run` after the table), not only a message in
+    the recording: the verdict and each estimate with its 1-sigma in mm / deg."""
+    summary, msgs, _ = request.getfixturevalue(fixture)
+    res = ok_result(summary, msgs)
+    (ev,) = [e for e in summary.events if e.level == "result" and e.code.endswith("_result")]
+    assert ev.message.startswith(f"{res.kind.replace('_', '-')} calibration: verdict ok; ")
+    assert " ± " in ev.message and (" mm" in ev.message or " deg" in ev.message)

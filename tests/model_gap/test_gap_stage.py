@@ -44,6 +44,11 @@ def test_recipe_names_the_hidden_compliance_and_writes_the_report(tmp_path):
     assert (tmp_path / "rep" / "gap_report.json").is_file()
     est, sd = compliance(rep)  # the stage's payload_kg parameter: the estimate within its sigma
     assert abs(est - TRUE_COMPLIANCE) <= sd, (est, sd)
+    # the answer is printed at the end of the run: a result event with the value and its sigma
+    (ev,) = [e for e in summary.events if e.level == "result" and e.code == "model_gap"]
+    assert ev.message.startswith("explained: effects added: joint_compliance@joint2 (compliance_joint2 = ")
+    assert " ± " in ev.message and "rad/(N m)" in ev.message and "RMS" in ev.message
+    assert ev.details["files"] == {"report": str(tmp_path / "rep" / "gap_report.json")}
 
 
 def test_recipe_without_the_hidden_effect_finds_no_gap():

@@ -13,6 +13,7 @@ insufficient data do not raise: the stage publishes verdict ``failed`` with the 
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import ClassVar
 
 from pydantic import Field
@@ -86,8 +87,8 @@ class ModelGap(Stage):
         metrics = {k: float(rep[k]) for k in ("rms_before_mm", "rms_after_mm", "noise_floor_mm")}
         metrics["effects_added"] = float(len(rep["effects_added"]))
         metrics["tie_terms_added"] = float(sum(e["tied"] for e in rep["effects_added"]))
-        names = ", ".join(e.get("label") or f"{e['name']}@{e['where']}" for e in rep["effects_added"]) or "none"
-        self.ctx.event("info", "model_gap", f"{result.verdict}: effects added: {names}", verdict=result.verdict)
+        files = {"report": str(Path(p.report_dir) / "gap_report.json")} if p.report_dir else {}
+        self.ctx.event("result", "model_gap", gap_text(rep), verdict=result.verdict, files=files)
         self.ctx.publish(
             "result",
             CalibrationResultMsg(
@@ -99,3 +100,17 @@ class ModelGap(Stage):
                 result_json=json.dumps(plain(rep, nan_as_none=True)),
             ),
         )
+
+
+def gap_text(rep: dict) -> str:
+    """The end-of-run answer: verdict, each effect added with its parameters and 1-sigma, the RMS."""
+    parts = []
+    for e in rep["effects_added"]:
+        values = ", ".join(
+            f"{k} = {v:.4g} ± {rep_std:.2g} {e['units'].get(k, '')}".rstrip()
+            for k, v in e["params"].items()
+            for rep_std in [e["param_std"].get(k, float("nan"))]
+        )
+        parts.append(f"{e.get('label') or e['name'] + '@' + e['where']} ({values})")
+    rms = f"RMS {rep['rms_before_mm']:.3f} -> {rep['rms_after_mm']:.3f} mm (noise {rep['noise_floor_mm']:.3f} mm)"
+    return f"{rep['verdict']}: effects added: {'; '.join(parts) or 'none'}; {rms}"

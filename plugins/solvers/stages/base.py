@@ -82,6 +82,7 @@ class CalibrationStage(Stage):
         self._new_samples = False
         self._waiting: tuple[int, str] | None = None  # a solve waiting for (samples per port, why)
         self.solves = 0
+        self.last_result: CalibrationResult | None = None
 
     def on_message(self, port: str, msg: Message) -> None:
         if port == SOLVE_PORT:
@@ -104,6 +105,9 @@ class CalibrationStage(Stage):
         p: PairingParams = self.params  # type: ignore[assignment]
         if self._waiting is not None or (p.solve_on_finish and (self._new_samples or self.solves == 0)):
             self._solve(self._waiting[1] + ", at the end of input" if self._waiting else "end of input")
+        if self.last_result is not None:  # the answer, printed at the end of the run
+            r = self.last_result
+            self.ctx.event("result", f"{self.KIND}_result", result_text(r), verdict=r.verdict)
 
     def pairing(self) -> PairingOptions:
         p: PairingParams = self.params  # type: ignore[assignment]
@@ -154,6 +158,7 @@ class CalibrationStage(Stage):
         for note in notes:
             self.ctx.event("warning", "calibration_input", note)
         stamp = self._stamp()
+        self.last_result = result
         self.ctx.publish("result", result_message(result, stamp))
         if result.usable:
             for T, parent, child in self.transforms(result):
@@ -177,3 +182,16 @@ class CalibrationStage(Stage):
                 samples=counts,
             )
         self.extra_outputs(result, stamp)
+
+
+def result_text(result: CalibrationResult) -> str:
+    """One paragraph for the end of a run: kind and verdict, each estimate with its 1-sigma (mm, deg),
+    and why when it is not ok."""
+    est = "; ".join(
+        f"{r.name} = {r.value:.3f}" + ("" if r.sigma is None else f" ± {r.sigma:.3f}") + f" {r.unit}"
+        for r in result.summary_rows()
+    )
+    text = f"{result.kind.replace('_', '-')} calibration: verdict {result.verdict}" + (f"; {est}" if est else "")
+    if result.verdict != "ok" and result.reasons:
+        text += " (" + "; ".join(result.reasons[:3]) + ")"
+    return text
