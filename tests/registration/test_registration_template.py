@@ -98,8 +98,13 @@ def test_loader_refuses_damaged_or_foreign_templates(tmp_path, captures):
     np.save(path / "points.npy", np.zeros((10, 3)))
     with pytest.raises(InvalidInputError, match="checksum"):
         load_template(path)
-    with pytest.raises(InvalidInputError, match=r"no template\.json"):
-        load_template(tmp_path / "missing")
+    with pytest.raises(InvalidInputError, match=r"no template at .*missing \(make one with `vgr template make`\)"):
+        load_template(tmp_path / "missing")  # a wrong path is said to be missing, not to be a foreign folder
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(InvalidInputError, match=r"not a vgr template \(no template\.json\)"):
+        load_template(tmp_path / "empty")
+    with pytest.raises(InvalidInputError, match="is a file; a vgr template is a folder"):
+        load_template(meta)
 
 
 @pytest.mark.parametrize(

@@ -182,6 +182,10 @@ def load_template(path: str | Path) -> Template:
     """Read a template directory written by :func:`save_template`; raises InvalidInputError with a reason."""
     path = Path(path)
     meta_file = path / "template.json"
+    if not path.exists():
+        raise InvalidInputError(f"no template at {path} (make one with `vgr template make`)")
+    if not path.is_dir():
+        raise InvalidInputError(f"{path} is a file; a vgr template is a folder (template.json and its cloud)")
     if not meta_file.is_file():
         raise InvalidInputError(f"{path} is not a vgr template (no template.json)")
     try:
