@@ -28,6 +28,7 @@ from engine.messages import Message
 from engine.plugin_manager import Registry
 from engine.recipe import LoadedRecipe, StageSpec, pydantic_problems
 from engine.stage import Stage, StageParams
+from engine.unit_checks import implausible_lengths
 
 TRUTH_PREFIX = "truth/"  # ports carrying simulation ground truth
 TRUTH_SERVICE = "truth"  # services whose name starts with this give ground truth
@@ -201,6 +202,12 @@ def build_graph(loaded: LoadedRecipe, registry: Registry) -> Graph:
             problems.extend(
                 pydantic_problems(exc, cls.Params, ("stages", name, "params"), loaded.locations, loaded.file)
             )
+            continue
+        units = [
+            loaded.problem(("stages", name, "params", *where), why) for where, why in implausible_lengths(spec.params)
+        ]
+        if units:
+            problems.extend(units)
             continue
         nodes[name] = StageNode(name, spec, cls, params)
 
