@@ -52,7 +52,7 @@ from engine.inbox import END, STOP, PortInbox
 from engine.messages import Event, Message, canonical, detach, freeze_arrays
 from engine.output_port import OutputPort
 from engine.remote_input import RemoteInput
-from engine.stage import EVENTS_PORT, ServiceError, ServiceTimeoutError, Stage, StageContext
+from engine.stage import EVENTS_PORT, RunStoppingError, ServiceError, ServiceTimeoutError, Stage, StageContext
 from engine.stage_host import ServiceCall, StageHost
 
 log = logging.getLogger("vgr.runtime")
@@ -177,6 +177,8 @@ class StageRuntime(StageContext):
         edge = self.clients.get(client)
         if edge is None:
             raise ServiceError(f"stage {self.name!r} has no service client {client!r} wired in the recipe")
+        if self._stop_event.is_set():  # Ctrl-C, a failure or a stop request: nothing new goes out (no motion)
+            raise RunStoppingError(f"{self.name} -> {edge.provider}.{edge.service}: not sent, the run is stopping")
         spec = self.node.cls.uses[client]
         if not isinstance(request, spec.request):
             raise TypeError(f"client {client!r} sends {spec.request.TYPE}, got {type(request).__name__}")
@@ -461,7 +463,12 @@ class StageRuntime(StageContext):
                 offer(END)
 
     def fail(self, exc: BaseException, where: str) -> None:
-        """Record a stage failure as an error Event with traceback and tell the host."""
+        """Record a stage failure as an error Event with traceback and tell the host (a request the
+        stop refused is the stop's doing: noted as info, not a failure)."""
+        if isinstance(exc, RunStoppingError) and self._stop_event.is_set():
+            self.log.info("stage %s ended in %s: %s", self.name, where, exc)
+            self.event("info", "stopped", f"ended in {where}: {exc}")
+            return
         self.failed = True
         self.stats.errors += 1
         self.stats.state = "failed"

@@ -74,6 +74,11 @@ class ServiceTimeoutError(ServiceError):
     """No reply within the timeout."""
 
 
+class RunStoppingError(ServiceError):
+    """Not sent: the run is stopping (Ctrl-C, a failure, a stop request), so no new request goes out.
+    A stage that lets it escape ends quietly: the stop, not the stage, is what happened."""
+
+
 class StageContext:
     """The engine's side of a stage: publish, call services, raise events, read the clock.
 
