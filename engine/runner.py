@@ -34,6 +34,7 @@ from engine.clock import Clock, make_clock
 from engine.graph import Graph
 from engine.messages import Event
 from engine.runtime import StageRuntime, StageStats
+from engine.stage import Stage
 from engine.stage_host import MessageObserver
 
 log = logging.getLogger("vgr.runner")
@@ -369,6 +370,8 @@ class Runner:
         if self._bus is None:
             return
         self.stop_event.set()  # ends service pumps and idle readers; a failure only if stop_reason is set
+        if self.stop_reason:
+            self._halt_devices()
         self._wake_all()
         deadline = time.monotonic() + STOP_GRACE_S
         for rt in self.runtimes.values():
@@ -388,6 +391,22 @@ class Runner:
         self._tokens.clear()
         if self._own_bus:
             self._bus.close()
+
+    def _halt_devices(self) -> None:
+        """Motion stops first: every stage that drives a device halts it before anything else ends."""
+        for name, rt in self.runtimes.items():
+            stage = rt.stage
+            if stage is None or type(stage).halt is Stage.halt:
+                continue
+            try:
+                stage.halt()
+            except Exception as exc:  # the others must still be halted
+                log.exception("halting %s failed", name)
+                self.note_event(Event(level="error", code="halt_failed", stage=name, message=str(exc)))
+            else:
+                self.note_event(
+                    Event(level="warning", code="halted", stage=name, message=f"halted: {self.stop_reason}")
+                )
 
     def snapshot(self) -> list[StageStats]:
         """Live per-stage counters (for progress displays)."""

@@ -164,6 +164,11 @@ class Stage:
     def finish(self) -> None:
         """All inputs have ended: flush what is pending (outputs still open)."""
 
+    def halt(self) -> None:
+        """The run stops early (Ctrl-C, a failed stage, a stop request): stop the motion of the device
+        this stage drives, now. Called once, on the runner's thread, before the stages' threads are
+        joined and before ``teardown``; it must return quickly. Device stages override it."""
+
     def teardown(self) -> None:
         """Always called last, also after a failure; release devices here."""
 

@@ -157,6 +157,12 @@ class URRobot(Stage):
         self.driver = URDriver(p.ip, rtde_receive=rtde_receive, rtde_control=rtde_control, frequency_hz=p.frequency_hz)
         self._publish_state(self.driver.state())
 
+    def halt(self) -> None:
+        """The run stops early: decelerate the joints (stopJ) at once, whatever command is running."""
+        p: URRobotParams = self.params  # type: ignore[assignment]
+        if self.driver is not None and p.control:
+            self.driver.stop(p.stop_deceleration_rad_s2)
+
     def teardown(self) -> None:
         if self.driver is not None:
             self.driver.close()

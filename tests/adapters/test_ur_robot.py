@@ -365,6 +365,16 @@ def test_missing_sdk_names_the_extra_and_the_package(monkeypatch):
         stage.setup()
 
 
+def test_halt_decelerates_the_joints_at_once_and_only_with_control(ctl):
+    stage, _ = robot(ctl)
+    stage.halt()
+    assert ("stopJ", (2.0, False)) in ctl.calls and ctl.move_calls() == []
+    ctl.calls.clear()
+    stage, _ = robot(ctl, control=False)
+    stage.halt()  # read-only: there is no control interface to stop with, and nothing it commanded
+    assert not [c for c in ctl.calls if c[0] == "stopJ"]
+
+
 def test_teardown_stops_the_script_and_disconnects_once(ctl):
     stage, _ = robot(ctl)
     stage.teardown()

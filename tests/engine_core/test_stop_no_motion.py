@@ -53,3 +53,25 @@ def test_no_robot_move_is_sent_after_the_stop():
     # the refused request ends the stage quietly: no error, no traceback, the stop is what happened
     assert not [e for e in summary.events if e.level == "error"], summary.events
     assert not [s for s in summary.stages if s.state == "failed"]
+
+
+def test_an_early_stop_halts_the_device_stages_first_and_a_normal_end_does_not(monkeypatch):
+    from plugins.sim.stages.robot import SimRobot
+
+    order: list[str] = []
+    monkeypatch.setattr(SimRobot, "halt", lambda self: order.append("halt"), raising=False)
+    teardown = SimRobot.teardown
+    monkeypatch.setattr(SimRobot, "teardown", lambda self: (order.append("teardown"), teardown(self)))
+
+    obs = StopAfterMoves(2)
+    runner = Runner(graph_from(RECIPE), observers=[obs])
+    obs.runner = runner
+    summary = runner.run()
+    assert summary.outcome == "interrupted"
+    assert order == ["halt", "teardown"]  # motion stops before anything is torn down
+    (ev,) = [e for e in summary.events if e.code == "halted"]
+    assert ev.stage == "robot" and "interrupted (Ctrl-C)" in ev.message
+
+    order.clear()
+    summary = Runner(graph_from(RECIPE, ["campaign.n_poses=2"])).run()
+    assert summary.outcome == "ok" and order == ["teardown"]
