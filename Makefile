@@ -39,6 +39,7 @@ lint: install
 
 # Regenerate the golden recordings that CI replays (after an intended change of outputs).
 golden: install
+	rm -f recordings/*.mcap  # vgr never replaces a file: the goldens are made anew on purpose here
 	$(BIN)/vgr run recipes/demo.yaml -p source.n_points=400 -p source.frames=10 --record recordings/demo.mcap --no-progress
 	$(BIN)/vgr run recipes/sim_capture.yaml -p camera.intrinsics.width=160 -p camera.intrinsics.height=120 \
 	  -p camera.publish_depth=false -p start.count=2 --record recordings/sim_capture.mcap --no-progress
@@ -50,6 +51,7 @@ TEACH := eye_in_hand eye_to_hand planar_assembly
 templates: install
 	@mkdir -p runs
 	@for t in $(TEACH); do \
+	  rm -f runs/teach_$$t.mcap && \
 	  $(BIN)/vgr run recipes/teach/$${t}_teach.yaml --record runs/teach_$$t.mcap --no-progress && \
 	  $(BIN)/vgr template make --from-recording runs/teach_$$t.mcap --name $$t -o recipes/templates || exit 1; \
 	done

@@ -83,10 +83,10 @@ def default_path(recipe: str, process: str, directory: str | Path = "runs") -> P
 
 def resolve_path(settings: RecordSettings, recipe: str, process: str, override: str | None = None) -> Path:
     """Where this process records: *override* (``--record``) or ``record.path`` (a file, or a
-    directory), else runs/. A generated name (a directory or runs/) never reuses an existing file. A
-    recipe's ``record.path`` file is shared by all its processes, so processes other than ``main``
-    record beside it under ``<stem>-<process>``. An existing file is replaced only when the run ends
-    well (see :class:`Recorder`)."""
+    directory), else runs/. A generated name (a directory or runs/) never reuses an existing file,
+    and a named file that exists is refused (ValueError): a run never replaces what another run, or
+    the user, wrote. A recipe's ``record.path`` file is shared by all its processes, so processes
+    other than ``main`` record beside it under ``<stem>-<process>``."""
     target = override or settings.path
     generated = target is None or Path(target).is_dir() or target.endswith("/")
     if target is None:
@@ -97,6 +97,10 @@ def resolve_path(settings: RecordSettings, recipe: str, process: str, override: 
         path = Path(target)
         if override is None and process != "main":
             path = path.with_name(f"{path.stem}-{process}{path.suffix}")
+    if not generated and path.exists():
+        raise ValueError(
+            f"{path} exists: a run never replaces a file; name a new file, or a folder to get a new name in it"
+        )
     path.parent.mkdir(parents=True, exist_ok=True)
     return _unused(path) if generated else path
 

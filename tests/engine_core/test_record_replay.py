@@ -167,12 +167,26 @@ def test_damaged_or_foreign_files_give_clear_errors(tmp_path, capsys):
     assert "no such recording" in capsys.readouterr().err
 
 
-def test_recording_over_an_existing_file_replaces_it_only_when_the_run_ends_well(tmp_path):
-    """`--record FILE` on a golden that exists: the run records beside it and renames over it at a
-    good end; a failed run leaves the old file as it was and its own recording beside it."""
+def test_record_to_an_existing_file_is_refused_and_the_file_kept(tmp_path, capsys):
+    """`vgr run --record FILE` never replaces a file: exit 2 before the run, the file as it was."""
     golden = tmp_path / "golden.mcap"
     golden.write_bytes(b"the old golden")
-    assert main(["run", "recipes/demo.yaml", "-p", "source.frames=3", "--no-progress", "--record", str(golden)]) == 0
+    assert main(["run", "recipes/demo.yaml", "-p", "source.frames=3", "--no-progress", "--record", str(golden)]) == 2
+    assert "exists: a run never replaces a file" in capsys.readouterr().err
+    assert golden.read_bytes() == b"the old golden" and sorted(p.name for p in tmp_path.iterdir()) == ["golden.mcap"]
+
+
+def test_a_recorder_given_an_existing_file_replaces_it_only_when_the_run_ends_well(tmp_path):
+    """The library's Recorder (what `vgr replay --update` relies on for goldens) records beside an
+    existing file and renames over it at a good end; a failed run leaves the old file as it was."""
+    golden = tmp_path / "golden.mcap"
+    graph = graph_from(textwrap.dedent(PIPELINE.format(clock="sim")))
+    golden.write_bytes(b"the old golden")
+    assert (
+        Runner(graph, observers=[Recorder(golden, graph.recipe.record, graph.loaded, ["builtin", "stage_fixtures"])])
+        .run()
+        .ok
+    )
     assert load(golden).records and sorted(p.name for p in tmp_path.iterdir()) == ["golden.mcap"]
 
     golden.write_bytes(b"the old golden")
