@@ -10,6 +10,8 @@ one is, with each reading.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from frame_tree_helpers import ROBOT_FRAMES, record, sound_frame_tree
@@ -119,3 +121,14 @@ def test_a_streaming_tracker_puts_each_reading_on_the_frames(streaming):
         edge = f.transforms[1]
         assert (edge.frame_id, edge.child_frame_id) == ("lighthouse", "vive_tracker") and edge.stamp_ns == f.stamp_ns
         np.testing.assert_allclose(edge.T, pose.T, atol=1e-6)  # the reading itself (float32 quaternion aside)
+
+
+GOLDEN = sorted((Path(__file__).resolve().parents[2] / "recordings").glob("*.mcap"))
+
+
+@pytest.mark.parametrize("path", GOLDEN, ids=lambda p: p.stem)
+def test_every_shipped_recording_draws_one_tree_under_world(path):
+    """What Foxglove draws from a shipped recipe's recording: each frame one parent, every frame a
+    message names connected to ``world`` (the demo's cloud used to hang in an unconnected 'camera')."""
+    assert GOLDEN, "no recordings shipped"
+    sound_frame_tree(path)
