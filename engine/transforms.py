@@ -24,7 +24,7 @@ of the exponential map and the decoupled-perturbation Jacobians the solvers diff
 pytransform3d has Jacobians and adjoints too, but orders twists ``(w, v)`` and works one pose at a
 time, so adopting it would mean reordering every caller's twists and losing the batch forms.
 Robot-vendor 6-vectors (UR, ABB, KUKA) are not here: the robot adapters convert them
-(:mod:`plugins.actions.vendor_poses`).
+(:mod:`plugins.vendor_poses`).
 """
 
 from __future__ import annotations
@@ -266,7 +266,7 @@ def _left_coeffs(th: F64) -> tuple[F64, F64]:
 
 def _left_inv_coeffs(th: F64) -> tuple[F64, F64]:
     """``-1/2`` and ``1/t^2 - (1 + cos t) / (2 t sin t)``; -1/2 and 1/12 below 1e-6 rad."""
-    if th.ndim == 0:
+    if th.ndim == 0:  # one rotation: Python-float arithmetic, as the IK always computed it (bit for bit)
         t = float(th)
         return -0.5, 1.0 / 12.0 if t < 1e-6 else 1.0 / t**2 - (1.0 + np.cos(t)) / (2.0 * t * np.sin(t))
     small = th < 1e-6

@@ -62,9 +62,9 @@ def _stage_of(doc: dict[str, Any], types: str | tuple[str, ...]) -> str | None:
     return names[0] if names else None
 
 
-def robot_stage(recipe: Path, robot: str | None) -> tuple[str, Any]:
-    """(name, spec) of the recipe's robot stage: *robot*, else the one the first robot client uses."""
-    doc = load_recipe(str(recipe)).recipe
+def robot_stage(recipe: Path, doc: Any, robot: str | None) -> tuple[str, Any]:
+    """(name, spec) of the robot stage of *recipe* (loaded: *doc*): *robot*, else the one the first
+    robot client uses."""
     if robot is None:
         users = [s for s in doc.stages.values() if "robot" in s.uses]
         if not users:
@@ -111,9 +111,8 @@ def reach_problem(name: str, spec: Any, T_base_tcp: np.ndarray) -> str | None:
 
 def robot_pose(recipe: Path, robot: str | None) -> np.ndarray:
     """T_base_tcp reported by the recipe's robot stage (started alone, then closed)."""
-    loaded = load_recipe(str(recipe))
-    doc = loaded.recipe
-    robot, spec = robot_stage(recipe, robot)
+    doc = load_recipe(str(recipe)).recipe
+    robot, spec = robot_stage(recipe, doc, robot)
     cls = load_registry(doc.plugins).stage(spec.type)
     if "state" not in cls.services:
         raise TeachError(f"stage {robot!r} ({spec.type}) has no state service")
@@ -187,7 +186,8 @@ def cmd_teach(args: argparse.Namespace) -> int:
             if len(vals) != 6 or not np.all(np.isfinite(vals)):
                 raise TeachError("--pose must be 6 finite numbers x,y,z,rx,ry,rz (m, rotation vector rad)")
             T = T_from_ur(vals)
-            if (problem := reach_problem(*robot_stage(recipe, args.robot), T)) is not None:
+            name, spec = robot_stage(recipe, load_recipe(str(recipe)).recipe, args.robot)
+            if (problem := reach_problem(name, spec, T)) is not None:
                 raise TeachError(problem)
         else:
             T = robot_pose(recipe, args.robot)

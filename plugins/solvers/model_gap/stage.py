@@ -106,11 +106,10 @@ def gap_text(rep: dict) -> str:
     """The end-of-run answer: verdict, each effect added with its parameters and 1-sigma, the RMS."""
     parts = []
     for e in rep["effects_added"]:
-        values = ", ".join(
-            f"{k} = {v:.4g} ± {rep_std:.2g} {e['units'].get(k, '')}".rstrip()
-            for k, v in e["params"].items()
-            for rep_std in [e["param_std"].get(k, float("nan"))]
-        )
-        parts.append(f"{e.get('label') or e['name'] + '@' + e['where']} ({values})")
+        values = []
+        for k, v in e["params"].items():
+            sd = e["param_std"].get(k, float("nan"))
+            values.append(f"{k} = {v:.4g} ± {sd:.2g} {e['units'].get(k, '')}".rstrip())
+        parts.append(f"{e.get('label') or e['name'] + '@' + e['where']} ({', '.join(values)})")
     rms = f"RMS {rep['rms_before_mm']:.3f} -> {rep['rms_after_mm']:.3f} mm (noise {rep['noise_floor_mm']:.3f} mm)"
     return f"{rep['verdict']}: effects added: {'; '.join(parts) or 'none'}; {rms}"
