@@ -12,6 +12,7 @@ from scipy.stats import chi2
 from shared_data import SHARED
 
 from engine.transforms import T_from_Rt, inv, log_so3, pose_error
+from plugins.solvers.pose_lsq.stats import Identifiability, analyse_identifiability
 from plugins.solvers.tcp_camera import (
     TcpCameraData,
     TcpNoiseModel,
@@ -22,7 +23,7 @@ from plugins.solvers.tcp_camera import (
     save_tcp_json,
 )
 from plugins.solvers.tcp_camera.simulate import TRUE_P_FLANGE_TCP, simulate_tcp_camera, true_T_base_cam
-from plugins.solvers.tcp_camera.solver import cramer_rao_bound
+from plugins.solvers.tcp_camera.solver import PARAM_NAMES, _null_space_issue, _Problem, cramer_rao_bound
 
 MOVEIT = SHARED / "moveit_calibration" / "pose_samples.json"
 
@@ -108,6 +109,28 @@ def test_collinear_tcp_positions_leave_the_camera_roll_unobservable():
     assert res.verdict == "degenerate"
     assert any("camera-to-base rotation about" in r for r in res.reasons)
     assert any("two non-parallel directions" in a for a in res.advice)
+    assert any("the whole TCP point" in r for r in res.reasons)
+
+
+@given(st.integers(0, 2**32 - 1))
+@settings(max_examples=20, deadline=None)
+def test_degenerate_message_does_not_depend_on_which_null_space_basis_the_svd_returned(seed):
+    """A 4-dimensional null space has no unique basis: another LAPACK build may return any
+    rotation of it. The message must name the same unobservable directions for every basis."""
+    R0 = Rotation.from_euler("x", 180, degrees=True).as_matrix()
+    T = np.array([T_from_Rt(R0, [0.4 + 0.05 * k, 0.0, 0.3]) for k in range(6)])
+    p_cam = np.array([(inv(true_T_base_cam()) @ Ti @ np.append(TRUE_P_FLANGE_TCP, 1))[:3] for Ti in T])
+    problem = _Problem(
+        TcpCameraData.from_arrays(T, p_cam, noise=TcpNoiseModel()), inv(true_T_base_cam()), TRUE_P_FLANGE_TCP
+    )
+    J = problem.residual_and_jacobian(np.zeros(9))[1]
+    ident = analyse_identifiability(J, PARAM_NAMES, np.full(9, 1e-3))
+    assert ident.null_space.shape[0] == 4
+    Q = np.linalg.qr(np.random.default_rng(seed).normal(size=(4, 4)))[0]  # any orthonormal mixing
+    mixed = Identifiability(ident.rank, ident.n_params, ident.singular_values, Q @ ident.null_space)
+    msg = _null_space_issue(mixed).message
+    assert "the whole TCP point" in msg and "camera-to-base rotation about camera axis" in msg
+    assert "[-0.09, +0.87, -0.49]" in msg or "[+0.09, -0.87, +0.49]" in msg
 
 
 def test_displaced_sample_is_flagged_and_a_robust_loss_limits_its_damage():

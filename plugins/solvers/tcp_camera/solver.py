@@ -211,9 +211,21 @@ def _flag_outliers(data: TcpCameraData, problem: _Problem, th: TcpThresholds) ->
 
 def _null_space_issue(ident: Identifiability) -> Issue:
     msgs, advice = [], []
-    for v in ident.null_space:
+    null = np.atleast_2d(ident.null_space)
+    # A null space of dimension > 1 has no unique basis (LAPACK builds may return any rotation of
+    # it); rotate it so that its rows are ordered by how much TCP they carry, which separates the
+    # TCP directions from the camera-rotation one whatever basis the SVD returned.
+    U = np.linalg.svd(null[:, 6:9], full_matrices=True)[0]
+    null = U.T @ null
+    n_tcp = int(sum(np.linalg.norm(v[6:9]) > 0.5 for v in null))
+    if n_tcp == 3:
+        msgs.append("the whole TCP point (the flange orientation never changed)")
+        advice.append("add poses rotated about two different axes (>= 20 deg each)")
+    for v in null:
         rot, tcp = v[3:6], v[6:9]
         if np.linalg.norm(tcp) > 0.5:
+            if n_tcp == 3:
+                continue
             d = tcp / np.linalg.norm(tcp)
             msgs.append(
                 "the TCP component along flange axis "
