@@ -14,6 +14,7 @@ import signal
 import sys
 import threading
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 from rich.console import Console
@@ -21,7 +22,7 @@ from rich.live import Live
 from rich.markup import escape
 from rich.table import Table
 
-from engine import cli_recording
+from engine import cli_recording, run_folder
 from engine.errors import RecipeError
 from engine.graph import Graph, build_graph
 from engine.plugin_manager import PluginError, Registry, load_registry
@@ -64,11 +65,13 @@ def _stats_table(stats: Sequence[StageStats], title: str) -> Table:
 
 def print_summary(summary: RunSummary) -> None:
     out.print(_stats_table(summary.stages, f"run {summary.run_id} ({summary.process}) in {summary.wall_s:.2f} s"))
+    folder = summary.artifacts.get("run folder")  # files stages name are relative to it
     for ev in summary.events:
         if ev.level == "result":  # a stage's report for people: its text, then the files it wrote
             out.print(f"[bold green]{ev.stage}[/]: {escape(ev.message)}", soft_wrap=True, highlight=False)
             for label, path in (ev.details.get("files") or {}).items():
-                out.print(f"  {label}: {escape(str(path))}", highlight=False, soft_wrap=True)
+                where = Path(folder, path) if folder and not Path(path).is_absolute() else Path(path)
+                out.print(f"  {label}: {escape(str(where))}", highlight=False, soft_wrap=True)
             continue
         colour = "yellow" if ev.level == "warning" else "red"
         out.print(f"[{colour}]{ev.level}[/] {ev.stage}: {escape(f'[{ev.code}] {ev.message}')}", soft_wrap=True)
@@ -133,19 +136,28 @@ def cmd_run(args: argparse.Namespace) -> int:
         recipe.processes[args.process] = ProcessSettings(
             listen=args.listen or over.listen, connect=args.connect or over.connect
         )
-    from engine.cli_recording import make_recorder
+    from engine.cli_recording import recording_path
+    from engine.recorder import Recorder
 
-    recorder = make_recorder(args, graph, registry)
-    observers = [recorder] if recorder is not None else []
+    run_id = args.run_id or recipe.run_id or recipe.name
+    if args.record:  # a named recording that exists is refused before anything is created
+        recording_path(args, graph, None)
+    run_dir = run_folder.create(args.runs_dir, run_folder.run_name(run_id, args.process))
+    run_folder.write_recipe(run_dir, graph.loaded)
+    path = recording_path(args, graph, run_dir)
+    observers = [Recorder(path, recipe.record, graph.loaded, registry.plugins)] if path is not None else []
     runner = Runner(
         graph,
         process=args.process,
-        run_id=args.run_id,
+        run_id=run_id,
         observers=observers,
         ready_timeout_s=args.ready_timeout,
         freeze_gc=args.own_process,  # the command's own process (not a caller's, e.g. a test): see Runner
+        run_dir=run_dir,
     )
-    summary = run_with_progress(runner, show=not args.no_progress and console.is_terminal)
+    with run_folder.logging_to(run_dir):
+        summary = run_with_progress(runner, show=not args.no_progress and console.is_terminal)
+    summary.artifacts["run folder"] = str(run_dir)
     if args.json:
         out.print_json(json.dumps(_summary_dict(summary)))
     else:
@@ -345,6 +357,9 @@ def _main(argv: list[str], own_process: bool = False) -> int:
     args.own_process = own_process
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    for handler in logging.getLogger().handlers:  # the console shows *level*, whatever a run's log file takes
+        if type(handler) is logging.StreamHandler:
+            handler.setLevel(level)
     try:
         return int(args.func(args) or 0)
     except RecipeError as exc:

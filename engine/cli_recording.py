@@ -6,69 +6,108 @@ import argparse
 import json
 import sys
 from datetime import UTC, datetime
-from typing import Any
+from pathlib import Path
 
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from engine import run_folder
 from engine.graph import Graph
-from engine.plugin_manager import Registry
 
 out = Console(width=None if sys.stdout.isatty() else 160)
-EXIT_OK, EXIT_DIFFERENT, EXIT_INVALID = 0, 1, 2
+EXIT_OK, EXIT_INVALID = 0, 2
 
 
-def make_recorder(args: argparse.Namespace, graph: Graph, registry: Registry) -> Any:
-    """The Recorder for ``vgr run`` (None with --no-record or ``record.enabled: false``)."""
-    from engine.recorder import Recorder, resolve_path
+def recording_path(args: argparse.Namespace, graph: Graph, run_dir: Path | None) -> Path | None:
+    """Where ``vgr run`` records (None with --no-record or ``record.enabled: false``); ValueError
+    when ``--record`` / ``record.path`` names a file that exists."""
+    from engine.recorder import resolve_path
 
     settings = graph.recipe.record
     if getattr(args, "no_record", False) or (not settings.enabled and not getattr(args, "record", None)):
         return None
-    path = resolve_path(settings, graph.recipe.name, args.process, getattr(args, "record", None))
-    return Recorder(path, settings, graph.loaded, registry.plugins)
+    return resolve_path(settings, graph.recipe.name, args.process, getattr(args, "record", None), run_dir)
 
 
 def add_run_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--record", metavar="PATH", help="record to this file or directory (default runs/)")
+    p.add_argument(
+        "--record", metavar="PATH", help="record to this new file, or into this folder (default: the run folder)"
+    )
     p.add_argument("--no-record", action="store_true", help="do not record this run")
+    p.add_argument(
+        "--runs-dir",
+        metavar="DIR",
+        default=run_folder.DEFAULT_PARENT,
+        help="make the run's folder (recording, reports, log, recipe) in DIR (default runs/)",
+    )
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
     from engine.diff import DIFFERENT, IDENTICAL, WITHIN
     from engine.replay import replay, write_updated
+    from engine.runner import OUTCOME_EXIT_CODES
 
     speed = None if args.speed in (None, "max") else float(args.speed)
     stages = [s for s in (args.stages or "").split(",") if s] or None
-    report, rec, graph = replay(args.file, recipe=args.recipe, overrides=args.param or [], stages=stages, speed=speed)
-    t = Table(title=f"replay of {args.file}: re-ran {', '.join(report.rerun) or 'nothing'}", title_justify="left")
-    for col in ("topic", "recorded", "replayed", "verdict", "first difference"):
-        t.add_column(col, overflow="fold")
-    colour = {IDENTICAL: "green", WITHIN: "yellow", DIFFERENT: "red"}
-    for v in (*report.streams, *report.requests):
-        extra = v.first_difference or (f"max |diff| {v.max_abs_diff:.3g}" if v.verdict == WITHIN else "")
-        t.add_row(
-            escape(v.topic),
-            str(v.recorded),
-            str(v.replayed),
-            f"[{colour.get(v.verdict, '')}]{v.verdict}[/]",
-            escape(extra),
-        )
-    out.print(t)
-    for v in (*report.streams, *report.requests):
-        if v.verdict == DIFFERENT:
-            out.print(f"[red]different[/] {escape(v.first_difference)}", highlight=False, soft_wrap=True)
-    for f in report.failures:
-        out.print(f"[red]stage failure during replay[/]: {escape(f)}", highlight=False)
-    counts = {k: sum(1 for v in (*report.streams, *report.requests) if v.verdict == k) for k in colour}
-    out.print(f"{counts[IDENTICAL]} identical, {counts[WITHIN]} within tolerance, {counts[DIFFERENT]} different")
+    run_dir = run_folder.create(args.runs_dir, f"replay-{Path(args.file).stem}")
+    try:
+        with run_folder.logging_to(run_dir):
+            report, rec, graph = replay(
+                args.file, recipe=args.recipe, overrides=args.param or [], stages=stages, speed=speed, run_dir=run_dir
+            )
+    except BaseException:
+        run_folder.remove_if_unused(run_dir)
+        raise
+    run_folder.write_recipe(run_dir, graph.loaded)
+    verdicts = (*report.streams, *report.requests)
+    recorded = rec.metadata.get("vgr.summary", {}).get("outcome", "")
+    doc = {
+        "recording": str(args.file),
+        "outcome": report.outcome,
+        "exit_code": OUTCOME_EXIT_CODES[report.outcome],
+        "recorded_outcome": recorded,
+        "rerun": report.rerun,
+        "failures": report.failures,
+        "alarms": report.alarms,
+        "streams": [vars(v) for v in verdicts],
+        "run_folder": str(run_dir),
+    }
+    (run_dir / "replay.json").write_text(json.dumps(doc, indent=2, default=str))
+    if args.json:
+        out.print_json(json.dumps(doc, default=str))
+    else:
+        t = Table(title=f"replay of {args.file}: re-ran {', '.join(report.rerun) or 'nothing'}", title_justify="left")
+        for col in ("topic", "recorded", "replayed", "verdict", "first difference"):
+            t.add_column(col, overflow="fold")
+        colour = {IDENTICAL: "green", WITHIN: "yellow", DIFFERENT: "red"}
+        for v in verdicts:
+            extra = v.first_difference or (f"max |diff| {v.max_abs_diff:.3g}" if v.verdict == WITHIN else "")
+            t.add_row(
+                escape(v.topic),
+                str(v.recorded),
+                str(v.replayed),
+                f"[{colour.get(v.verdict, '')}]{v.verdict}[/]",
+                escape(extra),
+            )
+        out.print(t)
+        for v in verdicts:
+            if v.verdict == DIFFERENT:
+                out.print(f"[red]different[/] {escape(v.first_difference)}", highlight=False, soft_wrap=True)
+        for f in report.failures:
+            out.print(f"[red]stage failure during replay[/]: {escape(f)}", highlight=False)
+        for a in report.alarms:
+            out.print(f"[red]alarm[/] {escape(a)}", highlight=False, soft_wrap=True)
+        counts = {k: sum(1 for v in verdicts if v.verdict == k) for k in colour}
+        out.print(f"{counts[IDENTICAL]} identical, {counts[WITHIN]} within tolerance, {counts[DIFFERENT]} different")
+        out.print(f"replay folder: {escape(str(run_dir))}", highlight=False, soft_wrap=True)
+        out.print(f"outcome: {report.outcome} (recorded run: {recorded or 'not recorded'})", highlight=False)
     if args.update:
         changed = bool(args.recipe or args.param)
         path = write_updated(report, rec, args.file, graph.loaded.text if changed else None, graph.loaded.overrides)
         out.print(f"[yellow]golden recording rewritten[/]: {path}")
         return EXIT_OK
-    return EXIT_OK if report.ok else EXIT_DIFFERENT
+    return OUTCOME_EXIT_CODES[report.outcome]
 
 
 def _ns(t: int) -> str:
@@ -138,6 +177,13 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg
     p.add_argument("--stages", help="comma-separated stages to re-run (default: all but sources/sensors/devices)")
     p.add_argument("--speed", default="max", help="'max' (default) or a factor of real time, e.g. 1")
     p.add_argument("--update", action="store_true", help="rewrite the recording with the replayed outputs (new golden)")
+    p.add_argument("--json", action="store_true", help="print the outcome and every stream's verdict as JSON")
+    p.add_argument(
+        "--runs-dir",
+        metavar="DIR",
+        default=run_folder.DEFAULT_PARENT,
+        help="make the replay's folder (its log, recipe, verdicts and stage files) in DIR (default runs/)",
+    )
     p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("inspect", help="topics, counts, rates, time span, recipe and versions of a recording")

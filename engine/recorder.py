@@ -1,7 +1,7 @@
 """Recording a run to MCAP: every message, service exchange and delivery, with the recipe and versions.
 
-One file per process: ``runs/<YYYYmmdd-HHMMSS>-<recipe>.mcap`` (``-<process>`` appended for
-processes other than ``main``), or the recipe's ``record.path``. Contents:
+One file per process: ``<recipe>.mcap`` in the run's folder (engine.run_folder), or the file
+``--record`` / the recipe's ``record.path`` names. Contents:
 
 * a channel per output port, topic ``/<stage>/<port>``, protobuf-encoded with the message's schema
   (Foxglove schemas for geometry, so Foxglove shows the 3D view); ``sequence`` = the message's seq,
@@ -81,15 +81,20 @@ def default_path(recipe: str, process: str, directory: str | Path = "runs") -> P
     return Path(directory) / f"{stamp}-{recipe}{suffix}.mcap"
 
 
-def resolve_path(settings: RecordSettings, recipe: str, process: str, override: str | None = None) -> Path:
+def resolve_path(
+    settings: RecordSettings, recipe: str, process: str, override: str | None = None, run_dir: Path | None = None
+) -> Path:
     """Where this process records: *override* (``--record``) or ``record.path`` (a file, or a
-    directory), else runs/. A generated name (a directory or runs/) never reuses an existing file,
-    and a named file that exists is refused (ValueError): a run never replaces what another run, or
-    the user, wrote. A recipe's ``record.path`` file is shared by all its processes, so processes
-    other than ``main`` record beside it under ``<stem>-<process>``."""
+    directory), else ``<run_dir>/<recipe>.mcap`` (engine.run_folder), else runs/. A generated name
+    (a directory or runs/) never reuses an existing file, and a named file that exists is refused
+    (ValueError): a run never replaces what another run, or the user, wrote. A recipe's
+    ``record.path`` file is shared by all its processes, so processes other than ``main`` record
+    beside it under ``<stem>-<process>``."""
     target = override or settings.path
     generated = target is None or Path(target).is_dir() or target.endswith("/")
-    if target is None:
+    if target is None and run_dir is not None:
+        path = Path(run_dir) / f"{recipe}.mcap"
+    elif target is None:
         path = default_path(recipe, process)
     elif generated:
         path = default_path(recipe, process, Path(target))

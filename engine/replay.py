@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import logging
+import tempfile
 import time
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
@@ -60,10 +61,20 @@ class ReplayReport:
     failures: list[str] = field(default_factory=list)
     outputs: dict[str, list[Output]] = field(default_factory=dict)
     requests_sent: dict[tuple[str, str], list[tuple[int, bytes]]] = field(default_factory=dict)
+    alarms: list[str] = field(default_factory=list)  # "<stage>: [code] message" of the replayed run
 
     @property
     def ok(self) -> bool:
         return all(v.verdict != DIFFERENT for v in (*self.streams, *self.requests))
+
+    @property
+    def outcome(self) -> str:
+        """The replay's outcome, named as a run's (engine.runner.RunSummary.outcome): ``failed`` when
+        a stage failed or an output differs from the recording, ``refused`` when the replayed run
+        raised an alarm (its job was refused, as it may have been when recorded), else ``ok``."""
+        if self.failures or not self.ok:
+            return "failed"
+        return "refused" if self.alarms else "ok"
 
 
 def _find_recipe_dir(recipe_file: str, recording: Path) -> Path | None:
@@ -87,6 +98,7 @@ class _ReplayContext(StageContext):
         recipe_dir = _find_recipe_dir(recipe_file, replayer.rec.path)
         log = logging.getLogger(f"vgr.replay.{node.name}")
         super().__init__(node.name, replayer.run_id, replayer.graph.recipe.seed, replayer.clock, log, recipe_dir)
+        self.run_dir = replayer.run_dir  # the replay's own folder: what a stage writes never lands in the run's
         self.replayer = replayer
         self.node = node
         self.seq: dict[str, int] = defaultdict(int)
@@ -127,14 +139,18 @@ class _ReplayContext(StageContext):
 
     def event(self, level: str, code: str, message: str, **details: Any) -> None:
         tb = details.pop("traceback", "")
+        details = self.files_in_run(details)
         self.publish(
             EVENTS_PORT, Event(level=level, code=code, stage=self.name, message=message, traceback=tb, details=details)
         )
 
 
 class Replayer:
-    def __init__(self, rec: Recording, graph: Graph, rerun: list[str], speed: float | None = None) -> None:
+    def __init__(
+        self, rec: Recording, graph: Graph, rerun: list[str], speed: float | None = None, run_dir: Path | None = None
+    ) -> None:
         self.rec = rec
+        self.run_dir = run_dir
         self.graph = graph
         self.rerun = rerun
         self.speed = speed
@@ -204,6 +220,18 @@ class Replayer:
         ctx.event("error", "stage_exception", text, traceback="".join(traceback.format_exception(exc)), where=where)
 
     def run(self) -> ReplayReport:
+        """Re-run the stages over the recording; without a run folder, stages write their files in
+        a temporary one, removed at the end (they must behave as in the recorded run)."""
+        if self.run_dir is not None:
+            return self._run()
+        with tempfile.TemporaryDirectory(prefix="vgr-replay-") as scratch:
+            self.run_dir = Path(scratch)
+            try:
+                return self._run()
+            finally:
+                self.run_dir = None
+
+    def _run(self) -> ReplayReport:
         playback: dict[tuple[str, int], RecordedMessage] = {}
         recorded_out: dict[str, list[RecordedMessage]] = defaultdict(list)
         rerun = set(self.rerun)
@@ -330,7 +358,19 @@ class Replayer:
             list(self.failures),
             dict(self.outputs),
             dict(self.requests_sent),
+            self._alarms(),
         )
+
+    def _alarms(self) -> list[str]:
+        """Alarms of the replayed run: those the re-run stages raised now, the others' as recorded."""
+        events: list[Any] = []
+        for topic, outs in self.outputs.items():
+            if topic.endswith(f"/{EVENTS_PORT}"):
+                events += [o.msg for o in outs]
+        for r in self.rec.records:
+            if r[0] == "msg" and r[1].stage not in self.stages and r[1].topic.endswith(f"/{EVENTS_PORT}"):
+                events.append(codec.decode_payload(Event, r[1].payload))
+        return [f"{e.stage}: [{e.code}] {e.message}" for e in events if e.level == "alarm"]
 
     def _all_exchanges(self, caller: str, client: str) -> list[Exchange]:
         return [r[1] for r in self.rec.records if r[0] == "svc" and r[1].caller == caller and r[1].client == client]
@@ -354,8 +394,10 @@ def replay(
     stages: list[str] | None = None,
     speed: float | None = None,
     registry: Registry | None = None,
+    run_dir: Path | None = None,
 ) -> tuple[ReplayReport, Recording, Graph]:
-    """Replay *path*; *recipe* replaces the recorded recipe (e.g. a changed solver parameter)."""
+    """Replay *path*; *recipe* replaces the recorded recipe (e.g. a changed solver parameter).
+    Stages that write files write them in *run_dir* (the replay's folder), none without one."""
     rec = load(path)
     if recipe is not None:
         loaded = load_recipe(recipe, overrides)
@@ -374,7 +416,7 @@ def replay(
         rerun = [n for n in graph.order if n in stages]
     else:
         rerun = default_rerun(graph, process)
-    report = Replayer(rec, graph, rerun, speed).run()
+    report = Replayer(rec, graph, rerun, speed, run_dir).run()
     return report, rec, graph
 
 

@@ -21,12 +21,14 @@ import contextlib
 import gc
 import json
 import logging
+import tempfile
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from functools import partial
+from pathlib import Path
 from typing import Any
 
 from engine.bus import Bus, active_key, control_key, ready_key, started_key
@@ -114,6 +116,7 @@ class Runner:
         ready_timeout_s: float = 15.0,
         bus: Bus | None = None,
         freeze_gc: bool = False,
+        run_dir: Path | None = None,
     ) -> None:
         recipe = graph.recipe
         if process not in graph.processes():
@@ -124,6 +127,9 @@ class Runner:
         self.graph = graph
         self.process = process
         self.run_id = run_id or recipe.run_id or recipe.name
+        # the run's folder (engine.run_folder): stages write their files there; None: a temporary
+        # folder, removed at the end (a run made as a library call keeps no files unless asked)
+        self.run_dir = run_dir
         self.seed = recipe.seed
         self.clock = clock or make_clock(recipe.clock)
         self.observers = list(observers or [])
@@ -203,14 +209,18 @@ class Runner:
     def run(self) -> RunSummary:
         """Run to completion (or stop) and return the summary; RunError if the run cannot start."""
         t0 = time.monotonic()
-        try:
+        log.info("run %s of recipe %s, process %s: starting", self.run_id, self.graph.recipe.name, self.process)
+        with contextlib.ExitStack() as scratch:
+            if self.run_dir is None:  # stages write as in any run; what they write is not kept
+                self.run_dir = Path(scratch.enter_context(tempfile.TemporaryDirectory(prefix="vgr-run-")))
             try:
-                self._start()
-                self._wait_until_done()
-            except KeyboardInterrupt:
-                self.stop("interrupted (Ctrl-C)")
-        finally:
-            self._shutdown()
+                try:
+                    self._start()
+                    self._wait_until_done()
+                except KeyboardInterrupt:
+                    self.stop("interrupted (Ctrl-C)")
+            finally:
+                self._shutdown()
         ok = not self.failed_stages and self.stop_reason is None
         summary = RunSummary(
             self.run_id,
@@ -224,6 +234,7 @@ class Runner:
         )
         for obs in self.observers:
             obs.on_finish(self, summary)
+        log.info("run %s ended: %s in %.2f s", self.run_id, summary.outcome, summary.wall_s)
         return summary
 
     def _start(self) -> None:

@@ -102,6 +102,7 @@ class StageRuntime(StageContext):
         recipe_dir = path.resolve().parent if path is not None and path.is_file() else None
         log = logging.getLogger(f"vgr.stage.{node.name}")
         super().__init__(node.name, host.run_id, host.seed, host.clock, log, recipe_dir)
+        self.run_dir = host.run_dir
         self.host = host
         self.node = node
         self.lock = threading.RLock()  # serialises the stage's handlers
@@ -214,6 +215,7 @@ class StageRuntime(StageContext):
 
     def event(self, level: str, code: str, message: str, **details: Any) -> None:
         tb = details.pop("traceback", "")
+        details = self.files_in_run(details)
         ev = Event(level=level, code=code, stage=self.name, message=message, traceback=tb, details=details)
         self.host.note_event(ev)
         out = self.outputs.get(EVENTS_PORT)

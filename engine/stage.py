@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Literal, get_args, get_origin
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
+from engine import run_folder
 from engine.messages import Message
 
 if TYPE_CHECKING:
@@ -93,6 +94,7 @@ class StageContext:
     clock: Clock
     log: logging.Logger
     recipe_dir: Path | None = None  # folder of the recipe file: relative paths in parameters start here
+    run_dir: Path | None = None  # this run's folder (engine.run_folder); None when used as a library
 
     def __init__(
         self, name: str, run_id: str, seed: int, clock: Clock, log: logging.Logger, recipe_dir: Path | None
@@ -102,6 +104,25 @@ class StageContext:
         self.name, self.run_id, self.seed = name, run_id, seed
         self.rng = stage_rng(seed, name)
         self.clock, self.log, self.recipe_dir = clock, log, recipe_dir
+        self._output_dirs: dict[str, Path | None] = {}
+
+    def files_in_run(self, details: dict[str, Any]) -> dict[str, Any]:
+        """*details* of an event with its ``files`` named relative to the run folder when inside it."""
+        files = details.get("files")
+        if files and self.run_dir is not None:
+            details["files"] = {k: run_folder.relative(self.run_dir, v) for k, v in files.items()}
+        return details
+
+    def output_dir(self, named: str | Path | None = None) -> Path | None:
+        """The folder this stage writes its files in (created on first use), or None for none.
+
+        *named* is the stage's own parameter (e.g. ``report_dir``): unset, the stage's folder in the
+        run folder; relative, a folder inside the run folder; absolute, the user's new or empty
+        folder (engine.run_folder.output_dir says the rules; OutputDirError when they are broken)."""
+        key = "" if named is None else str(named)
+        if key not in self._output_dirs:
+            self._output_dirs[key] = run_folder.output_dir(self.run_dir, self.name, named)
+        return self._output_dirs[key]
 
     def publish(self, port: str, msg: Message) -> None:
         """Publish *msg* on output *port* (seq and, if unset, stamp are filled in)."""
@@ -119,7 +140,8 @@ class StageContext:
         """Publish an Event (debug/info/result/warning/error/alarm) on this stage's ``events`` port.
 
         ``result`` is the stage's report for people (kept in the run summary, printed by ``vgr run``);
-        ``details["files"]`` may name the files it wrote ({label: path})."""
+        ``details["files"]`` may name the files it wrote ({label: path}); those in the run folder are
+        recorded relative to it, so a run and its replay name them alike."""
         raise NotImplementedError
 
     @property

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 if TYPE_CHECKING:
     import threading
+    from pathlib import Path
 
     from engine.bus import Bus
     from engine.clock import Clock
@@ -65,6 +66,7 @@ class StageHost(Protocol):
 
     graph: Graph
     run_id: str
+    run_dir: Path | None  # the run's folder (engine.run_folder), None when there is none
     seed: int
     clock: Clock
     stop_event: threading.Event  # set once the run stops

@@ -1,12 +1,12 @@
 """``guidance_report``: the run summary a technician reads after a guidance + docking run.
 
 A sink wired to a guidance stage's ``result`` and the docking stage's ``correction``. For each job
-it writes, under ``report_dir``:
+it writes, in its folder of the run folder (``runs/<run>/<stage>/``, or ``report_dir``: see
+engine/run_folder.py):
 
-* ``<run>-<stage>-job<k>.json``: verdicts, residual per look (mm, deg), moves, the correction the
-  guidance found (T_start -> T_end) and the docking correction;
-* ``<run>-<stage>-job<k>.png``: the convergence plot (residual per look against the tolerances,
-  log scale);
+* ``job<k>.json``: verdicts, residual per look (mm, deg), moves, the correction the guidance found
+  (T_start -> T_end) and the docking correction;
+* ``job<k>.png``: the convergence plot (residual per look against the tolerances, log scale);
 
 and raises a ``result`` event whose text is the table ``vgr run`` prints at the end.
 """
@@ -110,7 +110,9 @@ class GuidanceReport(Stage):
     inputs: ClassVar = {"guidance": GuidanceResult, "correction": Correction}
 
     class Params(StageParams):
-        report_dir: str = Field("runs/reports", description="folder for the JSON and PNG files")
+        report_dir: str | None = Field(
+            None, description="folder for the JSON and PNG files (default: the stage's folder in the run folder)"
+        )
         translation_tol_mm: float | None = Field(
             None, gt=0.0, description="tolerance drawn on the plot; default: the one guidance used"
         )
@@ -133,16 +135,17 @@ class GuidanceReport(Stage):
     def _report(self, g: GuidanceResult, c: Correction | None) -> None:
         p: GuidanceReport.Params = self.params  # type: ignore[assignment]
         doc = report_dict(g, c)
-        folder = Path(p.report_dir)
-        folder.mkdir(parents=True, exist_ok=True)
-        stem = folder / f"{self.ctx.run_id}-{self.ctx.name}-job{g.job}"
-        files = {"report": str(stem.with_suffix(".json"))}
-        stem.with_suffix(".json").write_text(json.dumps(doc, indent=2))
+        folder = self.ctx.output_dir(p.report_dir)
+        stem = folder / f"job{g.job}" if folder is not None else None
+        files: dict[str, str] = {}
+        if stem is not None:
+            files["report"] = str(stem.with_suffix(".json"))
+            stem.with_suffix(".json").write_text(json.dumps(doc, indent=2))
         # the tolerances guidance converged against (a result from before they travelled: its defaults)
         defaults = Guidance.Params.model_fields
         tol_mm = p.translation_tol_mm or g.translation_tol_mm or defaults["translation_tol_mm"].default
         tol_deg = p.rotation_tol_deg or g.rotation_tol_deg or defaults["rotation_tol_deg"].default
-        if p.plot and doc["looks"]:
+        if stem is not None and p.plot and doc["looks"]:
             plot_convergence(doc, tol_mm, tol_deg, stem.with_suffix(".png"))
             files["convergence plot"] = str(stem.with_suffix(".png"))
         text = report_text(doc, tol_mm, tol_deg)

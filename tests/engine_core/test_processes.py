@@ -136,7 +136,7 @@ stages:
         text=True,
     )
     deadline = time.monotonic() + 60  # wait until the run is under way (its recording exists)...
-    while not list((tmp_path / "runs").glob("*.mcap")) and time.monotonic() < deadline and p.poll() is None:
+    while not list((tmp_path / "runs").glob("*/*.mcap")) and time.monotonic() < deadline and p.poll() is None:
         time.sleep(0.1)
     time.sleep(1.0)  # ...and messages flow
     p.send_signal(signal.SIGINT)

@@ -177,3 +177,17 @@ def test_remaking_a_template_that_fails_midway_keeps_the_old_one(tmp_path, captu
     assert {f.name: f.read_bytes() for f in path.iterdir()} == before
     assert len(load_template(path).points) == len(tmpl.points)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in_use.vgrtpl"]  # no .partial / .old left
+
+
+def test_template_from_a_recording_names_the_point_cloud_topics_that_hold_messages(tmp_path):
+    from plugins.solvers.registration.cli import _from_recording
+    from plugins.solvers.registration.validation import InvalidInputError
+
+    rec = "recordings/sim_capture.mcap"
+    with pytest.raises(InvalidInputError) as e:
+        _from_recording(rec, "/capture/clouds", "/capture/pose", 0)
+    msg = str(e.value)
+    assert "has no topic /capture/clouds" in msg and "/capture/cloud (2)" in msg
+    assert "/robot/" not in msg  # only point-cloud topics are offered, with their message counts
+    points, T = _from_recording(rec, "/capture/cloud", "/capture/pose", 0)
+    assert points.shape[1] == 3 and T.shape == (4, 4)

@@ -4,8 +4,9 @@ Collects the robot's ``joint_state`` stream and the ``measurement`` stream (Trac
 measured tool point in the sensor frame), pairs them by stamp when both have ended
 (:func:`.data.pair_streams`), runs the workflow and publishes the outcome on ``result`` (a
 CalibrationResult message: kind ``model_gap``, verdict ``explained`` | ``explained_up_to_tie`` |
-``unexplained`` | ``no_gap``, metrics in mm, the whole ``gap_report.json`` in ``result_json``). With
-``report_dir`` it also writes the report, the figures and the augmented model files there. Bad or
+``unexplained`` | ``no_gap``, metrics in mm, the whole ``gap_report.json`` in ``result_json``). It
+writes the report, the figures and the augmented model files in its folder of the run folder (or
+``report_dir``: engine/run_folder.py says where a named folder lies). Bad or
 insufficient data do not raise: the stage publishes verdict ``failed`` with the reason and an
 ``error``-free ``warning`` event.
 """
@@ -13,7 +14,6 @@ insufficient data do not raise: the stage publishes verdict ``failed`` with the 
 from __future__ import annotations
 
 import json
-from pathlib import Path
 from typing import ClassVar
 
 from pydantic import Field
@@ -41,7 +41,10 @@ class ModelGap(Stage):
         model: str = Field("ur5e", description="shipped robot name, robot model file or augmented model file")
         noise_mm: float = Field(gt=0.0, description="measurement noise, 1 sigma per axis (mm)")
         calibrate: list[str] = Field(["frame", "tool"], description="baseline calibration: frame, tool, joints")
-        report_dir: str | None = Field(None, description="write gap_report.json, figures and models here")
+        report_dir: str | None = Field(
+            None,
+            description="folder for gap_report.json, figures and models (default: the stage's run folder)",
+        )
         max_effects: int = Field(4, ge=0, le=20)
         alpha: float = Field(1e-3, gt=0.0, lt=0.5, description="family-wise false-positive rate per round")
         cv_folds: int = Field(5, ge=2, le=20)
@@ -75,7 +78,7 @@ class ModelGap(Stage):
                 data,
                 noise_mm=p.noise_mm,
                 calibrate=tuple(p.calibrate),
-                report_dir=p.report_dir,
+                report_dir=self.ctx.output_dir(p.report_dir),
                 config=cfg,
                 families=families,
             )
@@ -87,7 +90,8 @@ class ModelGap(Stage):
         metrics = {k: float(rep[k]) for k in ("rms_before_mm", "rms_after_mm", "noise_floor_mm")}
         metrics["effects_added"] = float(len(rep["effects_added"]))
         metrics["tie_terms_added"] = float(sum(e["tied"] for e in rep["effects_added"]))
-        files = {"report": str(Path(p.report_dir) / "gap_report.json")} if p.report_dir else {}
+        folder = self.ctx.output_dir(p.report_dir)
+        files = {"report": str(folder / "gap_report.json")} if folder is not None else {}
         self.ctx.event("result", "model_gap", gap_text(rep), verdict=result.verdict, files=files)
         self.ctx.publish(
             "result",

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -41,8 +42,16 @@ def _from_recording(path: str, cloud_topic: str, pose_topic: str, index: int) ->
     rec = load(path)
     clouds, poses = rec.messages(cloud_topic), rec.messages(pose_topic)
     if not clouds:
-        topics = ", ".join(sorted(t for t in rec.channels if not t.startswith("/_")))
-        raise InvalidInputError(f"{path} has no messages on {cloud_topic}; topics: {topics}")
+        counts = Counter(m.topic for m in rec.messages())
+        have = [f"{t} ({counts[t]})" for t, meta in sorted(rec.channels.items()) if meta.get("type") == "PointCloud"]
+        have = [h for h in have if not h.endswith(" (0)")]
+        where = f"point-cloud topics with messages: {', '.join(have) or 'none'}"
+        if cloud_topic in rec.channels:
+            raise InvalidInputError(
+                f"{path}: topic {cloud_topic} is in the recording but holds no message (its stage published "
+                f"none in that run); {where}"
+            )
+        raise InvalidInputError(f"{path} has no topic {cloud_topic}; {where}")
     if index >= len(clouds) or index < -len(clouds):
         raise InvalidInputError(f"{cloud_topic} has {len(clouds)} messages; --index {index} is out of range")
     if len(poses) != len(clouds):

@@ -9,13 +9,13 @@ the measurement frame and the tool point are estimated with the geometry.
 Publishes the result (its JSON holds the calibrated model as a model-file mapping in
 ``estimate.model_file``, the identified parameter changes, the before/after figures) and, when
 usable, ``T_meas_base`` (the instrument frame, from the measurements' frame_id -> ``base_frame``) and
-``T_flange_tcp`` (``flange_frame`` -> ``tcp_frame``). With ``report_dir`` it also writes
-result.json, report.txt, summary.md, convergence.png and before_after.txt there after each solve.
+``T_flange_tcp`` (``flange_frame`` -> ``tcp_frame``). After each solve it writes result.json,
+report.txt, summary.md, convergence.png and before_after.txt in its folder of the run folder (or
+``report_dir``: engine/run_folder.py says where a named folder lies).
 """
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import ClassVar, Literal
 
 import numpy as np
@@ -48,7 +48,9 @@ class KinematicCalibrationStage(CalibrationStage):
         trust_noise: bool = Field(False, description="covariance from the stated noise, not the residuals")
         holdout_fraction: float = Field(0.25, ge=0.0, lt=1.0, description="share of samples held out for the table")
         max_iterations: int = Field(30, ge=1, le=1000)
-        report_dir: str | None = Field(None, description="write the report files here after each solve")
+        report_dir: str | None = Field(
+            None, description="folder for the report files (default: the stage's folder in the run folder)"
+        )
         base_frame: str = "base"
         flange_frame: str = "flange"
         tcp_frame: str = "tcp_calibrated"
@@ -102,7 +104,8 @@ class KinematicCalibrationStage(CalibrationStage):
                 after_mm=m["holdout_rms_after_mm"],
             )
         p: KinematicCalibrationStage.Params = self.params  # type: ignore[assignment]
-        if p.report_dir:
+        folder = self.ctx.output_dir(p.report_dir)
+        if folder is not None:
             text, sections = kinematic_table(cal)
-            d = write_report_dir(Path(p.report_dir), result, format_result(result) + "\n" + text, sections)
+            d = write_report_dir(folder, result, format_result(result) + "\n" + text, sections)
             write_kinematic_files(cal, d)
