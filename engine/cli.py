@@ -23,6 +23,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from engine import cli_recording, run_folder
+from engine.bus import BusError
 from engine.errors import RecipeError
 from engine.graph import Graph, build_graph
 from engine.plugin_manager import PluginError, Registry, load_registry
@@ -139,22 +140,20 @@ def cmd_run(args: argparse.Namespace) -> int:
     from engine.cli_recording import recording_path
     from engine.recorder import Recorder
 
-    run_id = args.run_id or recipe.run_id or recipe.name
-    if args.record:  # a named recording that exists is refused before anything is created
-        recording_path(args, graph, None)
-    run_dir = run_folder.create(args.runs_dir, run_folder.run_name(run_id, args.process))
-    run_folder.write_recipe(run_dir, graph.loaded)
-    path = recording_path(args, graph, run_dir)
-    observers = [Recorder(path, recipe.record, graph.loaded, registry.plugins)] if path is not None else []
-    runner = Runner(
+    runner = Runner(  # refuses a bad run id or process before anything is created
         graph,
         process=args.process,
-        run_id=run_id,
-        observers=observers,
+        run_id=args.run_id,
         ready_timeout_s=args.ready_timeout,
         freeze_gc=args.own_process,  # the command's own process (not a caller's, e.g. a test): see Runner
-        run_dir=run_dir,
     )
+    if args.record:  # a named recording that exists is refused before anything is created
+        recording_path(args, graph, None)
+    run_dir = runner.run_dir = run_folder.create(args.runs_dir, run_folder.run_name(runner.run_id, args.process))
+    run_folder.write_recipe(run_dir, graph.loaded)
+    path = recording_path(args, graph, run_dir)
+    if path is not None:
+        runner.observers.append(Recorder(path, recipe.record, graph.loaded, registry.plugins))
     with run_folder.logging_to(run_dir):
         summary = run_with_progress(runner, show=not args.no_progress and console.is_terminal)
     summary.artifacts["run folder"] = str(run_dir)
@@ -367,7 +366,7 @@ def _main(argv: list[str], own_process: bool = False) -> int:
         for p in exc.problems:
             console.print(f"  {p}", markup=False, highlight=False, soft_wrap=True)
         return EXIT_INVALID
-    except (PluginError, RunError, FileNotFoundError, ValueError, RecordingError, ReplayError) as exc:
+    except (PluginError, RunError, BusError, FileNotFoundError, ValueError, RecordingError, ReplayError) as exc:
         console.print(f"[red]error[/]: {escape(str(exc))}", highlight=False, soft_wrap=True)
         return EXIT_INVALID
     except KeyboardInterrupt:

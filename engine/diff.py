@@ -46,7 +46,7 @@ def compare_values(a: Any, b: Any, path: str, rtol: float, atol: float) -> tuple
                 return IDENTICAL, "", 0.0
             close = np.isclose(a, b, rtol=rtol, atol=atol, equal_nan=True)
             finite = np.isfinite(a) & np.isfinite(b)
-            diff = float(np.max(np.abs(a - b)[finite])) if finite.any() else float("inf")
+            diff = float(np.max(np.abs(a[finite] - b[finite]))) if finite.any() else float("inf")
             if close.all():
                 return WITHIN, "", diff
             idx = tuple(int(i) for i in np.argwhere(~close)[0])

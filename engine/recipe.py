@@ -29,6 +29,7 @@ from typing import Any, Literal, get_args, get_origin
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from engine.endpoints import check_endpoints
 from engine.errors import Problem, RecipeError, nearest
 from engine.yaml_source import Locations, load_with_locations, locate
 
@@ -49,12 +50,22 @@ class ZenohSettings(_Strict):
     connect: list[str] = Field(default_factory=list)
     multicast_scouting: bool = False
 
+    @field_validator("listen", "connect")
+    @classmethod
+    def _endpoints(cls, v: list[str]) -> list[str]:
+        return check_endpoints(v)
+
 
 class ProcessSettings(_Strict):
     """Per-process overrides of the zenoh endpoints (for recipes spread over processes/hosts)."""
 
     listen: list[str] | None = None
     connect: list[str] | None = None
+
+    @field_validator("listen", "connect")
+    @classmethod
+    def _endpoints(cls, v: list[str] | None) -> list[str] | None:
+        return None if v is None else check_endpoints(v)
 
 
 class StageSpec(_Strict):

@@ -14,7 +14,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Attachment, Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
@@ -152,9 +151,11 @@ def load(path: str | Path) -> Recording:
                     rec.records.append(r)
         except RecordingError:
             raise
-        except (McapError, ValueError, EOFError, OSError) as exc:
+        except Exception as exc:  # any failure to parse a damaged file (McapError,
+            # zstd's ZstdError, OverflowError on a flipped length, ...) is the file's, not vgr's
             raise RecordingError(
-                f"cannot read {path}: {exc} (if the run was killed, try `vgr recover {path}`)"
+                f"cannot read {path}: {type(exc).__name__}: {exc} (the file is damaged; if the run was killed, "
+                f"try `vgr recover {path}`)"
             ) from None
     if "vgr.run" not in rec.metadata:
         raise RecordingError(f"{path} is an MCAP file but not a vgr recording (no vgr.run metadata)")
@@ -275,6 +276,8 @@ def _copy_readable(src: Path, tmp: Path, dst: Path) -> RecoverReport:
                     complete = True
         except Exception as exc:  # the truncated tail: everything before it is kept
             error = f"{type(exc).__name__}: {exc}"
+        if not schemas and not channels and n == 0:  # nothing of a recording in it: write nothing
+            raise RecordingError(f"{src} holds nothing to recover (not an MCAP recording?): {error or 'no records'}")
         w.add_metadata("vgr.recovered", {"from": str(src), "messages": str(n), "tail_error": error})
         w.finish()
     return RecoverReport(str(src), str(dst), n, 0, complete, error, last)

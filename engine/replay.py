@@ -410,9 +410,12 @@ def replay(
         unknown = [s for s in stages if s not in graph.nodes]
         if unknown:
             raise ReplayError(f"unknown stage(s) {', '.join(unknown)}; stages: {', '.join(graph.order)}")
-        sources = [s for s in stages if graph.nodes[s].cls.is_source()]
-        if sources:
-            raise ReplayError(f"{', '.join(sources)}: sources are always played back from the recording")
+        played = [s for s in stages if graph.nodes[s].cls.is_source() or graph.nodes[s].cls.role in PLAYBACK_ROLES]
+        if played:  # re-running a device stage would connect to it and command it: replay never does
+            raise ReplayError(
+                f"{', '.join(played)}: sources, sensors and devices are always played back from the recording "
+                "(replay never connects to or commands a device)"
+            )
         rerun = [n for n in graph.order if n in stages]
     else:
         rerun = default_rerun(graph, process)

@@ -35,6 +35,7 @@ from engine.bus import Bus, active_key, control_key, ready_key, started_key
 from engine.clock import Clock, make_clock
 from engine.graph import Graph
 from engine.messages import Event
+from engine.recipe import NAME_RE
 from engine.runtime import StageRuntime, StageStats
 from engine.stage import Stage
 from engine.stage_host import MessageObserver
@@ -127,6 +128,11 @@ class Runner:
         self.graph = graph
         self.process = process
         self.run_id = run_id or recipe.run_id or recipe.name
+        if not NAME_RE.match(self.run_id):  # it is a chunk of every zenoh key: '**' would name every run
+            raise RunError(
+                f"run id {self.run_id!r}: use letters, digits, '_' and '-', starting with a letter (max 64); "
+                "it becomes part of every key of the run, so wildcards such as '*' are refused"
+            )
         # the run's folder (engine.run_folder): stages write their files there; None: a temporary
         # folder, removed at the end (a run made as a library call keeps no files unless asked)
         self.run_dir = run_dir

@@ -66,10 +66,18 @@ def get_pose(pose_pb: Any) -> np.ndarray:
     return pose_from_parts(pose_pb.position, pose_pb.orientation)
 
 
+QUAT_NORM_TOL = 1e-3  # float32 senders normalise to ~1e-7; anything further off is not a rotation
+
+
 def pose_from_parts(p: Any, o: Any) -> np.ndarray:
-    if (o.x, o.y, o.z, o.w) == (0.0, 0.0, 0.0, 0.0):
-        return tf.T_from_Rt(np.eye(3), (p.x, p.y, p.z))  # unset orientation means identity
-    return tf.T_from_pose7((p.x, p.y, p.z), (o.x, o.y, o.z, o.w))
+    """4x4 from a Vector3 and a Quaternion. A quaternion that is not of unit length (an unset, all
+    zero one in particular) is refused: taking it for the identity would turn a sender's missing
+    orientation into a real one, and a robot would move to it."""
+    q = np.array([o.x, o.y, o.z, o.w], dtype=float)
+    n = float(np.linalg.norm(q))
+    if not abs(n - 1.0) <= QUAT_NORM_TOL:
+        raise ValueError(f"orientation quaternion {q.tolist()} is not a rotation (norm {n:.6g}, not 1): unset?")
+    return tf.T_from_pose7((p.x, p.y, p.z), q)
 
 
 def _bytes_of(arr: np.ndarray) -> memoryview:
