@@ -5,7 +5,9 @@ the stage's seeded generator, or the explicit ``poses_deg``), and after each arr
 reading (``tracker.sample``), published on ``measurement``. With the robot's ``joint_state`` stream
 this is the data the ``model_gap`` stage (and ``vgr gap`` on the recording) analyses. Command ids
 are ``<stage>-<trigger seq>-<i>``, so a replayed or repeated trigger never moves the robot twice. A
-refused move raises a ``warning`` event and skips that pose; a lost tracker reading is skipped too.
+refused move raises a ``warning`` event and skips that pose; so does a reply that is not a fresh
+arrival (a ``duplicate`` command id, no joints) and a tracker reading stamped before the arrival
+(each measurement is published only with the joints it was taken at); a lost reading is skipped.
 """
 
 from __future__ import annotations
@@ -73,8 +75,20 @@ class MeasurementCampaign(Stage):
             if not reply.ok:
                 self.ctx.event("warning", "pose_refused", f"pose {i} refused: {reply.error}")
                 continue
+            if reply.duplicate or reply.joints is None:  # no arrival now, or none to pair the reading with
+                why = "a repeated command id: the robot did not move now" if reply.duplicate else "no joints"
+                self.ctx.event("warning", "pose_unpaired", f"pose {i} skipped: the move reply has {why}")
+                continue
             reading = self.ctx.call("tracker", Request(command="sample"), timeout_s=p.timeout_s)
             if not reading.valid:
+                continue
+            if reading.stamp_ns and reply.stamp_ns and reading.stamp_ns < reply.stamp_ns:
+                self.ctx.event(
+                    "warning",
+                    "stale_reading",
+                    f"pose {i} skipped: the tracker reading is {(reply.stamp_ns - reading.stamp_ns) / 1e6:.1f} ms "
+                    "older than the robot's arrival (it was taken before the pose was reached)",
+                )
                 continue
             # the reading's own time, else the robot's or ours; strictly increasing (>= 1 ms apart) so the
             # joints and the reading of one pose pair one to one even when the clocks did not move
@@ -84,12 +98,11 @@ class MeasurementCampaign(Stage):
                 "measurement",
                 TrackerPose(stamp_ns=stamp, frame_id=reading.frame_id, serial=reading.serial, T=np.array(reading.T)),
             )
-            if reply.joints is not None:
-                joints = np.asarray(reply.joints, dtype=float)
-                names = [f"joint{j + 1}" for j in range(joints.size)]
-                self.ctx.publish(
-                    "joint_state",
-                    JointState(names=names, positions=joints, velocities=np.zeros_like(joints), stamp_ns=stamp),
-                )
+            joints = np.asarray(reply.joints, dtype=float)
+            names = [f"joint{j + 1}" for j in range(joints.size)]
+            self.ctx.publish(
+                "joint_state",
+                JointState(names=names, positions=joints, velocities=np.zeros_like(joints), stamp_ns=stamp),
+            )
             measured += 1
         self.ctx.event("info", "campaign_done", f"{measured} measurements", n=measured)

@@ -96,6 +96,7 @@ class SimTracker(Stage):
         T = sample.T_lighthouse_tracker
         self._publish_frames(T, stamp_ns)
         reading = TrackerPose(
+            stamp_ns=stamp_ns,  # when it was sampled (unset, a reply takes its request's stamp)
             serial=p.serial,
             frame_id="lighthouse",
             T=T if T is not None else np.eye(4),
