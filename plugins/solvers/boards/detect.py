@@ -55,6 +55,7 @@ __all__ = [
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 MIN_CHARUCO_CORNERS = 6  # PnP and calibrateCamera need >= 4 off one line; 6 leaves a little redundancy
+SB_FLAGS = 0
 
 
 class ImageReadError(ValueError):
@@ -169,7 +170,7 @@ def _chessboard(gray: U8, board: BoardSpec) -> tuple[F64, str]:
     import cv2
 
     pattern = board.grid_shape
-    for flags in (0, cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE):
+    for flags in (SB_FLAGS, cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE):
         ok, corners = cv2.findChessboardCornersSB(gray, pattern, flags=flags)
         if ok:
             return corners.reshape(-1, 2).astype(float), "findChessboardCornersSB"

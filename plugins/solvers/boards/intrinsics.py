@@ -130,8 +130,9 @@ class IntrinsicsCalibration:
         document :meth:`CameraModel.load` reads (``--intrinsics FILE``)."""
         cam = self.camera
         values = [cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2], *cam.D.tolist()]
-        estimate: dict[str, Any] = {"camera": cam.to_dict()}
-        estimate.update({n: float(v) for n, v in zip(self.param_names, values, strict=True)})
+        estimate: dict[str, Any] = {"camera": cam.to_dict()} if self.param_names else {}
+        if self.param_names:  # a failed calibration has no estimate
+            estimate.update({n: float(v) for n, v in zip(self.param_names, values, strict=True)})
         estimate["sample_labels"] = [v.name for v in self.views]
         metrics: dict[str, float] = {
             "rms_px": self.rms_px,

@@ -233,11 +233,12 @@ class BoardSpec:
     def object_points(self) -> F64:
         """(n_features, 3) feature positions in the board frame (m), row ``k`` = feature id ``k``."""
         s = self.square_m
-        if self.kind == "charuco":
-            # OpenCV's corners (y down, z into the board) turned 180 deg about x: y' = H - y, z' = -z
-            p = np.asarray(self.cv_board().getChessboardCorners(), dtype=float).reshape(-1, 3)
-            return np.column_stack([p[:, 0], self.rows * s - p[:, 1], np.zeros(len(p))])
         w, h = self.grid_shape
+        if self.kind == "charuco":
+            # OpenCV's corner k at ((k % w + 1) s, (k // w + 1) s) (y down, z into the board; in float32
+            # there), turned 180 deg about x: y' = ROWS s - y, z' = -z
+            k = np.arange(w * h)
+            return np.column_stack([(k % w + 1) * s, self.rows * s - (k // w + 1) * s, np.zeros(len(k))])
         i, j = np.meshgrid(np.arange(w), np.arange(h))  # j from the bottom
         i, j = i.ravel(), j.ravel()
         if self.kind == "chessboard":
