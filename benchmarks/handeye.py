@@ -28,7 +28,7 @@ A second section runs OpenCV's own test protocol (test_calibration_hand_eye.cpp:
 poses, camera noise 0.002 rad / 5 mm, robot noise 0.001 rad / 1 mm as described) and reports the
 worst errors of every method against OpenCV's tolerances (2e-2 rad, 5e-2 m).
 
-OpenCV (opencv-python-headless<5) is a benchmark-only comparator. Usage:
+OpenCV 4 (a core dependency: vgr detects calibration boards with it) is the comparator. Usage:
 ``python benchmarks/handeye.py [--trials 200] [--poses 15] [--seed 6]``; writes
 benchmarks/results/handeye.json. Timings are per calibration, wall clock, on a shared machine.
 """
@@ -52,7 +52,7 @@ from scipy.spatial.transform import Rotation
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-import cv2  # noqa: E402  (benchmark-only comparator)
+import cv2  # noqa: E402  (the comparator)
 
 from engine.transforms import inv, pose_delta  # noqa: E402
 from plugins.solvers.handeye import NoiseModel, PoseNoise, calibrate_hand_eye, closed_form  # noqa: E402

@@ -256,7 +256,10 @@ VERB_MODULES: dict[str, tuple[str, str]] = {
     "inspect": ("engine.cli_recording", "topics, counts, rates, time span, recipe and versions of a recording"),
     "recover": ("engine.cli_recording", "rebuild the index of a recording cut short (e.g. kill -9)"),
     "template": ("plugins.solvers.registration.cli", "make or show a matcher template"),
-    "calibrate": ("plugins.solvers.calibrate_cli", "hand-eye, robot-world, Vive desk, TCP or kinematic calibration"),
+    "calibrate": (
+        "plugins.solvers.calibrate_cli",
+        "hand-eye, robot-world, Vive desk, TCP, kinematic or camera-intrinsics calibration",
+    ),
     "teach": ("plugins.actions.teach_cli", "store the robot's current pose as the recipe's photo or install pose"),
     "gap": (
         "plugins.solvers.model_gap.cli",

@@ -1,7 +1,9 @@
 """``vgr calibrate KIND DATA``: every calibration of vgr from a plain file or a vgr recording.
 
 Kinds: ``handeye`` and ``robot-world`` (AX=XB / AX=ZB, docs/handeye.md), ``vive-desk`` and ``tcp``
-(docs/vive_and_tcp.md), ``kinematics`` (docs/kinematic_calibration.md). DATA is one of the plain
+(docs/vive_and_tcp.md), ``kinematics`` (docs/kinematic_calibration.md), ``intrinsics`` (camera
+intrinsics from images of a calibration board: ``IMAGES... --board SPEC`` instead of DATA,
+docs/calibration_boards.md, glue in :mod:`plugins.solvers.boards.cli`). DATA is one of the plain
 formats those pages document (``.json`` / ``.csv``) or an MCAP recording made by ``vgr run``
 (``.mcap``): then the samples are read from two topics (options ``--*-topic``, defaults matching the
 ``recipes/calibrate_*_sim.yaml`` recipes) and paired by stamp (``--pair stamp``, nearest within
@@ -286,6 +288,21 @@ def _kinematics(args: argparse.Namespace) -> Outcome:
     return Outcome(cal.result, notes, text, sections, lambda d: write_kinematic_files(cal, d))
 
 
+# --------------------------------------------------------------------------- camera intrinsics
+
+
+def _intrinsics_options(p: argparse.ArgumentParser) -> None:
+    from plugins.solvers.boards.cli import intrinsics_options
+
+    intrinsics_options(p)
+
+
+def _intrinsics(args: argparse.Namespace) -> Outcome:
+    from plugins.solvers.boards.cli import run_intrinsics
+
+    return run_intrinsics(args)
+
+
 # --------------------------------------------------------------------------- verbs
 
 Runner = Callable[[argparse.Namespace], Outcome]
@@ -307,12 +324,20 @@ KINDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Runner]] 
         _kinematics_options,
         _kinematics,
     ),
+    "intrinsics": (
+        "camera intrinsics (pinhole + lens distortion) from images of a calibration board",
+        _intrinsics_options,
+        _intrinsics,
+    ),
 }
+#: kinds that read images (IMAGES... positional, no recording options) instead of one DATA file
+IMAGE_KINDS = frozenset({"intrinsics"})
 
 EPILOG = """\
 DATA: a plain file (.json / .csv, formats in docs/calibration.md) or a vgr recording (.mcap): then
 the samples come from two topics (--*-topic; the defaults match recipes/calibrate_*_sim.yaml),
 paired by stamp (nearest within --max-skew-s) or by order (--pair order).
+intrinsics: IMAGES... (files or folders of png / jpg / bmp) and --board SPEC instead of DATA.
 Exit codes: 0 usable result (verdict ok / warning), 1 degenerate or failed (do not use it),
 2 bad input (missing or malformed file, NaN, mixed units, too few samples, unpaired samples)."""
 
@@ -322,13 +347,14 @@ BAD_INPUT = (ValueError, KeyError, OSError, RecordingError, json.JSONDecodeError
 def run_kind(args: argparse.Namespace) -> int:
     """Run one ``vgr calibrate KIND`` invocation; returns the exit code."""
     _, _, runner = KINDS[args.kind]
-    if args.json and Path(args.json).resolve() == Path(args.data).resolve():
+    data = getattr(args, "data", None)
+    if args.json and data is not None and Path(args.json).resolve() == Path(data).resolve():
         print(f"bad input: --json {args.json} is the data file itself: choose another output", file=sys.stderr)
         return EXIT_BAD_INPUT
     try:
         outcome = runner(args)
     except KeyError as exc:  # a field missing in a JSON file
-        print(f"bad input: {args.data}: missing field {exc}", file=sys.stderr)
+        print(f"bad input: {data}: missing field {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except BAD_INPUT as exc:
         print(f"bad input: {exc}", file=sys.stderr)
@@ -360,14 +386,22 @@ def _add_kinds(parser: argparse.ArgumentParser) -> None:
         k = kinds.add_parser(
             name, help=summary, description=summary, epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter
         )
-        k.add_argument("data", type=Path, help="samples: .json / .csv (documented formats) or a vgr .mcap recording")
+        if name in IMAGE_KINDS:
+            k.add_argument("images", type=Path, nargs="+", help="images of the board (files or folders)")
+        else:
+            k.add_argument(
+                "data", type=Path, help="samples: .json / .csv (documented formats) or a vgr .mcap recording"
+            )
         add_options(k)
         k.add_argument("--report", type=Path, metavar="DIR", help="write result.json, report.txt, summary.md (+ plots)")
         k.add_argument("--json", type=Path, metavar="OUT", help="write the CalibrationResult as JSON")
         k.add_argument("--no-samples", action="store_true", help="leave the per-sample table out of the report")
-        k.add_argument("--pair", choices=["stamp", "order"], default="stamp", help="MCAP: how samples are paired")
-        k.add_argument("--max-skew-s", type=float, default=0.05, help="MCAP: largest stamp difference within a pair")
-        k.add_argument("--drop-unmatched", action="store_true", help="MCAP: drop samples without a partner")
+        if name not in IMAGE_KINDS:
+            k.add_argument("--pair", choices=["stamp", "order"], default="stamp", help="MCAP: how samples are paired")
+            k.add_argument(
+                "--max-skew-s", type=float, default=0.05, help="MCAP: largest stamp difference within a pair"
+            )
+            k.add_argument("--drop-unmatched", action="store_true", help="MCAP: drop samples without a partner")
         k.set_defaults(func=run_kind)
 
 
@@ -375,7 +409,8 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:
     """Add ``vgr calibrate`` to the vgr command line."""
     p = sub.add_parser(
         "calibrate",
-        help="calibrate from a sample file or a recording (handeye, robot-world, vive-desk, tcp, kinematics)",
+        help="calibrate from a sample file, a recording or images (handeye, robot-world, vive-desk, tcp, kinematics, "
+        "intrinsics)",
         description="Calibrate from a sample file or a vgr recording; `vgr calibrate KIND --help` for each kind.",
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,

@@ -30,7 +30,8 @@ HAND_EYE_KINDS = ("hand_eye", "robot_world")
 
 
 def _metric_text(name: str, value: float) -> tuple[str, str]:
-    """(display name, value with unit): SI metric names ending in _m / _rad become mm / deg."""
+    """(display name, value with unit): SI metric names ending in _m / _rad become mm / deg; _mm, _deg
+    and _px keep their unit."""
     if name.endswith("_m"):
         return name[:-2] + "_mm", f"{value * _MM:.4g} mm"
     if name.endswith("_rad"):
@@ -39,6 +40,8 @@ def _metric_text(name: str, value: float) -> tuple[str, str]:
         return name, f"{value:.4g} mm"
     if name.endswith("_deg"):
         return name, f"{value:.4g} deg"
+    if name.endswith("_px"):
+        return name, f"{value:.4g} px"
     return name, f"{value:.6g}"
 
 

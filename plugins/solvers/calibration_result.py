@@ -136,7 +136,9 @@ class CalibrationResult:
           three rows in mm;
         * every remaining covariance parameter gives one row: its value from the estimate (a scalar
           of that name, or its entry in ``estimate["offsets"]``, shown as ``name (change)``), in deg
-          when the name ends in an angle (``rx``, ``wz``, ``theta``, ``alpha``, ``beta``), else mm.
+          when the name ends in an angle (``rx``, ``wz``, ``theta``, ``alpha``, ``beta``), in px when
+          it ends in ``_px`` (camera intrinsics), unitless (``1``) when it starts with ``distortion.``,
+          else mm.
 
         Entries named ``closed_form_*`` / ``initial_*`` (the solver's starting point) are left out.
         """
@@ -174,8 +176,14 @@ class CalibrationResult:
         for name in self.param_names:
             if name in used:
                 continue
-            angle = name.rsplit(".", 1)[-1] in _ANGLE_SUFFIXES
-            scale, unit = (_DEG, "deg") if angle else (_MM, "mm")
+            if name.endswith("_px"):  # image quantities (camera intrinsics)
+                scale, unit = 1.0, "px"
+            elif name.startswith("distortion."):  # lens distortion coefficients have no unit
+                scale, unit = 1.0, "1"
+            elif name.rsplit(".", 1)[-1] in _ANGLE_SUFFIXES:
+                scale, unit = _DEG, "deg"
+            else:
+                scale, unit = _MM, "mm"
             if name in offsets:
                 label, value = f"{name} (change)", offsets[name]
             elif np.isscalar(self.estimate.get(name)) and not isinstance(self.estimate.get(name), str):
