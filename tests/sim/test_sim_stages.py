@@ -100,3 +100,16 @@ def test_solvers_and_actions_never_see_truth():
     assert any(
         "robot.truth gives simulation ground truth" in str(p) and "action" in str(p) for p in info.value.problems
     )
+
+
+def test_the_cloud_port_can_show_a_thinned_copy_of_each_capture():
+    """``cloud_decimate: 4``: the capture reply keeps every point, the cloud port (the recording's 3D
+    view) every 4th, in the same frame with the same stamp."""
+    keep = Keep()
+    text = CELL.format(effects="{}", count=1, x=-0.49)
+    summary = Runner(graph_from(text, ["camera.cloud_decimate=4"]), observers=[keep]).run()
+    assert summary.ok, summary.stop_reason
+    reply = next(m for s, p, m in keep.msgs if (s, p) == ("capture", "cloud"))
+    shown = next(m for s, p, m in keep.msgs if (s, p) == ("camera", "cloud"))
+    assert len(reply.points) > 2000 and (shown.frame_id, shown.stamp_ns) == (reply.frame_id, reply.stamp_ns)
+    np.testing.assert_array_equal(shown.points, reply.points[::4])

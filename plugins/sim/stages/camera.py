@@ -4,7 +4,8 @@ Wraps :class:`plugins.sim.cell.SimCell`. On ``capture`` it asks the simulated ro
 ``robot``, wired to ``sim_robot.truth``) where the TCP truly is when the camera is on the flange or
 a part is in the gripper, renders the scene with the noise model and the sensor effects (depth
 scale/bias, latency, hand-eye error, placement offsets), and replies with the cloud in the camera
-frame. It also publishes the depth image, the intrinsics, the nominal frame tree, the workpiece
+frame. It also publishes the capture on ``cloud`` (every ``cloud_decimate``-th point: a lighter copy
+for the recording's 3D view), the depth image, the intrinsics, the nominal frame tree, the workpiece
 meshes (once) and, on ``truth/part_poses``, where the parts and the camera truly were.
 
 The camera's frame is ``frame_id`` (``camera`` by default) on every message and on ``frames``; give
@@ -33,6 +34,7 @@ from engine.messages import (
 from engine.stage import ServiceSpec, Stage, StageParams
 from plugins.interfaces import CAMERA_OUTPUTS, CAMERA_SERVICES
 from plugins.params import PoseSpec
+from plugins.sensors.camera_output import thinned
 from plugins.sim.camera import DepthCameraModel, DepthNoiseModel, PinholeIntrinsics, default_intrinsics
 from plugins.sim.cell import CameraMount, PartPlacement, SimCell
 from plugins.sim.sensor_effects import SensorEffects
@@ -102,6 +104,9 @@ class SimCamera(Stage):
         publish_cloud: bool = Field(True, description="also publish each capture on the cloud port")
         publish_depth: bool = Field(True, description="publish the depth image of each capture")
         decimate: int = Field(1, ge=1, le=16, description="keep every n-th valid point (smaller clouds)")
+        cloud_decimate: int = Field(
+            1, ge=1, le=64, description="the cloud port shows every n-th point of each capture (the reply keeps all)"
+        )
         frame_id: str = Field("camera", min_length=1, description="the camera's frame on its messages and frames")
 
     def setup(self) -> None:
@@ -162,7 +167,7 @@ class SimCamera(Stage):
             info = CameraInfo(width=intr.width, height=intr.height, K=intr.K(), frame_id=p.frame_id, stamp_ns=stamp)
             self.ctx.publish("camera_info", info)
         if p.publish_cloud:
-            self.ctx.publish("cloud", cloud)
+            self.ctx.publish("cloud", thinned(cloud, p.cloud_decimate))
         own = {"camera": p.frame_id}  # SimCell names its camera "camera"
         frames = [
             Transform(frame_id=f.parent, child_frame_id=own.get(f.child, f.child), T=f.T_parent_child, stamp_ns=stamp)
