@@ -8,8 +8,10 @@ the measurement frame and the tool point are estimated with the geometry.
 
 Publishes the result (its JSON holds the calibrated model as a model-file mapping in
 ``estimate.model_file``, the identified parameter changes, the before/after figures) and, when
-usable, ``T_meas_base`` (the instrument frame, from the measurements' frame_id -> ``base_frame``) and
-``T_flange_tcp`` (``flange_frame`` -> ``tcp_frame``). With ``report_dir`` it also writes
+usable, ``T_meas_base`` (the instrument frame, from the measurements' frame_id -> ``base_frame``,
+``base_calibrated``: the robot's own ``base`` already hangs under ``world``) and ``T_flange_tcp``
+(``flange_frame`` -> ``tcp_frame``; name the robot's frame that is the flange: ``tcp`` for vgr's robot
+stages with no tool set). With ``report_dir`` it also writes
 result.json, report.txt, summary.md, convergence.png and before_after.txt there after each solve.
 """
 
@@ -49,7 +51,7 @@ class KinematicCalibrationStage(CalibrationStage):
         holdout_fraction: float = Field(0.25, ge=0.0, lt=1.0, description="share of samples held out for the table")
         max_iterations: int = Field(30, ge=1, le=1000)
         report_dir: str | None = Field(None, description="write the report files here after each solve")
-        base_frame: str = "base"
+        base_frame: str = "base_calibrated"
         flange_frame: str = "flange"
         tcp_frame: str = "tcp_calibrated"
 
