@@ -16,11 +16,12 @@ from pathlib import Path
 from recipe_helpers import graph_from
 
 from engine import codec
+from engine.graph import Graph
 from engine.messages import FrameTransforms, Message, SceneMeshes, Transform
 from engine.plugin_manager import load_registry
 from engine.recorder import Recorder
 from engine.recording import load
-from engine.runner import Runner
+from engine.runner import Runner, RunSummary
 
 ROOT = "world"
 ROBOT_FRAMES = {"base": "world", "tcp": "base"}  # child -> parent: what a robot stage (simulated or UR) publishes
@@ -107,7 +108,12 @@ def sound_frame_tree(path: str | Path) -> FrameTree:
 def record(text: str, path: Path, plugins: list[str]) -> Path:
     """Run the recipe *text* recorded to *path* (*plugins*: the plugin modules the recording lists);
     the run must end well."""
-    graph = graph_from(text)
+    record_graph(graph_from(text), path, plugins)
+    return path
+
+
+def record_graph(graph: Graph, path: Path, plugins: list[str]) -> RunSummary:
+    """Run *graph* recorded to *path*; the run must end well."""
     summary = Runner(graph, observers=[Recorder(path, graph.recipe.record, graph.loaded, plugins)]).run()
     assert summary.ok, summary.stop_reason
-    return path
+    return summary
