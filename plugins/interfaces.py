@@ -12,7 +12,8 @@ Robot (role ``device``)
     ``frames`` (FrameTransforms for the 3D view), published after every command.
 Depth camera (role ``sensor``)
     service ``capture`` (Request -> PointCloud in the camera frame ``camera``, metres; args may carry
-    ``{"timeout_s": ...}``); outputs ``cloud`` (the same cloud, unless ``publish_cloud: false``),
+    ``{"timeout_s": ...}``); outputs ``cloud`` (the same cloud, unless ``publish_cloud: false``; every
+    n-th point of it with ``cloud_decimate: n``),
     ``depth`` (Image 32FC1, metres, NaN invalid) and ``camera_info`` (CameraInfo).
 Tracker (role ``sensor``)
     output ``pose`` (TrackerPose, T_lighthouse_tracker) at the device rate; service ``sample``

@@ -262,7 +262,7 @@ def absolute_assembly(trial: Trial, hand_eye_scale: float = 1.0) -> dict[str, An
     C_believed = perturbed_pose(C_true, dt * hand_eye_scale, drot * hand_eye_scale)
     G_nominal = PoseSpec.model_validate(_part(data, "plate").get("pose", {})).T()
     G_true = PoseOffset.from_dict(camera_params["effects"]["placement"]["plate"]).apply(G_nominal)
-    T_world_base = PoseSpec.model_validate(_part(data, "base")["pose"]).T()
+    T_world_base = PoseSpec.model_validate(_part(data, "base_plate")["pose"]).T()
     guidance = data["stages"]["guidance"]["params"]
 
     # the template: the master plate at the teach photo pose, seen by the true camera

@@ -8,7 +8,8 @@ librealsense coefficients (k1 k2 p1 p2 k3) with ``distortion_model`` ``plumb_bob
 brown_conrady (OpenCV's forward model), ``inverse_brown_conrady`` for RealSense's inverse model.
 
 :class:`DepthCameraParams` are the parameters every adapter shares: ``frame_id``, the output
-switches (``publish_cloud``, ``publish_depth``, ``decimate``: :func:`publish_capture`) and where the
+switches (``publish_cloud``, ``publish_depth``, ``decimate``, ``cloud_decimate``: :func:`publish_capture`)
+and where the
 camera is: ``T_parent_cam`` in ``parent_frame`` (``world``
 for a fixed camera, ``tcp`` for one on the flange: the hand-eye transform), published on ``frames``
 at set-up and with every capture so that a recording shows the cloud in the cell's 3D view. The
@@ -42,6 +43,9 @@ class DepthCameraParams(StageParams):
     publish_cloud: bool = Field(True, description="also publish each capture on the cloud port")
     publish_depth: bool = Field(True, description="publish the depth image and camera_info when the frame has them")
     decimate: int = Field(1, ge=1, le=64, description="keep every n-th valid point (smaller clouds)")
+    cloud_decimate: int = Field(
+        1, ge=1, le=64, description="the cloud port shows every n-th point of each capture (the reply keeps all)"
+    )
 
     @model_validator(mode="after")
     def _mount_frames(self) -> DepthCameraParams:
@@ -97,10 +101,31 @@ def camera_info(intr: DepthIntrinsics, frame_id: str) -> CameraInfo:
     )
 
 
+def thinned(cloud: PointCloud, n: int) -> PointCloud:
+    """Every *n*-th point of *cloud* (with its normal and colour), same frame and stamp: what a camera
+    publishes on ``cloud`` to show a capture without recording all of it twice (the reply has it)."""
+    if n <= 1:
+        return cloud
+    return PointCloud(
+        points=cloud.points[::n],
+        normals=None if cloud.normals is None else cloud.normals[::n],
+        colors=None if cloud.colors is None else cloud.colors[::n],
+        frame_id=cloud.frame_id,
+        stamp_ns=cloud.stamp_ns,
+    )
+
+
 def publish_frame(
-    ctx: StageContext, frame: CameraFrame, *, frame_id: str, publish_cloud: bool, publish_depth: bool
+    ctx: StageContext,
+    frame: CameraFrame,
+    *,
+    frame_id: str,
+    publish_cloud: bool,
+    publish_depth: bool,
+    cloud_decimate: int = 1,
 ) -> PointCloud:
-    """Publish *frame* on the camera ports; return the cloud (the ``capture`` reply)."""
+    """Publish *frame* on the camera ports (every ``cloud_decimate``-th point on ``cloud``); return the
+    cloud (the ``capture`` reply)."""
     dtype = np.float32
     cloud = PointCloud(
         points=np.ascontiguousarray(frame.points, dtype=dtype),
@@ -112,7 +137,7 @@ def publish_frame(
         ctx.publish("depth", Image(data=frame.depth_m, encoding="32FC1", frame_id=frame_id))
         ctx.publish("camera_info", camera_info(frame.intrinsics, frame_id))
     if publish_cloud:
-        ctx.publish("cloud", cloud)
+        ctx.publish("cloud", thinned(cloud, cloud_decimate))
     return cloud
 
 
@@ -122,4 +147,11 @@ def publish_capture(ctx: StageContext, params: DepthCameraParams, frame: CameraF
     publish_mount(ctx, params)
     p = params
     frame = keep_every(frame, p.decimate)
-    return publish_frame(ctx, frame, frame_id=p.frame_id, publish_cloud=p.publish_cloud, publish_depth=p.publish_depth)
+    return publish_frame(
+        ctx,
+        frame,
+        frame_id=p.frame_id,
+        publish_cloud=p.publish_cloud,
+        publish_depth=p.publish_depth,
+        cloud_decimate=p.cloud_decimate,
+    )

@@ -52,6 +52,16 @@ def test_binary_compressed_pcd_matches_open3d_and_loop_starts_over():
     np.testing.assert_array_equal(first.points, second.points)
 
 
+def test_cloud_decimate_thins_the_published_cloud_and_not_the_reply():
+    stage, ctx = file_camera(folder=str(PCL), pattern="bun0.pcd", cloud_decimate=10)  # with normals
+    reply = capture(stage)
+    (shown,) = ctx.published["cloud"]
+    assert len(reply.points) == PCL_FILES["bun0.pcd"] and len(shown.points) == -(-len(reply.points) // 10)
+    np.testing.assert_array_equal(shown.points, reply.points[::10])
+    np.testing.assert_array_equal(shown.normals, reply.normals[::10])
+    assert shown.frame_id == reply.frame_id == "camera"
+
+
 def test_natural_order_and_pattern(tmp_path):
     for name in ["f10.npz", "f2.npz", "f1.npz", "notes.txt"]:
         if name.endswith(".npz"):

@@ -107,9 +107,9 @@ def test_kinematic_recipe_recovers_the_injected_dh_errors(kinematics_run):
     for name in ("joint2.a", "joint3.a", "joint2.theta", "joint3.theta", "joint2.alpha", "joint4.theta", "joint2.d"):
         est = res.estimate["offsets"][name]
         assert abs(est - expected[name]) < 4 * sd[name], (name, est, expected[name], sd[name])
-    # the transforms went downstream, named after the instrument's frame
+    # the transforms went downstream, from the instrument's frame and the robot's tcp (its flange here)
     tfs = msgs[("calibrate", "transform")]
-    assert [(t.frame_id, t.child_frame_id) for t in tfs] == [("tracker", "base"), ("flange", "tcp_calibrated")]
+    assert [(t.frame_id, t.child_frame_id) for t in tfs] == [("tracker", "base_calibrated"), ("tcp", "tcp_calibrated")]
     assert np.allclose(tfs[1].T[:3, 3], point, atol=1e-3)  # the reflector found on the flange (1 mm)
     assert events(summary, "calibration_unusable") == []
 
@@ -152,7 +152,8 @@ def test_vive_recipe_recovers_desk_and_lever_arm_within_the_reported_covariance(
     assert mahalanobis2(err, res.covariance) < chi2.ppf(0.999, 12)
     assert np.linalg.norm(err[6:9]) < 2e-3  # the lever arm, identifiable thanks to 3 orientations
     tfs = msgs[("calibrate", "transform")]
-    assert [(t.frame_id, t.child_frame_id) for t in tfs] == [("lighthouse", "desktop"), ("tracker", "tcp")]
+    assert [(t.frame_id, t.child_frame_id) for t in tfs] == [("lighthouse", "desktop"), ("tcp", "tracker_calibrated")]
+    np.testing.assert_allclose(tfs[1].T, inv(res.estimate["T_tracker_tcp"]), atol=1e-6)  # the tracker on the tool
     # vive_to_desktop: every contact reading converted; it lands where the robot held the TCP
     contacts = msgs[("poses", "target")]
     converted = msgs[("desktop", "pose")]
@@ -192,7 +193,7 @@ def test_tcp_recipe_finds_the_tip_and_the_camera(tmp_path, capsys):
     assert mahalanobis2(err, res.covariance) < chi2.ppf(0.999, 9)
     assert np.linalg.norm(err[6:]) < 1e-3
     tfs = msgs[("calibrate", "transform")]
-    assert [(t.frame_id, t.child_frame_id) for t in tfs] == [("base", "camera"), ("flange", "tcp_calibrated")]
+    assert [(t.frame_id, t.child_frame_id) for t in tfs] == [("base", "camera_calibrated"), ("tcp", "tcp_calibrated")]
     assert_replays_identically(path)
     assert main(["calibrate", "tcp", str(path), "--camera-sigma-mm", "0.2", "0.2", "0.5", "--no-samples"]) == 0
     assert "p_flange_tcp.z" in capsys.readouterr().out
@@ -216,7 +217,7 @@ def test_handeye_recipe_recovers_the_camera_mount_within_the_reported_covariance
     assert np.linalg.norm(err_x[:3]) < 2e-4 and np.degrees(np.linalg.norm(err_x[3:])) < 0.05
     assert mahalanobis2(np.concatenate([err_x, err_y]), res.covariance) < chi2.ppf(0.999, 12)
     tfs = msgs[("calibrate", "transform")]
-    assert [(t.frame_id, t.child_frame_id) for t in tfs] == [("tcp", "camera"), ("base", "target")]
+    assert [(t.frame_id, t.child_frame_id) for t in tfs] == [("tcp", "camera_calibrated"), ("base", "target")]
     assert_replays_identically(path)
     assert main(["calibrate", "handeye", str(path), "--json", str(tmp_path / "r.json"), "--no-samples"]) == 0
     cli = json.loads((tmp_path / "r.json").read_text())

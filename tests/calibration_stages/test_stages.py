@@ -45,7 +45,7 @@ def test_hand_eye_stage_on_the_moveit_data_publishes_the_camera_pose_within_one_
     assert msg.verdict == res.verdict and set(msg.transforms) == {"T_base_cam", "T_tcp_target"}
     assert msg.stamp_ns == 50 * 1_000_000_000  # the newest sample's stamp: replays reproduce it
     tfs = msgs[("calibrate", "transform")]
-    assert [(t.frame_id, t.child_frame_id) for t in tfs] == [("base", "camera"), ("tcp", "target")]
+    assert [(t.frame_id, t.child_frame_id) for t in tfs] == [("base", "camera_calibrated"), ("tcp", "target")]
     assert np.allclose(tfs[0].T, res.estimate["T_base_cam"])
 
 

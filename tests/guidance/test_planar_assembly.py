@@ -57,7 +57,7 @@ def test_joints_reaching_puts_the_true_tcp_on_the_target() -> None:
 def test_taught_install_pose_is_what_the_controller_reports_with_the_master_seated() -> None:
     data = _recipe("planar_assembly.yaml")
     robot = _robot(data)
-    base = next(p for p in data["stages"]["camera"]["params"]["parts"] if p["name"] == "base")
+    base = next(p for p in data["stages"]["camera"]["params"]["parts"] if p["name"] == "base_plate")
     T_true = PoseSpec.model_validate(base["pose"]).T() @ assembled_plate_pose()  # nominal grasp: TCP = plate frame
     reported = robot.nominal.fk(robot.joints_reaching(T_true))
     t, r = pose_error(PoseSpec.model_validate(data["vars"]["install_pose"]).T(), reported)

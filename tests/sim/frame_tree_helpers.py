@@ -1,10 +1,10 @@
 """Record a run and read the frame tree its recording shows in a 3D view, and every frame id its
 messages name.
 
-The tree is made of the transforms published on ports named ``frames`` (FrameTransforms); ``truth/``
-ports are ground truth (alternative poses of the same frames) and not part of it. Every message
-(streams and service requests/replies) that names a frame counts: its ``frame_id``, and a
-transform's parent and child.
+The tree is made of every transform the recording holds, on any port (``frames``, a calibration's
+``transform``, ``truth/...``) and in service replies: FrameTransforms and Transform messages, as a 3D
+view (Foxglove) reads them all. Every message (streams and service requests/replies) that names a
+frame counts: its ``frame_id``, a transform's parent and child, a scene mesh's frame.
 """
 
 from __future__ import annotations
@@ -16,11 +16,12 @@ from pathlib import Path
 from recipe_helpers import graph_from
 
 from engine import codec
-from engine.messages import FrameTransforms, Message, Transform
+from engine.graph import Graph
+from engine.messages import FrameTransforms, Message, SceneMeshes, Transform
 from engine.plugin_manager import load_registry
 from engine.recorder import Recorder
 from engine.recording import load
-from engine.runner import Runner
+from engine.runner import Runner, RunSummary
 
 ROOT = "world"
 ROBOT_FRAMES = {"base": "world", "tcp": "base"}  # child -> parent: what a robot stage (simulated or UR) publishes
@@ -66,6 +67,8 @@ def _names(msg: Message) -> tuple[list[str], list[tuple[str, str]]]:
     elif isinstance(msg, Transform):
         transforms = [msg]
     names = [msg.frame_id] if getattr(msg, "frame_id", "") else []
+    if isinstance(msg, SceneMeshes):
+        names += [m.frame_id for m in msg.meshes]
     edges = [(t.frame_id, t.child_frame_id) for t in transforms]
     return names + [f for e in edges for f in e], edges
 
@@ -77,22 +80,21 @@ def frame_tree(path: str | Path) -> FrameTree:
     for r in rec.records:
         if r[0] == "msg":
             m = r[1]
-            msgs = [(m.topic, m.port, codec.decode_payload(codec.registry.get(m.type_name), m.payload))]
+            msgs = [(m.topic, codec.decode_payload(codec.registry.get(m.type_name), m.payload))]
         elif r[0] == "svc":
             ex, topic = r[1], f"/{r[1].provider}/srv/{r[1].service}"
-            msgs = [(topic, "", codec.decode_payload(codec.registry.get(ex.request_type), ex.request))]
+            msgs = [(topic, codec.decode_payload(codec.registry.get(ex.request_type), ex.request))]
             if not ex.error:
-                msgs.append((topic, "", codec.decode_payload(codec.registry.get(ex.reply_type), ex.reply)))
+                msgs.append((topic, codec.decode_payload(codec.registry.get(ex.reply_type), ex.reply)))
         else:
             continue
-        for topic, port, msg in msgs:
+        for topic, msg in msgs:
             names, edges = _names(msg)
             for name in names:
                 tree.named_by[name].add(topic)
-            if port == "frames":
-                for parent, child in edges:
-                    tree.parents[child].add(parent)
-                    tree.edges_by[(parent, child)].add(topic)
+            for parent, child in edges:
+                tree.parents[child].add(parent)
+                tree.edges_by[(parent, child)].add(topic)
     return tree
 
 
@@ -106,7 +108,12 @@ def sound_frame_tree(path: str | Path) -> FrameTree:
 def record(text: str, path: Path, plugins: list[str]) -> Path:
     """Run the recipe *text* recorded to *path* (*plugins*: the plugin modules the recording lists);
     the run must end well."""
-    graph = graph_from(text)
+    record_graph(graph_from(text), path, plugins)
+    return path
+
+
+def record_graph(graph: Graph, path: Path, plugins: list[str]) -> RunSummary:
+    """Run *graph* recorded to *path*; the run must end well."""
     summary = Runner(graph, observers=[Recorder(path, graph.recipe.record, graph.loaded, plugins)]).run()
     assert summary.ok, summary.stop_reason
-    return path
+    return summary

@@ -1,10 +1,10 @@
 """Every stage of the simulated cell publishes its frames: a recording shows the whole cell in 3D.
 
 A recorded run with every simulated device (robot, a camera on the flange, a fixed camera seeing a
-part in the gripper, a Vive tracker on the TCP, a point instrument) is read back: the transforms
-on the ``frames`` ports form one tree rooted at ``world`` (no frame with two parents), and every
-frame id that any message names (clouds, images, poses, tracker readings, truth, service replies)
-hangs in it. A tracker that is only sampled is not on the frames (see ``sim_tracker``); a streaming
+part in the gripper, a Vive tracker on the TCP, a point instrument) is read back: every transform
+it holds (``frames`` ports, the cameras' truth under ``truth/<frame>``) forms one tree rooted at
+``world`` (no frame with two parents), and every frame id that any message names (clouds, images,
+poses, tracker readings, scene meshes, service replies) hangs in it. A tracker that is only sampled is not on the frames (see ``sim_tracker``); a streaming
 one is, with each reading.
 """
 
@@ -94,6 +94,8 @@ def test_every_frame_named_in_a_recording_of_the_simulated_cell_hangs_in_one_tre
         "held": "tcp",
         "lighthouse": "world",  # the sampled tracker: its readings are replies, not on frames
         "laser_tracker": "world",
+        # where the cameras saw the parts, the camera and the TCP truly were, beside the nominal frames
+        **{f"truth/{f}": "world" for f in ("part", "camera", "tcp", "held", "fixed_camera")},
     }
     # each device publishes its own part of the tree
     by_stage = {edge: {t.split("/")[1] for t in topics} for edge, topics in tree.edges_by.items()}

@@ -100,3 +100,39 @@ def test_solvers_and_actions_never_see_truth():
     assert any(
         "robot.truth gives simulation ground truth" in str(p) and "action" in str(p) for p in info.value.problems
     )
+
+
+def test_the_cloud_port_can_show_a_thinned_copy_of_each_capture():
+    """``cloud_decimate: 4``: the capture reply keeps every point, the cloud port (the recording's 3D
+    view) every 4th, in the same frame with the same stamp."""
+    keep = Keep()
+    text = CELL.format(effects="{}", count=1, x=-0.49)
+    summary = Runner(graph_from(text, ["camera.cloud_decimate=4"]), observers=[keep]).run()
+    assert summary.ok, summary.stop_reason
+    reply = next(m for s, p, m in keep.msgs if (s, p) == ("capture", "cloud"))
+    shown = next(m for s, p, m in keep.msgs if (s, p) == ("camera", "cloud"))
+    assert len(reply.points) > 2000 and (shown.frame_id, shown.stamp_ns) == (reply.frame_id, reply.stamp_ns)
+    np.testing.assert_array_equal(shown.points, reply.points[::4])
+
+
+def test_truth_goes_under_its_own_frame_names_beside_the_nominal_tree():
+    """``truth/part_poses`` names ``truth/<frame>`` under ``world``: the nominal ``tcp``, ``camera`` and
+    ``part`` of ``frames`` keep one parent and one pose each in a recording's 3D view."""
+    summary, msgs = run_cell()
+    assert summary.ok, summary.stop_reason
+    truth = next(m for s, p, m in msgs if (s, p) == ("camera", "truth/part_poses"))
+    nominal = next(m for s, p, m in msgs if (s, p) == ("camera", "frames"))
+    assert {(t.frame_id, t.child_frame_id) for t in truth.transforms} == {
+        ("world", "truth/part"),
+        ("world", "truth/camera"),
+        ("world", "truth/tcp"),
+    }
+    assert {(t.frame_id, t.child_frame_id) for t in nominal.transforms} == {("world", "part"), ("tcp", "camera")}
+
+
+@pytest.mark.parametrize("name", ["base", "tcp", "world", "camera", "truth/part"])
+def test_a_part_named_like_a_frame_of_the_cell_is_refused(name):
+    text = CELL.format(effects="{}", count=1, x=-0.49).replace("{name: part,", f"{{name: {name},")
+    with pytest.raises(RecipeError) as info:
+        graph_from(text)
+    assert any("a frame the cell already has" in str(p) for p in info.value.problems)

@@ -4,11 +4,16 @@ Wraps :class:`plugins.sim.cell.SimCell`. On ``capture`` it asks the simulated ro
 ``robot``, wired to ``sim_robot.truth``) where the TCP truly is when the camera is on the flange or
 a part is in the gripper, renders the scene with the noise model and the sensor effects (depth
 scale/bias, latency, hand-eye error, placement offsets), and replies with the cloud in the camera
-frame. It also publishes the depth image, the intrinsics, the nominal frame tree, the workpiece
-meshes (once) and, on ``truth/part_poses``, where the parts and the camera truly were.
+frame. It also publishes the capture on ``cloud`` (every ``cloud_decimate``-th point: a lighter copy
+for the recording's 3D view), the depth image, the intrinsics, the nominal frame tree, the workpiece
+meshes (once) and, on ``truth/part_poses``, where the parts, the camera and the TCP truly were.
 
 The camera's frame is ``frame_id`` (``camera`` by default) on every message and on ``frames``; give
-each camera of a cell its own (e.g. ``fixed_camera``) so that the frame tree stays a tree.
+each camera of a cell its own (e.g. ``fixed_camera``) so that the frame tree stays a tree. A part's
+name is its frame, so it must not be one the cell already has (``world``, ``base``, ``tcp``, the
+camera's). The true poses go under their own names, ``truth/<frame>`` (:func:`truth_frame`), as
+children of ``world``: a 3D view reads every transform of a recording, and the same name with a
+second parent (``world -> tcp`` beside ``base -> tcp``) or a second pose would not be one tree.
 """
 
 from __future__ import annotations
@@ -17,7 +22,7 @@ from dataclasses import replace
 from typing import Any, ClassVar, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from engine.messages import (
     CameraInfo,
@@ -33,12 +38,20 @@ from engine.messages import (
 from engine.stage import ServiceSpec, Stage, StageParams
 from plugins.interfaces import CAMERA_OUTPUTS, CAMERA_SERVICES
 from plugins.params import PoseSpec
+from plugins.sensors.camera_output import thinned
 from plugins.sim.camera import DepthCameraModel, DepthNoiseModel, PinholeIntrinsics, default_intrinsics
 from plugins.sim.cell import CameraMount, PartPlacement, SimCell
 from plugins.sim.sensor_effects import SensorEffects
 from plugins.sim.workpieces import make_workpiece
 
 NOISE_PRESETS = ("noiseless", "industrial_structured_light", "realsense_d415", "kinect_v1")
+TRUTH_PREFIX = "truth/"
+CELL_FRAMES = ("world", "base", "tcp")  # the world and the robot's frames
+
+
+def truth_frame(frame: str) -> str:
+    """The name of *frame*'s true pose on ``truth/part_poses`` (a child of ``world``)."""
+    return TRUTH_PREFIX + frame
 
 
 class _Strict(BaseModel):
@@ -102,7 +115,22 @@ class SimCamera(Stage):
         publish_cloud: bool = Field(True, description="also publish each capture on the cloud port")
         publish_depth: bool = Field(True, description="publish the depth image of each capture")
         decimate: int = Field(1, ge=1, le=16, description="keep every n-th valid point (smaller clouds)")
+        cloud_decimate: int = Field(
+            1, ge=1, le=64, description="the cloud port shows every n-th point of each capture (the reply keeps all)"
+        )
         frame_id: str = Field("camera", min_length=1, description="the camera's frame on its messages and frames")
+
+        @model_validator(mode="after")
+        def _part_frames(self) -> SimCamera.Params:
+            taken = {*CELL_FRAMES, self.frame_id}
+            for i, part in enumerate(self.parts):
+                if part.name in taken or part.name.startswith(TRUTH_PREFIX):
+                    raise ValueError(
+                        f"parts[{i}]: the name {part.name!r} is a frame the cell already has (or a truth frame); "
+                        f"a part's name is its frame: choose another (taken: {', '.join(sorted(taken))})"
+                    )
+                taken.add(part.name)
+            return self
 
     def setup(self) -> None:
         p: SimCamera.Params = self.params  # type: ignore[assignment]
@@ -162,7 +190,7 @@ class SimCamera(Stage):
             info = CameraInfo(width=intr.width, height=intr.height, K=intr.K(), frame_id=p.frame_id, stamp_ns=stamp)
             self.ctx.publish("camera_info", info)
         if p.publish_cloud:
-            self.ctx.publish("cloud", cloud)
+            self.ctx.publish("cloud", thinned(cloud, p.cloud_decimate))
         own = {"camera": p.frame_id}  # SimCell names its camera "camera"
         frames = [
             Transform(frame_id=f.parent, child_frame_id=own.get(f.child, f.child), T=f.T_parent_child, stamp_ns=stamp)
@@ -170,12 +198,12 @@ class SimCamera(Stage):
             if f.child not in ("base", "tcp")  # the robot publishes those
         ]
         self.ctx.publish("frames", FrameTransforms(stamp_ns=stamp, transforms=frames))
-        truth_tf = [
-            Transform(frame_id="world", child_frame_id=name, T=T, stamp_ns=stamp)
-            for name, T in truth.T_world_parts.items()
-        ]
-        truth_tf.append(Transform(frame_id="world", child_frame_id=p.frame_id, T=truth.T_world_cam, stamp_ns=stamp))
+        true_poses = {**truth.T_world_parts, p.frame_id: truth.T_world_cam}
         if truth.T_world_tcp is not None:
-            truth_tf.append(Transform(frame_id="world", child_frame_id="tcp", T=truth.T_world_tcp, stamp_ns=stamp))
+            true_poses["tcp"] = truth.T_world_tcp
+        truth_tf = [
+            Transform(frame_id="world", child_frame_id=truth_frame(name), T=T, stamp_ns=stamp)
+            for name, T in true_poses.items()
+        ]
         self.ctx.publish("truth/part_poses", FrameTransforms(stamp_ns=stamp, transforms=truth_tf))
         return cloud

@@ -1,7 +1,8 @@
 """``docking_evaluator``: how well a simulated cell docked, from ground truth (a sink: tests and benchmarks).
 
 Reads the simulated robot's ``truth/tcp_pose`` (the true TCP after the last move), a simulated
-camera's ``truth/part_poses`` (true part poses and the true TCP at the last capture) and the docking
+camera's ``truth/part_poses`` (true part poses and the true TCP at the last capture, each under its
+``truth/<frame>`` name; a bare name, as older recordings have it, reads the same) and the docking
 stage's ``correction``, and at the end of the run reports the docking error in mm and degrees
 (event ``docking_evaluation``; optionally a JSON file):
 
@@ -31,6 +32,7 @@ from engine.messages import Correction, FrameTransforms, PoseStamped
 from engine.stage import Stage, StageParams
 from engine.transforms import inv, pose_error, transform_points
 from plugins.params import PoseSpec
+from plugins.sim.stages.camera import TRUTH_PREFIX
 from plugins.sim.workpieces import make_workpiece
 
 
@@ -90,7 +92,7 @@ class DockingEvaluator(Stage):
         robot, parts = self.last.get("robot_truth"), self.last.get("part_truth")
         if not isinstance(robot, PoseStamped) or not isinstance(parts, FrameTransforms):
             return {**base, "reason": "missing truth"}
-        truth = {t.child_frame_id: t.T for t in parts.transforms}
+        truth = {t.child_frame_id.removeprefix(TRUTH_PREFIX): t.T for t in parts.transforms}
         tcp_final = robot.T
         if p.scenario == "assembly":
             return {**base, "docked": True, **self._assembly(truth, tcp_final)}

@@ -15,6 +15,12 @@ transforms go downstream, with frame names).
   published every time. Output ``transform`` carries the calibrated transforms **only when the
   verdict is usable** (ok / warning): a degenerate or failed calibration never goes downstream as a
   transform (DESIGN safety rule); it raises a ``warning`` event with the reasons instead.
+* Each transform goes from a frame the cell already has (the robot's ``base`` or ``tcp``, the
+  instrument's or tracker's frame: taken from the messages or named by a parameter) to the frame it
+  estimates. An estimate of a frame the cell's stages publish themselves (the camera, the robot base,
+  the tracker on the tool) gets a name of its own, ``<frame>_calibrated`` by default
+  (:func:`calibrated`): one frame with two parents is not a tree, and a 3D view of the recording then
+  shows the estimate beside the frame it estimates.
 * Bad input (unpaired samples, NaN, too few samples, mixed units) does not raise: it becomes a
   ``failed`` result whose reason starts with "bad input".
 * Results are stamped with the newest sample's stamp, so a replay reproduces them exactly.
@@ -33,6 +39,12 @@ from plugins.solvers.calibration_inputs import PairingOptions
 from plugins.solvers.calibration_result import CalibrationResult
 
 SOLVE_PORT = "solve"
+CALIBRATED = "_calibrated"
+
+
+def calibrated(frame: str) -> str:
+    """The default name of the estimate of *frame* (``camera`` -> ``camera_calibrated``)."""
+    return frame + CALIBRATED
 
 
 class PairingParams(StageParams):

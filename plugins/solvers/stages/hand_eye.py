@@ -3,10 +3,12 @@
 Inputs: ``robot_pose`` (PoseStamped ``T_base_tcp`` as the robot reports it), ``target_pose``
 (PoseStamped ``T_cam_target``: the calibration target / known object seen by the camera), ``solve``.
 Samples are paired by stamp (see plugins.solvers.stages.base). Publishes the result and, when
-usable, two transforms: the hand-eye ``X`` (eye in hand: ``tcp -> camera``; eye to hand:
-``base -> camera``) and the other unknown ``Y`` (``base -> target`` or ``tcp -> target``). Frame
-names come from the messages (the robot poses' ``frame_id`` for the base, the target poses'
-``frame_id`` for the camera); ``tcp_frame`` and ``target_frame`` name the others.
+usable, two transforms: the hand-eye ``X`` (eye in hand: ``tcp -> camera_calibrated``; eye to hand:
+``base -> camera_calibrated``) and the other unknown ``Y`` (``base -> target`` or ``tcp -> target``).
+Frame names come from the messages (the robot poses' ``frame_id`` for the base, the target poses'
+``frame_id`` for the camera, whose estimate is ``<camera>_calibrated`` unless ``camera_frame`` names
+it: the camera stage publishes the camera's own frame with its mount); ``tcp_frame`` and
+``target_frame`` name the others.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from engine.messages import PoseStamped
 from plugins.solvers.calibration_inputs import CalibrationInputError, hand_eye_samples
 from plugins.solvers.calibration_result import CalibrationResult
 from plugins.solvers.handeye import NoiseModel, calibrate_hand_eye, calibrate_robot_world
-from plugins.solvers.stages.base import CalibrationStage, PairingParams
+from plugins.solvers.stages.base import CalibrationStage, PairingParams, calibrated
 
 
 class HandEyeCalibration(CalibrationStage):
@@ -40,6 +42,7 @@ class HandEyeCalibration(CalibrationStage):
         loss: Literal["huber", "cauchy", "linear"] = "huber"
         tcp_frame: str = "tcp"
         target_frame: str = "target"
+        camera_frame: str | None = Field(None, description="the estimated camera frame (default: <camera>_calibrated)")
 
     def calibrate(self) -> tuple[CalibrationResult, list[str]]:
         p: HandEyeCalibration.Params = self.params  # type: ignore[assignment]
@@ -62,6 +65,7 @@ class HandEyeCalibration(CalibrationStage):
     def transforms(self, result: CalibrationResult) -> list[tuple[np.ndarray, str, str]]:
         p: HandEyeCalibration.Params = self.params  # type: ignore[assignment]
         base, cam = self.frame_of("robot_pose", "base"), self.frame_of("target_pose", "camera")
+        cam = p.camera_frame or calibrated(cam)
         e = result.estimate
         if p.setup == "eye_in_hand":
             return [(e["T_tcp_cam"], p.tcp_frame, cam), (e["T_base_target"], base, p.target_frame)]

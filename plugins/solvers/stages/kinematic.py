@@ -8,10 +8,12 @@ the measurement frame and the tool point are estimated with the geometry.
 
 Publishes the result (its JSON holds the calibrated model as a model-file mapping in
 ``estimate.model_file``, the identified parameter changes, the before/after figures) and, when
-usable, ``T_meas_base`` (the instrument frame, from the measurements' frame_id -> ``base_frame``) and
-``T_flange_tcp`` (``flange_frame`` -> ``tcp_frame``). After each solve it writes result.json,
-report.txt, summary.md, convergence.png and before_after.txt in its folder of the run folder (or
-``report_dir``: engine/run_folder.py says where a named folder lies).
+usable, ``T_meas_base`` (the instrument frame, from the measurements' frame_id -> ``base_frame``,
+``base_calibrated``: the robot's own ``base`` already hangs under ``world``) and ``T_flange_tcp``
+(``flange_frame`` -> ``tcp_frame``; name the robot's frame that is the flange: ``tcp`` for vgr's robot
+stages with no tool set). After each solve it writes result.json, report.txt, summary.md,
+convergence.png and before_after.txt in its folder of the run folder (or ``report_dir``:
+engine/run_folder.py says where a named folder lies).
 """
 
 from __future__ import annotations
@@ -51,7 +53,7 @@ class KinematicCalibrationStage(CalibrationStage):
         report_dir: str | None = Field(
             None, description="folder for the report files (default: the stage's folder in the run folder)"
         )
-        base_frame: str = "base"
+        base_frame: str = "base_calibrated"
         flange_frame: str = "flange"
         tcp_frame: str = "tcp_calibrated"
 

@@ -5,7 +5,9 @@ fixture holds the TCP, in the desk frame; translation = contact point + TCP offs
 fixture orientation), ``tracker_pose`` (TrackerPose ``T_base_tracker`` in the base-station frame;
 readings flagged invalid are left out) and ``solve``. Publishes the result and, when usable,
 ``T_base_desktop`` (tracker frame_id, e.g. ``lighthouse`` -> contact frame_id, e.g. ``desktop``) and
-``T_tracker_tcp`` (``tracker_frame`` -> ``tcp_frame``).
+the tracker on the tool, ``T_tcp_tracker`` = ``T_tracker_tcp``^-1 (``tcp_frame`` -> ``tracker_frame``,
+``tracker_calibrated``): the robot's ``tcp`` is on the tree under its base, and a sampled tracker
+publishes no frame of its own (a streaming one publishes ``lighthouse -> <tracker_frame>``).
 
 ``vive_to_desktop`` (transform): the real-time conversion ``T_desktop_tcp = inv(T_base_desktop)
 T_base_tracker T_tracker_tcp`` with the seed's representations. Inputs ``tracker_pose`` and
@@ -29,6 +31,7 @@ from pydantic import Field
 
 from engine.messages import Blob, CalibrationResultMsg, PoseStamped, TrackerPose
 from engine.stage import Stage, StageParams
+from engine.transforms import inv
 from plugins.params import PoseSpec
 from plugins.solvers.calibration_inputs import vive_desk_data
 from plugins.solvers.calibration_result import CalibrationResult
@@ -50,7 +53,7 @@ class ViveDeskCalibration(CalibrationStage):
         desk_point_sigma_m: float = Field(0.0, ge=0.0)
         prior_T_tracker_tcp: PoseSpec | None = Field(None, description="CAD / caliper T_tracker_tcp (seed method A)")
         prior_sigma_m: float = Field(1e-3, gt=0.0, description="1-sigma of the prior's lever arm")
-        tracker_frame: str = "tracker"
+        tracker_frame: str = "tracker_calibrated"
         tcp_frame: str = "tcp"
 
     def calibrate(self) -> tuple[CalibrationResult, list[str]]:
@@ -69,7 +72,7 @@ class ViveDeskCalibration(CalibrationStage):
         p: ViveDeskCalibration.Params = self.params  # type: ignore[assignment]
         base, desk = self.frame_of("tracker_pose", "lighthouse"), self.frame_of("contact", "desktop")
         e = result.estimate
-        return [(e["T_base_desktop"], base, desk), (e["T_tracker_tcp"], p.tracker_frame, p.tcp_frame)]
+        return [(e["T_base_desktop"], base, desk), (inv(e["T_tracker_tcp"]), p.tcp_frame, p.tracker_frame)]
 
 
 class ViveToDesktop(Stage):
