@@ -3,6 +3,9 @@ request: a data-collection campaign commands no robot move past the stop."""
 
 from __future__ import annotations
 
+import threading
+import time
+
 import pytest
 from recipe_helpers import graph_from
 
@@ -75,3 +78,98 @@ def test_an_early_stop_halts_the_device_stages_first_and_a_normal_end_does_not(m
     order.clear()
     summary = Runner(graph_from(RECIPE, ["campaign.n_poses=2"])).run()
     assert summary.outcome == "ok" and order == ["teardown"]
+
+
+class RunEvents(Observer):
+    """Keeps the runner's own events (the stop and its steps)."""
+
+    def __init__(self) -> None:
+        self.events: list = []
+
+    def on_run_event(self, ev) -> None:
+        self.events.append(ev)
+
+    def codes(self, stage: str | None = None) -> list[str]:
+        return [e.code for e in self.events if stage is None or e.stage == stage]
+
+
+def stop_when(runner: Runner, ready, reason: str = "interrupted (Ctrl-C)") -> threading.Thread:
+    """Stops *runner* (as Ctrl-C does) from another thread once ``ready()`` holds (20 s at most)."""
+
+    def watch() -> None:
+        deadline = time.monotonic() + 20
+        while not ready() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        runner.stop(reason)
+
+    th = threading.Thread(target=watch, daemon=True)
+    th.start()
+    return th
+
+
+BUSY = """
+name: busy
+plugins: [stage_fixtures]
+clock: wall
+stages:
+  src: {type: t_counter, params: {n: 1}}
+  slow: {type: t_busy, params: {busy_s: 30}}
+  call: {type: t_caller, inputs: {in: src.out}, uses: {svc: slow.work}, params: {timeout_s: 60}}
+"""
+
+
+def test_a_call_waiting_for_its_reply_returns_at_the_stop_and_a_busy_stage_is_reported_once(monkeypatch):
+    from stage_fixtures import BUSY_RELEASE
+
+    thread_errors: list = []
+    monkeypatch.setattr(threading, "excepthook", thread_errors.append)
+    events = RunEvents()
+    runner = Runner(graph_from(BUSY), run_id="busy-stop", observers=[events])
+    # the caller has sent its request to the busy stage (which does not look at the stop for 30 s)
+    stop_when(runner, lambda: "call" in runner.runtimes and runner.runtimes["call"].stats.calls_made == 1)
+    try:
+        summary = runner.run()
+        assert summary.outcome == "interrupted" and summary.exit_code == 130
+        # the caller's call was cut short: it ended with the stop, quietly (no error, no traceback)
+        assert "stage_stopped" in events.codes("call")
+        assert not [e for e in summary.events if e.level == "error" or e.traceback], summary.events
+        assert runner.runtimes["call"].stats.state == "stopped"
+        # only the stage busy in its computation outlived the grace period: one warning, no traceback
+        (stuck,) = [e for e in summary.events if e.code == "stage_stuck"]
+        assert stuck.stage == "slow" and stuck.level == "warning" and not stuck.traceback
+        assert events.codes("slow") == ["stage_stuck"]
+        assert events.codes()[-1] == "stop_done"
+        # the run ended a grace period after the stop, not when the 60 s call would have timed out
+        # (a generous bound; measured by the run itself)
+        assert summary.stop_to_end_s is not None and summary.stop_to_end_s < 5.0
+    finally:
+        BUSY_RELEASE["busy-stop"].set()  # the busy stage finishes, after its bus has closed...
+    th = next(t for t in runner.runtimes["slow"].threads if t.name.endswith("srv.work"))
+    th.join(10)
+    assert not th.is_alive()
+    assert not thread_errors  # ...and its late reply goes nowhere, without an exception
+
+
+HELPER = """
+name: helper
+plugins: [stage_fixtures]
+clock: wall
+stages:
+  echo: {type: t_echo}
+  calls: {type: t_helper_caller, uses: {svc: echo.echo}}
+"""
+
+
+def test_a_helper_thread_of_a_stage_sends_nothing_after_the_stop():
+    from stage_fixtures import HELPER_CALLS
+
+    runner = Runner(graph_from(HELPER), run_id="helper-stop")
+    stop_when(runner, lambda: HELPER_CALLS["helper-stop"].get("answered", 0) >= 20)
+    summary = runner.run()
+    assert summary.outcome == "interrupted"
+    seen = HELPER_CALLS["helper-stop"]
+    assert seen["ended_by"] == "RunStoppingError"
+    # every request the echo stage served was answered to the helper (at most one in flight was cut)
+    served = runner.runtimes["echo"].stats.requests_served
+    assert seen["answered"] <= served <= seen["answered"] + 1
+    assert summary.stop_to_end_s is not None and summary.stop_to_end_s < 5.0
