@@ -6,6 +6,7 @@ from __future__ import annotations
 import threading
 import time
 
+import numpy as np
 import pytest
 from recipe_helpers import graph_from
 
@@ -173,3 +174,52 @@ def test_a_helper_thread_of_a_stage_sends_nothing_after_the_stop():
     served = runner.runtimes["echo"].stats.requests_served
     assert seen["answered"] <= served <= seen["answered"] + 1
     assert summary.stop_to_end_s is not None and summary.stop_to_end_s < 5.0
+
+
+class StopMidMove(RunEvents):
+    """Stops the run (as Ctrl-C does) while the robot is in the middle of the campaign's 2nd move."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.runner: Runner | None = None
+        self.moves_answered = 0
+        self.samples_of_move_2 = 0
+
+    def on_service(self, call) -> None:
+        if call.stage == "campaign" and call.client == "robot":
+            self.moves_answered += 1
+
+    def on_publish(self, stage, port, payload, envelope, msg) -> None:
+        if stage == "robot" and port == "joint_state" and self.moves_answered == 1:
+            self.samples_of_move_2 += 1
+            if self.samples_of_move_2 == 3:  # 3 samples at 25 Hz into a ~2 s move
+                assert self.runner is not None
+                self.runner.stop("interrupted (Ctrl-C)")
+
+
+def test_ctrl_c_mid_move_halts_the_robot_on_its_path_and_no_further_move_is_sent():
+    # real (wall-clock) time: the second move lasts ~2 s (60 deg at 0.5 rad/s) and is cut short
+    obs = StopMidMove()
+    overrides = [
+        "clock=wall",
+        "campaign.speed=0.5",
+        "campaign.poses_deg=[[0,-90,0,-90,0,0],[60,-90,0,-90,0,0],[0,-60,0,-90,0,0]]",
+    ]
+    runner = Runner(graph_from(RECIPE, overrides), observers=[obs])
+    obs.runner = runner
+    summary = runner.run()
+    assert summary.outcome == "interrupted" and summary.exit_code == 130
+    ctl = runner.runtimes["robot"].stage.ctl
+    # the controller got the two moves sent before the stop and nothing after it
+    assert [cid for cid in ctl._results] == ["campaign-1-0", "campaign-1-1"]
+    # the move in progress was halted: it decelerated on its path and the robot is at rest, short of its target
+    halted = ctl.result("campaign-1-1")
+    assert halted.halted and not ctl.is_moving(halted.end_s)
+    assert abs(np.degrees(ctl.state(halted.end_s).q[0])) < 59.0
+    assert "halted" in obs.codes("robot")
+    # the campaign's waiting call was cut short: it ended quietly (no robot_unavailable alarm, no error)
+    assert runner.runtimes["campaign"].stats.state == "stopped"
+    assert not [e for e in summary.events if e.level in ("error", "alarm")], summary.events
+    # every stage ended well within the grace period (a generous bound, measured by the run itself)
+    assert "stage_stuck" not in obs.codes()
+    assert summary.stop_to_end_s is not None and summary.stop_to_end_s < 2.0
