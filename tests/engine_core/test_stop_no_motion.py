@@ -197,7 +197,12 @@ class StopMidMove(RunEvents):
                 self.runner.stop("interrupted (Ctrl-C)")
 
 
-def test_ctrl_c_mid_move_halts_the_robot_on_its_path_and_no_further_move_is_sent():
+def test_ctrl_c_mid_move_halts_the_robot_on_its_path_and_no_further_move_is_sent(tmp_path):
+    from engine import codec
+    from engine.messages import Event
+    from engine.recorder import Recorder
+    from engine.recording import load
+
     # real (wall-clock) time: the second move lasts ~2 s (60 deg at 0.5 rad/s) and is cut short
     obs = StopMidMove()
     overrides = [
@@ -205,7 +210,9 @@ def test_ctrl_c_mid_move_halts_the_robot_on_its_path_and_no_further_move_is_sent
         "campaign.speed=0.5",
         "campaign.poses_deg=[[0,-90,0,-90,0,0],[60,-90,0,-90,0,0],[0,-60,0,-90,0,0]]",
     ]
-    runner = Runner(graph_from(RECIPE, overrides), observers=[obs])
+    graph = graph_from(RECIPE, overrides)
+    recorder = Recorder(tmp_path / "stopped.mcap", graph.recipe.record, graph.loaded, ["builtin"])
+    runner = Runner(graph, observers=[obs, recorder])
     obs.runner = runner
     summary = runner.run()
     assert summary.outcome == "interrupted" and summary.exit_code == 130
@@ -223,3 +230,21 @@ def test_ctrl_c_mid_move_halts_the_robot_on_its_path_and_no_further_move_is_sent
     # every stage ended well within the grace period (a generous bound, measured by the run itself)
     assert "stage_stuck" not in obs.codes()
     assert summary.stop_to_end_s is not None and summary.stop_to_end_s < 2.0
+
+    # the shutdown is in the recording: the stop and its reason, the halt, the stages it ended
+    rec = load(tmp_path / "stopped.mcap")
+    run = [codec.decode_payload(Event, m.payload) for m in rec.messages("/_vgr/run")]
+    assert [(e.code, e.stage) for e in run[:2]] == [("stop", ""), ("halted", "robot")]
+    assert run[0].details["reason"] == "interrupted (Ctrl-C)" and run[-1].code == "stop_done"
+    stopped = {e.stage: e.details["after_s"] for e in run if e.code == "stage_stopped"}
+    assert set(stopped) == {"robot", "campaign"} and max(stopped.values()) < 2.0  # (the others had ended)
+    moved = [codec.decode_payload(Event, m.payload) for m in rec.messages("/robot/events")]
+    assert [e.details["command_id"] for e in moved if e.code == "move_halted"] == ["campaign-1-1"]
+    ended = [codec.decode_payload(Event, m.payload) for m in rec.messages("/campaign/events")]
+    assert [e.code for e in ended][-1:] == ["stopped"]
+    # the move commands in the recording: the two sent, the second cut short by the stop, no third
+    moves = [r[1] for r in rec.records if r[0] == "svc" and r[1].caller == "campaign" and r[1].client == "robot"]
+    assert [m.request_seq for m in moves] == [1, 2] and "run is stopping" in moves[1].error
+    meta = rec.metadata["vgr.summary"]
+    assert meta["outcome"] == "interrupted" and meta["stop_reason"] == "interrupted (Ctrl-C)"
+    assert float(meta["stop_to_end_s"]) < 2.0
