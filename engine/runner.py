@@ -42,7 +42,7 @@ from datetime import UTC, datetime
 from functools import partial
 from typing import Any
 
-from engine.bus import Bus, active_key, cancel_token, control_key, ready_key, started_key
+from engine.bus import Bus, CancelToken, active_key, control_key, ready_key, started_key
 from engine.clock import Clock, make_clock
 from engine.graph import Graph
 from engine.messages import Event
@@ -150,7 +150,7 @@ class Runner:
         self.ready_timeout_s = ready_timeout_s
         self.freeze_gc = freeze_gc
         self.stop_event = threading.Event()
-        self.calls_token = cancel_token()  # cancelled by stop(): the stages' calls end (engine.bus)
+        self.calls_token = CancelToken()  # cancelled by stop(): the stages' calls end (engine.bus)
         self._stopped_at: float | None = None  # time.monotonic() of the stop
         self.stop_to_end_s: float | None = None
         self.started = False  # True once every local stage's setup() has run

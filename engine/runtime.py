@@ -196,12 +196,14 @@ class StageRuntime(StageContext):
         except RequestCancelled:  # the stop came first: no reply is awaited (nor sent, if it was not yet)
             error = "cut short: the run is stopping"
             raise RunStoppingError(f"{self.name} -> {edge.provider}.{edge.service}: {error}") from None
-        except TimeoutError as exc:
+        except (TimeoutError, LookupError, RuntimeError, CodecError) as exc:
             error = str(exc)
-            raise ServiceTimeoutError(f"{self.name} -> {edge.provider}.{edge.service}: {exc}") from None
-        except (LookupError, RuntimeError, CodecError) as exc:
-            error = str(exc)
-            raise ServiceError(f"{self.name} -> {edge.provider}.{edge.service}: {exc}") from None
+            where = f"{self.name} -> {edge.provider}.{edge.service}"
+            if self._stop_event.is_set():  # a call that failed while the run stops: the stop's doing
+                raise RunStoppingError(f"{where}: {exc} (the run is stopping)") from None
+            if isinstance(exc, TimeoutError):
+                raise ServiceTimeoutError(f"{where}: {exc}") from None
+            raise ServiceError(f"{where}: {exc}") from None
         finally:
             if self._observers:
                 done = ServiceCall(self.name, client, edge, payload, att, reply_payload, reply_att, error)

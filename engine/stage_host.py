@@ -15,9 +15,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 if TYPE_CHECKING:
     import threading
 
-    import zenoh
-
-    from engine.bus import Bus
+    from engine.bus import Bus, CancelToken
     from engine.clock import Clock
     from engine.codec import Envelope
     from engine.graph import Graph, ServiceEdge, StageNode
@@ -70,7 +68,7 @@ class StageHost(Protocol):
     seed: int
     clock: Clock
     stop_event: threading.Event  # set once the run stops
-    calls_token: zenoh.CancellationToken  # cancelled once the run stops: its stages' calls end at once
+    calls_token: CancelToken  # cancelled once the run stops: its stages' calls end at once
     started: bool  # every stage of the process has been set up
 
     @property
