@@ -447,7 +447,7 @@ class StageRuntime(StageContext):
 
     # -- state changes -----------------------------------------------------------------------
     def _mark_data_done(self) -> None:
-        if self.stats.state == "running":
+        if self.stats.state == "running" and not self.stopping:  # (ended by a stop: the runner says "stopped")
             self.stats.state = "finished"
         self.data_done.set()
         self.host.stage_done(self.name)

@@ -170,6 +170,8 @@ def test_a_helper_thread_of_a_stage_sends_nothing_after_the_stop():
     assert summary.outcome == "interrupted"
     seen = HELPER_CALLS["helper-stop"]
     assert seen["ended_by"] == "RunStoppingError"
+    # the source the stop ended is said to be stopped, not finished
+    assert runner.runtimes["calls"].stats.state == "stopped"
     # every request the echo stage served was answered to the helper (at most one in flight was cut)
     served = runner.runtimes["echo"].stats.requests_served
     assert seen["answered"] <= served <= seen["answered"] + 1
@@ -237,7 +239,9 @@ def test_ctrl_c_mid_move_halts_the_robot_on_its_path_and_no_further_move_is_sent
     assert [(e.code, e.stage) for e in run[:2]] == [("stop", ""), ("halted", "robot")]
     assert run[0].details["reason"] == "interrupted (Ctrl-C)" and run[-1].code == "stop_done"
     stopped = {e.stage: e.details["after_s"] for e in run if e.code == "stage_stopped"}
-    assert set(stopped) == {"robot", "campaign"} and max(stopped.values()) < 2.0  # (the others had ended)
+    # the stages whose threads were busy: robot, campaign, and start, whose thread runs the campaign's
+    # handler (the campaign was idle when start published); tracker, a source, had ended
+    assert set(stopped) == {"robot", "campaign", "start"} and max(stopped.values()) < 2.0
     moved = [codec.decode_payload(Event, m.payload) for m in rec.messages("/robot/events")]
     assert [e.details["command_id"] for e in moved if e.code == "move_halted"] == ["campaign-1-1"]
     ended = [codec.decode_payload(Event, m.payload) for m in rec.messages("/campaign/events")]
