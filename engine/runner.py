@@ -152,6 +152,7 @@ class Runner:
         self.stop_event = threading.Event()
         self.calls_token = CancelToken()  # cancelled by stop(): the stages' calls end (engine.bus)
         self._stopped_at: float | None = None  # time.monotonic() of the stop
+        self._stop_claim = threading.Lock()  # taken by the one stop() that stops the run
         self.stop_to_end_s: float | None = None
         self.started = False  # True once every local stage's setup() has run
         self.stop_reason: str | None = None
@@ -206,15 +207,18 @@ class Runner:
 
     def stop(self, reason: str, *, broadcast: bool = True) -> None:
         """Stop the run (idempotent). Other processes of the run are told unless *broadcast* is False."""
-        if self.stop_event.is_set():
+        # (a lock taken once and kept, without waiting: a stop from a stage's thread and one from the
+        # SIGINT handler at the same time make one stop, and the handler never blocks the main thread)
+        if self.stop_event.is_set() or not self._stop_claim.acquire(blocking=False):
             return
         self.stop_reason = reason
         self._stopped_at = time.monotonic()
+        # the stop event first: it is recorded before anything the stop causes (the halts, ...)
+        self._run_event("info", "stop", "", f"stopping: {reason}", reason=reason, process=self.process)
         self.stop_event.set()  # nothing new is sent: ctx.call checks it before a request leaves...
         self.calls_token.cancel()  # ...and the calls waiting for their replies return now
         self._progress.set()
         log.warning("stopping run %s: %s", self.run_id, reason)
-        self._run_event("info", "stop", "", f"stopping: {reason}", reason=reason, process=self.process)
         # stop() may run on a stage's own thread (a failure) or in the SIGINT handler: it only flags;
         # the main thread halts the devices and wakes the readers in _shutdown, so nothing here can
         # block on a full channel.

@@ -229,9 +229,9 @@ def test_ctrl_c_mid_move_halts_the_robot_on_its_path_and_no_further_move_is_sent
     # the campaign's waiting call was cut short: it ended quietly (no robot_unavailable alarm, no error)
     assert runner.runtimes["campaign"].stats.state == "stopped"
     assert not [e for e in summary.events if e.level in ("error", "alarm")], summary.events
-    # every stage ended well within the grace period (a generous bound, measured by the run itself)
+    # every stage ended, none was left behind (and a generous bound on the time, measured by the run)
     assert "stage_stuck" not in obs.codes()
-    assert summary.stop_to_end_s is not None and summary.stop_to_end_s < 2.0
+    assert summary.stop_to_end_s is not None and summary.stop_to_end_s < 5.0
 
     # the shutdown is in the recording: the stop and its reason, the halt, the stages it ended
     rec = load(tmp_path / "stopped.mcap")
@@ -241,7 +241,7 @@ def test_ctrl_c_mid_move_halts_the_robot_on_its_path_and_no_further_move_is_sent
     stopped = {e.stage: e.details["after_s"] for e in run if e.code == "stage_stopped"}
     # the stages whose threads were busy: robot, campaign, and start, whose thread runs the campaign's
     # handler (the campaign was idle when start published); tracker, a source, had ended
-    assert set(stopped) == {"robot", "campaign", "start"} and max(stopped.values()) < 2.0
+    assert set(stopped) == {"robot", "campaign", "start"} and max(stopped.values()) < 5.0
     moved = [codec.decode_payload(Event, m.payload) for m in rec.messages("/robot/events")]
     assert [e.details["command_id"] for e in moved if e.code == "move_halted"] == ["campaign-1-1"]
     ended = [codec.decode_payload(Event, m.payload) for m in rec.messages("/campaign/events")]
@@ -251,4 +251,4 @@ def test_ctrl_c_mid_move_halts_the_robot_on_its_path_and_no_further_move_is_sent
     assert [m.request_seq for m in moves] == [1, 2] and "run is stopping" in moves[1].error
     meta = rec.metadata["vgr.summary"]
     assert meta["outcome"] == "interrupted" and meta["stop_reason"] == "interrupted (Ctrl-C)"
-    assert float(meta["stop_to_end_s"]) < 2.0
+    assert float(meta["stop_to_end_s"]) < 5.0
