@@ -23,6 +23,11 @@ service queries to a callback that only appends to an unbounded queue. (zenoh-py
 Python callback on a thread of its own, but feeds that thread through a bounded channel: measured
 here, a callback blocked while a few hundred samples arrive stalls the session's receive thread,
 service replies included. So no callback of ours ever blocks.)
+
+A request may carry a :class:`CancelToken` (one per run): cancelling it (the run stops) ends every
+request of the run still waiting for its reply at once, raising :class:`RequestCancelled` in its
+caller, and refuses any new one before it is sent. The provider may still be working on an
+abandoned query; its late reply goes nowhere.
 """
 
 from __future__ import annotations
@@ -202,6 +207,27 @@ class BusError(RuntimeError):
     """The zenoh session could not be opened or used."""
 
 
+class RequestCancelled(Exception):  # noqa: N818 - a cancellation, not a program error
+    """The request's cancellation token was cancelled: no reply is awaited (none was sent when the token
+    was cancelled before the request)."""
+
+
+class CancelToken:
+    """Cuts short every :meth:`Bus.request` that carries it: a zenoh ``CancellationToken`` (passing one
+    costs nothing measurable, ~18 us per local round trip with or without) and a flag set *before* it
+    is cancelled: zenoh closes the waiting requests' channels before its own ``is_cancelled`` turns
+    true, and a request woken in between must not take the cancellation for a missing service."""
+
+    def __init__(self) -> None:
+        self.zenoh = zenoh.CancellationToken()
+        self.cancelled = False
+
+    def cancel(self) -> None:
+        """Idempotent; safe from any thread (the SIGINT handler's included)."""
+        self.cancelled = True
+        self.zenoh.cancel()
+
+
 class Bus:
     """One zenoh session and the declarations made on it; ``close()`` undeclares and closes."""
 
@@ -284,19 +310,33 @@ class Bus:
         return {str(r.ok.key_expr) for r in replies if r.ok is not None}
 
     # -- request/reply ---------------------------------------------------------------------
-    def request(self, key: str, payload: bytes, attachment: bytes, timeout_s: float) -> tuple[bytes, bytes]:
+    def request(
+        self,
+        key: str,
+        payload: bytes,
+        attachment: bytes,
+        timeout_s: float,
+        cancel: CancelToken | None = None,
+    ) -> tuple[bytes, bytes]:
         """Send a query and return the first reply's (payload, attachment).
 
         Raises TimeoutError when nothing answered in time, LookupError when no service exists,
-        RuntimeError with the provider's message when it replied with an error.
+        RuntimeError with the provider's message when it replied with an error, RequestCancelled
+        when *cancel* was cancelled before the reply came (or before the query left).
         """
-        replies = self.session.get(
-            f"{key}?{TIMEOUT_PARAM}={max(1, round(timeout_s * 1000))}",  # the provider skips it once we gave up
-            payload=payload,
-            attachment=attachment,
-            timeout=timeout_s,
-            target=zenoh.QueryTarget.BEST_MATCHING,
-        )
+        try:
+            replies = self.session.get(
+                f"{key}?{TIMEOUT_PARAM}={max(1, round(timeout_s * 1000))}",  # the provider skips it once we gave up
+                payload=payload,
+                attachment=attachment,
+                timeout=timeout_s,
+                target=zenoh.QueryTarget.BEST_MATCHING,
+                cancellation_token=cancel.zenoh if cancel is not None else None,
+            )
+        except zenoh.ZError:
+            if cancel is not None and cancel.cancelled:  # zenoh refuses a query whose token is cancelled
+                raise RequestCancelled(f"{key}: not sent, cancelled") from None
+            raise
         for reply in replies:
             if reply.ok is not None:
                 att = reply.ok.attachment
@@ -305,6 +345,8 @@ class Bus:
             if err == "Timeout":
                 raise TimeoutError(f"no reply from {key} within {timeout_s:g} s")
             raise RuntimeError(err)
+        if cancel is not None and cancel.cancelled:  # the token ended the wait: no reply came
+            raise RequestCancelled(f"{key}: cancelled while waiting for the reply")
         raise LookupError(f"no service answers at {key} (is its stage running?)")
 
     def put(self, key: str, payload: bytes, attachment: bytes | None = None) -> None:

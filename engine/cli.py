@@ -1,7 +1,11 @@
 """The ``vgr`` command line: run, validate, graph, plugins, schemas (and the verbs of later modules).
 
 Exit codes: 0 success; 1 the run failed (a stage failed or was stopped); 2 invalid recipe or usage;
-130 interrupted by Ctrl-C.
+3 refused (a stage raised an alarm); 130 interrupted by Ctrl-C.
+
+Ctrl-C during ``vgr run``: the SIGINT handler only calls ``Runner.stop`` (the runner halts the
+devices, cuts the waiting calls short and gives the stages 2 s, see engine.runner), the summary says
+``run interrupted`` and the command exits 130 without a traceback; a second Ctrl-C interrupts hard.
 """
 
 from __future__ import annotations
@@ -85,6 +89,9 @@ def print_summary(summary: RunSummary) -> None:
         out.print(f"[red]run finished, refused[/]: {len(alarms)} alarm(s), first: {escape(alarms[0].stage)}")
     elif summary.ok:
         out.print("[green]run finished[/]")
+    elif summary.outcome == "interrupted":  # Ctrl-C or a stop request: the devices were halted first
+        ended = "" if summary.stop_to_end_s is None else f"; the stages ended {summary.stop_to_end_s:.2f} s after it"
+        out.print(f"[yellow]run interrupted[/]: {escape(summary.stop_reason or '')}{ended}", soft_wrap=True)
     else:
         out.print(f"[red]run failed[/]: {escape(summary.stop_reason or 'a stage failed')}", soft_wrap=True)
 

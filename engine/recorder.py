@@ -11,9 +11,16 @@ One file per process: ``<recipe>.mcap`` in the run's folder (engine.run_folder),
 * ``/<stage>/_svc/<client>`` (vgr.v1.ServiceExchange): every service call with request and reply;
 * ``/_vgr/deliveries`` (vgr.v1.Delivery) and ``/_vgr/finish`` (vgr.v1.StageFinish): the order in
   which each stage handled its inputs, which replay follows instead of arrival order;
+* ``/_vgr/run`` (vgr.v1.Event): the runner's own account of a stop, in order (engine.runner): ``stop``
+  with its reason, ``halted`` per device stage (or ``halt_failed``), ``stage_stopped`` per stage the
+  stop ended (``details.after_s``: seconds from the stop to its end), ``stage_stuck`` per stage still
+  busy after the grace period, ``stop_done``; log time = the run's clock. A run that ends normally
+  writes nothing there. (A stage's own events, ``move_halted`` or the ``stopped`` of a stage that
+  met ``RunStoppingError``, are on its ``/<stage>/events``.)
 * metadata ``vgr.run`` (run id, process, seed, clock, start), ``vgr.recipe`` (text, overrides,
   resolved parameters), ``vgr.versions`` (vgr, Python, packages, plugins), ``vgr.summary`` (at the
-  end); the recipe text is also an attachment ``recipe.yaml``.
+  end: outcome, stop reason, each stage's end state, ``stop_to_end_s``); the recipe text is also an
+  attachment ``recipe.yaml``.
 
 Chunked, compressed (zstd by default) and indexed. A writer thread owns the file; it closes the
 current chunk and flushes to the OS at least every ``record.flush_interval_s`` (default 1 s), so a
@@ -44,13 +51,14 @@ from engine.runner import Observer, Runner, RunSummary
 from engine.schemas import proto_class
 
 if TYPE_CHECKING:
-    from engine.messages import Message
+    from engine.messages import Event, Message
     from engine.stage_host import ServiceCall
 
 log = logging.getLogger("vgr.recorder")
 
 TOPIC_DELIVERIES = "/_vgr/deliveries"
 TOPIC_FINISH = "/_vgr/finish"
+TOPIC_RUN = "/_vgr/run"
 PACKAGES = (
     "numpy",
     "scipy",
@@ -152,6 +160,7 @@ class Recorder(Observer):
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self._seen_remote: set[tuple[str, int]] = set()
+        self._run_seq = 0  # run events written (/_vgr/run)
 
     # -- observer interface (stage threads) ----------------------------------------------------
     def on_start(self, runner: Runner) -> None:
@@ -217,6 +226,9 @@ class Recorder(Observer):
         req = codec.decode_envelope(call.req_env)
         reply_type = codec.decode_envelope(call.reply_env).type_name if call.reply_env else ""
         self._q.put(("svc", call, req.type_name, req.seq, reply_type, self._now()))
+
+    def on_run_event(self, ev: Event) -> None:
+        self._q.put(("run", ev))  # (SimpleQueue.put: safe in the SIGINT handler too)
 
     def on_finish(self, runner: Runner, summary: RunSummary) -> None:
         self._q.put(("end", summary))
@@ -309,6 +321,18 @@ class Recorder(Observer):
             _, stage, port, src_topic, seq, log_time = item
             fields = {"stage": stage, "port": port, "source_topic": src_topic, "seq": seq}
             self._add_record(TOPIC_DELIVERIES, "vgr.v1.Delivery", {"kind": "deliveries"}, log_time, fields)
+        elif kind == "run":
+            ev = item[1]
+            meta = {"stage": "_vgr", "port": "run", "type": ev.TYPE, "kind": "run"}
+            cid = self._channel(TOPIC_RUN, ev.SCHEMA, meta)
+            self._run_seq += 1
+            self._writer.add_message(
+                channel_id=cid,
+                log_time=ev.stamp_ns,
+                data=codec.encode_payload(ev),
+                publish_time=ev.stamp_ns,
+                sequence=self._run_seq,
+            )
         elif kind == "finish":
             _, stage, log_time = item
             self._add_record(TOPIC_FINISH, "vgr.v1.StageFinish", {"kind": "finish"}, log_time, {"stage": stage})
@@ -349,6 +373,7 @@ class Recorder(Observer):
                     "outcome": summary.outcome,
                     "stop_reason": summary.stop_reason or "",
                     "wall_s": f"{summary.wall_s:.3f}",
+                    "stop_to_end_s": "" if summary.stop_to_end_s is None else f"{summary.stop_to_end_s:.3f}",
                     "stages": json.dumps(
                         [
                             {

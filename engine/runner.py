@@ -11,8 +11,21 @@ Life of a run (per process):
 4. wait until every *driven* stage (sources and everything downstream of them) has finished here
    and no other process still has active stages; service-only stages then end their streams;
 5. on a stage failure (``on_error: stop``), Ctrl-C or a stop from another process: stop
-   everything promptly; stages that do not return within the grace period are reported;
+   everything promptly (below);
 6. ``teardown()`` every stage, undeclare, close the zenoh session, return a :class:`RunSummary`.
+
+A stop, in order. :meth:`Runner.stop` (any thread, the SIGINT handler's included) only flags the run
+and cancels its calls token: from then on ``ctx.call`` sends nothing (no robot move leaves any stage,
+from a stage's own threads or from helper threads it started), and every call still waiting for its
+reply returns at once with ``RunStoppingError`` (the zenoh query is abandoned, see engine.bus). The
+runner's thread then, first of all, ``halt()``s every device stage (motion stops), wakes every pump
+and waits ``STOP_GRACE_S`` (2 s) for the stages' threads; a stage still busy after that (a handler
+in a computation that does not look at ``ctx.stopping``) is reported once, as a ``stage_stuck``
+warning, and left behind (its threads are daemons; what it does after the bus closed goes nowhere).
+Each step is a run event that observers see (:meth:`Observer.on_run_event`; the recorder writes them
+on ``/_vgr/run``): ``stop`` with the reason, ``halted`` per device, ``stage_stopped`` per stage that
+was still running, ``stage_stuck``, and ``stop_done`` with the time from the stop to the last stage's
+end (also :attr:`RunSummary.stop_to_end_s`).
 """
 
 from __future__ import annotations
@@ -31,7 +44,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-from engine.bus import Bus, active_key, control_key, ready_key, started_key
+from engine.bus import Bus, CancelToken, active_key, control_key, ready_key, started_key
 from engine.clock import Clock, make_clock
 from engine.graph import Graph
 from engine.messages import Event
@@ -42,7 +55,8 @@ from engine.stage_host import MessageObserver
 
 log = logging.getLogger("vgr.runner")
 
-STOP_GRACE_S = 10.0
+STOP_GRACE_S = 2.0  # after a stop, how long the stages' threads have to end before they are reported
+DRAIN_TIMEOUT_S = 10.0  # at the normal end, how long consumers have to drain what service-only stages sent
 
 
 class RunError(RuntimeError):
@@ -54,6 +68,11 @@ class Observer(MessageObserver):
 
     def on_start(self, runner: Runner) -> None:
         """The stages exist and are declared; nothing has run yet."""
+
+    def on_run_event(self, ev: Event) -> None:
+        """The runner's own account of a stop: ``stop``, ``halted``, ``stage_stopped``,
+        ``stage_stuck``, ``stop_done`` (see the module docstring). Called from any thread, the SIGINT
+        handler's included: only enqueue here."""
 
     def on_finish(self, runner: Runner, summary: RunSummary) -> None:
         """The run is over (sessions closed); *summary* may be annotated (artifacts)."""
@@ -74,6 +93,7 @@ class RunSummary:
     wall_s: float
     events: list[Event] = field(default_factory=list)  # warnings, errors and alarms
     artifacts: dict[str, str] = field(default_factory=dict)  # e.g. recording path
+    stop_to_end_s: float | None = None  # a stopped run: from the stop to the end of its last stage's threads
 
     @property
     def outcome(self) -> str:
@@ -142,6 +162,10 @@ class Runner:
         self.ready_timeout_s = ready_timeout_s
         self.freeze_gc = freeze_gc
         self.stop_event = threading.Event()
+        self.calls_token = CancelToken()  # cancelled by stop(): the stages' calls end (engine.bus)
+        self._stopped_at: float | None = None  # time.monotonic() of the stop
+        self._stop_claim = threading.Lock()  # taken by the one stop() that stops the run
+        self.stop_to_end_s: float | None = None
         self.started = False  # True once every local stage's setup() has run
         self.stop_reason: str | None = None
         self.failed_stages: list[str] = []
@@ -169,6 +193,17 @@ class Runner:
             level = {"result": logging.INFO, "warning": logging.WARNING}.get(ev.level, logging.ERROR)
             logging.getLogger(f"vgr.stage.{ev.stage}").log(level, "[%s] %s", ev.code, ev.message)
 
+    def _run_event(self, level: str, code: str, stage: str, message: str, **details: Any) -> None:
+        """An event of the runner's own (the stop and its steps): the summary's events, the observers."""
+        ev = Event(level=level, code=code, stage=stage, message=message, details=details)
+        ev.stamp_ns = self.clock.now_ns()
+        self.note_event(ev)
+        for obs in self.observers:
+            try:
+                obs.on_run_event(ev)
+            except Exception:
+                log.exception("observer %r failed on a run event", obs)
+
     def stage_done(self, stage: str) -> None:
         self._progress.set()
 
@@ -184,14 +219,21 @@ class Runner:
 
     def stop(self, reason: str, *, broadcast: bool = True) -> None:
         """Stop the run (idempotent). Other processes of the run are told unless *broadcast* is False."""
-        if self.stop_event.is_set():
+        # (a lock taken once and kept, without waiting: a stop from a stage's thread and one from the
+        # SIGINT handler at the same time make one stop, and the handler never blocks the main thread)
+        if self.stop_event.is_set() or not self._stop_claim.acquire(blocking=False):
             return
         self.stop_reason = reason
-        self.stop_event.set()
+        self._stopped_at = time.monotonic()
+        # the stop event first: it is recorded before anything the stop causes (the halts, ...)
+        self._run_event("info", "stop", "", f"stopping: {reason}", reason=reason, process=self.process)
+        self.stop_event.set()  # nothing new is sent: ctx.call checks it before a request leaves...
+        self.calls_token.cancel()  # ...and the calls waiting for their replies return now
         self._progress.set()
         log.warning("stopping run %s: %s", self.run_id, reason)
-        # stop() may run on a stage's own thread (a failure): it only flags; the main thread wakes
-        # the readers in _shutdown, so nothing here can block on a full channel.
+        # stop() may run on a stage's own thread (a failure) or in the SIGINT handler: it only flags;
+        # the main thread halts the devices and wakes the readers in _shutdown, so nothing here can
+        # block on a full channel.
         if broadcast and self.multi_process and self._bus is not None and not self._bus.closed:
             try:
                 self._bus.put(control_key(self.run_id), json.dumps({"stop": reason, "process": self.process}).encode())
@@ -237,6 +279,7 @@ class Runner:
             [rt.stats for rt in self.runtimes.values()],
             time.monotonic() - t0,
             list(self.events),
+            stop_to_end_s=self.stop_to_end_s,
         )
         for obs in self.observers:
             obs.on_finish(self, summary)
@@ -376,7 +419,7 @@ class Runner:
             rt = self.runtimes[name]
             if name not in self.driven and not rt.node.cls.inputs:
                 rt.close_outputs()
-        deadline = time.monotonic() + STOP_GRACE_S
+        deadline = time.monotonic() + DRAIN_TIMEOUT_S
         while not all(rt.data_done.is_set() for rt in self.runtimes.values()):
             if self.stop_event.is_set() or time.monotonic() > deadline:
                 break
@@ -388,18 +431,9 @@ class Runner:
             return
         self.stop_event.set()  # ends service pumps and idle readers; a failure only if stop_reason is set
         if self.stop_reason:
-            self._halt_devices()
+            self._halt_devices()  # motion stops first
         self._wake_all()
-        deadline = time.monotonic() + STOP_GRACE_S
-        for rt in self.runtimes.values():
-            for t in rt.threads:
-                t.join(max(0.0, deadline - time.monotonic()))
-            stuck = [t.name for t in rt.threads if t.is_alive()]
-            if stuck:
-                rt.stats.error = rt.stats.error or f"did not stop within {STOP_GRACE_S:g} s: {', '.join(stuck)}"
-                self.note_event(Event(level="error", code="stage_stuck", stage=rt.name, message=rt.stats.error))
-            if rt.stats.state == "running":
-                rt.stats.state = "stopped" if self.stop_reason else "finished"
+        self._join_stages()
         for name in reversed(self.graph.stages_in(self.process)):
             self.runtimes[name].teardown()
         for tok in self._tokens.values():
@@ -408,6 +442,43 @@ class Runner:
         self._tokens.clear()
         if self._own_bus:
             self._bus.close()
+
+    def _join_stages(self) -> None:
+        """Wait for the stages' threads (``STOP_GRACE_S`` in all); after a stop, say which stages it
+        ended, by when, and which one did not end (once per stage, a warning: the stop is what
+        happened, and its thread's stack would not say more than its name)."""
+        deadline = time.monotonic() + STOP_GRACE_S
+        stopped = self.stop_reason is not None
+        running = {name for name, rt in self.runtimes.items() if rt.stats.state == "running"}
+        for rt in self.runtimes.values():
+            for t in rt.threads:
+                t.join(max(0.0, deadline - time.monotonic()))
+        ended_by = 0.0  # seconds from the stop to the end of the last stage that ended
+        stuck_stages: list[str] = []
+        for name, rt in self.runtimes.items():
+            was_running = name in running
+            if was_running:
+                rt.stats.state = "stopped" if stopped else "finished"
+            stuck = [t.name for t in rt.threads if t.is_alive()]
+            after_s = max(0.0, rt.threads_ended_at - (self._stopped_at or 0.0))
+            if stuck:
+                stuck_stages.append(rt.name)
+                rt.stats.error = rt.stats.error or (
+                    f"still busy {STOP_GRACE_S:g} s after the stop ({', '.join(stuck)}): left behind"
+                )
+                self._run_event("warning", "stage_stuck", rt.name, rt.stats.error, threads=stuck)
+            elif stopped and was_running:
+                ended_by = max(ended_by, after_s)
+                self._run_event(
+                    "info", "stage_stopped", rt.name, f"stopped {after_s:.3f} s after the stop", after_s=after_s
+                )
+        if stopped and self._stopped_at is not None:
+            self.stop_to_end_s = time.monotonic() - self._stopped_at if stuck_stages else ended_by
+            if stuck_stages:
+                msg = f"stage(s) {', '.join(stuck_stages)} did not end within {STOP_GRACE_S:g} s of the stop"
+            else:
+                msg = f"every stage ended within {ended_by:.3f} s of the stop"
+            self._run_event("info", "stop_done", "", msg, after_s=self.stop_to_end_s, stuck=stuck_stages)
 
     def _halt_devices(self) -> None:
         """Motion stops first: every stage that drives a device halts it before anything else ends."""
@@ -418,12 +489,11 @@ class Runner:
             try:
                 stage.halt()
             except Exception as exc:  # the others must still be halted
-                log.exception("halting %s failed", name)
-                self.note_event(Event(level="error", code="halt_failed", stage=name, message=str(exc)))
+                log.error("halting %s failed: %s: %s", name, type(exc).__name__, exc)
+                log.debug("halting %s failed", name, exc_info=True)  # (its traceback, with -vv)
+                self._run_event("error", "halt_failed", name, f"{type(exc).__name__}: {exc}")
             else:
-                self.note_event(
-                    Event(level="warning", code="halted", stage=name, message=f"halted: {self.stop_reason}")
-                )
+                self._run_event("warning", "halted", name, f"halted: {self.stop_reason}")
 
     def snapshot(self) -> list[StageStats]:
         """Live per-stage counters (for progress displays)."""

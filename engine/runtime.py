@@ -45,7 +45,7 @@ from time import perf_counter
 from typing import Any
 
 from engine import codec
-from engine.bus import overdue_ms, service_key, wire_key
+from engine.bus import RequestCancelled, overdue_ms, service_key, wire_key
 from engine.codec import CodecError, Envelope, Kind
 from engine.graph import StageNode
 from engine.inbox import END, STOP, PortInbox
@@ -123,6 +123,7 @@ class StageRuntime(StageContext):
         self.failed = False
         self.data_done = threading.Event()
         self.threads: list[threading.Thread] = []
+        self.threads_ended_at = 0.0  # time.monotonic() when the last of its threads ended
         self.stage: Stage | None = None
         self.clients = {e.client_name: e for e in host.graph.service_edges if e.client == node.name}
         self._causal = _Causal()  # stamp of the input being handled on this thread
@@ -191,14 +192,19 @@ class StageRuntime(StageContext):
         self.stats.calls_made += 1
         reply_payload, reply_att, error = b"", b"", ""
         try:
-            reply_payload, reply_att = self.host.bus.request(key, payload, att, timeout_s)
+            reply_payload, reply_att = self.host.bus.request(key, payload, att, timeout_s, self.host.calls_token)
             reply = codec.decode(reply_payload, codec.decode_envelope(reply_att))
-        except TimeoutError as exc:
+        except RequestCancelled:  # the stop came first: no reply is awaited (nor sent, if it was not yet)
+            error = "cut short: the run is stopping"
+            raise RunStoppingError(f"{self.name} -> {edge.provider}.{edge.service}: {error}") from None
+        except (TimeoutError, LookupError, RuntimeError, CodecError) as exc:
             error = str(exc)
-            raise ServiceTimeoutError(f"{self.name} -> {edge.provider}.{edge.service}: {exc}") from None
-        except (LookupError, RuntimeError, CodecError) as exc:
-            error = str(exc)
-            raise ServiceError(f"{self.name} -> {edge.provider}.{edge.service}: {exc}") from None
+            where = f"{self.name} -> {edge.provider}.{edge.service}"
+            if self._stop_event.is_set():  # a call that failed while the run stops: the stop's doing
+                raise RunStoppingError(f"{where}: {exc} (the run is stopping)") from None
+            if isinstance(exc, TimeoutError):
+                raise ServiceTimeoutError(f"{where}: {exc}") from None
+            raise ServiceError(f"{where}: {exc}") from None
         finally:
             if self._observers:
                 done = ServiceCall(self.name, client, edge, payload, att, reply_payload, reply_att, error)
@@ -257,7 +263,13 @@ class StageRuntime(StageContext):
             self._spawn(f"{self.name}.run", self._source_main)
 
     def _spawn(self, name: str, target: Any, *args: Any) -> None:
-        t = threading.Thread(target=target, args=args, name=f"vgr:{name}", daemon=True)
+        def main() -> None:
+            try:
+                target(*args)
+            finally:  # (how long a stop took to end this stage: see Runner._join_stages)
+                self.threads_ended_at = time.monotonic()
+
+        t = threading.Thread(target=main, name=f"vgr:{name}", daemon=True)
         self.threads.append(t)
         t.start()
 
@@ -437,7 +449,7 @@ class StageRuntime(StageContext):
 
     # -- state changes -----------------------------------------------------------------------
     def _mark_data_done(self) -> None:
-        if self.stats.state == "running":
+        if self.stats.state == "running" and not self.stopping:  # (ended by a stop: the runner says "stopped")
             self.stats.state = "finished"
         self.data_done.set()
         self.host.stage_done(self.name)

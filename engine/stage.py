@@ -75,9 +75,15 @@ class ServiceTimeoutError(ServiceError):
     """No reply within the timeout."""
 
 
-class RunStoppingError(ServiceError):
-    """Not sent: the run is stopping (Ctrl-C, a failure, a stop request), so no new request goes out.
-    A stage that lets it escape ends quietly: the stop, not the stage, is what happened."""
+class RunStoppingError(Exception):
+    """The run is stopping (Ctrl-C, a failure, a stop request): ``ctx.call`` sends no new request, and
+    a call already waiting for its reply returns at once with this error (the provider may still be
+    working on it; its reply is not awaited). A stage that lets it escape ends quietly: the stop, not
+    the stage, is what happened.
+
+    Deliberately not a :class:`ServiceError`: what a stage does about a failed call (an alarm, a
+    skipped pose, a retry, a fallback) is not what a stop calls for, so ``except ServiceError`` lets
+    it through and the stage ends at once."""
 
 
 class StageContext:
@@ -129,7 +135,8 @@ class StageContext:
         raise NotImplementedError
 
     def call(self, client: str, request: Message, timeout_s: float = 10.0) -> Message:
-        """Call the service wired to *client* in the recipe's ``uses`` and wait for its reply."""
+        """Call the service wired to *client* in the recipe's ``uses`` and wait for its reply
+        (:class:`ServiceError` if it fails, :class:`RunStoppingError` once the run stops)."""
         raise NotImplementedError
 
     def has_client(self, client: str) -> bool:

@@ -16,7 +16,7 @@ if TYPE_CHECKING:
     import threading
     from pathlib import Path
 
-    from engine.bus import Bus
+    from engine.bus import Bus, CancelToken
     from engine.clock import Clock
     from engine.codec import Envelope
     from engine.graph import Graph, ServiceEdge, StageNode
@@ -70,6 +70,7 @@ class StageHost(Protocol):
     seed: int
     clock: Clock
     stop_event: threading.Event  # set once the run stops
+    calls_token: CancelToken  # cancelled once the run stops: its stages' calls end at once
     started: bool  # every stage of the process has been set up
 
     @property

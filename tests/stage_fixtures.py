@@ -140,6 +140,54 @@ class Caller(Stage):
             self.ctx.publish("out", Request(command="error", args={"error": type(exc).__name__, "text": str(exc)}))
 
 
+BUSY_RELEASE: dict[str, threading.Event] = defaultdict(threading.Event)  # run id -> ends t_busy's work
+
+
+class Busy(Stage):
+    """Service 'work': busy for ``busy_s`` without looking at ``ctx.stopping`` (a long matcher, a
+    device call that blocks), unless the test sets ``BUSY_RELEASE[run_id]``."""
+
+    type_name = "t_busy"
+    role = "solver"
+    services: ClassVar = {"work": ServiceSpec(Request, Request)}
+
+    class Params(StageParams):
+        busy_s: float = 30.0
+
+    def on_request(self, service: str, request: Request) -> Request:  # type: ignore[override]
+        BUSY_RELEASE[self.ctx.run_id].wait(self.params.busy_s)  # type: ignore[attr-defined]
+        return Request(command="done")
+
+
+HELPER_CALLS: dict[str, dict[str, Any]] = defaultdict(dict)  # run id -> what t_helper_caller's thread saw
+
+
+class HelperCaller(Stage):
+    """A source whose helper thread (not a thread of the engine's) calls 'svc' over and over until a
+    call raises; ``HELPER_CALLS[run_id]`` counts the calls answered and names what ended the loop."""
+
+    type_name = "t_helper_caller"
+    role = "source"
+    outputs: ClassVar = {"out": Request}
+    uses: ClassVar = {"svc": ServiceSpec(Request, Request)}
+
+    def _loop(self) -> None:
+        seen = HELPER_CALLS[self.ctx.run_id]
+        seen["answered"] = 0
+        try:
+            while True:
+                self.ctx.call("svc", Request(command="echo"), timeout_s=30.0)
+                seen["answered"] += 1
+        except Exception as exc:
+            seen["ended_by"] = type(exc).__name__
+
+    def run(self) -> None:
+        self.helper = threading.Thread(target=self._loop, name="helper-caller", daemon=True)
+        self.helper.start()
+        while self.ctx.sleep(0.05):
+            pass
+
+
 class RelayWithService(Relay):
     """A relay that also answers 'echo' (to build wait cycles in validation tests)."""
 
@@ -183,6 +231,8 @@ def vgr_stage_types() -> list[type]:
         RelayWithService,
         NoisyCloud,
         ThreadedCentroid,
+        Busy,
+        HelperCaller,
     ]
 
 

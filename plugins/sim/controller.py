@@ -12,6 +12,10 @@ Behaves like a vendor controller in simulated time:
   refused with a reason and no motion; so is a move commanded while another is running ("busy").
 * Command ids are idempotent: a second command with an id already seen is not executed; the first
   result is returned again with ``duplicate=True``.
+* ``halt()`` stops the move in progress on its path, decelerating at the move's own acceleration
+  (a controller's stop, URScript ``stopj``/``stopl``); its result then says ``halted`` and ends where
+  the robot came to rest. It may be called from another thread than the one commanding the moves
+  (the run's stop): the controller's state is guarded by a lock.
 * Reported joint angles and ``T_base_tcp`` are the nominal model's (what the real controller would
   report from its encoders and its model). The truth (``q_actual``, ``T_world_tcp_actual``) comes
   from the :class:`RobotWithEffects`, evaluated with the per-joint approach directions the
@@ -20,9 +24,11 @@ Behaves like a vendor controller in simulated time:
 
 from __future__ import annotations
 
+import functools
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Literal
+from typing import Concatenate, Literal, ParamSpec, TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -33,10 +39,12 @@ from plugins.robot.ik import solve_ik
 from plugins.robot.kinematics import RobotModel
 from plugins.robot.with_effects import RobotWithEffects
 
-from .motion_profile import TrapezoidProfile, trapezoid
+from .motion_profile import Profile, trapezoid
 
 F64 = NDArray[np.float64]
 MoveKind = Literal["movej", "movel"]
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
 
 # URScript defaults
 MOVEJ_SPEED = 1.05  # rad/s
@@ -64,6 +72,7 @@ class MoveResult:
     end_s: float
     q_target: F64 | None = None
     duplicate: bool = False
+    halted: bool = False  # stopped by halt() before its target (end_s: when it came to rest)
 
     @property
     def duration_s(self) -> float:
@@ -92,7 +101,7 @@ class _Segment:
     t0: float
     q0: F64
     q1: F64
-    profile: TrapezoidProfile  # over the path parameter s in [0, 1]
+    profile: Profile  # over the path parameter s in [0, 1] (halted: to rest at profile.distance)
     direction_after: F64
     # move_l only
     path_s: F64 | None = None
@@ -100,10 +109,24 @@ class _Segment:
     pose0: tuple[F64, F64] | None = None  # (p0, R0)
     pose_delta: tuple[F64, F64] | None = None  # (p1 - p0, log(R0^T R1))
     cache: dict = field(default_factory=dict)
+    q_rest: F64 | None = None  # where a halted move came to rest (else it rests at q1)
 
     @property
     def t1(self) -> float:
         return self.t0 + self.profile.duration
+
+
+def _locked(
+    method: Callable[Concatenate[SimRobotController, _P], _R],
+) -> Callable[Concatenate[SimRobotController, _P], _R]:
+    """A command of the controller: run under its lock (a halt may come from another thread)."""
+
+    @functools.wraps(method)
+    def locked(self: SimRobotController, *args: _P.args, **kwargs: _P.kwargs) -> _R:
+        with self._lock:
+            return method(self, *args, **kwargs)
+
+    return locked
 
 
 class SimRobotController:
@@ -137,6 +160,7 @@ class SimRobotController:
         self.warmup_start_s = float(clock()) if warmup_start_s is None else float(warmup_start_s)
         self._segments: list[_Segment] = []
         self._results: dict[str, MoveResult] = {}
+        self._lock = threading.RLock()  # halt() comes from another thread than the moves
 
     # ----------------------------------------------------------------------------- state
 
@@ -162,7 +186,8 @@ class SimRobotController:
             return self._q_initial.copy(), np.zeros(self.nominal.dof), self._dir_initial.copy()
         prev_dir = self._direction_before(seg)
         if t >= seg.t1 - TIME_EPS_S:
-            return seg.q1.copy(), np.zeros(self.nominal.dof), seg.direction_after.copy()
+            q_end = seg.q1 if seg.q_rest is None else seg.q_rest
+            return q_end.copy(), np.zeros(self.nominal.dof), seg.direction_after.copy()
         tau = t - seg.t0
         s = float(seg.profile.position(tau))
         sd = float(seg.profile.velocity(tau))
@@ -182,6 +207,10 @@ class SimRobotController:
 
     def state(self, t_s: float | None = None) -> RobotState:
         """Reported and true state at ``t_s`` (default: the clock's now)."""
+        with self._lock:
+            return self._state(t_s)
+
+    def _state(self, t_s: float | None = None) -> RobotState:
         t = self._now() if t_s is None else float(t_s)
         seg, moving = self._segment_at(t)
         q, qd, direction = self._joints_at(seg, t)
@@ -205,8 +234,28 @@ class SimRobotController:
         )
 
     def is_moving(self, t_s: float | None = None) -> bool:
-        t = self._now() if t_s is None else float(t_s)
-        return self._segment_at(t)[1]
+        with self._lock:
+            t = self._now() if t_s is None else float(t_s)
+            return self._segment_at(t)[1]
+
+    def halt(self) -> MoveResult | None:
+        """Stop the move in progress now, on its path, at its own deceleration; its result (also
+        :meth:`result`) says ``halted`` and ends when the robot is at rest. None when at rest."""
+        with self._lock:
+            now = self._now()
+            seg, moving = self._segment_at(now)
+            if seg is None or not moving:
+                return None
+            profile = seg.profile.halted(now - seg.t0)
+            s_rest = profile.distance
+            if seg.kind == "movej":
+                q_rest = seg.q0 + s_rest * (seg.q1 - seg.q0)
+            else:
+                q_rest = self._movel_joints(seg, s_rest)[0]
+            seg.profile, seg.q_rest = profile, np.asarray(q_rest, dtype=float).copy()  # (under the lock)
+            res = replace(self._results[seg.command_id], end_s=seg.t1, halted=True, reason="halted")
+            self._results[seg.command_id] = res
+            return res
 
     def result(self, command_id: str) -> MoveResult | None:
         return self._results.get(command_id)
@@ -249,6 +298,7 @@ class SimRobotController:
             return f"{name} must be a finite positive number, got {value!r}"
         return None
 
+    @_locked
     def move_j(
         self, command_id: str, q_target: ArrayLike, speed: float = MOVEJ_SPEED, accel: float = MOVEJ_ACCEL
     ) -> MoveResult:
@@ -286,6 +336,7 @@ class SimRobotController:
         profile = trapezoid(1.0, float(v_lim.min()), float(a_lim.min()))
         return _Segment(cid, "movej", now, q0, q1, profile, direction)
 
+    @_locked
     def move_j_pose(
         self, command_id: str, T_base_tcp: ArrayLike, speed: float = MOVEJ_SPEED, accel: float = MOVEJ_ACCEL
     ) -> MoveResult:
@@ -303,6 +354,7 @@ class SimRobotController:
             return self._refuse(command_id, "movej", now, f"{ik.status}: {ik.reason}")
         return self.move_j(command_id, ik.q, speed, accel)
 
+    @_locked
     def move_l(
         self,
         command_id: str,

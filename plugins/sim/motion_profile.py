@@ -3,6 +3,10 @@
 A move of length ``distance`` with speed limit ``v_max`` and acceleration limit ``a_max`` accelerates,
 cruises and decelerates; short moves never reach ``v_max`` and become triangular. Duration:
 ``distance / v_max + v_max / a_max`` with a cruise phase, ``2 sqrt(distance / a_max)`` without.
+
+A move halted part-way (:meth:`TrapezoidProfile.halted`, the controller's stop) follows its profile
+until the halt, then decelerates at ``a_max`` to rest short of ``distance``: the stop a controller
+makes on its path (URScript ``stopj``/``stopl`` with the move's own deceleration).
 """
 
 from __future__ import annotations
@@ -46,6 +50,53 @@ class TrapezoidProfile:
         ta, tc, a, v = self.t_accel, self.t_cruise, self.a_max, self.v_peak
         vel = np.where(t < ta, a * t, np.where(t < ta + tc, v, v - a * (t - ta - tc)))
         return np.where((t <= 0) | (t >= self.duration), 0.0, vel)
+
+    def halted(self, t_halt: float) -> HaltedProfile:
+        """This profile stopped at *t_halt* (from the start): it decelerates from there at ``a_max``."""
+        t_h = float(np.clip(t_halt, 0.0, self.duration))
+        return HaltedProfile(self, t_h, float(self.position(t_h)), float(self.velocity(t_h)))
+
+
+@dataclass(frozen=True)
+class HaltedProfile:
+    """*base* until ``t_halt``, then a stop at ``base.a_max`` from ``v_halt``; at rest at ``distance``."""
+
+    base: TrapezoidProfile
+    t_halt: float
+    s_halt: float
+    v_halt: float
+
+    @property
+    def a_max(self) -> float:
+        return self.base.a_max
+
+    @property
+    def duration(self) -> float:
+        return self.t_halt + self.v_halt / self.base.a_max
+
+    @property
+    def distance(self) -> float:
+        """Where it comes to rest (at most the base's distance: a stop never overshoots)."""
+        return min(self.s_halt + 0.5 * self.v_halt**2 / self.base.a_max, self.base.distance)
+
+    def halted(self, t_halt: float) -> HaltedProfile:
+        """Already stopping, at the fastest deceleration there is: a second halt changes nothing."""
+        return self
+
+    def position(self, t: ArrayLike) -> F64:
+        t = np.asarray(t, dtype=float)
+        dt = np.clip(t - self.t_halt, 0.0, self.duration - self.t_halt)
+        braking = np.minimum(self.s_halt + self.v_halt * dt - 0.5 * self.base.a_max * dt**2, self.distance)
+        return np.where(t <= self.t_halt, self.base.position(t), braking)
+
+    def velocity(self, t: ArrayLike) -> F64:
+        t = np.asarray(t, dtype=float)
+        braking = np.maximum(self.v_halt - self.base.a_max * (t - self.t_halt), 0.0)
+        vel = np.where(t <= self.t_halt, self.base.velocity(t), braking)
+        return np.where((t <= 0) | (t >= self.duration), 0.0, vel)
+
+
+Profile = TrapezoidProfile | HaltedProfile
 
 
 def trapezoid(distance: float, v_max: float, a_max: float) -> TrapezoidProfile:

@@ -152,3 +152,43 @@ def test_move_j_pose_reaches_a_cartesian_target():
     assert r.accepted, r.reason
     clock.advance_to(r.end_s)
     assert np.abs(ctl.state().T_base_tcp - T).max() < 1e-9
+
+
+def test_halt_stops_a_joint_move_on_its_path_at_its_own_deceleration():
+    clock, ctl = make()
+    target = HOME + np.array([1.0, -0.5, 0, 0, 0, 0])
+    res = ctl.move_j("m", target, speed=0.5, accel=2.0)  # 0.25 s ramps, cruise at 0.5 rad/s (joint 1)
+    clock.advance(1.0)
+    before = ctl.state()
+    halted = ctl.halt()
+    assert halted is not None and halted.halted and halted.accepted and ctl.result("m") == halted
+    assert halted.end_s == pytest.approx(1.0 + 0.5 / 2.0, abs=1e-9)  # v / a: a stop at the move's deceleration
+    assert halted.end_s < res.end_s
+    now = ctl.state()  # the halt does not jump: position and speed go on from where they were
+    assert np.allclose(now.q, before.q, atol=1e-12) and np.allclose(now.qd, before.qd, atol=1e-12)
+    assert np.allclose(ctl.state(1.1).qd[0], 0.5 - 2.0 * 0.1, atol=1e-9)  # decelerating
+    q_rest = HOME + np.array([0.5, -0.25, 0, 0, 0, 0])  # 0.4375 rad by the halt + 0.0625 braking
+    for t in (halted.end_s, halted.end_s + 5.0):
+        st = ctl.state(t)
+        assert not st.moving and np.allclose(st.q, q_rest, atol=1e-9) and np.all(st.qd == 0)
+    assert ctl.halt() is not None  # still braking: a second halt changes nothing
+    assert ctl.result("m").end_s == halted.end_s
+    clock.advance_to(halted.end_s)
+    assert ctl.halt() is None  # at rest: nothing to halt
+    assert ctl.move_j("next", HOME).accepted  # not busy: the halted move is over
+
+
+def test_halt_stops_a_linear_move_on_its_line_short_of_the_target():
+    clock, ctl = make()
+    T0 = ctl.state().T_base_tcp
+    T1 = T0.copy()
+    T1[:3, 3] += (0.2, 0.0, 0.0)
+    res = ctl.move_l("l", T1, speed=0.1, accel=0.5)
+    clock.advance(res.duration_s / 2)
+    halted = ctl.halt()
+    assert halted is not None and halted.end_s < res.end_s
+    clock.advance_to(halted.end_s)
+    rest = ctl.state()
+    d = rest.T_base_tcp[:3, 3] - T0[:3, 3]
+    assert not rest.moving
+    assert np.abs(d[1:]).max() < 1e-9 and 0.1 < d[0] < 0.2 - 1e-3  # on the line, past halfway, short of it

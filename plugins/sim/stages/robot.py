@@ -14,6 +14,11 @@ the controller's motion profile evaluated at its stamp, so a move of ``d`` secon
 ``ceil(d * state_rate_hz)`` samples including the one at rest (on the ``sim`` clock exactly; on the
 ``wall`` clock a late wake-up samples later, at the time it reads). ``state_rate_hz: 0`` publishes
 at set-up and at rest only.
+
+``halt()`` (the run stops early: Ctrl-C, a failed stage) stops the move in progress on its path, as a
+controller's stop does: the controller decelerates at the move's own acceleration and the move ends
+where the robot comes to rest (an ``info`` event ``move_halted`` says which command and where); the
+move's reply, if its caller still waits, is ``ok: false`` with ``error: halted ...``.
 """
 
 from __future__ import annotations
@@ -121,19 +126,36 @@ class SimRobot(Stage):
         if res.accepted and not res.duplicate:
             self._follow(t0_ns, res.duration_s)  # the motion takes (simulated) time
             self._arrive(res.end_s)
+            res = self.ctl.result(cmd.command_id) or res  # (halted meanwhile: it ended early)
         state = self.ctl.state()
         if res.accepted and not res.duplicate:
             self._publish_state()
+        halted = "halted before its target: the run stopped" if res.halted else ""
         return RobotReply(
             command_id=cmd.command_id,
-            ok=res.accepted,
-            error="" if res.accepted else res.reason,
+            ok=res.accepted and not res.halted,
+            error=halted or ("" if res.accepted else res.reason),
             frame_id="base",
             T=state.T_base_tcp,
             joints=state.q,
             duration_s=res.duration_s,
             duplicate=res.duplicate,
             stamp_ns=self.ctx.clock.now_ns(),
+        )
+
+    def halt(self) -> None:
+        """Stop the move in progress now, on its path (see the module docstring)."""
+        controller: ctl.SimRobotController | None = getattr(self, "ctl", None)  # None: stopped before setup
+        if controller is None or (res := controller.halt()) is None:
+            return
+        q_rest = np.degrees(controller.state(res.end_s).q)
+        self.ctx.event(
+            "info",
+            "move_halted",
+            f"move {res.command_id} halted, at rest {res.end_s - controller.clock():.3f} s later, "
+            f"joints {np.array2string(q_rest, precision=2)} deg",
+            command_id=res.command_id,
+            q_rest_deg=q_rest.tolist(),
         )
 
     def _refused(self, cmd: RobotCommand, reason: str) -> RobotReply:
