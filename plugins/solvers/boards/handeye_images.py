@@ -11,7 +11,11 @@ Pipeline of :func:`calibrate_handeye_images`:
 4. vgr's maximum-likelihood hand-eye solver (:mod:`plugins.solvers.handeye`) on the pose pairs. Its
    noise model is one per-axis camera noise for all samples: the per-image covariances give it (the
    median of their per-axis variances; the solver then estimates its variance components), and the
-   solver's checks apply (degenerate motion, wrong set-up, mixed units, scaled camera: "square size?").
+   solver's checks apply (degenerate motion, wrong set-up, mixed units, scaled camera: a wrong
+   square size is reported as "square size?" with the factor the data ask for, and fails). When the
+   solver's own result is not usable although it solved (it did not converge, or flagged many views
+   on data whose robot poses are nearly exact), the declared-noise solution and the closed forms are
+   tried as starts too, and the pixel refinement keeps the one that fits the corners best.
 5. Refinement in pixels (:func:`.reprojection.refine_reprojection`): ``X``, ``Y`` and optionally the
    intrinsics, minimising the corners' reprojection error; this is the maximum-likelihood estimate
    under independent corner noise and uses every corner, not only the pose each view summarises.
@@ -38,7 +42,15 @@ from plugins.solvers.boards.camera import CameraModel
 from plugins.solvers.boards.detect import Detection, Detections, Rejection
 from plugins.solvers.boards.reprojection import Refinement, holdout_rms, refine_reprojection, world_spread
 from plugins.solvers.calibration_result import CalibrationResult
-from plugins.solvers.handeye import AccuracyTargets, NoiseModel, PoseNoise, calibrate_hand_eye, calibrate_robot_world
+from plugins.solvers.handeye import (
+    CLOSED_FORM_METHODS,
+    AccuracyTargets,
+    NoiseModel,
+    PoseNoise,
+    calibrate_hand_eye,
+    calibrate_robot_world,
+    closed_form,
+)
 from plugins.solvers.handeye.noise import DEFAULT_PRIOR
 from plugins.solvers.handeye.problem import Setup, check_setup, frames_of
 
@@ -52,6 +64,7 @@ MAX_RMS_PX = 2.0  # above: failed (the model does not fit the corners)
 ACCURACY = AccuracyTargets()
 _STD_ADVICE = "add poses with larger rotations about different axes, or reduce the measurement noise"
 HOLDOUT_FACTOR = 3.0  # held-out RMS above this times the fit RMS: warning (over-fit or inconsistent views)
+SCALE_TOL = 0.005  # camera / robot length scale beyond 0.5 %: the board's size is probably wrong
 
 
 class ImagePoseMismatchError(ValueError):
@@ -93,6 +106,12 @@ def camera_noise(poses: Sequence[BoardPose]) -> NoiseModel:
     var = np.median(np.stack([np.diag(p.covariance) for p in poses]), axis=0)
     sd = np.sqrt(np.maximum(var, 1e-18))
     return NoiseModel(DEFAULT_PRIOR.robot, PoseNoise(sd[3:], sd[:3]))
+
+
+def _starts(res: CalibrationResult, x: str, y: str, label: str = "pose solver") -> list[tuple[str, F64, F64]]:
+    if x not in res.estimate or y not in res.estimate:
+        return []
+    return [(label, np.asarray(res.estimate[x], float), np.asarray(res.estimate[y], float))]
 
 
 def _failed(kind: Kind, reasons: list[str], advice: list[str], rejected: list[Rejection]) -> HandEyeFromImages:
@@ -143,13 +162,30 @@ def calibrate_handeye_images(
     B = np.stack([p.T_cam_target for p in poses])
     solve = calibrate_robot_world if kind == "robot_world" else calibrate_hand_eye
     ml = solve(M, B, setup=setup, noise=camera_noise(poses), estimate_noise=True)
-    if not ml.usable:
-        out = HandEyeFromImages(ml, views, M, poses, rejected, ml)
+    scale = ml.metrics.get("unit_scale_robot_per_camera")
+    wrong_scale = scale is not None and abs(scale - 1.0) > max(5.0 * ml.metrics.get("unit_scale_std", 0.0), SCALE_TOL)
+    if wrong_scale:
+        notes.append(
+            f"square size? the robot moved {scale:.4f}x the distances the camera saw: with the intrinsics right, "
+            f"the board's squares are {scale:.4f}x the size given (or the robot poses are not in metres)"
+        )
+    starts = _starts(ml, frames.x_name, frames.y_name)
+    if not ml.usable and starts:  # solved but not trusted: try the declared noise and the closed forms too
+        ml_declared = solve(M, B, setup=setup, noise=camera_noise(poses), estimate_noise=False)
+        starts += _starts(ml_declared, frames.x_name, frames.y_name, "pose solver, noise declared")
+        starts += [(f"closed form {m}", *closed_form(setup, M, B, m)) for m in CLOSED_FORM_METHODS]
+    if wrong_scale or not starts:
         ml.reasons = notes + ml.reasons
-        return out
-    X0 = np.asarray(ml.estimate[frames.x_name], float)
-    Y0 = np.asarray(ml.estimate[frames.y_name], float)
-    ref = refine_reprojection(setup, M, views, camera, X0, Y0, refine_intrinsics=refine_intrinsics)
+        if ml.verdict in ("ok", "warning"):
+            ml.verdict = "failed"
+        return HandEyeFromImages(ml, views, M, poses, rejected, ml)
+    refs = [
+        (label, refine_reprojection(setup, M, views, camera, X0, Y0, refine_intrinsics=refine_intrinsics))
+        for label, X0, Y0 in starts
+        if np.all(np.isfinite(X0)) and np.all(np.isfinite(Y0))
+    ]
+    start, ref = min(refs, key=lambda lr: lr[1].rms_px)
+    X0 = next(x for label, x, _ in starts if label == start)
     cam = ref.camera
 
     def fit(train: NDArray[np.int64]) -> tuple[F64, F64]:
@@ -160,6 +196,11 @@ def calibrate_handeye_images(
     spread_t, spread_r, _ = world_spread(setup, M, B, ref.X)
     # the pose solver's own uncertainty check is replaced by the one of the pixel refinement
     ml_reasons = [r for r in ml.reasons if "uncertainty" not in r]
+    if not ml.usable:
+        ml_reasons = [
+            f"the pose solver alone gave verdict {ml.verdict} ({'; '.join(ml_reasons[-2:])}); the pixel "
+            f"refinement started from the best of {len(refs)} starts: {start}"
+        ]
     verdict: Any = "warning" if ml_reasons else "ok"
     reasons = notes + ml_reasons
     advice = [a for a in ml.advice if a != _STD_ADVICE]
