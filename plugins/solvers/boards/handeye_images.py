@@ -237,6 +237,7 @@ def calibrate_handeye_images(
         "world_spread_rot_rms_rad": spread_r,
         "board_pose_rms_px": float(np.sqrt(np.mean([p.rms_px**2 for p in poses]))),
         "nfev": float(ref.nfev),
+        "covariance_dof": float(ref.dof),  # the covariance rests on sigma_px estimated from the residuals
         "std_x_trans_m": std_t,
         "std_x_rot_rad": std_r,
     }

@@ -64,6 +64,7 @@ class Refinement:
     nfev: int
     converged: bool
     intrinsics_refined: bool
+    dof: int  # residual coordinates minus parameters: the degrees of freedom of sigma_px
 
 
 def _with_intrinsics(camera: CameraModel, p: F64) -> CameraModel:
@@ -140,7 +141,7 @@ def refine_reprojection(
         X, Y, cam, 0.5 * (cov + cov.T), float(np.sqrt(s2)),
         float(np.sqrt(np.mean(np.concatenate(d) ** 2))),
         np.array([np.sqrt(np.mean(x**2)) for x in d]), np.array([x.max() for x in d]),
-        int(sol.nfev), bool(sol.success), bool(n_int),
+        int(sol.nfev), bool(sol.success), bool(n_int), int(m - p),
     )  # fmt: skip
 
 
