@@ -104,6 +104,9 @@ def _hand_eye_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--loss", choices=["huber", "cauchy", "linear"], default="huber")
     p.add_argument("--robot-topic", default=DEFAULT_TOPICS["robot"], help="MCAP: PoseStamped T_base_tcp")
     p.add_argument("--target-topic", default=DEFAULT_TOPICS["target"], help="MCAP: PoseStamped T_cam_target")
+    from plugins.solvers.boards.cli import handeye_image_options
+
+    handeye_image_options(p)
 
 
 def _hand_eye(kind: str) -> Callable[[argparse.Namespace], Outcome]:
@@ -111,6 +114,10 @@ def _hand_eye(kind: str) -> Callable[[argparse.Namespace], Outcome]:
         from plugins.solvers.handeye import NoiseModel, calibrate_hand_eye, calibrate_robot_world, load_pose_pairs
         from plugins.solvers.handeye.problem import check_setup
 
+        if args.images is not None or args.data is None:
+            from plugins.solvers.boards.cli import run_handeye_images
+
+            return run_handeye_images(args, kind)
         notes: list[str] = []
         if _suffix(args.data) == ".mcap":
             if args.mm:
@@ -332,12 +339,15 @@ KINDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Runner]] 
 }
 #: kinds that read images (IMAGES... positional, no recording options) instead of one DATA file
 IMAGE_KINDS = frozenset({"intrinsics"})
+#: kinds that take DATA or, instead, --images DIR --poses FILE --board SPEC
+IMAGE_OPTION_KINDS = frozenset({"handeye", "robot-world"})
 
 EPILOG = """\
 DATA: a plain file (.json / .csv, formats in docs/calibration.md) or a vgr recording (.mcap): then
 the samples come from two topics (--*-topic; the defaults match recipes/calibrate_*_sim.yaml),
 paired by stamp (nearest within --max-skew-s) or by order (--pair order).
 intrinsics: IMAGES... (files or folders of png / jpg / bmp) and --board SPEC instead of DATA.
+handeye / robot-world: DATA, or --images DIR --poses FILE --board SPEC [--intrinsics FILE] instead.
 Exit codes: 0 usable result (verdict ok / warning), 1 degenerate or failed (do not use it),
 2 bad input (missing or malformed file, NaN, mixed units, too few samples, unpaired samples)."""
 
@@ -390,7 +400,11 @@ def _add_kinds(parser: argparse.ArgumentParser) -> None:
             k.add_argument("images", type=Path, nargs="+", help="images of the board (files or folders)")
         else:
             k.add_argument(
-                "data", type=Path, help="samples: .json / .csv (documented formats) or a vgr .mcap recording"
+                "data",
+                type=Path,
+                nargs="?" if name in IMAGE_OPTION_KINDS else None,
+                help="samples: .json / .csv (documented formats) or a vgr .mcap recording"
+                + (" (or --images DIR --poses FILE --board SPEC)" if name in IMAGE_OPTION_KINDS else ""),
             )
         add_options(k)
         k.add_argument("--report", type=Path, metavar="DIR", help="write result.json, report.txt, summary.md (+ plots)")

@@ -1,4 +1,5 @@
-"""``vgr calibrate intrinsics IMAGES... --board SPEC``: the command-line glue of the board library.
+"""``vgr calibrate intrinsics IMAGES... --board SPEC`` and ``vgr calibrate handeye|robot-world --images DIR
+--poses FILE --board SPEC``: the command-line glue of the board library.
 
 :mod:`plugins.solvers.calibrate_cli` owns the verb, the exit codes (0 usable, 1 unusable, 2 bad
 input) and the ``--json`` / ``--report`` files; this module adds the options of the ``intrinsics``
@@ -17,6 +18,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
+
+import numpy as np
 
 if TYPE_CHECKING:
     from plugins.solvers.calibrate_cli import Outcome
@@ -68,3 +71,90 @@ def run_intrinsics(args: argparse.Namespace) -> Outcome:
 
     text = cal.report_text()
     return Outcome(cal.to_result(), notes, text, {"Images": f"```\n{text}\n```"}, write_files)
+
+
+def handeye_image_options(p: argparse.ArgumentParser) -> None:
+    """The options of ``vgr calibrate handeye|robot-world --images DIR --poses FILE --board SPEC``."""
+    g = p.add_argument_group("from images (instead of DATA)")
+    g.add_argument(
+        "--images", type=Path, metavar="DIR", help="folder of board images (png / jpg / bmp), sorted by name"
+    )
+    g.add_argument(
+        "--poses",
+        type=Path,
+        metavar="FILE",
+        help="robot flange poses, one per image in the same order: 4x4 rows (16 numbers, row-major, m), "
+        "UR pose CSV (x y z rx ry rz) or vgr JSON",
+    )
+    g.add_argument("--board", metavar="SPEC", help=BOARD_HELP)
+    g.add_argument("--intrinsics", type=Path, metavar="FILE", help="camera file (default: calibrated from the images)")
+    g.add_argument("--refine-intrinsics", action="store_true", help="refine the intrinsics with the hand-eye")
+    g.add_argument("--no-holdout", action="store_true", help="skip the leave-one-view-out reprojection figures")
+    g.add_argument("--workers", type=int, default=None, help="detection threads (default: the CPU count)")
+
+
+def run_handeye_images(args: argparse.Namespace, kind: str) -> Outcome:
+    """Images + robot poses -> hand-eye (:mod:`.handeye_images`), packaged for the CLI."""
+    from plugins.solvers.boards.camera import CameraModel
+    from plugins.solvers.boards.detect import detect_images, image_files
+    from plugins.solvers.boards.handeye_images import calibrate_handeye_images, pair_views
+    from plugins.solvers.boards.intrinsics import calibrate_intrinsics
+    from plugins.solvers.boards.robot_poses import load_robot_poses
+    from plugins.solvers.boards.spec import parse_board
+    from plugins.solvers.calibrate_cli import Outcome
+    from plugins.solvers.calibration_inputs import CalibrationInputError
+
+    if args.images is None:
+        raise CalibrationInputError("give DATA (a sample file or recording) or --images DIR --poses FILE --board SPEC")
+    if args.data is not None:
+        raise CalibrationInputError("give DATA or --images, not both")
+    if args.poses is None or args.board is None:
+        raise CalibrationInputError("--images needs --poses FILE and --board SPEC")
+    board = parse_board(args.board)
+    files = image_files([args.images])
+    if not files:
+        raise CalibrationInputError(f"no image files (png / jpg / bmp) in {args.images}")
+    poses = load_robot_poses(args.poses, length_unit="mm" if args.mm else None)
+    if len(poses) != len(files):
+        raise CalibrationInputError(
+            f"{len(files)} image(s) in {args.images} but {len(poses)} robot pose(s) in {args.poses}: images are "
+            "paired with poses in sorted file order, one pose per image"
+        )
+    detections = detect_images(files, board, workers=args.workers)
+    notes = [f"board found in {len(detections.found)} of {len(files)} image(s): {board.describe()}"]
+    notes += [f"{Path(r.name).name}: {r.reason}; its robot pose is dropped" for r in detections.rejected]
+    if args.intrinsics is not None:
+        camera = CameraModel.load(args.intrinsics)
+        notes.append(f"intrinsics from {args.intrinsics}")
+    else:
+        cal = calibrate_intrinsics(detections)
+        if not cal.usable:
+            return Outcome(cal.to_result(), notes, cal.report_text())
+        camera = cal.camera
+        notes.append(f"intrinsics calibrated from the same images: RMS {cal.rms_px:.3f} px ({cal.model_choice})")
+    views, M, rejected = pair_views(files, detections, poses)
+    out = calibrate_handeye_images(
+        views,
+        M,
+        camera,
+        kind="robot_world" if kind == "robot_world" else "hand_eye",
+        setup=args.setup or "eye_in_hand",
+        refine_intrinsics=args.refine_intrinsics,
+        rejected=rejected,
+        holdout=not args.no_holdout,
+    )
+    m = out.result.metrics
+    text = ""
+    if out.refinement is not None:
+        text = (
+            f"reprojection through the robot poses: {m['rms_px']:.3f} px RMS (fit), "
+            f"{m['holdout_rms_px']:.3f} px (each view held out); board pose from PnP {m['board_pose_rms_px']:.3f} px\n"
+            f"board's world pose over the views: spread {m['world_spread_trans_rms_m'] * 1e3:.3f} mm / "
+            f"{np.degrees(m['world_spread_rot_rms_rad']):.4f} deg RMS"
+        )
+
+    def write_files(d: Path) -> None:
+        if out.refinement is not None:
+            out.refinement.camera.save(d / "camera.json")
+
+    return Outcome(out.result, notes, text, {"Images": f"```\n{text}\n```"} if text else {}, write_files)

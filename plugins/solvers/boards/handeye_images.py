@@ -1,0 +1,271 @@
+"""Hand-eye (AX=XB) and robot-world (AX=ZB) calibration from images of a board and robot poses.
+
+Pipeline of :func:`calibrate_handeye_images`:
+
+1. Pairing: image ``k`` (in the order given; a folder's images sorted by name) belongs to robot pose
+   ``k`` of the pose file. Different counts are an error naming both; images where the board was
+   not found are listed and their poses dropped.
+2. Intrinsics: the given camera, or :func:`.intrinsics.calibrate_intrinsics` on the same images.
+3. Board pose per image with its 6x6 covariance (:func:`.board_pose.board_pose`, the corner noise
+   from the intrinsic fit's RMS).
+4. vgr's maximum-likelihood hand-eye solver (:mod:`plugins.solvers.handeye`) on the pose pairs. Its
+   noise model is one per-axis camera noise for all samples: the per-image covariances give it (the
+   median of their per-axis variances; the solver then estimates its variance components), and the
+   solver's checks apply (degenerate motion, wrong set-up, mixed units, scaled camera: a wrong
+   square size is reported as "square size?" with the factor the data ask for, and fails). When the
+   solver's own result is not usable although it solved (it did not converge, or flagged many views
+   on data whose robot poses are nearly exact), the declared-noise solution and the closed forms are
+   tried as starts too, and the pixel refinement keeps the one that fits the corners best.
+5. Refinement in pixels (:func:`.reprojection.refine_reprojection`): ``X``, ``Y`` and optionally the
+   intrinsics, minimising the corners' reprojection error; this is the maximum-likelihood estimate
+   under independent corner noise and uses every corner, not only the pose each view summarises.
+6. Figures: fit and leave-one-view-out reprojection RMS (px), the spread of the board's world pose
+   over the views, and a verdict.
+
+The result is a :class:`CalibrationResult` (kind ``hand_eye`` / ``robot_world``) whose estimate
+holds ``T_tcp_cam`` and ``T_base_target`` (eye in hand) or ``T_base_cam`` and ``T_tcp_target`` (eye
+to hand) with their 1-sigma from the pixel refinement, ``camera`` and the images used.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from plugins.solvers.boards.board_pose import BoardPose, board_pose
+from plugins.solvers.boards.camera import CameraModel
+from plugins.solvers.boards.detect import Detection, Detections, Rejection
+from plugins.solvers.boards.reprojection import Refinement, holdout_rms, refine_reprojection, world_spread
+from plugins.solvers.calibration_result import CalibrationResult
+from plugins.solvers.handeye import (
+    CLOSED_FORM_METHODS,
+    AccuracyTargets,
+    NoiseModel,
+    PoseNoise,
+    calibrate_hand_eye,
+    calibrate_robot_world,
+    closed_form,
+)
+from plugins.solvers.handeye.noise import DEFAULT_PRIOR
+from plugins.solvers.handeye.problem import Setup, check_setup, frames_of
+
+F64 = NDArray[np.float64]
+Kind = Literal["hand_eye", "robot_world"]
+
+__all__ = ["HandEyeFromImages", "ImagePoseMismatchError", "calibrate_handeye_images", "camera_noise", "pair_views"]
+
+MIN_VIEWS = 3
+MAX_RMS_PX = 2.0  # above: failed (the model does not fit the corners)
+ACCURACY = AccuracyTargets()
+_STD_ADVICE = "add poses with larger rotations about different axes, or reduce the measurement noise"
+HOLDOUT_FACTOR = 3.0  # held-out RMS above this times the fit RMS: warning (over-fit or inconsistent views)
+SCALE_TOL = 0.005  # camera / robot length scale beyond 0.5 %: the board's size is probably wrong
+
+
+class ImagePoseMismatchError(ValueError):
+    """Images and robot poses cannot be paired (different counts)."""
+
+
+@dataclass(eq=False)
+class HandEyeFromImages:
+    """Everything the pipeline produced: the result, the views used with their robot and board poses,
+    the ML solver's own result (before the pixel refinement) and the refinement."""
+
+    result: CalibrationResult
+    views: list[Detection] = field(default_factory=list)
+    T_base_tcp: F64 = field(default_factory=lambda: np.zeros((0, 4, 4)))
+    board_poses: list[BoardPose] = field(default_factory=list)
+    rejected: list[Rejection] = field(default_factory=list)
+    ml_result: CalibrationResult | None = None
+    refinement: Refinement | None = None
+    holdout_px: F64 = field(default_factory=lambda: np.zeros(0))
+
+
+def pair_views(
+    files: Sequence[str | Path], detections: Detections, T_base_tcp: F64
+) -> tuple[list[Detection], F64, list[Rejection]]:
+    """The views where the board was found with their robot poses (module docstring, step 1)."""
+    M = np.asarray(T_base_tcp, float).reshape(-1, 4, 4)
+    if len(files) != len(M):
+        raise ImagePoseMismatchError(
+            f"{len(files)} image(s) but {len(M)} robot pose(s): images are paired with poses in sorted file "
+            "order, one pose per image"
+        )
+    index = {str(f): k for k, f in enumerate(files)}
+    found = sorted(detections.found, key=lambda d: index[d.name])
+    return found, M[[index[d.name] for d in found]], list(detections.rejected)
+
+
+def camera_noise(poses: Sequence[BoardPose]) -> NoiseModel:
+    """The hand-eye solver's noise model from the board poses' covariances (module docstring, step 4)."""
+    var = np.median(np.stack([np.diag(p.covariance) for p in poses]), axis=0)
+    sd = np.sqrt(np.maximum(var, 1e-18))
+    return NoiseModel(DEFAULT_PRIOR.robot, PoseNoise(sd[3:], sd[:3]))
+
+
+def _starts(res: CalibrationResult, x: str, y: str, label: str = "pose solver") -> list[tuple[str, F64, F64]]:
+    if x not in res.estimate or y not in res.estimate:
+        return []
+    return [(label, np.asarray(res.estimate[x], float), np.asarray(res.estimate[y], float))]
+
+
+def _failed(kind: Kind, reasons: list[str], advice: list[str], rejected: list[Rejection]) -> HandEyeFromImages:
+    res = CalibrationResult(kind=kind, verdict="failed", reasons=reasons, advice=advice, method="hand-eye from images")
+    return HandEyeFromImages(res, rejected=rejected)
+
+
+def _param_names(x: str, y: str, camera: CameraModel, intrinsics: bool) -> list[str]:
+    comps = ("tx", "ty", "tz", "rx", "ry", "rz")
+    names = [f"{x}.{c}" for c in comps] + [f"{y}.{c}" for c in comps]
+    if intrinsics:
+        names += ["fx_px", "fy_px", "cx_px", "cy_px"] + [f"distortion.{c}" for c in camera.coefficient_names]
+    return names
+
+
+def calibrate_handeye_images(
+    views: Sequence[Detection],
+    T_base_tcp: F64,
+    camera: CameraModel,
+    *,
+    kind: Kind = "hand_eye",
+    setup: Setup = "eye_in_hand",
+    refine_intrinsics: bool = False,
+    rejected: Sequence[Rejection] = (),
+    holdout: bool = True,
+    sigma_px: float | None = None,
+) -> HandEyeFromImages:
+    """Hand-eye from paired views (steps 3-6 of the module docstring; :func:`pair_views` gives the input)."""
+    setup = check_setup(setup)
+    frames = frames_of(setup)
+    views = list(views)
+    rejected = list(rejected)
+    M = np.asarray(T_base_tcp, float).reshape(-1, 4, 4)
+    if len(views) != len(M):
+        raise ImagePoseMismatchError(f"{len(views)} view(s) but {len(M)} robot pose(s)")
+    notes = [f"{Path(r.name).name}: {r.reason} (its robot pose dropped)" for r in rejected]
+    if len(views) < MIN_VIEWS:
+        return _failed(
+            kind,
+            [*notes, f"the board was found in {len(views)} image(s); hand-eye needs at least {MIN_VIEWS} (10-20 "
+             "recommended)"],
+            ["check the board spec and that the board is in view"], rejected,
+        )  # fmt: skip
+    if sigma_px is None:
+        rms = camera.extra.get("rms_px")
+        sigma_px = float(rms) / np.sqrt(2.0) if rms else None  # RMS distance -> per coordinate
+    poses = [board_pose(v, camera, sigma_px=sigma_px) for v in views]
+    B = np.stack([p.T_cam_target for p in poses])
+    solve = calibrate_robot_world if kind == "robot_world" else calibrate_hand_eye
+    ml = solve(M, B, setup=setup, noise=camera_noise(poses), estimate_noise=True)
+    scale = ml.metrics.get("unit_scale_robot_per_camera")
+    wrong_scale = scale is not None and abs(scale - 1.0) > max(5.0 * ml.metrics.get("unit_scale_std", 0.0), SCALE_TOL)
+    if wrong_scale:
+        notes.append(
+            f"square size? the robot moved {scale:.4f}x the distances the camera saw: with the intrinsics right, "
+            f"the board's squares are {scale:.4f}x the size given (or the robot poses are not in metres)"
+        )
+    starts = _starts(ml, frames.x_name, frames.y_name)
+    if not ml.usable and starts:  # solved but not trusted: try the declared noise and the closed forms too
+        ml_declared = solve(M, B, setup=setup, noise=camera_noise(poses), estimate_noise=False)
+        starts += _starts(ml_declared, frames.x_name, frames.y_name, "pose solver, noise declared")
+        starts += [(f"closed form {m}", *closed_form(setup, M, B, m)) for m in CLOSED_FORM_METHODS]
+    if wrong_scale or not starts:
+        ml.reasons = notes + ml.reasons
+        if ml.verdict in ("ok", "warning"):
+            ml.verdict = "failed"
+        return HandEyeFromImages(ml, views, M, poses, rejected, ml)
+    refs = [
+        (label, refine_reprojection(setup, M, views, camera, X0, Y0, refine_intrinsics=refine_intrinsics))
+        for label, X0, Y0 in starts
+        if np.all(np.isfinite(X0)) and np.all(np.isfinite(Y0))
+    ]
+    start, ref = min(refs, key=lambda lr: lr[1].rms_px)
+    X0 = next(x for label, x, _ in starts if label == start)
+    cam = ref.camera
+
+    def fit(train: NDArray[np.int64]) -> tuple[F64, F64]:
+        r = refine_reprojection(setup, M[train], [views[i] for i in train], cam, ref.X, ref.Y)
+        return r.X, r.Y
+
+    held = holdout_rms(setup, M, views, cam, fit) if holdout and len(views) > MIN_VIEWS else np.full(len(views), np.nan)
+    spread_t, spread_r, _ = world_spread(setup, M, B, ref.X)
+    # the pose solver's own uncertainty check is replaced by the one of the pixel refinement
+    ml_reasons = [r for r in ml.reasons if "uncertainty" not in r]
+    if not ml.usable:
+        ml_reasons = [
+            f"the pose solver alone gave verdict {ml.verdict} ({'; '.join(ml_reasons[-2:])}); the pixel "
+            f"refinement started from the best of {len(refs)} starts: {start}"
+        ]
+    verdict: Any = "warning" if ml_reasons else "ok"
+    reasons = notes + ml_reasons
+    advice = [a for a in ml.advice if a != _STD_ADVICE]
+    sd = np.sqrt(np.clip(np.diag(ref.covariance)[:6], 0.0, None))
+    std_t, std_r = float(np.linalg.norm(sd[:3])), float(np.linalg.norm(sd[3:]))
+    if std_t > ACCURACY.max_std_trans_m or std_r > ACCURACY.max_std_rot_rad:
+        verdict = "warning"
+        reasons.append(
+            f"{frames.x_name} uncertainty {std_t * 1e3:.3f} mm / {np.degrees(std_r):.4f} deg (1 sigma) exceeds the "
+            f"target {ACCURACY.max_std_trans_m * 1e3:.2f} mm / {np.degrees(ACCURACY.max_std_rot_rad):.3f} deg"
+        )
+        advice.append(_STD_ADVICE)
+    if not ref.converged:
+        verdict = "warning"
+        reasons.append("the pixel refinement stopped before converging")
+    if ref.rms_px > MAX_RMS_PX:
+        verdict = "failed"
+        reasons.append(
+            f"the corners' reprojection RMS is {ref.rms_px:.2f} px through the robot poses: the board moved, the "
+            "robot poses are not the images' (order?), or the set-up is wrong"
+        )
+    held_rms = float(np.sqrt(np.nanmean(held**2))) if np.any(np.isfinite(held)) else float("nan")
+    if np.isfinite(held_rms) and held_rms > HOLDOUT_FACTOR * ref.rms_px and verdict == "ok":
+        verdict = "warning"
+        reasons.append(f"held-out views reproject at {held_rms:.2f} px, {held_rms / ref.rms_px:.1f}x the fit")
+    metrics: dict[str, float] = {
+        "n_images": float(len(views) + len(rejected)),
+        "n_views": float(len(views)),
+        "n_rejected": float(len(rejected)),
+        "rms_px": ref.rms_px,
+        "sigma_px": ref.sigma_px,
+        "holdout_rms_px": held_rms,
+        "world_spread_trans_rms_m": spread_t,
+        "world_spread_rot_rms_rad": spread_r,
+        "board_pose_rms_px": float(np.sqrt(np.mean([p.rms_px**2 for p in poses]))),
+        "nfev": float(ref.nfev),
+        "covariance_dof": float(ref.dof),  # the covariance rests on sigma_px estimated from the residuals
+        "std_x_trans_m": std_t,
+        "std_x_rot_rad": std_r,
+    }
+    for key in ("chain_spread_trans_rms_m", "chain_spread_rot_rms_rad", "unit_scale_robot_per_camera"):
+        if key in ml.metrics:
+            metrics[f"ml_{key}"] = ml.metrics[key]
+    estimate: dict[str, Any] = {
+        frames.x_name: ref.X,
+        frames.y_name: ref.Y,
+        "setup": setup,
+        "camera": cam.to_dict(),
+        "sample_labels": [Path(v.name).name for v in views],
+        f"initial_{frames.x_name}": X0,
+    }
+    result = CalibrationResult(
+        kind=kind,
+        verdict=verdict,
+        estimate=estimate,
+        param_names=_param_names(frames.x_name, frames.y_name, cam, ref.intrinsics_refined),
+        covariance=ref.covariance,
+        residuals=np.column_stack([ref.view_rms_px, ref.view_max_px, held]),
+        residual_names=["rms_px", "max_px", "holdout_rms_px"],
+        outliers=np.zeros(len(views), dtype=bool),
+        reasons=reasons,
+        advice=advice,
+        metrics=metrics,
+        method=f"board poses -> {ml.method} -> reprojection refinement over {frames.x_name}, {frames.y_name}"
+        + (" and the intrinsics" if ref.intrinsics_refined else ""),
+        iterations=ref.nfev,
+    )
+    return HandEyeFromImages(result, views, M, poses, rejected, ml, ref, held)
