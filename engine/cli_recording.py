@@ -35,11 +35,13 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
         "--record", metavar="PATH", help="record to this new file, or into this folder (default: the run folder)"
     )
     p.add_argument("--no-record", action="store_true", help="do not record this run")
+    add_runs_dir_option(p, "the run's folder (recording, reports, log, recipe)")
+
+
+def add_runs_dir_option(p: argparse.ArgumentParser, folder: str) -> None:
+    """``--runs-dir DIR``: where ``vgr run`` / ``vgr replay`` make their new folder (engine.run_folder)."""
     p.add_argument(
-        "--runs-dir",
-        metavar="DIR",
-        default=run_folder.DEFAULT_PARENT,
-        help="make the run's folder (recording, reports, log, recipe) in DIR (default runs/)",
+        "--runs-dir", metavar="DIR", default=run_folder.DEFAULT_PARENT, help=f"make {folder} in DIR (default runs/)"
     )
 
 
@@ -178,12 +180,7 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg
     p.add_argument("--speed", default="max", help="'max' (default) or a factor of real time, e.g. 1")
     p.add_argument("--update", action="store_true", help="rewrite the recording with the replayed outputs (new golden)")
     p.add_argument("--json", action="store_true", help="print the outcome and every stream's verdict as JSON")
-    p.add_argument(
-        "--runs-dir",
-        metavar="DIR",
-        default=run_folder.DEFAULT_PARENT,
-        help="make the replay's folder (its log, recipe, verdicts and stage files) in DIR (default runs/)",
-    )
+    add_runs_dir_option(p, "the replay's folder (its log, recipe, verdicts and stage files)")
     p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("inspect", help="topics, counts, rates, time span, recipe and versions of a recording")
