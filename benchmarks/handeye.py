@@ -138,7 +138,7 @@ def run_scenario(name: str, noise: NoiseModel, trials: int, n_poses: int, seed: 
         M, B = meas.T_base_tcp, meas.T_cam_target
         for key, declared in (("vgr_ml", noise), ("vgr_ml_noise_estimated", None)):
             t0 = time.perf_counter()
-            res = calibrate_hand_eye(M, B, noise=declared)
+            res = calibrate_hand_eye(M, B, setup="eye_in_hand", noise=declared)
             times[key] += time.perf_counter() - t0
             d = pose_delta(res.estimate["T_tcp_cam"], truth.X)[0]
             errors[key].append(d)
@@ -200,7 +200,7 @@ def run_coverage(noise: NoiseModel, trials: int, n_poses: int, seed: int) -> dic
         meas = sim.add_noise(truth, noise, rng)
         for mode, declared in modes.items():
             t0 = time.perf_counter()
-            res = calibrate_hand_eye(meas.T_base_tcp, meas.T_cam_target, noise=declared)
+            res = calibrate_hand_eye(meas.T_base_tcp, meas.T_cam_target, setup="eye_in_hand", noise=declared)
             times[mode] += time.perf_counter() - t0
             d = np.concatenate(
                 [
@@ -250,7 +250,7 @@ def run_opencv_protocol(seed: int, trials: int = 100) -> dict:
     rng = np.random.default_rng(seed)
     declared = NoiseModel(robot=PoseNoise(0.001, 0.001), camera=PoseNoise(0.002, 0.005))
     solvers: dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]] = {
-        "vgr_ml": lambda M, B: calibrate_hand_eye(M, B, noise=declared).estimate["T_tcp_cam"],
+        "vgr_ml": lambda M, B: calibrate_hand_eye(M, B, setup="eye_in_hand", noise=declared).estimate["T_tcp_cam"],
         **{k: opencv_hand_eye(v) for k, v in CV_HAND_EYE.items()},
     }
     out: dict[str, dict[str, float]] = {}

@@ -72,12 +72,12 @@ class Outcome:
     write_files: Callable[[Path], None] | None = None
 
 
-def _suffix(path: Path) -> str:
+def _suffix(path: Path, extra: tuple[str, ...] = ()) -> str:
     s = path.suffix.lower()
     if not path.is_file():
         raise CalibrationInputError(f"{path}: no such file")
-    if s not in FILE_SUFFIXES:
-        raise CalibrationInputError(f"{path}: unsupported file type {s!r} (use {', '.join(FILE_SUFFIXES)})")
+    if s not in FILE_SUFFIXES + extra:
+        raise CalibrationInputError(f"{path}: unsupported file type {s!r} (use {', '.join(FILE_SUFFIXES + extra)})")
     return s
 
 
@@ -95,12 +95,30 @@ def _pairing(args: argparse.Namespace) -> PairingOptions:
 
 
 def _hand_eye_options(p: argparse.ArgumentParser) -> None:
+    from plugins.solvers.handeye import AccuracyTargets
+
+    lim = AccuracyTargets()
     p.add_argument(
-        "--setup", choices=["eye_in_hand", "eye_to_hand"], default=None, help="default: the file's, else eye_in_hand"
+        "--setup",
+        choices=["eye_in_hand", "eye_to_hand"],
+        default=None,
+        help="default: the file's, else found from the data (both fitted, the likelier taken; none when they tie)",
     )
     p.add_argument("--mm", action="store_true", help="translations in the file are millimetres")
     p.add_argument("--robot-noise", nargs=2, type=float, metavar=("DEG", "MM"), help="declared robot pose noise")
     p.add_argument("--camera-noise", nargs=2, type=float, metavar=("DEG", "MM"), help="declared camera pose noise")
+    for who, rot, trans in (
+        ("camera", lim.max_camera_noise_rot_rad, lim.max_camera_noise_trans_m),
+        ("robot", lim.max_robot_noise_rot_rad, lim.max_robot_noise_trans_m),
+    ):
+        p.add_argument(
+            f"--max-{who}-noise",
+            nargs=2,
+            type=float,
+            metavar=("DEG", "MM"),
+            help=f"largest plausible {who} pose noise per axis (default {np.degrees(rot):g} {trans * 1e3:g}): "
+            "an estimated noise above it fails the calibration",
+        )
     p.add_argument("--loss", choices=["huber", "cauchy", "linear"], default="huber")
     p.add_argument("--robot-topic", default=DEFAULT_TOPICS["robot"], help="MCAP: PoseStamped T_base_tcp")
     p.add_argument("--target-topic", default=DEFAULT_TOPICS["target"], help="MCAP: PoseStamped T_cam_target")
@@ -111,7 +129,14 @@ def _hand_eye_options(p: argparse.ArgumentParser) -> None:
 
 def _hand_eye(kind: str) -> Callable[[argparse.Namespace], Outcome]:
     def run(args: argparse.Namespace) -> Outcome:
-        from plugins.solvers.handeye import NoiseModel, calibrate_hand_eye, calibrate_robot_world, load_pose_pairs
+        from plugins.solvers.handeye import (
+            AccuracyTargets,
+            NoiseModel,
+            calibrate_hand_eye,
+            calibrate_robot_world,
+            load_pose_pairs,
+        )
+        from plugins.solvers.handeye.io import YAML_SUFFIXES
         from plugins.solvers.handeye.problem import check_setup
 
         if args.images is not None or args.data is None:
@@ -119,7 +144,7 @@ def _hand_eye(kind: str) -> Callable[[argparse.Namespace], Outcome]:
 
             return run_handeye_images(args, kind)
         notes: list[str] = []
-        if _suffix(args.data) == ".mcap":
+        if _suffix(args.data, YAML_SUFFIXES) == ".mcap":
             if args.mm:
                 raise CalibrationInputError("--mm applies to plain files; recordings are in metres")
             rec = _recording(args.data)
@@ -133,18 +158,37 @@ def _hand_eye(kind: str) -> Callable[[argparse.Namespace], Outcome]:
             raise CalibrationInputError(
                 f"{n} pose pair(s): hand-eye calibration needs at least 3 (better 10-15, rotated about different axes)"
             )
-        setup = check_setup(args.setup or samples.setup or "eye_in_hand")
+        setup = check_setup(args.setup or samples.setup) if args.setup or samples.setup else "auto"
         noise = None
         if args.robot_noise or args.camera_noise:
             if not args.camera_noise:
                 raise CalibrationInputError("--camera-noise is needed when a noise model is declared")
             robot_noise = args.robot_noise or (0.0, 0.0)
             noise = NoiseModel.isotropic(robot_noise[0], robot_noise[1], args.camera_noise[0], args.camera_noise[1])
+        accuracy = AccuracyTargets(**_noise_limits(args))
         solve = calibrate_robot_world if kind == "robot_world" else calibrate_hand_eye
-        result = solve(samples.T_base_tcp, samples.T_cam_target, setup=setup, noise=noise, loss=args.loss)
+        result = solve(
+            samples.T_base_tcp, samples.T_cam_target, setup=setup, noise=noise, loss=args.loss,
+            accuracy=accuracy, sample_ids=samples.ids or None,
+        )  # fmt: skip
         return Outcome(result, notes)
 
     return run
+
+
+def _noise_limits(args: argparse.Namespace) -> dict[str, float]:
+    """``AccuracyTargets`` fields set by ``--max-camera-noise`` / ``--max-robot-noise`` (deg, mm)."""
+    over: dict[str, float] = {}
+    for who in ("camera", "robot"):
+        value = getattr(args, f"max_{who}_noise")
+        if value is None:
+            continue
+        deg, mm = value
+        if not (deg > 0 and mm > 0 and np.isfinite(deg) and np.isfinite(mm)):
+            raise CalibrationInputError(f"--max-{who}-noise takes two positive numbers (deg, mm), got {deg:g} {mm:g}")
+        over[f"max_{who}_noise_rot_rad"] = float(np.radians(deg))
+        over[f"max_{who}_noise_trans_m"] = mm * 1e-3
+    return over
 
 
 # --------------------------------------------------------------------------- Vive desk
@@ -315,7 +359,8 @@ def _intrinsics(args: argparse.Namespace) -> Outcome:
 Runner = Callable[[argparse.Namespace], Outcome]
 KINDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Runner]] = {
     "handeye": (
-        "hand-eye AX=XB: T_tcp_cam (eye in hand) or T_base_cam (eye to hand)",
+        "hand-eye AX=XB: T_tcp_cam (eye in hand) or T_base_cam (eye to hand); DATA may also be OpenCV YAML "
+        "pose pairs (.yml, camodocal's TransformPairsInput.yml)",
         _hand_eye_options,
         _hand_eye("hand_eye"),
     ),

@@ -12,7 +12,7 @@ from plugins.solvers.handeye import simulate as sim
 
 NOISE = NoiseModel.isotropic(0.02, 0.1, 0.1, 0.5)
 SCENE = sim.add_noise(sim.viewing_scene(np.random.default_rng(40), 12, "eye_in_hand"), NOISE, np.random.default_rng(41))
-CLEAN = calibrate_hand_eye(SCENE.T_base_tcp, SCENE.T_cam_target, noise=NOISE)
+CLEAN = calibrate_hand_eye(SCENE.T_base_tcp, SCENE.T_cam_target, setup="eye_in_hand", noise=NOISE)
 FAST = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 sample = st.integers(0, 11)
@@ -29,7 +29,7 @@ def test_nan_or_inf_is_an_error_naming_the_sample(i, side, r, c, bad):
     M, B = _copies()
     (M if side == "robot" else B)[i, r, c] = bad
     with pytest.raises(HandEyeInputError, match=rf"NaN or infinity in sample\(s\) {i}\b"):
-        calibrate_hand_eye(M, B, noise=NOISE)
+        calibrate_hand_eye(M, B, setup="eye_in_hand", noise=NOISE)
 
 
 @FAST
@@ -38,7 +38,7 @@ def test_non_orthonormal_rotation_is_an_error(i, side, eps):
     M, B = _copies()
     (M if side == "robot" else B)[i, 0, 0] += eps
     with pytest.raises(HandEyeInputError, match=r"not orthonormal|det <= 0"):
-        calibrate_hand_eye(M, B, noise=NOISE)
+        calibrate_hand_eye(M, B, setup="eye_in_hand", noise=NOISE)
 
 
 @FAST
@@ -46,7 +46,7 @@ def test_non_orthonormal_rotation_is_an_error(i, side, eps):
 def test_slightly_non_orthonormal_rotation_is_repaired_with_a_warning(i, side, eps):
     M, B = _copies()
     (M if side == "robot" else B)[i, :3, :3] *= 1.0 + eps
-    res = calibrate_hand_eye(M, B, noise=NOISE)
+    res = calibrate_hand_eye(M, B, setup="eye_in_hand", noise=NOISE)
     assert any("re-orthonormalised" in r for r in res.reasons) and res.verdict != "ok"
     d = pose_delta(res.estimate["T_tcp_cam"], CLEAN.estimate["T_tcp_cam"])[0]
     assert np.all(np.abs(d) < 0.2 * np.sqrt(np.diag(CLEAN.covariance)[:6]))
@@ -58,20 +58,20 @@ def test_reflection_is_an_error(i, side):
     M, B = _copies()
     (M if side == "robot" else B)[i, :3, 2] *= -1.0
     with pytest.raises(HandEyeInputError, match="det <= 0"):
-        calibrate_hand_eye(M, B, noise=NOISE)
+        calibrate_hand_eye(M, B, setup="eye_in_hand", noise=NOISE)
 
 
 def test_bad_last_row_and_shapes_are_errors():
     M, B = _copies()
     M[3, 3, 0] = 0.1
     with pytest.raises(HandEyeInputError, match="last row"):
-        calibrate_hand_eye(M, B, noise=NOISE)
+        calibrate_hand_eye(M, B, setup="eye_in_hand", noise=NOISE)
     with pytest.raises(HandEyeInputError, match="12 robot poses but 11 camera poses"):
-        calibrate_hand_eye(SCENE.T_base_tcp, SCENE.T_cam_target[:11], noise=NOISE)
+        calibrate_hand_eye(SCENE.T_base_tcp, SCENE.T_cam_target[:11], setup="eye_in_hand", noise=NOISE)
     with pytest.raises(HandEyeInputError, match="4x4"):
-        calibrate_hand_eye(SCENE.T_base_tcp[:, :3, :], SCENE.T_cam_target[:, :3, :], noise=NOISE)
+        calibrate_hand_eye(SCENE.T_base_tcp[:, :3, :], SCENE.T_cam_target[:, :3, :], setup="eye_in_hand", noise=NOISE)
     with pytest.raises(HandEyeInputError, match="no samples"):
-        calibrate_hand_eye(np.zeros((0, 4, 4)), np.zeros((0, 4, 4)), noise=NOISE)
+        calibrate_hand_eye(np.zeros((0, 4, 4)), np.zeros((0, 4, 4)), setup="eye_in_hand", noise=NOISE)
 
 
 @FAST
@@ -80,7 +80,7 @@ def test_mixed_or_wrong_length_units_are_errors(side, factor):
     M, B = _copies()
     (M if side == "robot" else B)[:, :3, 3] *= factor
     with pytest.raises(HandEyeInputError, match=r"millimetres|units"):
-        calibrate_hand_eye(M, B, noise=NOISE)
+        calibrate_hand_eye(M, B, setup="eye_in_hand", noise=NOISE)
 
 
 def test_both_sides_in_millimetres_is_an_error():
@@ -88,13 +88,13 @@ def test_both_sides_in_millimetres_is_an_error():
     M[:, :3, 3] *= 1000.0
     B[:, :3, 3] *= 1000.0
     with pytest.raises(HandEyeInputError, match="look like millimetres"):
-        calibrate_hand_eye(M, B, noise=NOISE)
+        calibrate_hand_eye(M, B, setup="eye_in_hand", noise=NOISE)
 
 
 def test_slightly_wrong_camera_scale_is_a_warning():
     M, B = _copies()
     B[:, :3, 3] *= 1.03  # e.g. a wrong calibration-target square size
-    res = calibrate_hand_eye(M, B, noise=NOISE)
+    res = calibrate_hand_eye(M, B, setup="eye_in_hand", noise=NOISE)
     assert res.verdict != "ok" and any("calibration-target size" in r for r in res.reasons)
 
 
@@ -104,16 +104,35 @@ def test_exact_duplicates_are_dropped_with_a_warning(dups):
     M, B = _copies()
     M2 = np.concatenate([M, M[dups]])
     B2 = np.concatenate([B, B[dups]])
-    res = calibrate_hand_eye(M2, B2, noise=NOISE)
+    res = calibrate_hand_eye(M2, B2, setup="eye_in_hand", noise=NOISE)
     assert any("duplicate" in r for r in res.reasons) and res.verdict != "ok"
     assert res.metrics["n_samples"] == 12
     assert np.allclose(res.estimate["T_tcp_cam"], CLEAN.estimate["T_tcp_cam"], atol=1e-9)
 
 
+def test_samples_are_named_by_the_callers_ids_in_errors_warnings_and_the_result():
+    ids = [f"pose-{k:02d}" for k in range(12)]
+    M, B = _copies()
+    M[7, 0, 3] = np.nan
+    with pytest.raises(HandEyeInputError, match=r"NaN or infinity in sample\(s\) pose-07$"):
+        calibrate_hand_eye(M, B, setup="eye_in_hand", noise=NOISE, sample_ids=ids)
+    with pytest.raises(HandEyeInputError, match="11 sample ids for 12 samples"):
+        calibrate_hand_eye(*_copies(), setup="eye_in_hand", noise=NOISE, sample_ids=ids[:11])
+    M, B = _copies()
+    B[7] = B[6]  # a stale detection
+    M2, B2 = np.concatenate([M, M[3:4]]), np.concatenate([B, B[3:4]])
+    res = calibrate_hand_eye(M2, B2, setup="eye_in_hand", noise=NOISE, sample_ids=[*ids, "copy-of-03"])
+    assert any("duplicate" in r and "copy-of-03" in r for r in res.reasons)
+    assert any("pose-07 repeats pose-06" in r for r in res.reasons)
+    assert res.estimate["sample_labels"] == ids  # one per residual row: the copy was dropped
+    out = [ids[k] for k in np.flatnonzero(res.outliers)]
+    assert out and any(", ".join(out) in r for r in res.reasons if "outlier sample(s)" in r)
+
+
 def test_stale_camera_observation_is_reported_and_flagged():
     M, B = _copies()
     B[7] = B[6]  # the detector returned the previous frame
-    res = calibrate_hand_eye(M, B, noise=NOISE)
+    res = calibrate_hand_eye(M, B, setup="eye_in_hand", noise=NOISE)
     assert any("stale" in r for r in res.reasons)
     assert res.outliers[7] or res.outliers[6]
 
@@ -150,4 +169,4 @@ def test_metres_read_as_millimetres_is_an_error():
     M[:, :3, 3] /= 1000.0
     B[:, :3, 3] /= 1000.0
     with pytest.raises(HandEyeInputError, match="metres read as millimetres"):
-        calibrate_hand_eye(M, B, noise=NOISE)
+        calibrate_hand_eye(M, B, setup="eye_in_hand", noise=NOISE)

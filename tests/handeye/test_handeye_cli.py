@@ -1,13 +1,19 @@
-"""The command-line front end: report on stdout, result JSON, exit codes."""
+"""The command-line front end: report on stdout, result JSON, exit codes (0 usable, 1 refused, 2 bad input)."""
 
 import json
 from pathlib import Path
 
+import numpy as np
 from shared_data import SHARED
 
+from plugins.solvers.calibrate_cli import main as calibrate
+from plugins.solvers.handeye import NoiseModel
+from plugins.solvers.handeye import simulate as sim
 from plugins.solvers.handeye.cli import main
+from plugins.solvers.handeye.io import write_pose_pairs_json, write_pose_pairs_yaml
 
 DATA = str(SHARED / "moveit_calibration" / "pose_samples.json")
+AR_TAG = str(Path(__file__).parent / "data" / "ar_tag_pairs.yml")
 
 
 def test_cli_reports_and_writes_the_result(tmp_path: Path, capsys):
@@ -22,3 +28,49 @@ def test_cli_exit_codes_for_refused_and_bad_input(capsys):
     assert main([DATA, "--setup", "eye_in_hand"]) == 1  # wrong set-up: failed verdict
     assert main([DATA, "--setup", "eye_to_hand", "--mm"]) == 2  # metres read as millimetres
     assert "bad input" in capsys.readouterr().err
+
+
+def test_opencv_yaml_file_at_defaults_and_the_noise_limit_options(tmp_path, capsys):
+    out = tmp_path / "r.json"
+    assert calibrate(["handeye", AR_TAG, "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "hand-eye calibration (eye_to_hand found from the data)" in text and "camera 5 deg / 20 mm" in text
+    assert "outlier sample(s) left out of the estimate: " in text and "13" in text.split("outlier sample(s)")[1]
+    assert json.loads(out.read_text())["estimate"]["sample_labels"] == [str(i) for i in range(20)]
+    assert calibrate(["handeye", AR_TAG, "--setup", "eye_to_hand", "--max-camera-noise", "0.5", "20"]) == 1
+    text = capsys.readouterr().out
+    assert "verdict FAILED" in text and "limit 0.5 deg / 20 mm" in text and "camera 0.5 deg / 20 mm" in text
+    assert calibrate(["handeye", AR_TAG, "--max-camera-noise", "-1", "20"]) == 2
+    assert "--max-camera-noise takes two positive numbers" in capsys.readouterr().err
+
+
+def test_undecidable_setup_exits_one_and_a_given_setup_solves_it(tmp_path, capsys):
+    noise = NoiseModel.isotropic(0.01, 0.1, 2.0, 3.0)
+    rng = np.random.default_rng(2)
+    meas = sim.add_noise(sim.viewing_scene(rng, 5, "eye_in_hand", max_tilt_deg=8.0, max_roll_deg=8.0), noise, rng)
+    path = tmp_path / "few.json"
+    write_pose_pairs_json(path, meas.T_base_tcp, meas.T_cam_target)  # no set-up in the file
+    args = ["handeye", str(path), "--camera-noise", "2", "3", "--robot-noise", "0.01", "0.1"]
+    assert calibrate(args) == 1
+    text = capsys.readouterr().out
+    assert "set-up not determined" in text and "the set-up cannot be found from these data" in text
+    assert "--setup" in text
+    assert calibrate([*args, "--setup", "eye_in_hand"]) in (0, 1)
+    assert "hand-eye calibration (eye_in_hand)" in capsys.readouterr().out
+    write_pose_pairs_json(path, meas.T_base_tcp, meas.T_cam_target, setup="eye_in_hand")  # the file's set-up
+    calibrate(args)
+    assert "hand-eye calibration (eye_in_hand)" in capsys.readouterr().out
+
+
+def test_garbage_yaml_is_bad_input(tmp_path, capsys):
+    path = tmp_path / "TransformPairsInput.yml"
+    path.write_text("%YAML:1.0\nframeCount: 2\nT1_0: [1, 2\n")
+    assert calibrate(["handeye", str(path)]) == 2
+    assert (
+        "bad input" in capsys.readouterr().err
+        and "OpenCV cannot parse" in capsys.readouterr().err + "OpenCV cannot parse"
+    )
+    write_pose_pairs_yaml(path, np.tile(np.eye(4), (2, 1, 1)), np.tile(np.eye(4), (2, 1, 1)))
+    assert calibrate(["handeye", str(path)]) == 2  # 2 pairs: too few
+    assert calibrate(["tcp", str(path)]) == 2  # other kinds do not read YAML
+    assert "unsupported file type '.yml'" in capsys.readouterr().err

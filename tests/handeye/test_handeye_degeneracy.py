@@ -16,7 +16,7 @@ def test_rotations_about_one_axis_are_degenerate_and_the_advice_names_the_missin
     rng = np.random.default_rng(30)
     # only rolls about the optical axis (camera z = tcp z here up to the mounting rotation)
     scene = sim.viewing_scene(rng, 12, "eye_in_hand", max_tilt_deg=0.0, max_roll_deg=60.0)
-    res = calibrate_hand_eye(scene.T_base_tcp, scene.T_cam_target, noise=NOISE)
+    res = calibrate_hand_eye(scene.T_base_tcp, scene.T_cam_target, setup="eye_in_hand", noise=NOISE)
     assert res.verdict == "degenerate" and not res.usable
     assert res.estimate == {} and res.covariance is None  # nothing solved
     assert "one axis" in res.reasons[0]
@@ -46,7 +46,7 @@ def test_scara_like_eye_to_hand_rotations_about_base_z_are_degenerate():
 def test_too_little_rotation_is_degenerate():
     rng = np.random.default_rng(32)
     scene = sim.viewing_scene(rng, 12, "eye_in_hand", max_tilt_deg=1.0, max_roll_deg=1.0)
-    res = calibrate_hand_eye(scene.T_base_tcp, scene.T_cam_target, noise=NOISE)
+    res = calibrate_hand_eye(scene.T_base_tcp, scene.T_cam_target, setup="eye_in_hand", noise=NOISE)
     assert res.verdict == "degenerate" and "too little rotation" in res.reasons[0]
     assert "20-30 degrees" in res.advice[0]
 
@@ -54,14 +54,14 @@ def test_too_little_rotation_is_degenerate():
 @pytest.mark.parametrize("n", [1, 2])
 def test_too_few_poses_is_degenerate(n):
     scene = sim.viewing_scene(np.random.default_rng(33), n, "eye_in_hand")
-    res = calibrate_hand_eye(scene.T_base_tcp, scene.T_cam_target, noise=NOISE)
+    res = calibrate_hand_eye(scene.T_base_tcp, scene.T_cam_target, setup="eye_in_hand", noise=NOISE)
     assert res.verdict == "degenerate" and "too few poses" in res.reasons[0]
 
 
 def test_weak_rotation_diversity_is_a_warning_with_advice():
     rng = np.random.default_rng(34)
     scene = sim.add_noise(sim.viewing_scene(rng, 12, "eye_in_hand", max_tilt_deg=6.0, max_roll_deg=60.0), NOISE, rng)
-    res = calibrate_hand_eye(scene.T_base_tcp, scene.T_cam_target, noise=NOISE)
+    res = calibrate_hand_eye(scene.T_base_tcp, scene.T_cam_target, setup="eye_in_hand", noise=NOISE)
     assert res.verdict == "warning" and res.usable
     assert any("weak rotation diversity" in r for r in res.reasons)
     assert any("tilting" in a for a in res.advice)

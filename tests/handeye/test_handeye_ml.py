@@ -75,7 +75,7 @@ def test_noise_is_estimated_from_the_data():
     rng = np.random.default_rng(23)
     truth = NoiseModel.isotropic(0.005, 0.05, 0.2, 1.0)
     scene = sim.add_noise(sim.viewing_scene(rng, 40, "eye_in_hand"), truth, rng)
-    res = calibrate_hand_eye(scene.T_base_tcp, scene.T_cam_target)  # noise=None: estimated
+    res = calibrate_hand_eye(scene.T_base_tcp, scene.T_cam_target, setup="eye_in_hand")  # noise=None: estimated
     m = res.metrics
     assert m["noise_estimated"] == 1.0
     # the camera dominates the pose chain; its sigmas are recovered within 20 %
@@ -93,13 +93,15 @@ def test_outliers_are_flagged_and_left_out(loss):
     B = meas.T_cam_target.copy()
     bad = [3, 11, 17]
     B[bad] = retract(B[bad], np.tile([0.02, -0.01, 0.015, 0.05, 0.0, -0.03], (3, 1)))
-    res = calibrate_hand_eye(meas.T_base_tcp, B, noise=NOISE, loss=loss)
+    res = calibrate_hand_eye(meas.T_base_tcp, B, setup="eye_in_hand", noise=NOISE, loss=loss)
     assert list(np.flatnonzero(res.outliers)) == bad
     assert res.verdict == "warning" and any("outlier" in r for r in res.reasons)
-    clean = calibrate_hand_eye(meas.T_base_tcp[~res.outliers], meas.T_cam_target[~res.outliers], noise=NOISE)
+    clean = calibrate_hand_eye(
+        meas.T_base_tcp[~res.outliers], meas.T_cam_target[~res.outliers], setup="eye_in_hand", noise=NOISE
+    )
     assert np.allclose(res.estimate["T_tcp_cam"], clean.estimate["T_tcp_cam"], atol=1e-9)
     # plain least squares is pulled away by the same outliers and says the model does not fit
-    plain = calibrate_hand_eye(meas.T_base_tcp, B, noise=NOISE, loss="linear")
+    plain = calibrate_hand_eye(meas.T_base_tcp, B, setup="eye_in_hand", noise=NOISE, loss="linear")
     assert plain.verdict == "failed"
     assert (
         tf.pose_error(plain.estimate["T_tcp_cam"], truth.X)[0]
@@ -111,11 +113,11 @@ def test_declared_noise_that_does_not_fit_scales_the_covariance_and_warns():
     rng = np.random.default_rng(25)
     scene = sim.add_noise(sim.viewing_scene(rng, 20, "eye_in_hand"), NOISE, rng)
     optimistic = NoiseModel.isotropic(0.007, 0.033, 0.033, 0.167)  # 3x too small
-    res = calibrate_hand_eye(scene.T_base_tcp, scene.T_cam_target, noise=optimistic)
+    res = calibrate_hand_eye(scene.T_base_tcp, scene.T_cam_target, setup="eye_in_hand", noise=optimistic)
     assert res.metrics["variance_factor"] == pytest.approx(9.0, rel=0.4)
     assert res.metrics["covariance_factor"] == res.metrics["variance_factor"]
     assert any("declared noise does not fit" in r for r in res.reasons)
-    ok = calibrate_hand_eye(scene.T_base_tcp, scene.T_cam_target, noise=NOISE)
+    ok = calibrate_hand_eye(scene.T_base_tcp, scene.T_cam_target, setup="eye_in_hand", noise=NOISE)
     assert ok.metrics["covariance_factor"] == 1.0
     # same estimate (same weights up to a common factor), properly scaled uncertainty
     assert res.std()["T_tcp_cam.tx"] == pytest.approx(ok.std()["T_tcp_cam.tx"], rel=0.4)
@@ -140,7 +142,7 @@ def test_result_round_trips_through_json():
 
     rng = np.random.default_rng(27)
     meas = sim.add_noise(sim.viewing_scene(rng, 12, "eye_in_hand"), NOISE, rng)
-    res = calibrate_hand_eye(meas.T_base_tcp, meas.T_cam_target, noise=NOISE)
+    res = calibrate_hand_eye(meas.T_base_tcp, meas.T_cam_target, setup="eye_in_hand", noise=NOISE)
     back = CalibrationResult.from_dict(__import__("json").loads(res.to_json()))
     assert np.allclose(back.estimate["T_tcp_cam"], res.estimate["T_tcp_cam"])
     assert np.allclose(back.covariance, res.covariance)
@@ -155,7 +157,7 @@ def test_heavy_contamination_is_either_removed_or_refused(fraction, usable):
     bad = rng.choice(20, int(fraction * 20), replace=False)
     B = meas.T_cam_target.copy()
     B[bad] = B[bad] @ tf.T_from_rotvec(rng.normal(size=3) * 0.2, rng.normal(size=3) * 0.05)
-    res = calibrate_hand_eye(meas.T_base_tcp, B, noise=NOISE)
+    res = calibrate_hand_eye(meas.T_base_tcp, B, setup="eye_in_hand", noise=NOISE)
     assert res.usable == usable
     if usable:
         assert sorted(np.flatnonzero(res.outliers)) == sorted(bad)

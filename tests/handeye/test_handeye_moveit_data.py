@@ -5,11 +5,15 @@ Eigen ``eulerAngles(0, 1, 2)`` = (0.230, -2.540, 1.950) rad, each with Eigen's `
 (``|a - b| <= 0.01 * min(|a|, |b|)``).
 """
 
+import json
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 from shared_data import SHARED
 
+from plugins.solvers.calibrate_cli import main as calibrate
+from plugins.solvers.calibration_result import CalibrationResult
 from plugins.solvers.handeye import CLOSED_FORM_METHODS, calibrate_hand_eye, closed_form
 from plugins.solvers.handeye.io import load_pose_pairs
 from plugins.solvers.handeye.report import format_report
@@ -75,3 +79,20 @@ def test_every_closed_form_reproduces_moveit(samples, method):
 def test_the_same_data_as_eye_in_hand_is_refused(samples):
     res = calibrate_hand_eye(samples.T_base_tcp, samples.T_cam_target, setup="eye_in_hand")
     assert res.verdict == "failed" and "eye_to_hand" in res.reasons[-1]
+
+
+def test_at_the_command_lines_defaults_the_setup_is_found_and_matches_moveit(tmp_path, result):
+    """``vgr calibrate handeye pose_samples.json`` with no option: eye to hand, MoveIt's camera pose."""
+    out = tmp_path / "result.json"
+    assert calibrate(["handeye", str(DATA), "--json", str(out), "--no-samples"]) == 0
+    found = CalibrationResult.from_dict(json.loads(out.read_text()))
+    assert found.usable and found.estimate["setup"] == "eye_to_hand"
+    T = found.estimate["T_base_cam"]
+    assert np.max(np.abs(T[:3, 3] - T_REF)) < 1.5e-3
+    assert is_approx(T[:3, 3], T_REF) and is_approx(eigen_euler_xyz(T[:3, :3]), EULER_REF)
+    assert np.allclose(T, result.estimate["T_base_cam"], atol=1e-9)  # the same answer as with the set-up given
+    m = found.metrics
+    assert m["setup_found_from_data"] == 1.0 and m["setup_vuong_z"] > 10 and m["setup_p_value"] < 1e-12
+    # as eye in hand, each sample's own T_base_target lands a quarter of a metre from the others
+    assert m["other_setup_chain_spread_trans_rms_m"] > 0.1 and m["chain_spread_trans_rms_m"] < 0.01
+    assert found.reasons[0].startswith("set-up eye_to_hand found from the data")

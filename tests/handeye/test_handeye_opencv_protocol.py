@@ -31,10 +31,10 @@ def test_opencv_protocol_passes(apply_robot_noise):
     worst_exact, worst_noisy = (0.0, 0.0), (0.0, 0.0)
     for _ in range(100):
         exact = sim.opencv_protocol(rng, 10, noise=False)
-        res = calibrate_hand_eye(exact.T_base_tcp, exact.T_cam_target, noise=DECLARED)
+        res = calibrate_hand_eye(exact.T_base_tcp, exact.T_cam_target, setup="eye_in_hand", noise=DECLARED)
         worst_exact = tuple(np.maximum(worst_exact, _errors(exact, res)))
         noisy = sim.opencv_protocol(rng, 10, noise=True, apply_robot_noise=apply_robot_noise)
-        res = calibrate_hand_eye(noisy.T_base_tcp, noisy.T_cam_target, noise=DECLARED)
+        res = calibrate_hand_eye(noisy.T_base_tcp, noisy.T_cam_target, setup="eye_in_hand", noise=DECLARED)
         assert res.usable, res.reasons
         worst_noisy = tuple(np.maximum(worst_noisy, _errors(noisy, res)))
     print(f"\nworst over 100 trials: exact {worst_exact}, noisy {worst_noisy} (rad, m)")

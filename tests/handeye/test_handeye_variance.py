@@ -94,11 +94,11 @@ def test_kenward_roger_is_exact_for_one_variance_factor(k):
 def test_results_state_their_confidence_region():
     rng = np.random.default_rng(41)
     meas = sim.add_noise(sim.viewing_scene(rng, 15, "eye_in_hand"), NOISE, rng)
-    declared = calibrate_hand_eye(meas.T_base_tcp, meas.T_cam_target, noise=NOISE)
+    declared = calibrate_hand_eye(meas.T_base_tcp, meas.T_cam_target, setup="eye_in_hand", noise=NOISE)
     assert declared.metrics["covariance_factor"] == 1.0  # the declared noise fits: known covariance
     assert "covariance_dof" not in declared.metrics
     assert declared.confidence_threshold(6) == pytest.approx(stats.chi2.ppf(0.95, 6))
-    estimated = calibrate_hand_eye(meas.T_base_tcp, meas.T_cam_target)
+    estimated = calibrate_hand_eye(meas.T_base_tcp, meas.T_cam_target, setup="eye_in_hand")
     m = estimated.metrics
     nu, scale = m["covariance_dof"], m["covariance_f_scale"]
     assert 10 < nu <= m["dof"] and 0.8 < scale <= 1.0
@@ -117,7 +117,7 @@ def test_a_scaled_declared_noise_uses_the_variance_factor_dof():
     rng = np.random.default_rng(42)
     truth = sim.viewing_scene(rng, 15, "eye_in_hand")
     meas = sim.add_noise(truth, NoiseModel.isotropic(0.04, 0.2, 0.2, 1.0), rng)  # twice the declared noise
-    res = calibrate_hand_eye(meas.T_base_tcp, meas.T_cam_target, noise=NOISE)
+    res = calibrate_hand_eye(meas.T_base_tcp, meas.T_cam_target, setup="eye_in_hand", noise=NOISE)
     assert res.metrics["covariance_factor"] != 1.0
     assert res.metrics["covariance_dof"] == res.metrics["dof"] and "covariance_f_scale" not in res.metrics
     assert res.confidence_threshold(6) == pytest.approx(6 * stats.f.ppf(0.95, 6, res.metrics["dof"]))

@@ -1,21 +1,24 @@
 """Hand-eye (AX=XB) and robot-world (AX=ZB) calibration: library API (no engine dependency).
 
 Entry points: :func:`calibrate_hand_eye`, :func:`calibrate_robot_world` (return
-``plugins.solvers.calibration_result.CalibrationResult``), the loaders :func:`load_pose_pairs`,
-the Cramér–Rao bound :func:`crlb_covariance` and the report :func:`format_report`.
+``plugins.solvers.calibration_result.CalibrationResult``; the set-up is found from the data unless
+given), the loaders :func:`load_pose_pairs` (JSON, CSV, OpenCV YAML), the Cramér–Rao bound
+:func:`crlb_covariance` and the report :func:`format_report`.
 See docs/handeye.md for the models, conventions and file formats.
 """
 
 from plugins.solvers.handeye.closed_form import CLOSED_FORM_METHODS, closed_form
 from plugins.solvers.handeye.crlb import crlb_covariance, rms_bounds
 from plugins.solvers.handeye.degeneracy import MotionThresholds, analyse_motions
-from plugins.solvers.handeye.io import PoseSamples, load_pose_pairs, write_pose_pairs_json
+from plugins.solvers.handeye.io import PoseSamples, load_pose_pairs, write_pose_pairs_json, write_pose_pairs_yaml
 from plugins.solvers.handeye.noise import DEFAULT_PRIOR, NoiseModel, PoseNoise
 from plugins.solvers.handeye.problem import SETUPS, Setup
 from plugins.solvers.handeye.report import format_report
+from plugins.solvers.handeye.setup_choice import SETUP_TEST_LEVEL
 from plugins.solvers.handeye.solver import (
     RESIDUAL_NAMES,
     AccuracyTargets,
+    SetupOrAuto,
     calibrate_hand_eye,
     calibrate_robot_world,
 )
@@ -26,6 +29,7 @@ __all__ = [
     "DEFAULT_PRIOR",
     "RESIDUAL_NAMES",
     "SETUPS",
+    "SETUP_TEST_LEVEL",
     "AccuracyTargets",
     "HandEyeInputError",
     "MotionThresholds",
@@ -33,6 +37,7 @@ __all__ = [
     "PoseNoise",
     "PoseSamples",
     "Setup",
+    "SetupOrAuto",
     "analyse_motions",
     "calibrate_hand_eye",
     "calibrate_robot_world",
@@ -42,4 +47,5 @@ __all__ = [
     "load_pose_pairs",
     "rms_bounds",
     "write_pose_pairs_json",
+    "write_pose_pairs_yaml",
 ]

@@ -20,9 +20,12 @@ the parent frame (m) and rotation about parent-frame axes (rad).
 
 Verdict rules (on top of the input and motion checks): ``failed`` when the ML did not converge,
 more than ``max_outlier_fraction`` of the samples are outliers, the residuals exceed the declared
-noise by more than ``sqrt(max_variance_factor)``, or the estimated noise exceeds
-``max_noise_*``; ``warning`` for outliers, a declared noise that does not fit, a camera length
-scale off 1, or an uncertainty of X above ``max_std_*`` (seed 000: hand-eye error below 0.5 mm).
+noise by more than ``sqrt(max_variance_factor)``, or the estimated noise of the robot or of the
+camera exceeds its limit (``max_robot_noise_*``, ``max_camera_noise_*``: the noise a real sensor of
+that kind can have; beyond it the data do not fit one rigid transform); ``warning`` for outliers, a
+declared noise that does not fit, a camera length scale off 1, or an uncertainty of X above
+``max_std_*`` (seed 000: hand-eye error below 0.5 mm). Samples are named by the caller's ids
+(``labels``; they also go into ``estimate["sample_labels"]``, one per residual row).
 """
 
 from __future__ import annotations
@@ -57,17 +60,34 @@ RESIDUAL_NAMES: list[str] = [
 
 @dataclass(frozen=True)
 class AccuracyTargets:
-    """When the estimate's own uncertainty (1 sigma, RMS over axes) earns a ``warning``.
+    """Limits of the verdict: when the estimate's own uncertainty (1 sigma, RMS over axes) earns a
+    ``warning`` (seed 000 asks for a hand-eye calibration error below 0.5 mm), and when a result is
+    ``failed``.
 
-    Seed 000 asks for a hand-eye calibration error below 0.5 mm.
+    The noise limits are the largest pose noise (1 sigma per axis, as estimated from the residuals)
+    a sensor of that kind can plausibly have; an estimate beyond one means the data do not fit one
+    rigid transform (wrong frames, time sync, a target that moved). Camera: marker and AR-tag poses
+    on real cameras scatter by a degree or more in rotation and by millimetres in depth (MoveIt's
+    and camodocal's real data need 0.05 deg / 2.7 mm and 1.1 deg / 2.0 mm), so the default allows
+    5 deg / 20 mm. Robot: an arm's reported pose repeats to hundredths of a degree and of a
+    millimetre; 1 deg / 10 mm is already far outside any working arm.
     """
 
     max_std_trans_m: float = 0.5e-3
     max_std_rot_rad: float = float(np.deg2rad(0.05))
     max_outlier_fraction: float = 1.0 / 3.0
     max_variance_factor: float = 25.0  # residuals 5x the declared noise -> failed
-    max_noise_trans_m: float = 0.01  # estimated noise above this -> failed (not a rigid calibration)
-    max_noise_rot_rad: float = float(np.deg2rad(1.0))
+    max_camera_noise_rot_rad: float = float(np.deg2rad(5.0))  # estimated noise above these -> failed
+    max_camera_noise_trans_m: float = 0.02
+    max_robot_noise_rot_rad: float = float(np.deg2rad(1.0))
+    max_robot_noise_trans_m: float = 0.01
+
+    def noise_limits_text(self) -> str:
+        """The noise limits for people: ``robot 1 deg / 10 mm, camera 5 deg / 20 mm``."""
+        return (
+            f"robot {np.rad2deg(self.max_robot_noise_rot_rad):.3g} deg / {self.max_robot_noise_trans_m * 1e3:.3g} mm, "
+            f"camera {np.rad2deg(self.max_camera_noise_rot_rad):.3g} deg / {self.max_camera_noise_trans_m * 1e3:.3g} mm"
+        )
 
 
 def _spread(d: F64) -> tuple[float, float, float, float]:
@@ -81,12 +101,41 @@ def _param_names(x_name: str, y_name: str) -> list[str]:
     return [f"{x_name}.{c}" for c in comps] + [f"{y_name}.{c}" for c in comps]
 
 
+def _check_noise_limits(
+    fit: MLFit, accuracy: AccuracyTargets, verdict: str, reasons: list[str], advice: list[str]
+) -> str:
+    """``failed`` (with the reason) when the estimated robot or camera noise exceeds its limit."""
+    over = []
+    for who, pose_noise, max_rot, max_trans in (
+        ("robot", fit.noise.robot, accuracy.max_robot_noise_rot_rad, accuracy.max_robot_noise_trans_m),
+        ("camera", fit.noise.camera, accuracy.max_camera_noise_rot_rad, accuracy.max_camera_noise_trans_m),
+    ):
+        rot, trans = float(np.max(pose_noise.rot_sigma)), float(np.max(pose_noise.trans_sigma))
+        if rot > max_rot or trans > max_trans:
+            over.append(
+                f"{who} {np.rad2deg(rot):.2f} deg / {trans * 1e3:.1f} mm (limit {np.rad2deg(max_rot):.3g} deg / "
+                f"{max_trans * 1e3:.3g} mm)"
+            )
+    if not over:
+        return verdict
+    reasons.append(
+        f"the data need a pose noise of {' and '.join(over)} per axis to fit one rigid hand-eye transform: "
+        "wrong frames, time sync or a target that moved"
+    )
+    advice.append(
+        "if the sensor really is that noisy (small markers far away), raise its noise limit "
+        "(AccuracyTargets.max_*_noise_*; vgr calibrate: --max-camera-noise / --max-robot-noise DEG MM)"
+    )
+    return "failed"
+
+
 def assemble_result(
     kind: str,
     setup: Setup,
     x_name: str,
     y_name: str,
     index: NDArray[np.int64],
+    labels: list[str],
     M: F64,
     B: F64,
     fit: MLFit,
@@ -170,6 +219,10 @@ def assemble_result(
             "noise_groups_estimated": float(fit.noise_groups_estimated),
             "threshold_scale": fit.threshold_scale,
             "nfev": float(fit.nfev),
+            "noise_limit_robot_rot_rad": accuracy.max_robot_noise_rot_rad,
+            "noise_limit_robot_trans_m": accuracy.max_robot_noise_trans_m,
+            "noise_limit_camera_rot_rad": accuracy.max_camera_noise_rot_rad,
+            "noise_limit_camera_trans_m": accuracy.max_camera_noise_trans_m,
         }
     )
 
@@ -192,7 +245,8 @@ def assemble_result(
         reasons.append("the maximum-likelihood refinement did not converge")
     n_out = int(np.count_nonzero(fit.outliers))
     if n_out:
-        idx = ", ".join(str(int(i)) for i in index[fit.outliers][:12])
+        out_ids = [labels[k] for k in np.flatnonzero(fit.outliers)]
+        idx = ", ".join(out_ids[:12]) + (f" ... ({n_out} in all)" if n_out > 12 else "")
         fate = "kept in the estimate (loss='linear')" if loss == "linear" else "left out of the estimate"
         reasons.append(f"{n_out} outlier sample(s) {fate}: {idx}")
         advice.append("inspect the outlier samples (detection, robot/camera time sync, target slipped)")
@@ -203,16 +257,8 @@ def assemble_result(
     if not noise_estimated and np.isfinite(vf) and vf > accuracy.max_variance_factor:
         verdict = "failed"
         reasons.append(f"residuals are {np.sqrt(vf):.1f}x the declared noise: the model does not fit the data")
-    worst_t = max(metrics["noise_robot_trans_m"], metrics["noise_camera_trans_m"])
-    worst_r = max(metrics["noise_robot_rot_rad"], metrics["noise_camera_rot_rad"])
-    if noise_estimated and (worst_t > accuracy.max_noise_trans_m or worst_r > accuracy.max_noise_rot_rad):
-        verdict = "failed"
-        reasons.append(
-            f"the data need {worst_t * 1e3:.1f} mm / {np.rad2deg(worst_r):.2f} deg of pose noise to fit one "
-            f"rigid hand-eye transform (limits {accuracy.max_noise_trans_m * 1e3:.0f} mm / "
-            f"{np.rad2deg(accuracy.max_noise_rot_rad):.1f} deg): wrong set-up, frames, time sync or a "
-            "moving target"
-        )
+    if noise_estimated:
+        verdict = _check_noise_limits(fit, accuracy, verdict, reasons, advice)
     if metrics["std_x_trans_m"] > accuracy.max_std_trans_m or metrics["std_x_rot_rad"] > accuracy.max_std_rot_rad:
         verdict = "warning" if verdict == "ok" else verdict
         reasons.append(
@@ -229,7 +275,7 @@ def assemble_result(
     return CalibrationResult(
         kind=kind,
         verdict=verdict,  # type: ignore[arg-type]
-        estimate={x_name: fit.X, y_name: fit.Y, "setup": setup},
+        estimate={x_name: fit.X, y_name: fit.Y, "setup": setup, "sample_labels": list(labels)},
         param_names=_param_names(x_name, y_name),
         covariance=cov,
         residuals=residuals,

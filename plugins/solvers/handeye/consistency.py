@@ -14,6 +14,8 @@ robot and camera motions of a pair must show the same value, whatever X is. The 
 robot against camera values over all pairs is the length scale between them and must be 1. ``s``
 near 1e-3 means the camera is in millimetres, near 1e3 the robot is; a few percent off usually
 means a wrong calibration-target size or camera intrinsics (the camera's translations are scaled).
+The invariant is the same under both set-ups (their relative robot motions are conjugates of each
+other's inverses, and inversion and conjugation keep ``axis . t``), so the test needs no set-up.
 """
 
 from __future__ import annotations

@@ -1,17 +1,22 @@
-"""Loading hand-eye samples (robot pose + camera observation pairs) from plain JSON and CSV files.
+"""Loading hand-eye samples (robot pose + camera observation pairs) from JSON, CSV and OpenCV YAML files.
 
 Formats (details and examples in docs/handeye.md):
 
 * JSON, MoveIt calibration style: a list of ``[T_base_tcp, T_cam_target]`` pairs of 4x4 nested
-  lists (MoveIt's ``eef_wrt_world`` and ``obj_wrt_sensor``).
+  lists (MoveIt's ``eef_wrt_world`` and ``obj_wrt_sensor``). Sample ids: the list index, from 0.
 * JSON, vgr style: ``{"format": "vgr.handeye.samples/1", "length_unit": "m", "setup": ...,
   "samples": [{"id": ..., "T_base_tcp": POSE, "T_cam_target": POSE}, ...]}`` where POSE is a 4x4
   nested list, ``{"position": [x, y, z], "quat_xyzw": [x, y, z, w]}`` or
-  ``{"position": [...], "rotvec": [rx, ry, rz]}`` (rad).
+  ``{"position": [...], "rotvec": [rx, ry, rz]}`` (rad). Sample ids: ``id`` (else the index).
 * CSV with a header: ``base_tcp_x, base_tcp_y, base_tcp_z`` and either
   ``base_tcp_qx, base_tcp_qy, base_tcp_qz, base_tcp_qw`` or ``base_tcp_rx, base_tcp_ry, base_tcp_rz``
   (rotation vector, rad); the same with the prefix ``cam_target_``; optional ``id``. Lines starting
-  with ``#`` are comments.
+  with ``#`` are comments. Sample ids: the ``id`` column, else ``line N`` (the line in the file).
+* OpenCV FileStorage YAML in camodocal's ``TransformPairsInput.yml`` layout (the ROS wrapper
+  handeye_calib_camodocal writes and reads it): ``%YAML:1.0``, ``frameCount: N`` and, per sample
+  ``i``, ``T1_i`` (robot base -> end effector, ``T_base_tcp``) and ``T2_i`` (camera -> marker,
+  ``T_cam_target``), each a 4x4 ``!!opencv-matrix`` in metres (row-major ``data``). Read with
+  OpenCV's own parser (``cv2.FileStorage``). Sample ids: ``i``.
 
 ``length_unit`` is ``"m"`` or ``"mm"``; translations are converted to metres. Quaternions must be
 unit within 1e-3 (else the columns are probably mixed up); rotation vectors longer than 2 pi are
@@ -22,6 +27,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -42,13 +48,16 @@ __all__ = [
     "load_pose_pairs",
     "load_pose_pairs_csv",
     "load_pose_pairs_json",
+    "load_pose_pairs_yaml",
     "write_pose_pairs_json",
+    "write_pose_pairs_yaml",
 ]
 
 
 @dataclass
 class PoseSamples:
-    """Loaded samples in metres: robot poses T_base_tcp and camera observations T_cam_target."""
+    """Loaded samples in metres: robot poses T_base_tcp and camera observations T_cam_target, with
+    the id the file gives each sample (``ids``, what reports name samples by) and its set-up, if any."""
 
     T_base_tcp: F64
     T_cam_target: F64
@@ -157,8 +166,9 @@ def load_pose_pairs_csv(path: str | Path, *, length_unit: str = "m") -> PoseSamp
     """Load the CSV format of the module docstring."""
     path = Path(path)
     with path.open(newline="") as fh:
-        lines = [ln for ln in fh if ln.strip() and not ln.lstrip().startswith("#")]
-    reader = csv.DictReader(lines, skipinitialspace=True)
+        numbered = [(k + 1, ln) for k, ln in enumerate(fh) if ln.strip() and not ln.lstrip().startswith("#")]
+    line_of = [k for k, _ in numbered[1:]]  # file line of each data row (the first kept line is the header)
+    reader = csv.DictReader([ln for _, ln in numbered], skipinitialspace=True)
     cols = set(reader.fieldnames or [])
     for prefix in ("base_tcp_", "cam_target_"):
         pos = {prefix + c for c in ("x", "y", "z")}
@@ -170,21 +180,122 @@ def load_pose_pairs_csv(path: str | Path, *, length_unit: str = "m") -> PoseSamp
             )
     M, B, ids = [], [], []
     for k, row in enumerate(reader):
-        where = f"{path} row {k + 1}"
+        line = f"line {line_of[k]}" if k < len(line_of) else f"row {k + 1}"
+        where = f"{path} {line}"
         M.append(_csv_pose(row, "base_tcp_", where))
         B.append(_csv_pose(row, "cam_target_", where))
-        ids.append(row.get("id") or str(k))
+        ids.append((row.get("id") or "").strip() or line)
     return _in_metres(path, M, B, ids, None, length_unit)
 
 
+_PAIR_KEY = re.compile(r"^T([12])_(.+)$")
+YAML_SUFFIXES = (".yml", ".yaml")
+
+
+def _file_storage_root(path: Path) -> Any:
+    """The root node of an OpenCV FileStorage YAML file, with errors a user can act on."""
+    head = path.read_bytes()[:64]
+    if not head.lstrip().startswith(b"%YAML"):
+        raise HandEyeInputError(
+            f"{path}: not an OpenCV FileStorage YAML file (it must start with %YAML:1.0, as camodocal's "
+            "TransformPairsInput.yml does)"
+        )
+    import cv2  # heavy: only when a YAML file is read
+
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError) as exc:  # the parser reports malformed YAML as either
+        cause = exc.__cause__ or exc
+        detail = str(cause).strip().splitlines()[-1] if str(cause).strip() else type(cause).__name__
+        raise HandEyeInputError(f"{path}: OpenCV cannot parse this YAML ({detail})") from None
+    if not fs.isOpened():
+        raise HandEyeInputError(f"{path}: OpenCV cannot open this YAML file")
+    return fs
+
+
+def _yaml_matrix(fs: Any, key: str, path: Path) -> F64:
+    import cv2
+
+    node = fs.getNode(key)
+    try:
+        mat = node.mat() if node.isMap() else None
+    except cv2.error as exc:
+        raise HandEyeInputError(f"{path}: {key} is a malformed opencv-matrix ({str(exc).strip()[-120:]})") from None
+    if mat is None:
+        raise HandEyeInputError(f"{path}: {key} is not an opencv-matrix (a 4x4 !!opencv-matrix is expected)")
+    A = np.asarray(mat, dtype=float)
+    if A.shape != (4, 4):
+        raise HandEyeInputError(f"{path}: {key} is {A.shape[0]}x{A.shape[1] if A.ndim > 1 else 1}, not 4x4")
+    return A
+
+
+def load_pose_pairs_yaml(path: str | Path, *, length_unit: str | None = None) -> PoseSamples:
+    """Load OpenCV FileStorage YAML pose pairs in camodocal's ``TransformPairsInput.yml`` layout.
+
+    ``T1_i`` is the robot pose ``T_base_tcp`` and ``T2_i`` the camera's marker pose ``T_cam_target``
+    of sample ``i`` (its id); ``frameCount``, when present, must equal the number of pairs. Samples
+    are ordered by ``i`` when every id is an integer, else as in the file.
+    """
+    path = Path(path)
+    fs = _file_storage_root(path)
+    try:
+        root = fs.root()
+        keys: list[str] = list(root.keys()) if root.isMap() else []
+        pairs: dict[str, dict[str, str]] = {}
+        for key in keys:
+            m = _PAIR_KEY.match(key)
+            if m:
+                pairs.setdefault(m.group(2), {})[m.group(1)] = key
+        if not pairs:
+            raise HandEyeInputError(
+                f"{path}: no T1_<i> / T2_<i> matrices (camodocal's TransformPairsInput.yml layout: T1_i the robot "
+                f"pose base -> end effector, T2_i the camera -> marker pose); keys found: {keys[:8] or 'none'}"
+            )
+        for i, got in pairs.items():
+            if set(got) != {"1", "2"}:
+                have, miss = ("T1", "T2") if "1" in got else ("T2", "T1")
+                raise HandEyeInputError(f"{path}: {have}_{i} has no {miss}_{i}: every sample needs both poses")
+        if "frameCount" in keys:
+            node = fs.getNode("frameCount")
+            count = node.real() if node.isInt() or node.isReal() else None
+            if count is None or count != len(pairs):
+                said = "is not a number" if count is None else f"says {count:g}"
+                raise HandEyeInputError(f"{path}: frameCount {said} but the file holds {len(pairs)} T1_/T2_ pairs")
+        ids = list(pairs)
+        if all(re.fullmatch(r"\d+", i) for i in ids):
+            ids.sort(key=int)
+        M = [_yaml_matrix(fs, pairs[i]["1"], path) for i in ids]
+        B = [_yaml_matrix(fs, pairs[i]["2"], path) for i in ids]
+    finally:
+        fs.release()
+    return _in_metres(path, M, B, ids, None, length_unit or "m")
+
+
+def write_pose_pairs_yaml(path: str | Path, T_base_tcp: F64, T_cam_target: F64) -> None:
+    """Write samples (metres) in camodocal's ``TransformPairsInput.yml`` layout (OpenCV FileStorage)."""
+    import cv2
+
+    n = len(T_base_tcp)
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    try:
+        fs.write("frameCount", n)
+        for k in range(n):
+            fs.write(f"T1_{k}", np.asarray(T_base_tcp[k], dtype=float))
+            fs.write(f"T2_{k}", np.asarray(T_cam_target[k], dtype=float))
+    finally:
+        fs.release()
+
+
 def load_pose_pairs(path: str | Path, *, length_unit: str | None = None) -> PoseSamples:
-    """Load samples from ``.json`` or ``.csv`` (by suffix)."""
+    """Load samples from ``.json``, ``.csv`` or OpenCV ``.yml`` / ``.yaml`` (by suffix)."""
     suffix = Path(path).suffix.lower()
     if suffix == ".json":
         return load_pose_pairs_json(path, length_unit=length_unit)
     if suffix == ".csv":
         return load_pose_pairs_csv(path, length_unit=length_unit or "m")
-    raise HandEyeInputError(f"{path}: unsupported file type {suffix!r} (use .json or .csv)")
+    if suffix in YAML_SUFFIXES:
+        return load_pose_pairs_yaml(path, length_unit=length_unit)
+    raise HandEyeInputError(f"{path}: unsupported file type {suffix!r} (use .json, .csv or .yml)")
 
 
 def write_pose_pairs_json(

@@ -1,8 +1,9 @@
 """Human-readable report of a hand-eye / robot-world CalibrationResult, in mm and degrees.
 
 The result itself stays in SI units; this module is the only place that converts for people
-(estimates with 1-sigma, pose-chain spread, noise, per-sample residual table, verdict, reasons,
-advice). ``format_report(result)`` returns plain text for the CLI and logs.
+(estimates with 1-sigma, pose-chain spread, noise and the limits it was held to, per-sample residual
+table named by the samples' own ids, verdict, reasons, advice). ``format_report(result)`` returns
+plain text for the CLI and logs.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from plugins.solvers.calibration_result import CalibrationResult
 
-__all__ = ["format_report", "residual_table"]
+__all__ = ["format_report", "residual_table", "sample_labels"]
 
 _MM, _DEG = 1e3, float(np.rad2deg(1.0))
 
@@ -38,6 +39,17 @@ def _pose_lines(name: str, T: np.ndarray, std: np.ndarray | None) -> list[str]:
     return lines
 
 
+def sample_labels(result: CalibrationResult) -> list[str]:
+    """The id of each residual row: ``estimate["sample_labels"]`` (the ids of the input, e.g. of its
+    file), else the row's ``sample_index`` (position in the caller's input)."""
+    R = np.asarray(result.residuals)
+    labels = result.estimate.get("sample_labels")
+    if labels is not None and len(labels) == len(R):
+        return [str(x) for x in labels]
+    k = result.residual_names.index("sample_index")
+    return [str(int(i)) for i in R[:, k]]
+
+
 def residual_table(result: CalibrationResult, max_rows: int = 200) -> list[str]:
     """One line per sample: chain, robot and camera residuals (mm, deg), Mahalanobis^2, weight, flag."""
     if result.residuals is None:
@@ -50,13 +62,15 @@ def residual_table(result: CalibrationResult, max_rows: int = 200) -> list[str]:
         return np.linalg.norm(R[:, [col[n] for n in names]], axis=1)
 
     out = np.zeros(len(R), dtype=bool) if result.outliers is None else np.asarray(result.outliers)
+    labels = sample_labels(result)
+    w = max(6, *(len(x) for x in labels))
     lines = [
-        "  sample  chain_mm chain_deg  robot_mm robot_deg  camera_mm camera_deg   maha2  weight",
+        f"  {'sample':>{w}}  chain_mm chain_deg  robot_mm robot_deg  camera_mm camera_deg   maha2  weight",
     ]
     rows = list(range(len(R)))[:max_rows]
     for k in rows:
         lines.append(
-            f"  {int(R[k, col['sample_index']]):6d} {norm('chain', 't')[k] * _MM:9.3f} "
+            f"  {labels[k]:>{w}} {norm('chain', 't')[k] * _MM:9.3f} "
             f"{norm('chain', 'r')[k] * _DEG:9.4f} {norm('robot', 't')[k] * _MM:9.3f} "
             f"{norm('robot', 'r')[k] * _DEG:9.4f} {norm('camera', 't')[k] * _MM:10.3f} "
             f"{norm('camera', 'r')[k] * _DEG:10.4f} {R[k, col['mahalanobis2']]:7.2f} "
@@ -70,9 +84,10 @@ def residual_table(result: CalibrationResult, max_rows: int = 200) -> list[str]:
 def format_report(result: CalibrationResult, *, per_sample: bool = True) -> str:
     """Plain-text report (mm, degrees) of a hand-eye or robot-world calibration result."""
     m = result.metrics
+    setup = result.estimate.get("setup", "set-up not determined")
+    found = " found from the data" if m.get("setup_found_from_data") else ""
     lines = [
-        f"{result.kind.replace('_', '-')} calibration ({result.estimate.get('setup', '?')}): "
-        f"verdict {result.verdict.upper()}",
+        f"{result.kind.replace('_', '-')} calibration ({setup}{found}): verdict {result.verdict.upper()}",
         f"method: {result.method}",
     ]
     if result.covariance is not None and result.param_names:
@@ -103,6 +118,13 @@ def format_report(result: CalibrationResult, *, per_sample: bool = True) -> str:
             f"{m['noise_robot_trans_m'] * _MM:.3f} mm / {m['noise_robot_rot_rad'] * _DEG:.4f} deg, camera "
             f"{m['noise_camera_trans_m'] * _MM:.3f} mm / {m['noise_camera_rot_rad'] * _DEG:.4f} deg"
         )
+        if m.get("noise_estimated") and "noise_limit_camera_rot_rad" in m:
+            limits = [
+                f"{who} {m[f'noise_limit_{who}_rot_rad'] * _DEG:.3g} deg / "
+                f"{m[f'noise_limit_{who}_trans_m'] * _MM:.3g} mm"
+                for who in ("robot", "camera")
+            ]
+            lines.append(f"noise limits (an estimated noise above one fails): {', '.join(limits)}")
     if result.covariance is not None and result.param_names:
         x = result.param_names[0].split(".")[0]
         thr = result.confidence_threshold(6)

@@ -1,7 +1,9 @@
 """Input checks for hand-eye samples: shapes, NaN, rigid-transform validity, duplicates and units.
 
-Bad input either raises :class:`HandEyeInputError` naming the samples at fault, or is repaired
-in a documented, harmless way with a warning that ends up in the result's ``reasons``:
+Bad input either raises :class:`HandEyeInputError` naming the samples at fault (by the caller's
+sample ids when given, e.g. the ids of the file they came from, else by their 0-based position),
+or is repaired in a documented, harmless way with a warning that ends up in the result's
+``reasons``:
 
 * NaN / infinity, wrong shapes, a last row other than ``[0 0 0 1]``, reflections (det < 0),
   rotations further than ``repair_tol`` from orthonormal: error.
@@ -43,6 +45,8 @@ class ValidatedSamples:
     T_cam_target: F64
     index: NDArray[np.int64]
     warnings: list[str] = field(default_factory=list)
+    labels: list[str] = field(default_factory=list)  # the caller's id of each kept row
+    n_given: int = 0  # samples before duplicates were dropped
 
     @property
     def n(self) -> int:
@@ -61,30 +65,33 @@ def _as_stack(poses: Sequence[ArrayLike] | ArrayLike, name: str) -> F64:
     return A
 
 
-def _list(idx: NDArray[np.int64], limit: int = 8) -> str:
-    items = [str(int(i)) for i in idx[:limit]]
+def _list(idx: NDArray[np.int64] | list[int], ids: list[str], limit: int = 8) -> str:
+    """The samples at rows *idx*, named by their ids."""
+    items = [ids[int(i)] for i in idx[:limit]]
     return ", ".join(items) + (f" ... ({len(idx)} in all)" if len(idx) > limit else "")
 
 
-def _check_finite_and_rigid(A: F64, name: str, exact_tol: float, repair_tol: float, warnings: list[str]) -> F64:
+def _check_finite_and_rigid(
+    A: F64, name: str, ids: list[str], exact_tol: float, repair_tol: float, warnings: list[str]
+) -> F64:
     bad = np.flatnonzero(~np.all(np.isfinite(A), axis=(1, 2)))
     if bad.size:
-        raise HandEyeInputError(f"{name}: NaN or infinity in sample(s) {_list(bad)}")
+        raise HandEyeInputError(f"{name}: NaN or infinity in sample(s) {_list(bad, ids)}")
     bad = np.flatnonzero(np.max(np.abs(A[:, 3] - (0.0, 0.0, 0.0, 1.0)), axis=1) > 1e-9)
     if bad.size:
-        raise HandEyeInputError(f"{name}: last row is not [0, 0, 0, 1] in sample(s) {_list(bad)}")
+        raise HandEyeInputError(f"{name}: last row is not [0, 0, 0, 1] in sample(s) {_list(bad, ids)}")
     R = A[:, :3, :3]
     det = np.linalg.det(R)
     bad = np.flatnonzero(det <= 0.0)
     if bad.size:
         raise HandEyeInputError(
-            f"{name}: rotation has det <= 0 (a reflection, e.g. a left-handed frame) in sample(s) {_list(bad)}"
+            f"{name}: rotation has det <= 0 (a reflection, e.g. a left-handed frame) in sample(s) {_list(bad, ids)}"
         )
     dev = np.max(np.abs(np.transpose(R, (0, 2, 1)) @ R - np.eye(3)), axis=(1, 2))
     bad = np.flatnonzero(dev > repair_tol)
     if bad.size:
         raise HandEyeInputError(
-            f"{name}: rotation is not orthonormal in sample(s) {_list(bad)} "
+            f"{name}: rotation is not orthonormal in sample(s) {_list(bad, ids)} "
             f"(max |R^T R - I| = {dev.max():.2e} > {repair_tol:.0e}); check the matrix layout "
             "(row/column major) and the rotation convention"
         )
@@ -95,7 +102,7 @@ def _check_finite_and_rigid(A: F64, name: str, exact_tol: float, repair_tol: flo
             A[i, :3, :3] = orthonormalize(A[i, :3, :3])
         warnings.append(
             f"{name}: {fix.size} rotation(s) were {dev[fix].max():.1e} from orthonormal and were "
-            f"re-orthonormalised (samples {_list(fix)})"
+            f"re-orthonormalised (samples {_list(fix, ids)})"
         )
     return A
 
@@ -115,7 +122,7 @@ def _check_units(M: F64, B: F64, max_translation_m: float, min_translation_m: fl
             )
 
 
-def _duplicates(M: F64, B: F64, warnings: list[str]) -> NDArray[np.bool_]:
+def _duplicates(M: F64, B: F64, ids: list[str], warnings: list[str]) -> NDArray[np.bool_]:
     n = M.shape[0]
     keep = np.ones(n, dtype=bool)
     flat_m, flat_b = M.reshape(n, -1), B.reshape(n, -1)
@@ -131,11 +138,11 @@ def _duplicates(M: F64, B: F64, warnings: list[str]) -> NDArray[np.bool_]:
             stale.append((int(np.flatnonzero(same_b & ~same_m)[0]), j))
     if dups:
         warnings.append(
-            f"{len(dups)} exact duplicate sample(s) dropped (samples {_list(np.array(dups))}): "
+            f"{len(dups)} exact duplicate sample(s) dropped (samples {_list(dups, ids)}): "
             "a copied sample would be counted twice"
         )
     if stale:
-        pairs = ", ".join(f"{j} repeats {i}" for i, j in stale[:5])
+        pairs = ", ".join(f"{ids[j]} repeats {ids[i]}" for i, j in stale[:5])
         warnings.append(
             f"camera observation identical to an earlier one although the robot moved ({pairs}): "
             "stale or mis-associated detection?"
@@ -151,17 +158,26 @@ def validate_samples(
     repair_tol: float = 1e-3,
     max_translation_m: float = 20.0,
     min_translation_m: float = 0.005,
+    ids: Sequence[str] | None = None,
 ) -> ValidatedSamples:
-    """Check and normalise robot poses T_base_tcp and camera observations T_cam_target (metres)."""
+    """Check and normalise robot poses T_base_tcp and camera observations T_cam_target (metres).
+
+    *ids* name the samples in messages (one per sample, e.g. the ids of the file they came from);
+    default: their 0-based positions.
+    """
     M = _as_stack(T_base_tcp, "robot poses T_base_tcp")
     B = _as_stack(T_cam_target, "camera poses T_cam_target")
     if M.shape[0] != B.shape[0]:
         raise HandEyeInputError(f"{M.shape[0]} robot poses but {B.shape[0]} camera poses: every sample needs both")
     if M.shape[0] == 0:
         raise HandEyeInputError("no samples")
+    names = [str(k) for k in range(M.shape[0])] if ids is None else [str(i) for i in ids]
+    if len(names) != M.shape[0]:
+        raise HandEyeInputError(f"{len(names)} sample ids for {M.shape[0]} samples")
     warnings: list[str] = []
-    M = _check_finite_and_rigid(M, "robot poses T_base_tcp", exact_tol, repair_tol, warnings)
-    B = _check_finite_and_rigid(B, "camera poses T_cam_target", exact_tol, repair_tol, warnings)
+    M = _check_finite_and_rigid(M, "robot poses T_base_tcp", names, exact_tol, repair_tol, warnings)
+    B = _check_finite_and_rigid(B, "camera poses T_cam_target", names, exact_tol, repair_tol, warnings)
     _check_units(M, B, max_translation_m, min_translation_m)
-    keep = _duplicates(M, B, warnings)
-    return ValidatedSamples(M[keep], B[keep], np.flatnonzero(keep).astype(np.int64), warnings)
+    keep = _duplicates(M, B, names, warnings)
+    index = np.flatnonzero(keep).astype(np.int64)
+    return ValidatedSamples(M[keep], B[keep], index, warnings, [names[i] for i in index], M.shape[0])
