@@ -7,6 +7,9 @@ JSON (``format: vgr.gap_report/1``), lengths in the problem's report unit (mm fo
   p_value_corrected, independent_fraction, iteration, config}]`` (params SI, with their units):
   ``params`` / ``param_std`` / ``config`` are those of the *final* joint refit of every effect with
   the baseline (the augmented model file has the same); the scores are from the round that added it.
+  ``convention``: present when the best fit has the other sign of the effect's convention (a backlash
+  against the data's ``dir`` columns): the value is given in the physical convention, and the note
+  says that the data count the other way round.
   A *tie term* (``tied: true``) is named after its whole group, never after one member:
   ``name`` ``a|b``, ``where`` ``x|y``, ``label`` ``a@x|b@y``, ``members``; ``representative`` is the
   member the model evaluates (its ``params`` / ``config``; the model file stores it with
@@ -137,6 +140,8 @@ def report_dict(result: GapResult) -> dict[str, Any]:
             "iteration": round_of.get(id(sc), resolved_round.get(fe.label)),
             "config": fe.config,
         }
+        if fe.note:  # e.g. the data count a direction the other way round: the value is the physical one
+            e["convention"] = fe.note
         if fe.label in resolved_round:  # named once a later round resolved the tie it was part of
             e["resolved_tie"] = next(t for t, n in result.resolved_ties.items() if n == fe.label)
         if fe.tied:
@@ -278,6 +283,13 @@ def render(result: GapResult, console: Console, *, top: int = 8) -> None:
     t.add_row("chi2 / dof", f"{b.chi2 / b.dof:.3f}", f"{a.chi2 / a.dof:.3f}", "1")
     t.add_row("consistent with noise", str(b.consistent), str(a.consistent), "")
     console.print(t)
+    cal = result.problem.get("calibration") or {}
+    if cal:
+        levels = ", ".join(cal.get("levels") or []) or "none (the model's frames are trusted)"
+        n = len(cal.get("parameters") or [])
+        console.print(f"baseline calibration: {escape(levels)} ({n} parameters)", soft_wrap=True)
+        for note in cal.get("notes") or []:
+            console.print(f"  {escape(note)}", soft_wrap=True)
     if result.problem.get("noise_source") == "estimated":
         console.print(
             "[yellow]noise not given: estimated from the data (residual of every candidate fitted at once); "
@@ -353,6 +365,9 @@ def render(result: GapResult, console: Console, *, top: int = 8) -> None:
             params = _fmt_params(fe.params, fe.param_std, fe.units)
             t.add_row(escape(label), params, f"{sc.cv_gain * s:.4f}")
         console.print(t)
+        for fe, _ in result.effects:
+            if fe.note:
+                console.print(f"  {escape(fe.label)}: {escape(fe.note)}", soft_wrap=True)
     absorbed = [c.label for c in first.scores if c.absorbed]
     if absorbed:
         console.print(f"absorbed by the calibration (cannot be told apart from it): {', '.join(absorbed)}")

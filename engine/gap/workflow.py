@@ -21,9 +21,10 @@
    the model (:func:`_resolve_ties`): an approximate tie can separate once another effect's signal
    has left the residuals, and a member decisive over the others (the naming rule's margin) is then
    named in place of the term. An exact tie never resolves.
-6. Repeat while a candidate is named or a tie term added (at most ``max_effects`` terms): the loop
-   stops when no eligible candidate is left. The chi-square test does not stop the loop; it decides
-   the verdict.
+6. Repeat while a candidate is named or a tie term added (at most ``max_effects`` terms; a geometric
+   term -- a joint zero, a link length, the frames: :func:`is_geometric` -- does not count, a real
+   robot has them all): the loop stops when no eligible candidate is left. The chi-square test does
+   not stop the loop.
 
 Verdict (:data:`VERDICTS`): ``no_gap`` when nothing was added, no candidate is significant and the
 residuals are consistent with the noise (chi-square test at ``chi2_alpha``); ``explained`` when
@@ -207,12 +208,27 @@ def collect_candidates(problem: GapProblem, families: list[EffectFamily]) -> lis
     return out
 
 
+def is_geometric(candidate: Candidate) -> bool:
+    """A candidate that is part of the model's geometry (a joint zero, a link length, the frames): its
+    ``geometric`` attribute. Geometric terms never use up ``max_effects`` (a real robot has them all)."""
+    return bool(getattr(candidate, "geometric", False))
+
+
+def samples_needed(n_params: int, candidates: list[Candidate], n_components: int, cfg: GapConfig) -> int:
+    """Samples the workflow needs for a model fitting ``n_params`` parameters and these candidates:
+    ``cv_folds``-fold cross-validation must leave ``min_residual_dof`` residual degrees of freedom after
+    the model and the largest candidate."""
+    k_max = max((len(c.param_names) for c in candidates if not c.unavailable), default=0)
+    folds = cfg.selection.cv_folds
+    need = int(np.ceil((n_params + k_max + cfg.min_residual_dof) / n_components * folds / (folds - 1)))
+    return max(need, 2 * folds)
+
+
 def _check_size(lin: Linearisation, candidates: list[Candidate], cfg: GapConfig) -> None:
     k_max = max((len(c.param_names) for c in candidates if not c.unavailable), default=0)
     M, p = lin.residual.size, lin.jacobian.shape[2]
     folds = cfg.selection.cv_folds
-    need = int(np.ceil((p + k_max + cfg.min_residual_dof) / lin.n_components * folds / (folds - 1)))
-    need = max(need, 2 * folds)
+    need = samples_needed(p, candidates, lin.n_components, cfg)
     if lin.n_samples < need:
         raise GapInputError(
             f"{lin.n_samples} samples are too few: the calibration fits {p} parameters and the largest candidate "
@@ -245,7 +261,8 @@ def run_gap(
     added_labels: set[tuple[str, str]] = set()
     tie_members: dict[str, list[CandidateScore]] = {}  # tie term (representative label) -> the group's scores
     files: dict[str, str] = {}
-    for index in range(cfg.max_effects + 1):
+    n_terms = 0  # terms that count against max_effects (geometric ones do not: is_geometric)
+    for index in range(len(candidates) + 1):  # each candidate joins at most once: the loop ends
         lin = problem.linearise()
         if index == 0:
             _check_size(lin, candidates, cfg)
@@ -264,8 +281,9 @@ def run_gap(
         if index == 0 and out_dir is not None:
             files["model_baseline"] = str(problem.save_model(out_dir / "model_0_baseline.yaml"))
         iterations.append(it)
-        if decision.status == "none" or index == cfg.max_effects:
+        if decision.status == "none":
             break
+        by_label = {s.label: s for s in scores}
         if decision.status == "named":
             w, tied_with = decision.winner, ()
         else:  # tied: the group joins as one term, evaluated as its representative, named as the group
@@ -273,6 +291,10 @@ def run_gap(
             assert w is not None
             tied_with = tuple(sorted(lab for lab in decision.tied if lab != w.label))
         assert w is not None and w.design is not None
+        counts = not all(is_geometric(by_label[lab].candidate) for lab in (w.label, *tied_with))
+        if counts and n_terms >= cfg.max_effects:
+            break
+        n_terms += counts
         it.signature = w.candidate.signature(problem)
         it.contribution = (w.design.columns @ w.beta) * lin.sigma[:, None]
         it.identifiable = scorer.identifiable_part(w.design, w.beta) * lin.sigma[:, None]
@@ -284,7 +306,6 @@ def run_gap(
         effects.append((it.added, w))
         # never tested again, even if pruned below (no cycles); a tie's members neither, one by one
         added_labels.add((w.name, w.where))
-        by_label = {s.label: s for s in scores}
         added_labels.update((by_label[lab].name, by_label[lab].where) for lab in tied_with)
         it.removed = _prune(problem, effects)
         it.resolved = _resolve_ties(problem, effects, tie_members, cfg.selection.bic_margin)
@@ -320,7 +341,7 @@ def _prune(problem: GapProblem, effects: list[tuple[FittedEffect, CandidateScore
             cand = sc.candidate
             n_lin = len(cand.param_names) - len(cand.shape_names)
             now = final[(fe.name, fe.where)]
-            values = np.array([now.params[p] for p in cand.param_names[:n_lin]])
+            values = now.vector(cand.param_names[:n_lin])
             gain = gain_given_others(lin, f"{fe.name}@{fe.where}", n_lin, values)
             if worst is None or gain < worst[0]:
                 worst = (gain, i)
@@ -364,7 +385,7 @@ def _resolve_ties(
         rest = [j for j in range(A.shape[1]) if j not in cols]
         cand = sc0.candidate
         n_lin = len(cand.param_names) - len(cand.shape_names)
-        values = np.array([fe.params[p] for p in cand.param_names[:n_lin]])
+        values = fe.vector(cand.param_names[:n_lin])
         y = lin.residual.reshape(-1) + A[:, cols[:n_lin]] @ values  # the residual of O
         Q = _basis(A[:, rest])
         y_perp = _perp(Q, y)
@@ -404,7 +425,7 @@ def _resolve_ties(
             problem.remove_effect(cand)
             new_values = np.concatenate([beta, [shape[n] for n in m.candidate.shape_names]])
             if lab == fe.representative:
-                new_values = np.array([fe.params[p] for p in cand.param_names])
+                new_values = fe.vector(cand.param_names)
             new = problem.add_effect(m.candidate, new_values)
             effects[i] = (new, m)
             out.append((fe.label, lab, why))
@@ -439,9 +460,9 @@ def _verdict(iterations: list[Iteration], effects: list, cfg: GapConfig) -> tupl
     noise = f"residual RMS {c.ratio_to_noise:.2f}x the noise ({'consistent' if c.consistent else 'inconsistent'}, "
     noise += f"chi2 = {c.chi2:.0f} for {c.dof} dof, p = {c.chi2_p:.2g})"
     done = _added_text(effects, iterations)
-    if last.decision.status == "named":  # stopped by max_effects with a candidate still decisive
+    if last.decision.status == "named" and last.added is None:  # stopped by max_effects with a candidate still decisive
         return "unexplained", f"more than {cfg.max_effects} effects would be needed; next: {last.decision.reason}"
-    if last.decision.status == "ambiguous":  # stopped by max_effects on a tie: not added, none named
+    if last.decision.status == "ambiguous" and last.added is None:  # stopped by max_effects on a tie, not added
         return "unexplained", (
             (f"{done}; then " if done else "")
             + f"{last.decision.reason} (not added: at most {cfg.max_effects} terms); {noise}"

@@ -1,6 +1,6 @@
 """``vgr gap``: the model-gap workflow from the command line (a verb module of :mod:`engine.cli`).
 
-    vgr gap --model MODEL --data DATA [--report DIR] [--noise-mm SIGMA] [--calibrate frame,tool]
+    vgr gap --model MODEL --data DATA [--report DIR] [--noise-mm SIGMA] [--calibrate frame,tool,joints]
 
 MODEL is a shipped robot (``ur5e``, ``abb_irb120``), a robot model file, or an augmented model a
 previous run wrote; DATA a CSV (docs/model_gap.md) or a vgr recording (.mcap). Exit codes: 0 the
@@ -45,8 +45,9 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--calibrate",
-        default="frame,tool",
-        help="baseline calibration before any effect: frame,tool (default), frame, tool, frame,tool,joints or none",
+        default=None,
+        help="baseline calibration before any effect (default: the measurement frame, the tool and the joint "
+        "geometry, as far as the data identify them); or a subset: frame, tool, joints joined by commas, or none",
     )
     p.add_argument("--max-effects", type=int, default=4, help="at most this many effects are added (default 4)")
     p.add_argument("--alpha", type=float, default=1e-3, help="family-wise false-positive rate per round (1e-3)")
@@ -66,7 +67,10 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_gap)
 
 
-def _levels(text: str) -> tuple[str, ...]:
+def _levels(text: str | None) -> tuple[str, ...] | None:
+    """The ``--calibrate`` levels; None (the default) is the full calibration the data identify."""
+    if text is None:
+        return None
     parts = tuple(x.strip() for x in text.split(",") if x.strip())
     return () if parts in ((), ("none",)) else parts
 
