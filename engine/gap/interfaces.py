@@ -97,6 +97,7 @@ class Feature:
     unit: str
     values: F64  # (N,)
     categorical: bool = False
+    spatial: bool = False  # a coordinate of where the measurement was taken (the structure test's smooth field)
 
 
 @runtime_checkable

@@ -26,14 +26,12 @@
    robot has them all): the loop stops when no eligible candidate is left. The chi-square test does
    not stop the loop.
 
-Verdict (:data:`VERDICTS`): ``no_gap`` when nothing was added, no candidate is significant and the
-residuals are consistent with the noise (chi-square test at ``chi2_alpha``); ``explained`` when
-effects were added, *every one named*, and the final residuals are consistent with the noise;
-``explained_up_to_tie`` when the final residuals are consistent with the noise but at least one
-added term is a tie (the augmented model predicts the data; which of the tied effects is the cause
-the data cannot say, and the report says what would separate them); ``unexplained`` otherwise (a
-significant gap no candidate names decisively, a tie left when ``max_effects`` was reached, or
-residuals still above the noise).
+The verdict (:mod:`.verdict`) does not depend on the stated noise: whether a gap is left is decided
+by noise-independent F-tests of the final residuals (:mod:`.structure`), and the chi-square test
+against the stated noise is reported as the *noise check* (which of the two to believe when they
+disagree). ``no_gap``: nothing added and no structure left; ``explained``: effects added, every one
+named, no structure left; ``explained_up_to_tie``: the same with a tie term among them;
+``unexplained``: structure left that no candidate names decisively, or ``max_effects`` reached.
 """
 
 from __future__ import annotations
@@ -67,6 +65,8 @@ from .selection import (
     gain_given_others,
     score_all,
 )
+from .structure import StructureTest, residual_structure
+from .verdict import NoiseCheck, decide_verdict, noise_check
 
 #: the verdicts, from the best news to the worst (see the module docstring)
 VERDICTS = ("no_gap", "explained", "explained_up_to_tie", "unexplained")
@@ -90,16 +90,22 @@ class Comparison:
     max: float  # largest per-sample norm
     rms_axis: list[float]
     mean_axis: list[float]
-    chi2: float
-    dof: int
-    chi2_p: float
+    chi2: float  # whitened residual sum of squares
+    dof: int  # residuals minus fitted parameters (rank of the model's Jacobian)
+    chi2_p: float  # P(chi2(dof) >= chi2): small when the residuals are larger than the stated noise
     consistent: bool
     cv_rms: float  # held-out (k-fold) RMS
     noise_rms: float  # 3-D RMS the noise alone would give
 
     @property
     def ratio_to_noise(self) -> float:
-        return self.rms / self.noise_rms if self.noise_rms > 0 else np.inf
+        """The residuals "x the noise": ``sqrt(chi2 / dof)``, dof = residuals - fitted parameters.
+
+        The a-posteriori sigma over the stated one; 1 for a correct model and noise. (The in-sample RMS
+        over the noise floor is smaller by ``sqrt(dof / residuals)``: the fit takes one noise
+        component per parameter.)
+        """
+        return float(np.sqrt(self.chi2 / self.dof)) if self.dof > 0 else np.inf
 
 
 @dataclass
@@ -124,6 +130,8 @@ class Iteration:
     removed: list[tuple[str, float]] = field(default_factory=list)
     # tie terms of earlier rounds resolved after this round's addition: (tie label, member now named, why)
     resolved: list[tuple[str, str, str]] = field(default_factory=list)
+    # what systematic residual this round's model leaves (noise-independent F-tests; None: not tested)
+    structure: StructureTest | None = None
 
 
 @dataclass
@@ -137,6 +145,7 @@ class GapResult:
     report_unit: str
     report_scale: float
     files: dict[str, str] = field(default_factory=dict)
+    noise: NoiseCheck | None = None  # the final residuals against the stated (or estimated) noise
 
     @property
     def before(self) -> Comparison:
@@ -269,14 +278,16 @@ def run_gap(
         active = [c for c in candidates if (c.name, c.where) not in added_labels]
         scorer, baseline, scores = score_all(lin, active, problem, cfg.selection)
         decision = decide(scorer, scores, cfg.selection)
+        feats = problem.features()
         it = Iteration(
             index,
             compare(lin, baseline, cfg.chi2_alpha),
-            localise(lin, problem.features()),
+            localise(lin, feats),
             scores,
             decision,
             lin.physical_residual(),
             lin.residual.copy(),
+            structure=residual_structure(lin, feats, cfg.chi2_alpha),
         )
         if index == 0 and out_dir is not None:
             files["model_baseline"] = str(problem.save_model(out_dir / "model_0_baseline.yaml"))
@@ -316,10 +327,12 @@ def run_gap(
     # the effects as the final joint refit has them (values and sigmas move when later effects are added)
     final = {(fe.name, fe.where): fe for fe in problem.fitted_effects()}
     effects = [(final.get((fe.name, fe.where), fe), sc) for fe, sc in effects]
-    verdict, reason = _verdict(iterations, effects, cfg)
+    desc = problem.describe()
+    noise = noise_check(iterations[-1], cfg.chi2_alpha, str(desc.get("noise_source", "given")))
+    verdict, reason = decide_verdict(iterations, effects, cfg.max_effects, noise)
     scale = float(getattr(problem, "report_scale", 1.0))
     unit = str(getattr(problem, "report_unit", ""))
-    return GapResult(verdict, reason, iterations, effects, problem.describe(), cfg, unit, scale, files)
+    return GapResult(verdict, reason, iterations, effects, desc, cfg, unit, scale, files, noise)
 
 
 def _prune(problem: GapProblem, effects: list[tuple[FittedEffect, CandidateScore]]) -> list[tuple[str, float]]:
@@ -431,48 +444,3 @@ def _resolve_ties(
             out.append((fe.label, lab, why))
             break
     return out
-
-
-def _added_text(effects: list[tuple[FittedEffect, CandidateScore]], iterations: list[Iteration]) -> str:
-    """``a@x, b@y added`` for the named effects; each tie term spelled out as a tie, with its advice."""
-    named = [fe.label for fe, _ in effects if not fe.tied]
-    parts = [f"{', '.join(named)} added"] if named else []
-    for it in iterations:
-        for tie, lab, why in it.resolved:
-            if lab in named:
-                parts.append(f"the tie {tie} of an earlier round resolved as {lab} ({why})")
-    advice = {tie_label(it.decision.tied): it.decision.advice for it in iterations if it.decision.status == "ambiguous"}
-    for fe, _ in effects:
-        if not fe.tied:
-            continue
-        tips = advice.get(fe.label) or ["collect data that separates them"]
-        parts.append(
-            f"{' and '.join(fe.members)} are tied (the data cannot tell them apart): neither is named, the gap they "
-            f"explain is added as one tie term {fe.label} (evaluated as {fe.representative}); to separate them: "
-            + "; ".join(tips)
-        )
-    return "; ".join(parts)
-
-
-def _verdict(iterations: list[Iteration], effects: list, cfg: GapConfig) -> tuple[str, str]:
-    last = iterations[-1]
-    c = last.comparison
-    noise = f"residual RMS {c.ratio_to_noise:.2f}x the noise ({'consistent' if c.consistent else 'inconsistent'}, "
-    noise += f"chi2 = {c.chi2:.0f} for {c.dof} dof, p = {c.chi2_p:.2g})"
-    done = _added_text(effects, iterations)
-    if last.decision.status == "named" and last.added is None:  # stopped by max_effects with a candidate still decisive
-        return "unexplained", f"more than {cfg.max_effects} effects would be needed; next: {last.decision.reason}"
-    if last.decision.status == "ambiguous" and last.added is None:  # stopped by max_effects on a tie, not added
-        return "unexplained", (
-            (f"{done}; then " if done else "")
-            + f"{last.decision.reason} (not added: at most {cfg.max_effects} terms); {noise}"
-        )
-    if not c.consistent:
-        if effects:
-            return "unexplained", f"{done}; no catalog effect explains the rest decisively: {noise}"
-        return "unexplained", f"no catalog effect explains the gap decisively: {noise}"
-    if any(fe.tied for fe, _ in effects):
-        return "explained_up_to_tie", f"{done}; {noise}"
-    if effects:
-        return "explained", f"{done}; {noise}"
-    return "no_gap", f"no candidate effect is significant; {noise}"

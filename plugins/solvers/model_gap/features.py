@@ -2,7 +2,8 @@
 
 Each joint angle, the gravity torque of each joint (payload included), each approach direction,
 time, temperature, payload, tool speed, range, and where the tool is in the robot's workspace
-(x, y, z in the base frame and the distance from the base axis).
+(x, y, z in the base frame, marked ``spatial``: the residual-structure test of :mod:`engine.gap.structure`
+fits a smooth field over them; and the distance from the base axis).
 """
 
 from __future__ import annotations
@@ -46,6 +47,6 @@ def features(problem: KinematicGapProblem) -> list[Feature]:
         out.append(Feature("range", "range (depth)", "mm", problem.data.range_m * 1e3))
     p_base = problem.nominal.fk(problem.q, frame="base")[:, :3, 3] * 1e3
     for i, ax in enumerate("xyz"):
-        out.append(Feature(f"work_{ax}", f"workspace {ax} (robot base)", "mm", p_base[:, i]))
+        out.append(Feature(f"work_{ax}", f"workspace {ax} (robot base)", "mm", p_base[:, i], spatial=True))
     out.append(Feature("reach", "distance from the base axis", "mm", np.linalg.norm(p_base[:, :2], axis=1)))
     return out
