@@ -34,6 +34,7 @@ from .interfaces import FittedEffect, tie_label
 
 if TYPE_CHECKING:
     from .selection import CandidateScore
+    from .structure import StructureTest
     from .workflow import Iteration
 
 
@@ -57,14 +58,21 @@ class NoiseCheck:
 def noise_check(last: Iteration, alpha: float, source: str = "given") -> NoiseCheck:
     """The noise check of the final model (``last``: the loop's last round)."""
     c = last.comparison
-    dof = max(1, c.dof)
-    ratio = float(np.sqrt(c.chi2 / dof))
     stated = c.noise_rms / np.sqrt(last.residual.shape[1])
-    p_above, p_below = float(stats.chi2.sf(c.chi2, dof)), float(stats.chi2.cdf(c.chi2, dof))
+    return check_noise(c.chi2, c.dof, stated, last.structure, alpha, source)
+
+
+def check_noise(
+    chi2: float, dof: int, stated: float, structure: StructureTest | None, alpha: float, source: str = "given"
+) -> NoiseCheck:
+    """The noise check of whitened residuals with sum of squares ``chi2`` on ``dof`` degrees of freedom
+    against the ``stated`` per-component sigma (SI), given what the structure tests found."""
+    dof = max(1, int(dof))
+    ratio = float(np.sqrt(chi2 / dof))
+    p_above, p_below = float(stats.chi2.sf(chi2, dof)), float(stats.chi2.cdf(chi2, dof))
     what = "estimated noise" if source == "estimated" else "stated noise"
-    fig = f"{ratio:.2f}x the {what} (chi2 = {c.chi2:.0f} for {dof} dof = residuals - fitted parameters)"
+    fig = f"{ratio:.2f}x the {what} (chi2 = {chi2:.0f} for {dof} dof = residuals - fitted parameters)"
     sig, res_sig = (f"{x * 1e3:.3g} mm" if x < 1.0 else f"{x:.3g}" for x in (stated, stated * ratio))
-    structure = last.structure
     if p_above >= alpha and p_below >= alpha:
         believe, note = "both", f"the residuals agree with the {what}: {fig}"
     elif p_above < alpha and structure is not None and structure.found:
@@ -85,10 +93,9 @@ def noise_check(last: Iteration, alpha: float, source: str = "given") -> NoiseCh
         believe = "residuals"
         note = (
             f"the residuals are only {fig}: believe the residuals, the measurements are better than stated (about "
-            f"{res_sig} per axis, not {sig}); effects are tested against the residuals, not the stated noise, "
-            "so none is missed for it"
+            f"{res_sig} per axis, not {sig}); the verdict does not use the stated noise"
         )
-    return NoiseCheck(source, stated, stated * ratio, ratio, float(c.chi2), dof, p_above, p_below,
+    return NoiseCheck(source, stated, stated * ratio, ratio, float(chi2), dof, p_above, p_below,
                       believe == "both", believe, note)  # fmt: skip
 
 

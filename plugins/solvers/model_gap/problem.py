@@ -282,28 +282,35 @@ class KinematicGapProblem:
             k += val.size
         return model, accepted
 
-    def refit(self) -> tuple[F64, float, int]:
-        """Nonlinear least squares of the baseline parameters and every accepted effect together.
+    def refit(self, *, effects: bool = True) -> tuple[F64, float, int]:
+        """Nonlinear least squares of the baseline parameters and every accepted effect together
+        (``effects=False``: the baseline parameters alone, the effects held at their values).
 
         Returns ``(covariance of the full state, a-posteriori variance factor, dof)``.
         """
         self._reorder_accepted_columns()
         nb = len(self.base_names)
-        x0 = np.concatenate([np.zeros(nb)] + [v for _, v in self.accepted])
+        held = np.concatenate([np.zeros(0)] + [v for _, v in self.accepted])
+        x0 = np.concatenate([np.zeros(nb), held])
         lo = np.concatenate([np.full(nb, -np.inf)] + [c.bounds()[0] for c, _ in self.accepted])
         hi = np.concatenate([np.full(nb, np.inf)] + [c.bounds()[1] for c, _ in self.accepted])
+        if not effects:  # the effects are part of the model being checked: only the baseline moves
+            x0, lo, hi = x0[:nb], lo[:nb], hi[:nb]
         x0 = np.clip(x0, lo, hi)
         meas = self.data.samples.positions
         s = self.sigma[:, None]
 
+        def state(x: F64) -> tuple[RobotModel, list[tuple[Any, F64]]]:
+            return self._unpack_state(x if effects else np.concatenate([x, held]))
+
         def fun(x: F64) -> F64:
-            model, acc = self._unpack_state(x)
+            model, acc = state(x)
             return ((meas - self._predict(model, acc)[0]) / s).ravel()
 
         def jac(x: F64) -> F64:
-            model, acc = self._unpack_state(x)
+            model, acc = state(x)
             J = self._predict(model, acc, jacobian=True)[1]
-            return -(J / s[:, :, None]).reshape(-1, x.size)
+            return -(J / s[:, :, None]).reshape(meas.size, -1)[:, : x.size]
 
         if x0.size:
             sol = least_squares(
@@ -312,7 +319,7 @@ class KinematicGapProblem:
             x = sol.x
         else:
             x = x0
-        self.model, self.accepted = self._unpack_state(x)
+        self.model, self.accepted = state(x)
         return self.covariance()
 
     def covariance(self) -> tuple[F64, float, int]:

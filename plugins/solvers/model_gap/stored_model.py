@@ -11,7 +11,8 @@ back, as well as a robot model file, a shipped robot name, or the result file of
 
 from __future__ import annotations
 
-from dataclasses import asdict
+import json
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -99,7 +100,14 @@ def gap_model_dict(problem: KinematicGapProblem) -> dict[str, Any]:
         "robot": model_to_dict(problem.model),
         "effects": effects,
         "noise_sigma_m": float(np.median(problem.sigma)),
+        "noise_source": problem.cfg.noise_source,
         "calibration": {"levels": list(problem.cfg.calibrate), "parameters": list(problem.base_names)},
+        # the size of the fit: a new measurement's expected error is the noise raised by sqrt(1 + p / n)
+        "fit": {
+            "n_samples": problem.n_samples,
+            "n_residuals": int(problem.n_samples * len(problem.axis_names)),
+            "n_parameters": len(problem.base_names) + sum(int(v.size) for _, v in problem.accepted),
+        },
     }
 
 
@@ -130,3 +138,62 @@ def load_gap_model(model: str | Path | RobotModel) -> tuple[RobotModel, list[dic
         if isinstance(data, dict) and "vgr_gap_model" in data:
             return robot_model_from_dict(data.get("robot"), source=str(path)), list(data.get("effects") or [])
     return load_robot_model(model), []
+
+
+@dataclass
+class StoredModel:
+    """A model file vgr wrote, as ``vgr gap check`` scores it (see :func:`load_stored_model`)."""
+
+    robot: RobotModel  # its base is the measurement frame (a calibrated or augmented model)
+    effects: list[dict[str, Any]]  # the augmented model's effects (model-file entries)
+    kind: str  # gap model | kinematic calibration | robot model
+    source: str
+    noise_sigma_m: float | None = None  # the noise the model was fitted with (per axis)
+    n_parameters: int | None = None  # how many parameters its fit had, on how many residuals
+    n_residuals: int | None = None
+
+    @property
+    def expected_factor(self) -> float:
+        """``sqrt(1 + p / n)``: a new measurement's expected RMS error over the noise floor (poses like the
+        fit's; the parameters' uncertainty adds to the noise, docs/kinematic_calibration.md)."""
+        if not self.n_parameters or not self.n_residuals:
+            return 1.0
+        return float(np.sqrt(1.0 + self.n_parameters / self.n_residuals))
+
+
+def load_stored_model(model: str | Path) -> StoredModel:
+    """Any model vgr writes: an augmented model of ``vgr gap`` (``augmented_model.yaml``, ``model_<k>_*.yaml``,
+    ``model_0_baseline.yaml``), the result of ``vgr calibrate kinematics`` (``--json OUT`` or a report's
+    ``result.json``: its ``estimate.model_file``), a robot model file, or a shipped robot name (frames as
+    they are). Raises ValueError naming what the file is not."""
+    path = Path(str(model))
+    if path.suffix.lower() == ".json" and path.is_file():
+        try:
+            doc = json.loads(path.read_text(encoding="utf-8"))
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{path} is not valid JSON: {e}") from None
+        est = doc.get("estimate") if isinstance(doc, dict) else None
+        if not isinstance(est, dict) or doc.get("kind") != "kinematic" or "model_file" not in est:
+            raise ValueError(f"{path} is not a kinematic calibration result (vgr calibrate kinematics --json)")
+        metrics = doc.get("metrics") or {}
+        p = int(metrics.get("n_params_identified", 0)) or None
+        dof = metrics.get("chi2_dof")
+        sigma = metrics.get("sigma_position_mm")
+        return StoredModel(
+            robot_model_from_dict(est["model_file"], source=str(path)),
+            [],
+            "kinematic calibration",
+            str(path),
+            None if sigma is None else float(sigma) / 1e3,
+            p,
+            None if (dof is None or p is None) else int(dof) + p,
+        )
+    robot, effects = load_gap_model(model)
+    if path.suffix in (".yaml", ".yml") and path.is_file() and effects is not None:
+        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+        if isinstance(doc, dict) and "vgr_gap_model" in doc:
+            fit = doc.get("fit") or {}
+            sigma = doc.get("noise_sigma_m")
+            return StoredModel(robot, effects, "gap model", str(path), None if sigma is None else float(sigma),
+                               fit.get("n_parameters"), fit.get("n_residuals"))  # fmt: skip
+    return StoredModel(robot, [], "robot model", str(model))
