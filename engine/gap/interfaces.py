@@ -97,6 +97,7 @@ class Feature:
     unit: str
     values: F64  # (N,)
     categorical: bool = False
+    spatial: bool = False  # a coordinate of where the measurement was taken (the structure test's smooth field)
 
 
 @runtime_checkable
@@ -144,6 +145,10 @@ class FittedEffect:
     data cannot tell apart: ``name`` / ``where`` / ``params`` / ``config`` are the representative's
     (what the model evaluates), but the term is not named as that effect: :attr:`label`,
     :attr:`tie_name` and :attr:`tie_where` name the whole group.
+
+    ``params`` are in the effect's physical convention (a backlash is a play >= 0); ``values`` is the
+    vector the model fits (``candidate.param_names`` order), which can differ in sign when the data
+    count a direction the other way round: ``note`` then says so.
     """
 
     name: str
@@ -153,6 +158,14 @@ class FittedEffect:
     units: dict[str, str]
     config: dict[str, Any] = field(default_factory=dict)  # how to rebuild it (model-file form)
     tied_with: tuple[str, ...] = ()  # tie term: the other members' labels (name@where)
+    values: tuple[float, ...] = ()  # the fitted vector (candidate.param_names order); () = params' values
+    note: str = ""  # e.g. the data count a direction the other way round (a sign convention)
+
+    def vector(self, names: tuple[str, ...] | list[str]) -> NDArray[np.float64]:
+        """The fitted vector for the candidate's ``names`` (``values``, else ``params`` in that order)."""
+        if self.values:
+            return np.asarray(self.values[: len(names)], dtype=float)
+        return np.array([self.params[n] for n in names], dtype=float)
 
     @property
     def tied(self) -> bool:

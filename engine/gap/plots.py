@@ -8,7 +8,8 @@
   drawn as its representative): for each added effect, the calibrated residual expressed in the
   effect's own quantity (e.g. joint error in urad) against its regressor (gravity torque, approach
   direction, time, speed, range ...), before and after adding it, with the part of the fitted effect
-  the calibration cannot absorb (the part the residuals can show; :class:`EffectSeries`).
+  the calibration cannot absorb (the part the residuals can show; :class:`EffectSeries`);
+* ``check_plots.png`` (``vgr gap check``): a stored model's residuals on new data (:func:`plot_check`).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from .check import ModelCheck
 from .interfaces import Feature
 from .report import display
 from .workflow import GapResult, Iteration
@@ -205,6 +207,53 @@ def plot_effect(result: GapResult, it: Iteration, path: Path) -> Path | None:
         )
     ax.set_title(title, fontsize=9 if it.added.tied else 10)
     ax.legend(fontsize=8)
+    return _save(fig, path)
+
+
+def plot_check(c: ModelCheck, features: list[Feature], path: Path) -> Path:
+    """``check_plots.png`` of ``vgr gap check``: the stored model's whitened residuals on the new data
+    against N(0, 1), the 3-D errors against the chi distribution of the noise (scaled by the model's
+    expected factor), and the RMS per bin of the features where the residuals concentrate most."""
+    plt = _plt()
+    s, u = c.report_scale, c.report_unit
+    top = c.localisation[:2]
+    fig, axes = plt.subplots(1, 2 + len(top), figsize=(4.2 * (2 + len(top)), 3.8))
+    ax = axes[0]
+    lim = max(4.0, float(np.percentile(np.abs(c.whitened), 99.5)))
+    bins = np.linspace(-lim, lim, 61)
+    ax.hist(c.whitened.ravel(), bins, density=True, alpha=0.6, label="stored model, new data")
+    x = np.linspace(-lim, lim, 300)
+    ax.plot(x, stats.norm.pdf(x), "k--", label="noise spec N(0, 1)")
+    ax.set_xlabel("residual / noise sigma (per axis)")
+    ax.legend(fontsize=8)
+    ax.set_title("whitened residuals")
+    ax = axes[1]
+    m = c.residual.shape[1]
+    norms = np.linalg.norm(c.residual, axis=1) * s
+    hi = float(np.percentile(norms, 99.5)) * 1.05
+    edges = np.linspace(0, hi, 50)
+    ax.hist(norms, edges, alpha=0.6, label=f"RMS {c.rms * s:.3f}, max {c.max * s:.3f} {u}")
+    sig = c.noise_floor / np.sqrt(m) * c.expected_factor * s
+    xx = np.linspace(0, hi, 300)
+    ax.plot(xx, stats.chi.pdf(xx / sig, m) / sig * len(norms) * (edges[1] - edges[0]), "k--",
+            label="a correct model")  # fmt: skip
+    ax.set_xlabel(f"3-D error ({u})")
+    ax.legend(fontsize=8)
+    ax.set_title("error per sample")
+    by_name = {f.name: f for f in features}
+    for ax, g in zip(axes[2:], top, strict=False):
+        f = by_name.get(g.name)
+        if f is None:
+            continue
+        masks = _masks(f, [b.label for b in g.bins])
+        vals = [np.sqrt(np.mean(np.sum(c.residual[mk] ** 2, axis=1))) * s for mk in masks]
+        ax.bar(np.arange(len(vals)), vals)
+        ax.axhline(c.expected_rms * s, color="k", ls="--", label="expected")
+        ax.set_xticks(np.arange(len(vals)), [b.label for b in g.bins], rotation=20, ha="right", fontsize=7)
+        ax.set_title(f"{g.label} ({g.unit})" if g.unit else g.label, fontsize=9)
+        ax.set_ylabel(f"RMS ({u})")
+        ax.legend(fontsize=7)
+    fig.suptitle(f"vgr gap check: {c.verdict}", fontsize=10)
     return _save(fig, path)
 
 

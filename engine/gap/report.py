@@ -7,6 +7,9 @@ JSON (``format: vgr.gap_report/1``), lengths in the problem's report unit (mm fo
   p_value_corrected, independent_fraction, iteration, config}]`` (params SI, with their units):
   ``params`` / ``param_std`` / ``config`` are those of the *final* joint refit of every effect with
   the baseline (the augmented model file has the same); the scores are from the round that added it.
+  ``convention``: present when the best fit has the other sign of the effect's convention (a backlash
+  against the data's ``dir`` columns): the value is given in the physical convention, and the note
+  says that the data count the other way round.
   A *tie term* (``tied: true``) is named after its whole group, never after one member:
   ``name`` ``a|b``, ``where`` ``x|y``, ``label`` ``a@x|b@y``, ``members``; ``representative`` is the
   member the model evaluates (its ``params`` / ``config``; the model file stores it with
@@ -14,7 +17,14 @@ JSON (``format: vgr.gap_report/1``), lengths in the problem's report unit (mm fo
 * ``rms_before_mm`` / ``rms_after_mm``: held-out (k-fold cross-validated) 3-D RMS of the model as given
   (after its baseline calibration) and of the final augmented model; ``noise_floor_mm``: the 3-D RMS
   the stated noise alone gives; ``noise_source``: ``given`` | ``data column sigma_mm`` | ``estimated``;
-* ``before`` / ``after``: in-sample RMS, max, per axis, chi-square test;
+* ``noise_check``: the final residuals against that noise (``ratio`` = ``sqrt(chi2 / dof)`` with
+  ``dof`` = residuals - fitted parameters, both tails' p-values, ``agrees``) and, when they disagree,
+  which to ``believe`` and why (``note``; :mod:`.verdict`);
+* ``residual_structure``: ``before`` / ``after``, the noise-independent F-tests of what systematic
+  residual the model leaves (per feature, a smooth field over the workspace; :mod:`.structure`),
+  which decide whether a gap is left;
+* ``before`` / ``after``: in-sample RMS, max, per axis, chi-square test (``ratio_to_noise`` =
+  ``sqrt(chi2 / chi2_dof)``);
 * ``confounded``: every round that ended with tied candidates (they explain the same part of the
   gap, e.g. a range scale and a uniform robot scale once the frame is fitted), ``[{effects,
   delta_bic, tied_with, advice, iteration, added, term, representative}]``: none of them is named;
@@ -47,6 +57,7 @@ from engine.plain_data import plain
 from .interfaces import FittedEffect
 from .localise import FeatureGap
 from .selection import CandidateScore
+from .structure import StructureTest
 from .workflow import Comparison, GapResult
 
 REPORT_FORMAT = "vgr.gap_report/1"
@@ -86,7 +97,7 @@ def _comparison(c: Comparison, s: float) -> dict[str, Any]:
         "noise_rms": c.noise_rms * s,
         "ratio_to_noise": c.ratio_to_noise,
         "chi2": c.chi2,
-        "chi2_dof": c.dof,
+        "chi2_dof": c.dof,  # residuals - fitted parameters
         "chi2_p": c.chi2_p,
         "consistent_with_noise": c.consistent,
     }
@@ -137,6 +148,8 @@ def report_dict(result: GapResult) -> dict[str, Any]:
             "iteration": round_of.get(id(sc), resolved_round.get(fe.label)),
             "config": fe.config,
         }
+        if fe.note:  # e.g. the data count a direction the other way round: the value is the physical one
+            e["convention"] = fe.note
         if fe.label in resolved_round:  # named once a later round resolved the tie it was part of
             e["resolved_tie"] = next(t for t, n in result.resolved_ties.items() if n == fe.label)
         if fe.tied:
@@ -159,6 +172,11 @@ def report_dict(result: GapResult) -> dict[str, Any]:
         f"rms_after_{u}": result.after.cv_rms * s,
         f"noise_floor_{u}": result.before.noise_rms * s,
         "noise_source": result.problem.get("noise_source", "given"),
+        "noise_check": _noise_check(result, s),
+        "residual_structure": {
+            "before": _structure(result.iterations[0].structure),
+            "after": _structure(result.iterations[-1].structure),
+        },
         "unit": u,
         "before": _comparison(result.before, s),
         "after": _comparison(result.after, s),
@@ -202,6 +220,31 @@ def report_dict(result: GapResult) -> dict[str, Any]:
             for it in result.iterations
         ],
         "files": result.files,
+    }
+
+
+def _noise_check(result: GapResult, s: float) -> dict[str, Any] | None:
+    n = result.noise
+    if n is None:
+        return None
+    return {
+        "source": n.source,
+        f"stated_sigma_{result.report_unit}": n.stated_sigma * s,
+        f"residual_sigma_{result.report_unit}": n.residual_sigma * s,
+        **_fields(n, "ratio", "chi2", "dof", "p_above", "p_below", "agrees", "believe", "note"),
+    }
+
+
+def _structure(st: StructureTest | None) -> dict[str, Any] | None:
+    if st is None:
+        return None
+    return {
+        "found": st.found,
+        "alpha_familywise": st.alpha,
+        "n_tests": st.n_tests,
+        "tests": [
+            _fields(f, "design", "label", "k", "dof", "f_stat", "p_value", "p_corrected") for f in st.findings[:8]
+        ],
     }
 
 
@@ -275,9 +318,23 @@ def render(result: GapResult, console: Console, *, top: int = 8) -> None:
     t.add_row("max", f"{b.max * s:.4f}", f"{a.max * s:.4f}", "")
     for i, ax in enumerate(("x", "y", "z")[: len(b.rms_axis)]):
         t.add_row(f"RMS {ax}", f"{b.rms_axis[i] * s:.4f}", f"{a.rms_axis[i] * s:.4f}", "")
-    t.add_row("chi2 / dof", f"{b.chi2 / b.dof:.3f}", f"{a.chi2 / a.dof:.3f}", "1")
-    t.add_row("consistent with noise", str(b.consistent), str(a.consistent), "")
+    t.add_row("x the noise: sqrt(chi2 / dof), dof = residuals - parameters", f"{b.ratio_to_noise:.3f}",
+              f"{a.ratio_to_noise:.3f}", "1")  # fmt: skip
+    t.add_row("consistent with the noise", str(b.consistent), str(a.consistent), "")
+    sb, sa = result.iterations[0].structure, result.iterations[-1].structure
+    if sb is not None and sa is not None:
+        t.add_row("systematic residual left (F-tests)", str(sb.found), str(sa.found), "")
     console.print(t)
+    if result.noise is not None:
+        colour = "green" if result.noise.agrees else "yellow"
+        console.print(f"[{colour}]noise check:[/] {escape(result.noise.note)}", soft_wrap=True)
+    cal = result.problem.get("calibration") or {}
+    if cal:
+        levels = ", ".join(cal.get("levels") or []) or "none (the model's frames are trusted)"
+        n = len(cal.get("parameters") or [])
+        console.print(f"baseline calibration: {escape(levels)} ({n} parameters)", soft_wrap=True)
+        for note in cal.get("notes") or []:
+            console.print(f"  {escape(note)}", soft_wrap=True)
     if result.problem.get("noise_source") == "estimated":
         console.print(
             "[yellow]noise not given: estimated from the data (residual of every candidate fitted at once); "
@@ -353,6 +410,9 @@ def render(result: GapResult, console: Console, *, top: int = 8) -> None:
             params = _fmt_params(fe.params, fe.param_std, fe.units)
             t.add_row(escape(label), params, f"{sc.cv_gain * s:.4f}")
         console.print(t)
+        for fe, _ in result.effects:
+            if fe.note:
+                console.print(f"  {escape(fe.label)}: {escape(fe.note)}", soft_wrap=True)
     absorbed = [c.label for c in first.scores if c.absorbed]
     if absorbed:
         console.print(f"absorbed by the calibration (cannot be told apart from it): {', '.join(absorbed)}")

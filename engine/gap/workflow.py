@@ -21,18 +21,17 @@
    the model (:func:`_resolve_ties`): an approximate tie can separate once another effect's signal
    has left the residuals, and a member decisive over the others (the naming rule's margin) is then
    named in place of the term. An exact tie never resolves.
-6. Repeat while a candidate is named or a tie term added (at most ``max_effects`` terms): the loop
-   stops when no eligible candidate is left. The chi-square test does not stop the loop; it decides
-   the verdict.
+6. Repeat while a candidate is named or a tie term added (at most ``max_effects`` terms; a geometric
+   term -- a joint zero, a link length, the frames: :func:`is_geometric` -- does not count, a real
+   robot has them all): the loop stops when no eligible candidate is left. The chi-square test does
+   not stop the loop.
 
-Verdict (:data:`VERDICTS`): ``no_gap`` when nothing was added, no candidate is significant and the
-residuals are consistent with the noise (chi-square test at ``chi2_alpha``); ``explained`` when
-effects were added, *every one named*, and the final residuals are consistent with the noise;
-``explained_up_to_tie`` when the final residuals are consistent with the noise but at least one
-added term is a tie (the augmented model predicts the data; which of the tied effects is the cause
-the data cannot say, and the report says what would separate them); ``unexplained`` otherwise (a
-significant gap no candidate names decisively, a tie left when ``max_effects`` was reached, or
-residuals still above the noise).
+The verdict (:mod:`.verdict`) does not depend on the stated noise: whether a gap is left is decided
+by noise-independent F-tests of the final residuals (:mod:`.structure`), and the chi-square test
+against the stated noise is reported as the *noise check* (which of the two to believe when they
+disagree). ``no_gap``: nothing added and no structure left; ``explained``: effects added, every one
+named, no structure left; ``explained_up_to_tie``: the same with a tie term among them;
+``unexplained``: structure left that no candidate names decisively, or ``max_effects`` reached.
 """
 
 from __future__ import annotations
@@ -66,6 +65,8 @@ from .selection import (
     gain_given_others,
     score_all,
 )
+from .structure import StructureTest, residual_structure
+from .verdict import NoiseCheck, decide_verdict, noise_check
 
 #: the verdicts, from the best news to the worst (see the module docstring)
 VERDICTS = ("no_gap", "explained", "explained_up_to_tie", "unexplained")
@@ -89,16 +90,22 @@ class Comparison:
     max: float  # largest per-sample norm
     rms_axis: list[float]
     mean_axis: list[float]
-    chi2: float
-    dof: int
-    chi2_p: float
+    chi2: float  # whitened residual sum of squares
+    dof: int  # residuals minus fitted parameters (rank of the model's Jacobian)
+    chi2_p: float  # P(chi2(dof) >= chi2): small when the residuals are larger than the stated noise
     consistent: bool
     cv_rms: float  # held-out (k-fold) RMS
     noise_rms: float  # 3-D RMS the noise alone would give
 
     @property
     def ratio_to_noise(self) -> float:
-        return self.rms / self.noise_rms if self.noise_rms > 0 else np.inf
+        """The residuals "x the noise": ``sqrt(chi2 / dof)``, dof = residuals - fitted parameters.
+
+        The a-posteriori sigma over the stated one; 1 for a correct model and noise. (The in-sample RMS
+        over the noise floor is smaller by ``sqrt(dof / residuals)``: the fit takes one noise
+        component per parameter.)
+        """
+        return float(np.sqrt(self.chi2 / self.dof)) if self.dof > 0 else np.inf
 
 
 @dataclass
@@ -123,6 +130,8 @@ class Iteration:
     removed: list[tuple[str, float]] = field(default_factory=list)
     # tie terms of earlier rounds resolved after this round's addition: (tie label, member now named, why)
     resolved: list[tuple[str, str, str]] = field(default_factory=list)
+    # what systematic residual this round's model leaves (noise-independent F-tests; None: not tested)
+    structure: StructureTest | None = None
 
 
 @dataclass
@@ -136,6 +145,7 @@ class GapResult:
     report_unit: str
     report_scale: float
     files: dict[str, str] = field(default_factory=dict)
+    noise: NoiseCheck | None = None  # the final residuals against the stated (or estimated) noise
 
     @property
     def before(self) -> Comparison:
@@ -207,12 +217,27 @@ def collect_candidates(problem: GapProblem, families: list[EffectFamily]) -> lis
     return out
 
 
+def is_geometric(candidate: Candidate) -> bool:
+    """A candidate that is part of the model's geometry (a joint zero, a link length, the frames): its
+    ``geometric`` attribute. Geometric terms never use up ``max_effects`` (a real robot has them all)."""
+    return bool(getattr(candidate, "geometric", False))
+
+
+def samples_needed(n_params: int, candidates: list[Candidate], n_components: int, cfg: GapConfig) -> int:
+    """Samples the workflow needs for a model fitting ``n_params`` parameters and these candidates:
+    ``cv_folds``-fold cross-validation must leave ``min_residual_dof`` residual degrees of freedom after
+    the model and the largest candidate."""
+    k_max = max((len(c.param_names) for c in candidates if not c.unavailable), default=0)
+    folds = cfg.selection.cv_folds
+    need = int(np.ceil((n_params + k_max + cfg.min_residual_dof) / n_components * folds / (folds - 1)))
+    return max(need, 2 * folds)
+
+
 def _check_size(lin: Linearisation, candidates: list[Candidate], cfg: GapConfig) -> None:
     k_max = max((len(c.param_names) for c in candidates if not c.unavailable), default=0)
     M, p = lin.residual.size, lin.jacobian.shape[2]
     folds = cfg.selection.cv_folds
-    need = int(np.ceil((p + k_max + cfg.min_residual_dof) / lin.n_components * folds / (folds - 1)))
-    need = max(need, 2 * folds)
+    need = samples_needed(p, candidates, lin.n_components, cfg)
     if lin.n_samples < need:
         raise GapInputError(
             f"{lin.n_samples} samples are too few: the calibration fits {p} parameters and the largest candidate "
@@ -245,27 +270,31 @@ def run_gap(
     added_labels: set[tuple[str, str]] = set()
     tie_members: dict[str, list[CandidateScore]] = {}  # tie term (representative label) -> the group's scores
     files: dict[str, str] = {}
-    for index in range(cfg.max_effects + 1):
+    n_terms = 0  # terms that count against max_effects (geometric ones do not: is_geometric)
+    for index in range(len(candidates) + 1):  # each candidate joins at most once: the loop ends
         lin = problem.linearise()
         if index == 0:
             _check_size(lin, candidates, cfg)
         active = [c for c in candidates if (c.name, c.where) not in added_labels]
         scorer, baseline, scores = score_all(lin, active, problem, cfg.selection)
         decision = decide(scorer, scores, cfg.selection)
+        feats = problem.features()
         it = Iteration(
             index,
             compare(lin, baseline, cfg.chi2_alpha),
-            localise(lin, problem.features()),
+            localise(lin, feats),
             scores,
             decision,
             lin.physical_residual(),
             lin.residual.copy(),
+            structure=residual_structure(lin, feats, cfg.chi2_alpha),
         )
         if index == 0 and out_dir is not None:
             files["model_baseline"] = str(problem.save_model(out_dir / "model_0_baseline.yaml"))
         iterations.append(it)
-        if decision.status == "none" or index == cfg.max_effects:
+        if decision.status == "none":
             break
+        by_label = {s.label: s for s in scores}
         if decision.status == "named":
             w, tied_with = decision.winner, ()
         else:  # tied: the group joins as one term, evaluated as its representative, named as the group
@@ -273,6 +302,10 @@ def run_gap(
             assert w is not None
             tied_with = tuple(sorted(lab for lab in decision.tied if lab != w.label))
         assert w is not None and w.design is not None
+        counts = not all(is_geometric(by_label[lab].candidate) for lab in (w.label, *tied_with))
+        if counts and n_terms >= cfg.max_effects:
+            break
+        n_terms += counts
         it.signature = w.candidate.signature(problem)
         it.contribution = (w.design.columns @ w.beta) * lin.sigma[:, None]
         it.identifiable = scorer.identifiable_part(w.design, w.beta) * lin.sigma[:, None]
@@ -284,7 +317,6 @@ def run_gap(
         effects.append((it.added, w))
         # never tested again, even if pruned below (no cycles); a tie's members neither, one by one
         added_labels.add((w.name, w.where))
-        by_label = {s.label: s for s in scores}
         added_labels.update((by_label[lab].name, by_label[lab].where) for lab in tied_with)
         it.removed = _prune(problem, effects)
         it.resolved = _resolve_ties(problem, effects, tie_members, cfg.selection.bic_margin)
@@ -295,10 +327,12 @@ def run_gap(
     # the effects as the final joint refit has them (values and sigmas move when later effects are added)
     final = {(fe.name, fe.where): fe for fe in problem.fitted_effects()}
     effects = [(final.get((fe.name, fe.where), fe), sc) for fe, sc in effects]
-    verdict, reason = _verdict(iterations, effects, cfg)
+    desc = problem.describe()
+    noise = noise_check(iterations[-1], cfg.chi2_alpha, str(desc.get("noise_source", "given")))
+    verdict, reason = decide_verdict(iterations, effects, cfg.max_effects, noise)
     scale = float(getattr(problem, "report_scale", 1.0))
     unit = str(getattr(problem, "report_unit", ""))
-    return GapResult(verdict, reason, iterations, effects, problem.describe(), cfg, unit, scale, files)
+    return GapResult(verdict, reason, iterations, effects, desc, cfg, unit, scale, files, noise)
 
 
 def _prune(problem: GapProblem, effects: list[tuple[FittedEffect, CandidateScore]]) -> list[tuple[str, float]]:
@@ -320,7 +354,7 @@ def _prune(problem: GapProblem, effects: list[tuple[FittedEffect, CandidateScore
             cand = sc.candidate
             n_lin = len(cand.param_names) - len(cand.shape_names)
             now = final[(fe.name, fe.where)]
-            values = np.array([now.params[p] for p in cand.param_names[:n_lin]])
+            values = now.vector(cand.param_names[:n_lin])
             gain = gain_given_others(lin, f"{fe.name}@{fe.where}", n_lin, values)
             if worst is None or gain < worst[0]:
                 worst = (gain, i)
@@ -364,7 +398,7 @@ def _resolve_ties(
         rest = [j for j in range(A.shape[1]) if j not in cols]
         cand = sc0.candidate
         n_lin = len(cand.param_names) - len(cand.shape_names)
-        values = np.array([fe.params[p] for p in cand.param_names[:n_lin]])
+        values = fe.vector(cand.param_names[:n_lin])
         y = lin.residual.reshape(-1) + A[:, cols[:n_lin]] @ values  # the residual of O
         Q = _basis(A[:, rest])
         y_perp = _perp(Q, y)
@@ -404,54 +438,9 @@ def _resolve_ties(
             problem.remove_effect(cand)
             new_values = np.concatenate([beta, [shape[n] for n in m.candidate.shape_names]])
             if lab == fe.representative:
-                new_values = np.array([fe.params[p] for p in cand.param_names])
+                new_values = fe.vector(cand.param_names)
             new = problem.add_effect(m.candidate, new_values)
             effects[i] = (new, m)
             out.append((fe.label, lab, why))
             break
     return out
-
-
-def _added_text(effects: list[tuple[FittedEffect, CandidateScore]], iterations: list[Iteration]) -> str:
-    """``a@x, b@y added`` for the named effects; each tie term spelled out as a tie, with its advice."""
-    named = [fe.label for fe, _ in effects if not fe.tied]
-    parts = [f"{', '.join(named)} added"] if named else []
-    for it in iterations:
-        for tie, lab, why in it.resolved:
-            if lab in named:
-                parts.append(f"the tie {tie} of an earlier round resolved as {lab} ({why})")
-    advice = {tie_label(it.decision.tied): it.decision.advice for it in iterations if it.decision.status == "ambiguous"}
-    for fe, _ in effects:
-        if not fe.tied:
-            continue
-        tips = advice.get(fe.label) or ["collect data that separates them"]
-        parts.append(
-            f"{' and '.join(fe.members)} are tied (the data cannot tell them apart): neither is named, the gap they "
-            f"explain is added as one tie term {fe.label} (evaluated as {fe.representative}); to separate them: "
-            + "; ".join(tips)
-        )
-    return "; ".join(parts)
-
-
-def _verdict(iterations: list[Iteration], effects: list, cfg: GapConfig) -> tuple[str, str]:
-    last = iterations[-1]
-    c = last.comparison
-    noise = f"residual RMS {c.ratio_to_noise:.2f}x the noise ({'consistent' if c.consistent else 'inconsistent'}, "
-    noise += f"chi2 = {c.chi2:.0f} for {c.dof} dof, p = {c.chi2_p:.2g})"
-    done = _added_text(effects, iterations)
-    if last.decision.status == "named":  # stopped by max_effects with a candidate still decisive
-        return "unexplained", f"more than {cfg.max_effects} effects would be needed; next: {last.decision.reason}"
-    if last.decision.status == "ambiguous":  # stopped by max_effects on a tie: not added, none named
-        return "unexplained", (
-            (f"{done}; then " if done else "")
-            + f"{last.decision.reason} (not added: at most {cfg.max_effects} terms); {noise}"
-        )
-    if not c.consistent:
-        if effects:
-            return "unexplained", f"{done}; no catalog effect explains the rest decisively: {noise}"
-        return "unexplained", f"no catalog effect explains the gap decisively: {noise}"
-    if any(fe.tied for fe, _ in effects):
-        return "explained_up_to_tie", f"{done}; {noise}"
-    if effects:
-        return "explained", f"{done}; {noise}"
-    return "no_gap", f"no candidate effect is significant; {noise}"

@@ -25,13 +25,16 @@ def gap_report(folder) -> dict:
     return json.loads((folder / "gap_report.json").read_text(encoding="utf-8"))
 
 
-def gap_with_report(effects: list[tuple[str, str]], seed: int, tmp_path, exit_code: int) -> tuple[str, Path, dict]:
+def gap_with_report(
+    effects: list[tuple[str, str]], seed: int, tmp_path, exit_code: int, *extra: str
+) -> tuple[str, Path, dict]:
     """``vgr gap`` on the UR5e model with a 0.05 mm noise spec and a report folder, on a simulated
-    campaign with the hidden *effects*; it must exit with *exit_code*. The CSV's path, the report
-    folder and its gap_report.json."""
+    campaign with the hidden *effects* (and the *extra* options); it must exit with *exit_code*. The
+    CSV's path, the report folder and its gap_report.json."""
     data = campaign_csv(effects, seed, tmp_path)
     out = tmp_path / "rep"
-    assert main(["gap", "--model", "ur5e", "--data", data, "--report", str(out), "--noise-mm", "0.05"]) == exit_code
+    argv = ["gap", "--model", "ur5e", "--data", data, "--report", str(out), "--noise-mm", "0.05", *extra]
+    assert main(argv) == exit_code
     return data, out, gap_report(out)
 
 
@@ -79,10 +82,11 @@ def test_exit_code_1_when_a_gap_is_left_unexplained(tmp_path, capsys):
 
 
 def test_a_tie_exits_3_and_its_augmented_model_closes_the_gap(tmp_path, capsys):
-    """A range scale with the frame fitted (exactly a uniform robot scale): exit code 3, verdict
+    """A range scale with the frame and the tool fitted (exactly a uniform robot scale): exit code 3, verdict
     ``explained_up_to_tie``, the pair one tie term in gap_report.json and in augmented_model.yaml (the
-    representative with ``tied_with``); given back with the same data the model leaves no gap (exit 0)."""
-    data, out, rep = gap_with_report([("depth_scale", "camera")], 6, tmp_path, exit_code=3)
+    representative with ``tied_with``); given back with the same data the model leaves no gap (exit 0).
+    (With the default baseline the joint geometry is calibrated too, and it absorbs both scales.)"""
+    data, out, rep = gap_with_report([("depth_scale", "camera")], 6, tmp_path, 3, "--calibrate", "frame,tool")
     assert rep["verdict"] == "explained_up_to_tie"
     (eff,) = rep["effects_added"]
     assert eff["tied"] and eff["name"] == "depth_scale|robot_scale" and eff["where"] == "sensor|robot"
@@ -93,7 +97,7 @@ def test_a_tie_exits_3_and_its_augmented_model_closes_the_gap(tmp_path, capsys):
     (stored,) = model["effects"]
     assert f"{stored['name']}@{stored['where']}" == eff["representative"] and stored["tied_with"]
     rc = main(["gap", "--model", str(out / "augmented_model.yaml"), "--data", data, "--noise-mm", "0.05",
-               "--json"])  # fmt: skip
+               "--calibrate", "frame,tool", "--json"])  # fmt: skip
     assert rc == 0
     again = json.loads(capsys.readouterr().out)
     assert again["verdict"] == "no_gap" and again["effects_added"] == []

@@ -67,11 +67,14 @@ def test_vgr_gap_plugin_option_adds_the_outside_effect(tmp_path, capsys):
     assert [(e["name"], e["where"]) for e in rep["effects_added"]] == [(NAME, "joint2")]
     assert rep["verdict"] == "explained"
     assert any(c["name"] == NAME for c in rep["iterations"][0]["candidates"])
-    # without the plugin the effect is not in the catalog: not tested, nothing misnamed, gap unexplained
+    # without the plugin the effect is not in the catalog: not tested, the gap unexplained. Over joint 2's
+    # range (short of a full turn) part of a twice-per-revolution error is a once-per-revolution one, so an
+    # encoder eccentricity of joint 2 may take that part; nothing is named anywhere else
     assert main(base) == 1
     rep = json.loads(capsys.readouterr().out)
     assert not any(c["name"] == NAME for c in rep["iterations"][0]["candidates"])
-    assert rep["verdict"] == "unexplained" and rep["effects_added"] == []
+    assert rep["verdict"] == "unexplained"
+    assert {(e["name"], e["where"]) for e in rep["effects_added"]} <= {("encoder_eccentricity", "joint2")}
 
 
 def test_a_duplicate_effect_name_is_an_error_naming_both_plugins(tmp_path, capsys):

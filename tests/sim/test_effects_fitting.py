@@ -19,6 +19,7 @@ from plugins.robot.effects import (
     JointOffset,
     LinkLength,
     SampleContext,
+    TemperatureExpansion,
     ThermalDrift,
     ToolOffsetError,
     effect_from_config,
@@ -34,6 +35,7 @@ CTX = SampleContext(
     t_s=RNG.uniform(0, 7200, 40),
     direction=np.sign(RNG.normal(size=(40, 6))),
     payload_kg=RNG.uniform(0, 3, 40),
+    temp_c=RNG.uniform(18, 32, 40),
 )
 
 EFFECTS = [
@@ -46,6 +48,7 @@ EFFECTS = [
     Backlash((1, 2), (3e-4, 2e-4)),
     EncoderEccentricity((1, 6), (5e-5, 1e-4), (-2e-5, 3e-5)),
     ThermalDrift(("joint2.a", "joint3.a", "base.tz"), (-1e-4, -8e-5, 5e-5), 1500.0),
+    TemperatureExpansion(("joint2.a", "joint4.d"), (-9e-6, 3e-6), 21.0),
 ]
 
 
@@ -59,7 +62,7 @@ def test_pack_unpack_and_declarations(effect):
     specs = effect.param_specs()
     assert x.shape == (len(specs),) == (effect.n_params,)
     assert len({s.name for s in specs}) == len(specs)
-    assert all(s.unit in ("m", "rad", "s", "rad/(N m)") for s in specs)
+    assert all(s.unit in ("m", "rad", "s", "rad/(N m)", "m/K", "rad/K") for s in specs)
     assert effect.unpack(x) == effect
     y = x + 1e-6
     assert np.allclose(effect.unpack(y).pack(), y)

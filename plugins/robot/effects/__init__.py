@@ -17,7 +17,7 @@ from typing import Any
 from .base import CONTEXT_FIELDS, ParamSpec, RobotEffect, SampleContext
 from .geometric import BaseFrameError, GeometricErrors, JointOffset, LinkLength, ToolOffsetError
 from .joint_effects import Backlash, EncoderEccentricity, JointCompliance
-from .thermal import ThermalDrift
+from .thermal import TemperatureExpansion, ThermalDrift
 
 CATALOG: dict[str, type[RobotEffect]] = {
     cls.catalog_name: cls
@@ -31,6 +31,7 @@ CATALOG: dict[str, type[RobotEffect]] = {
         Backlash,
         EncoderEccentricity,
         ThermalDrift,
+        TemperatureExpansion,
     )
 }
 
@@ -70,6 +71,7 @@ __all__ = [
     "ParamSpec",
     "RobotEffect",
     "SampleContext",
+    "TemperatureExpansion",
     "ThermalDrift",
     "ToolOffsetError",
     "effect_from_config",

@@ -4,8 +4,10 @@ Each adds an offset to the commanded angle of the joints it names (1-based, ``jo
 
 ``JointCompliance``      ``dq_j = c_j * tau_j(q, payload)``: the joint yields in the direction of
                          the gravity torque (``RobotModel.gravity_torque``), c in rad/(N m).
-``Backlash``             ``dq_j = -dir_j * b_j / 2``: the output lags half the backlash behind the
-                         approach direction (``dir_j`` = +1 after moving towards larger angles).
+``Backlash``             ``dq_j = -c dir_j * b_j / 2``: the output lags half the backlash behind the
+                         approach direction (``dir_j`` = +1 after moving towards larger angles, the
+                         convention ``c = +1``; ``dir_convention = -1`` for data whose direction
+                         columns count the other way round: +1 after moving towards smaller angles).
 ``EncoderEccentricity``  ``dq_j = a_j sin(q_j) + b_j cos(q_j)``: a once-per-revolution error of an
                          eccentric joint encoder, a and b in rad.
 """
@@ -58,10 +60,16 @@ class JointCompliance(RobotEffect):
 
 @dataclass(frozen=True)
 class Backlash(RobotEffect):
-    """Gear backlash: the joint sits ``-dir * width / 2`` from the commanded angle."""
+    """Gear backlash: the joint sits ``-dir * width / 2`` from the commanded angle.
+
+    ``width_rad`` is the physical play (>= 0). ``dir_convention`` says how the context's ``direction``
+    counts: +1 (vgr's: +1 after moving towards larger angles) or -1 (the other way round, as some
+    controllers log it); the joint always lags behind the direction it really came from.
+    """
 
     joints: tuple[int, ...] = ()
     width_rad: tuple[float, ...] = ()
+    dir_convention: int = 1
 
     catalog_name: ClassVar[str] = "backlash"
     requires: ClassVar[tuple[str, ...]] = ("direction",)
@@ -71,6 +79,8 @@ class Backlash(RobotEffect):
         check_joints(self.catalog_name, self.joints, {"width_rad": self.width_rad})
         if any(w < 0 for w in self.width_rad):
             raise ValueError(f"backlash width must be >= 0, got {self.width_rad}")
+        if self.dir_convention not in (1, -1):
+            raise ValueError(f"backlash dir_convention must be +1 or -1, got {self.dir_convention}")
 
     def param_specs(self) -> tuple[ParamSpec, ...]:
         return tuple(
@@ -88,7 +98,7 @@ class Backlash(RobotEffect):
         if not self.joints:
             return None
         self.check_context(ctx)
-        d = ctx.direction[:, [j - 1 for j in self.joints]]
+        d = self.dir_convention * ctx.direction[:, [j - 1 for j in self.joints]]
         return joint_matrix(model, self.joints, -0.5 * d * np.asarray(self.width_rad))
 
 

@@ -1,10 +1,16 @@
 """Thermal drift: chain parameters (link lengths, base height ...) that grow as the robot warms up.
 
-First-order warm-up: each target parameter ``k`` is offset by ``s_k * (1 - exp(-t / tau))``, where
-``t`` is the time since the robot started warming up (``SampleContext.t_s``), ``s_k`` the offset
-reached at thermal equilibrium and ``tau`` the time constant. Parameters: ``s_k`` (m or rad) and
-``tau`` (s). :meth:`ThermalDrift.linear_expansion` builds the targets from a temperature rise and
-an expansion coefficient (every link length grows by ``alpha * dT * length``).
+Two laws:
+
+* :class:`ThermalDrift`, first-order warm-up in time: each target parameter ``k`` is offset by
+  ``s_k * (1 - exp(-t / tau))``, where ``t`` is the time since the robot started warming up
+  (``SampleContext.t_s``), ``s_k`` the offset reached at thermal equilibrium and ``tau`` the time
+  constant. Parameters: ``s_k`` (m or rad) and ``tau`` (s). :meth:`ThermalDrift.linear_expansion`
+  builds the targets from a temperature rise and an expansion coefficient (every link length grows
+  by ``alpha * dT * length``);
+* :class:`TemperatureExpansion`, linear in a measured temperature: ``g_k * (T - T_ref)`` with
+  ``T = SampleContext.temp_c`` (a motor or link temperature logged with each sample), ``g_k`` in m/K
+  or rad/K. The reference only shifts a constant, which a geometric calibration takes.
 """
 
 from __future__ import annotations
@@ -96,4 +102,44 @@ class ThermalDrift(RobotEffect):
         out = np.zeros((q.shape[0], len(model.param_names)))
         for n, s in zip(self.names, self.saturation_offsets, strict=True):
             out[:, _index(model, n)] += s * frac
+        return out
+
+
+@dataclass(frozen=True)
+class TemperatureExpansion(RobotEffect):
+    """Chain parameters growing linearly with the logged temperature: ``growth_per_k * (temp_c - reference_c)``."""
+
+    names: tuple[str, ...] = ()
+    growth_per_k: tuple[float, ...] = ()
+    reference_c: float = 20.0
+
+    catalog_name: ClassVar[str] = "thermal_expansion"
+    requires: ClassVar[tuple[str, ...]] = ("temp_c",)
+    vector_fields: ClassVar[tuple[str, ...]] = ("growth_per_k",)
+
+    def __post_init__(self) -> None:
+        if len(self.names) != len(self.growth_per_k):
+            raise ValueError(f"thermal_expansion: {len(self.names)} names, {len(self.growth_per_k)} growth values")
+        if not all(np.isfinite(v) for v in self.growth_per_k):
+            raise ValueError("thermal_expansion: growth values contain NaN or infinity")
+        if not np.isfinite(self.reference_c):
+            raise ValueError(f"thermal_expansion: reference temperature must be finite, got {self.reference_c}")
+
+    def param_specs(self) -> tuple[ParamSpec, ...]:
+        return tuple(
+            ParamSpec(f"growth_{n}", f"{unit_of(n)}/K", n.split(".", 1)[0], "growth per kelvin") for n in self.names
+        )
+
+    def validate(self, model) -> None:
+        for n in self.names:
+            _index(model, n)
+
+    def param_offsets(self, model, q: F64, ctx: SampleContext) -> F64 | None:
+        if not self.names:
+            return None
+        self.check_context(ctx)
+        dT = np.asarray(ctx.temp_c, dtype=float) - self.reference_c
+        out = np.zeros((q.shape[0], len(model.param_names)))
+        for n, g in zip(self.names, self.growth_per_k, strict=True):
+            out[:, _index(model, n)] += g * dT
         return out

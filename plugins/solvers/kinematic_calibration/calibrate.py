@@ -388,7 +388,8 @@ def calibrate_kinematics(
         reasons.append(f"{int(outliers.sum())} outlier samples (residual beyond the 99.99 % chi-square bound)")
     if not consistent:
         reasons.append(
-            f"residuals ({np.sqrt(chi2_stat / r.size) * cfg.noise_position_m * 1e3:.3f} mm per axis) "
+            f"residuals ({np.sqrt(chi2_stat / dof) * cfg.noise_position_m * 1e3:.3f} mm per axis, with dof = "
+            f"residuals - parameters) "
             f"exceed the stated noise ({cfg.noise_position_m * 1e3:.3f} mm): unmodelled effects remain "
             "(see vgr gap)"
         )

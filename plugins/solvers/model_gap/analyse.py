@@ -6,19 +6,18 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from rich.console import Console
 
 from engine.gap import GapConfig, GapInputError, GapResult, run_gap
 from engine.gap.files import write_report
 from engine.gap.noise import estimate_noise_scale
 from engine.gap.report import render
-from engine.gap.workflow import collect_candidates
+from engine.gap.workflow import collect_candidates, samples_needed
 from plugins.robot.kinematics import RobotModel
-from plugins.robot.model_file import load_robot_model, robot_model_from_dict
 
 from .data import GapData, load_gap_data
-from .problem import KinematicGapProblem, ProblemConfig
+from .problem import DEFAULT_CALIBRATION, KinematicGapProblem, ProblemConfig
+from .stored_model import load_gap_model
 
 
 def families_from_registry(extra_modules: tuple[str, ...] = ()) -> list[Any]:
@@ -29,32 +28,69 @@ def families_from_registry(extra_modules: tuple[str, ...] = ()) -> list[Any]:
     return [f() if isinstance(f, type) else f for _, f in sorted(registry.effects.items())]
 
 
-def load_gap_model(model: str | Path | RobotModel) -> tuple[RobotModel, list[dict[str, Any]]]:
-    """A shipped robot name, a robot model file, or an augmented model written by ``vgr gap``.
-
-    Returns the robot model and the effects of an augmented model (empty otherwise).
-    """
-    if isinstance(model, RobotModel):
-        return model, []
-    path = Path(str(model))
-    if path.suffix in (".yaml", ".yml") and path.is_file():
-        try:
-            data = yaml.safe_load(path.read_text(encoding="utf-8"))
-        except yaml.YAMLError as e:
-            raise ValueError(f"model file {path} is not valid YAML: {e}") from None
-        if isinstance(data, dict) and "vgr_gap_model" in data:
-            return robot_model_from_dict(data.get("robot"), source=str(path)), list(data.get("effects") or [])
-    return load_robot_model(model), []
+PROVISIONAL_NOISE_M = 1e-3  # whitening scale while the noise is still to be estimated (the fit does not use it)
 
 
-def estimate_noise(robot: RobotModel, data: GapData, calibrate: tuple[str, ...], families: list[Any]) -> float:
+def estimate_noise(problem: KinematicGapProblem, families: list[Any]) -> float:
     """Per-axis noise sigma (m) estimated from the data (:func:`engine.gap.noise.estimate_noise_scale`)."""
-    provisional = 1e-3
-    problem = KinematicGapProblem(robot, data, ProblemConfig(calibrate, noise_m=provisional))
     scale, _ = estimate_noise_scale(problem.linearise(), collect_candidates(problem, families), problem)
     if not scale > 0:
         raise GapInputError("the data fit the model exactly: cannot estimate the noise, give --noise-mm")
-    return provisional * scale
+    return float(np.median(problem.sigma)) * scale
+
+
+def build_problem(
+    robot: RobotModel,
+    data: GapData,
+    *,
+    noise_mm: float | None = None,
+    calibrate: tuple[str, ...] | None = None,
+    config: GapConfig | None = None,
+    families: list[Any] | None = None,
+) -> KinematicGapProblem:
+    """The kinematic gap problem with its baseline calibration and noise.
+
+    ``calibrate`` None is the default, the full calibration the data identify
+    (:data:`~.problem.DEFAULT_CALIBRATION`: measurement frame, tool, joint geometry; parameters the data
+    cannot identify stay at their values and the report says which). When the data cannot carry the
+    joint geometry at all -- fewer samples than the workflow needs with it, or a joint calibration
+    that fails -- the frame and the tool are calibrated alone and the report says why. Explicit levels
+    are taken as given. The noise is ``noise_mm`` (per axis), else the data's ``sigma_mm`` column,
+    else estimated (:func:`estimate_noise`).
+    """
+    cfg = config or GapConfig()
+    fams = families if families is not None else families_from_registry()
+    estimated = noise_mm is None and data.sigma_m is None
+    noise_m = PROVISIONAL_NOISE_M if estimated else (None if noise_mm is None else float(noise_mm) / 1e3)
+
+    def make(levels: tuple[str, ...], requested: str) -> KinematicGapProblem:
+        source = "estimated" if estimated else "given"
+        return KinematicGapProblem(
+            robot, data, ProblemConfig(levels, noise_m=noise_m, noise_source=source, requested=requested)
+        )
+
+    if calibrate is not None:
+        problem = make(tuple(calibrate), ",".join(calibrate) or "none")
+    else:
+        problem = make(DEFAULT_CALIBRATION, "default")
+        need = samples_needed(len(problem.base_names), collect_candidates(problem, fams), 3, cfg)
+        why = problem.joint_calibration_failed
+        if why is None and data.n_samples < need:
+            why = (
+                f"{data.n_samples} samples are too few for it ({len(problem.base_names)} calibration parameters "
+                f"need {need} with {cfg.selection.cv_folds}-fold cross-validation)"
+            )
+        if why is not None:
+            problem = make(("frame", "tool"), "default")
+            problem.calibration_notes.insert(
+                0,
+                "the joint geometry was not calibrated, only the measurement frame and the tool: "
+                + why
+                + "; joint zero and length errors are then tested as effects",
+            )
+    if estimated:
+        problem.set_noise(estimate_noise(problem, fams), "estimated")
+    return problem
 
 
 def analyse_gap(
@@ -62,7 +98,7 @@ def analyse_gap(
     data: str | Path | GapData,
     *,
     noise_mm: float | None = None,
-    calibrate: tuple[str, ...] = ("frame", "tool"),
+    calibrate: tuple[str, ...] | None = None,
     report_dir: str | Path | None = None,
     config: GapConfig | None = None,
     families: list[Any] | None = None,
@@ -71,19 +107,14 @@ def analyse_gap(
 ) -> GapResult:
     """Run the model-gap workflow; write ``report_dir`` (JSON, figures, model files) if given.
 
-    ``noise_mm`` (per-axis 1-sigma): when neither it nor a ``sigma_mm`` data column is given, the noise
-    is estimated from the data (:func:`estimate_noise`) and the report says so.
+    ``calibrate`` None: the default baseline, the full calibration the data identify
+    (:func:`build_problem`). ``noise_mm`` (per-axis 1-sigma): when neither it nor a ``sigma_mm`` data
+    column is given, the noise is estimated from the data (:func:`estimate_noise`) and the report says so.
     """
     robot, initial = load_gap_model(model)
     gap_data = data if isinstance(data, GapData) else load_gap_data(data, **(data_options or {}))
     fams = families if families is not None else families_from_registry()
-    if noise_mm is None and gap_data.sigma_m is None:
-        noise_m, source = estimate_noise(robot, gap_data, tuple(calibrate), fams), "estimated"
-    else:
-        noise_m, source = (None if noise_mm is None else float(noise_mm) / 1e3), "given"
-    problem = KinematicGapProblem(
-        robot, gap_data, ProblemConfig(tuple(calibrate), noise_m=noise_m, noise_source=source)
-    )
+    problem = build_problem(robot, gap_data, noise_mm=noise_mm, calibrate=calibrate, config=config, families=fams)
     if initial:
         by_label = {(c.name, c.where): c for c in collect_candidates(problem, fams) if not c.unavailable}
         for e in initial:
@@ -92,7 +123,9 @@ def analyse_gap(
                 raise GapInputError(
                     f"the model's effect {e.get('name')}@{e.get('where')} cannot be applied to these data"
                 )
-            values = np.array([float(e["params"][p]) for p in cand.param_names])
+            stored = e.get("values")  # the fitted vector; older files: the params are that vector
+            vec = [float(x) for x in stored] if stored else [float(e["params"][p]) for p in cand.param_names]
+            values = np.array(vec)
             problem.add_effect(cand, values, tied_with=tuple(e.get("tied_with") or ()))  # a tie term stays one
     result = run_gap(problem, fams, config, model_dir=report_dir)
     if report_dir is not None:

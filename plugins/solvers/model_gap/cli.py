@@ -1,12 +1,17 @@
 """``vgr gap``: the model-gap workflow from the command line (a verb module of :mod:`engine.cli`).
 
-    vgr gap --model MODEL --data DATA [--report DIR] [--noise-mm SIGMA] [--calibrate frame,tool]
+    vgr gap --model MODEL --data DATA [--report DIR] [--noise-mm SIGMA] [--calibrate frame,tool,joints]
+    vgr gap check --model STORED --data NEW [--refit tool] [--report DIR] [--noise-mm SIGMA]
 
 MODEL is a shipped robot (``ur5e``, ``abb_irb120``), a robot model file, or an augmented model a
 previous run wrote; DATA a CSV (docs/model_gap.md) or a vgr recording (.mcap). Exit codes: 0 the
 gap is explained or there is none, 1 a gap remains unexplained, 2 bad input, 3 explained up to a
 tie (the augmented model predicts the data to the noise, but part of the gap is one of several
 effects the data cannot tell apart: the report says what would separate them).
+
+``check`` scores a model vgr wrote (augmented, calibrated) on new measurements, refitting nothing
+(or the tool point, ``--refit tool``): mean / RMS / max error against the noise floor. Exit codes:
+0 the model predicts the data, 1 it leaves a systematic gap, 2 bad input.
 """
 
 from __future__ import annotations
@@ -31,9 +36,18 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:
         "gap",
         help="compare a robot model with measurements, name the missing effect, add it (model-gap workflow)",
         description="Compare a robot model with measurements, name the missing physical effect, add it and "
-        "show the gap shrink (docs/model_gap.md).",
+        "show the gap shrink (docs/model_gap.md). 'vgr gap check' scores a stored model on new measurements.",
         epilog="exit codes: 0 the gap is explained or there is none, 1 a gap remains unexplained, 2 bad "
-        "input, 3 explained up to a tie (part of the gap is one of several effects the data cannot tell apart)",
+        "input, 3 explained up to a tie (part of the gap is one of several effects the data cannot tell apart). "
+        "vgr gap check: 0 the stored model predicts the new data, 1 a systematic gap is left, 2 bad input",
+    )
+    p.add_argument(
+        "action",
+        nargs="?",
+        choices=["check"],
+        metavar="check",
+        help="check: score a stored model (augmented_model.yaml, a vgr calibrate kinematics result) on new data, "
+        "refitting nothing (exit 0 it predicts them, 1 a systematic gap is left, 2 bad input)",
     )
     p.add_argument("--model", required=True, help="shipped robot name, robot model file or augmented model file")
     p.add_argument("--data", required=True, help="CSV (q1_deg.., x_mm, y_mm, z_mm, ...) or a .mcap recording")
@@ -45,8 +59,9 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--calibrate",
-        default="frame,tool",
-        help="baseline calibration before any effect: frame,tool (default), frame, tool, frame,tool,joints or none",
+        default=None,
+        help="baseline calibration before any effect (default: the measurement frame, the tool and the joint "
+        "geometry, as far as the data identify them); or a subset: frame, tool, joints joined by commas, or none",
     )
     p.add_argument("--max-effects", type=int, default=4, help="at most this many effects are added (default 4)")
     p.add_argument("--alpha", type=float, default=1e-3, help="family-wise false-positive rate per round (1e-3)")
@@ -63,10 +78,19 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sensor", default="sensor", help="CSV: the name of the measuring sensor (where latency acts)")
     p.add_argument("--json", action="store_true", help="print gap_report.json to stdout instead of tables")
     p.add_argument("--plugin", action="append", metavar="MODULE", help="also load effects from this plugin module")
+    p.add_argument(
+        "--refit",
+        default=None,
+        help="check: what to refit on the new data: tool (the measured point on the flange, for a new tool); "
+        "default nothing",
+    )
     p.set_defaults(func=cmd_gap)
 
 
-def _levels(text: str) -> tuple[str, ...]:
+def _levels(text: str | None) -> tuple[str, ...] | None:
+    """The ``--calibrate`` levels; None (the default) is the full calibration the data identify."""
+    if text is None:
+        return None
     parts = tuple(x.strip() for x in text.split(",") if x.strip())
     return () if parts in ((), ("none",)) else parts
 
@@ -78,6 +102,10 @@ def cmd_gap(args: argparse.Namespace) -> int:
 
     from .analyse import analyse_gap, families_from_registry
 
+    if args.action == "check":
+        return cmd_check(args)
+    if args.refit is not None:
+        raise ValueError("--refit is an option of vgr gap check (the workflow refits everything)")
     if not (0 < args.alpha < 0.5):
         raise ValueError(f"--alpha must be in (0, 0.5), got {args.alpha}")
     if args.folds < 2:
@@ -108,3 +136,42 @@ def cmd_gap(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(plain(report_dict(result), nan_as_none=True), indent=2))
     return EXIT_CODES[result.verdict]
+
+
+CHECK_EXIT_CODES = {"ok": EXIT_OK, "gap": EXIT_UNEXPLAINED}
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    """``vgr gap check``: score a stored model on new data (:func:`.check.check_model`)."""
+    from engine.gap.check import check_report_dict
+    from engine.plain_data import plain
+
+    from .analyse import families_from_registry
+    from .check import check_model
+
+    if args.calibrate is not None:
+        raise ValueError("--calibrate does not apply to vgr gap check: it refits nothing (or --refit tool)")
+    if not (0 < args.alpha < 0.5):
+        raise ValueError(f"--alpha must be in (0, 0.5), got {args.alpha}")
+    refit = _levels(args.refit) or ()
+    console = None if args.json else Console(width=None if sys.stdout.isatty() else 160)
+    opts = {
+        "joint_topic": args.joint_topic,
+        "measurement_topic": args.measurement_topic,
+        "sensor": args.sensor,
+        "payload_kg": args.payload_kg,
+    }
+    result = check_model(
+        args.model,
+        args.data,
+        noise_mm=args.noise_mm,
+        refit=refit,
+        alpha=args.alpha,
+        families=families_from_registry(tuple(args.plugin or ())),
+        report_dir=args.report,
+        console=console,
+        data_options={k: v for k, v in opts.items() if v is not None},
+    )
+    if args.json:
+        print(json.dumps(plain(check_report_dict(result), nan_as_none=True), indent=2))
+    return CHECK_EXIT_CODES[result.verdict]

@@ -10,10 +10,11 @@ Jacobians come from :meth:`RobotWithEffects.effect_jacobian`); measurement-side 
 | ``joint_offset`` | ``jointN`` | zero offset (rad) | |
 | ``link_length`` | ``jointN`` | length error of the joint's longer DH length, a or d (m) | dh/mdh model |
 | ``joint_compliance`` | ``jointN`` | deflection per N m of gravity torque (rad/(N m)) | link masses |
-| ``backlash`` | ``jointN`` | total play (rad, >= 0) | ``dir1..dirN`` |
+| ``backlash`` | ``jointN`` | total play (rad; fitted signed, reported >= 0: ``BacklashCandidate``) | ``dir1..dirN`` |
 | ``encoder_eccentricity`` | ``jointN`` | sin and cos amplitudes (rad) | |
 | ``thermal_drift`` | ``robot`` | strain of every link length at equilibrium (1), time constant (s) | ``t_s`` |
 | ``thermal_drift`` | ``base`` | base height growth at equilibrium (m), time constant (s) | ``t_s`` |
+| ``thermal_drift`` | ``jointN`` | the link length's growth (m), time constant (s); or m/K | ``t_s`` / ``temp_c`` |
 | ``robot_scale`` | ``robot`` | strain of every robot length and the tool point, constant (1) | |
 | ``base_frame`` | ``base`` | base pose error tx ty tz (m) rx ry rz (rad) | |
 | ``tool_offset`` | ``tool`` | tool point error tx ty tz (m, flange frame) | |
@@ -35,19 +36,18 @@ frame is fitted, the base frame itself ...) are scored as *absorbed* by the work
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import fields
 from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
-from engine.gap.interfaces import Design, Signature
 from plugins.robot import effects as fx
 from plugins.robot.effects import RobotEffect
-from plugins.robot.effects.measurement import MEASUREMENT_CATALOG
 from plugins.robot.kinematics import RobotModel
 
-from .problem import KinematicGapProblem, effect_config
+from .candidates import BacklashCandidate, MeasurementCandidate, RobotCandidate
+from .problem import KinematicGapProblem
 
 F64 = NDArray[np.float64]
 
@@ -60,122 +60,6 @@ SCALE_TIE_ADVICE = (
     "same sensor (a calibrated scale bar) to fix the sensor's scale, or fix the measurement frame from an "
     "independent measurement (a registered sensor frame: --calibrate tool or none)"
 )
-
-
-@dataclass(eq=False)
-class RobotCandidate:
-    """A robot-side effect at one place; ``values`` map to the effect's vector by ``param_map``."""
-
-    name: str
-    where: str
-    prototype: RobotEffect
-    param_names: tuple[str, ...]
-    units: tuple[str, ...]
-    param_map: F64  # (effect vector size, len(param_names))
-    lower: F64
-    upper: F64
-    shape_names: tuple[str, ...] = ()
-    shape_grid: tuple[float, ...] = ()
-    shape_lower: tuple[float, ...] = ()
-    shape_upper: tuple[float, ...] = ()
-    regressor: str = ""  # feature plotted against (q2, tau2, dir2, t_s ...)
-    joint: int | None = None  # joint-space effects: the joint, for the signature's basis
-    jac_floor: F64 | None = None  # lowest values at which the effect can be differentiated
-    unavailable: str | None = None
-    # rival effect name -> what separates the two when they explain the same part of the gap
-    tie_advice: dict[str, str] = field(default_factory=dict)
-    side: ClassVar[str] = "robot"
-
-    @property
-    def n_linear(self) -> int:
-        return len(self.param_names) - len(self.shape_names)
-
-    def effect(self, values: F64) -> RobotEffect:
-        return self.prototype.unpack(self.param_map @ np.asarray(values, dtype=float))
-
-    def jac_values(self, values: F64) -> F64:
-        v = np.asarray(values, dtype=float)
-        return v if self.jac_floor is None else np.maximum(v, self.jac_floor)
-
-    def bounds(self) -> tuple[F64, F64]:
-        return (
-            np.concatenate([self.lower, np.asarray(self.shape_lower, float)]),
-            np.concatenate([self.upper, np.asarray(self.shape_upper, float)]),
-        )
-
-    def config(self, values: F64) -> dict[str, Any]:
-        return {self.prototype.catalog_name: effect_config(self.effect(values))}
-
-    def designs(self, problem: KinematicGapProblem) -> list[Design]:
-        zeros = np.zeros(self.n_linear)
-        if not self.shape_names:
-            return [Design(problem.robot_columns(self, zeros))]
-        out = []
-        for s in self.shape_grid:
-            cols = problem.robot_columns(self, np.concatenate([zeros, [s]]))[:, :, : self.n_linear]
-            out.append(Design(cols, {self.shape_names[0]: float(s)}))
-        return out
-
-    def signature(self, problem: KinematicGapProblem) -> Signature | None:
-        feats = {f.name: f for f in problem.features()}
-        x = feats.get(self.regressor)
-        if x is None:
-            return None
-        if self.joint is not None:
-            basis = problem.joint_position_jacobian()[:, :, self.joint - 1]
-            return Signature(x.values, f"{x.label} ({x.unit})" if x.unit else x.label, basis, "joint error", "rad")
-        if self.n_linear == 1:
-            v = np.zeros(len(self.param_names))
-            if self.shape_names:
-                v[-1] = self.shape_grid[len(self.shape_grid) // 2]
-            basis = problem.robot_columns(self, v)[:, :, 0] * problem.sigma[:, None]
-            return Signature(x.values, f"{x.label} ({x.unit})", basis, self.param_names[0], self.units[0])
-        return Signature(x.values, f"{x.label} ({x.unit})", None, "", "")  # type: ignore[arg-type]
-
-
-@dataclass(eq=False)
-class MeasurementCandidate:
-    """A measurement-side effect (latency, range scale / bias) at the data's sensor."""
-
-    name: str
-    where: str
-    unavailable: str | None = None
-    param_names: tuple[str, ...] = ()
-    units: tuple[str, ...] = ()
-    shape_names: tuple[str, ...] = ()
-    lower: F64 = field(default_factory=lambda: np.array([-np.inf]))
-    upper: F64 = field(default_factory=lambda: np.array([np.inf]))
-    tie_advice: dict[str, str] = field(default_factory=dict)  # rival effect name -> what separates them
-    side: ClassVar[str] = "measurement"
-
-    def __post_init__(self) -> None:
-        cls = MEASUREMENT_CATALOG[self.name]
-        self.param_names = (cls.field_name,)
-        self.units = (cls.unit,)
-
-    def effect(self, values: F64):
-        return MEASUREMENT_CATALOG[self.name](sensor=self.where, **{self.param_names[0]: float(values[0])})
-
-    def jac_values(self, values: F64) -> F64:
-        return np.asarray(values, dtype=float)
-
-    def bounds(self) -> tuple[F64, F64]:
-        return self.lower, self.upper
-
-    def config(self, values: F64) -> dict[str, Any]:
-        return {self.name: {"sensor": self.where, self.param_names[0]: float(values[0])}}
-
-    def designs(self, problem: KinematicGapProblem) -> list[Design]:
-        return [Design(problem.measurement_columns(self.name))]
-
-    def signature(self, problem: KinematicGapProblem) -> Signature | None:
-        feats = {f.name: f for f in problem.features()}
-        key = "speed" if self.name == "time_latency" else "range"
-        x = feats.get(key)
-        if x is None:
-            return None
-        basis = problem.measurement_columns(self.name)[:, :, 0] * problem.sigma[:, None]
-        return Signature(x.values, f"{x.label} ({x.unit})", basis, self.param_names[0], self.units[0])
 
 
 # --------------------------------------------------------------------------- families
@@ -215,7 +99,9 @@ class _Family:
         raise NotImplementedError
 
 
-def _per_joint(name, problem, make, params, units, regressor, lower=None, jac_floor=None) -> list[RobotCandidate]:
+def _per_joint(
+    name, problem, make, params, units, regressor, lower=None, jac_floor=None, geometric=False
+) -> list[RobotCandidate]:
     out = []
     k = len(params)
     for j in range(1, problem.model.dof + 1):
@@ -232,6 +118,7 @@ def _per_joint(name, problem, make, params, units, regressor, lower=None, jac_fl
                 regressor=regressor.format(j=j),
                 joint=j,
                 jac_floor=jac_floor,
+                geometric=geometric,
             )
         )
     return out
@@ -243,7 +130,13 @@ class JointOffsetFamily(_Family):
 
     def _candidates(self, problem):
         return _per_joint(
-            self.name, problem, lambda j: fx.JointOffset((j,), (0.0,)), ("offset_joint{j}",), ("rad",), "q{j}"
+            self.name,
+            problem,
+            lambda j: fx.JointOffset((j,), (0.0,)),
+            ("offset_joint{j}",),
+            ("rad",),
+            "q{j}",
+            geometric=True,
         )
 
 
@@ -258,7 +151,13 @@ class LinkLengthFamily(_Family):
             ]
         values = dict(zip(problem.model.param_names, problem.model.param_values, strict=True))
         out = _per_joint(
-            self.name, problem, lambda j: fx.LinkLength((j,), (0.0,)), ("length_joint{j}",), ("m",), "q{j}"
+            self.name,
+            problem,
+            lambda j: fx.LinkLength((j,), (0.0,)),
+            ("length_joint{j}",),
+            ("m",),
+            "q{j}",
+            geometric=True,
         )
         for c in out:
             c.joint = None  # a length, not a joint angle: the signature uses the effect's own column
@@ -290,16 +189,10 @@ class BacklashFamily(_Family):
     requires = ("direction",)
 
     def _candidates(self, problem):
-        return _per_joint(
-            self.name,
-            problem,
-            lambda j: fx.Backlash((j,), (0.0,)),
-            ("backlash_joint{j}",),
-            ("rad",),
-            "dir{j}",
-            lower=0.0,
-            jac_floor=np.array([2e-6]),
+        out = _per_joint(
+            self.name, problem, lambda j: fx.Backlash((j,), (0.0,)), ("backlash_joint{j}",), ("rad",), "dir{j}"
         )
+        return [BacklashCandidate(**{f.name: getattr(c, f.name) for f in fields(c)}) for c in out]
 
 
 class EncoderEccentricityFamily(_Family):
@@ -317,11 +210,66 @@ class EncoderEccentricityFamily(_Family):
         )
 
 
+def _link_lengths(model: RobotModel) -> list[tuple[int, str, float]]:
+    """``(joint, chain parameter, nominal value)`` of each joint's longer DH length (a or d), as
+    ``link_length`` picks it; joint 1's ``d`` is left out: along the base axis it is the base height,
+    whose growth is ``thermal_drift@base``."""
+    if model.convention not in ("dh", "mdh"):
+        return []
+    values = dict(zip(model.param_names, model.param_values, strict=True))
+    out = []
+    for j in range(1, model.dof + 1):
+        a, d = values[f"joint{j}.a"], values[f"joint{j}.d"]
+        name, v = (f"joint{j}.a", a) if abs(a) >= abs(d) else (f"joint{j}.d", d)
+        if abs(v) >= 1e-6 and not (j == 1 and name.endswith(".d")):
+            out.append((j, name, float(v)))
+    return out
+
+
 class ThermalDriftFamily(_Family):
     name = "thermal_drift"
-    description = "first-order warm-up drift of the link lengths (robot) or of the base height (base)"
+    description = (
+        "warm-up growth of the link lengths (robot), of the base height (base) or of one link (jointN: with "
+        "the warm-up time constant, or linearly with temp_c when the data log it)"
+    )
     requires = ("t_s",)
     n_grid: ClassVar[int] = 12
+
+    def candidates(self, problem: Any) -> list:
+        if getattr(problem, "kind", None) != "kinematic":
+            return []
+        cols = problem.data.columns
+        if "t_s" not in cols and "temp_c" not in cols:
+            return [self._unavailable(problem, "needs the data column(s) t_s (or temp_c for one link)")]
+        if "t_s" not in cols:  # one link growing with the logged temperature still testable
+            return self._links(problem, None)
+        return self._candidates(problem)
+
+    def _links(self, problem, bounds: dict | None) -> list:
+        """``thermal_drift@jointN``: the joint's link length grows, linearly with ``temp_c`` when the data
+        have it, else with the warm-up time constant (``bounds``: its grid and range)."""
+        out = []
+        by_temp = "temp_c" in problem.data.columns
+        if by_temp and np.ptp(problem.data.samples.temp_c) <= 0:
+            return [self._unavailable(problem, "temp_c does not vary")]
+        for j, name, _ in _link_lengths(problem.nominal):
+            if by_temp:
+                ref = float(np.mean(problem.data.samples.temp_c))
+                proto: RobotEffect = fx.TemperatureExpansion((name,), (0.0,), ref)
+                cand = RobotCandidate(
+                    self.name, f"joint{j}", proto, (f"growth_joint{j}_per_k",), ("m/K",), np.eye(1),
+                    np.array([-np.inf]), np.array([np.inf]), regressor="temp_c",
+                )  # fmt: skip
+            elif bounds is not None:
+                cand = RobotCandidate(
+                    self.name, f"joint{j}", fx.ThermalDrift((name,), (0.0,), 1800.0),
+                    (f"growth_joint{j}", "time_constant"), ("m", "s"), np.eye(2), np.array([-np.inf]),
+                    np.array([np.inf]), ("time_constant",), regressor="t_s", **bounds,
+                )  # fmt: skip
+            else:
+                continue
+            out.append(cand)
+        return out
 
     def _candidates(self, problem):
         t = problem.data.samples.t_s
@@ -360,7 +308,7 @@ class ThermalDriftFamily(_Family):
                 **bounds,
             )
         )  # fmt: skip
-        return out
+        return out + self._links(problem, bounds)
 
 
 def uniform_scale_offsets(model: RobotModel) -> dict[str, float]:
@@ -429,7 +377,7 @@ class RobotScaleFamily(_Family):
             RobotCandidate(
                 self.name, "robot", fx.GeometricErrors(names, (0.0,) * len(names)), ("scale",), ("1",),
                 np.array([[offsets[n]] for n in names]), np.array([-np.inf]), np.array([np.inf]), regressor="reach",
-                tie_advice={"depth_scale": SCALE_TIE_ADVICE},
+                tie_advice={"depth_scale": SCALE_TIE_ADVICE}, geometric=True,
             )
         ]  # fmt: skip
 
@@ -443,7 +391,7 @@ class BaseFrameFamily(_Family):
         return [
             RobotCandidate(
                 self.name, "base", fx.BaseFrameError(), names, ("m", "m", "m", "rad", "rad", "rad"), np.eye(6),
-                np.full(6, -np.inf), np.full(6, np.inf), regressor="reach",
+                np.full(6, -np.inf), np.full(6, np.inf), regressor="reach", geometric=True,
             )
         ]  # fmt: skip
 
@@ -457,7 +405,7 @@ class ToolOffsetFamily(_Family):
         return [
             RobotCandidate(
                 self.name, "tool", fx.ToolOffsetError(comps, (0.0,) * 3), tuple(f"tool.{c}" for c in comps), ("m",) * 3,
-                np.eye(3), np.full(3, -np.inf), np.full(3, np.inf), regressor="reach",
+                np.eye(3), np.full(3, -np.inf), np.full(3, np.inf), regressor="reach", geometric=True,
             )
         ]  # fmt: skip
 

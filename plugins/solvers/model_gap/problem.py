@@ -17,28 +17,30 @@ calibration (:mod:`plugins.solvers.kinematic_calibration`):
 * ``joints``: the identifiable DH / MDH / POE joint parameters (a full kinematic calibration);
 * ``none`` (empty): the model's frames are trusted as they are.
 
-Parameters that are not identifiable from the data are fixed (identifiability analysis of the
-kinematic calibration). Every added effect is refitted together with the baseline (scipy
-``least_squares``, analytic chain Jacobians, :meth:`RobotWithEffects.effect_jacobian` for the
-effects), so an effect never takes credit for what the calibration explains.
+The default (:data:`DEFAULT_CALIBRATION`) is all three: every real robot has geometric errors, and
+an effect is only worth naming after the geometry the data identify has been calibrated. Parameters
+that are not identifiable from the data are fixed (identifiability analysis of the kinematic
+calibration) and the report says which (:attr:`KinematicGapProblem.calibration_notes`);
+:func:`.analyse.build_problem` falls back to the frame and the tool when the data cannot carry the
+joint geometry at all (too few samples, a joint calibration that fails). Every added effect is
+refitted together with the baseline (scipy ``least_squares``, analytic chain Jacobians,
+:meth:`RobotWithEffects.effect_jacobian` for the effects), so an effect never takes credit for what
+the calibration explains.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from engine.gap.interfaces import Candidate, Feature, FittedEffect, GapInputError, Linearisation
-from engine.plain_data import plain
 from plugins.robot.effects.measurement import apply_range_distortion, range_distortion_jacobian
 from plugins.robot.kinematics import RobotModel
-from plugins.robot.model_file import model_to_dict
 from plugins.robot.with_effects import RobotWithEffects
 from plugins.solvers.kinematic_calibration import (
     KinematicCalibrationConfig,
@@ -52,7 +54,7 @@ from .data import GapData
 
 F64 = NDArray[np.float64]
 CALIBRATION_LEVELS = ("frame", "tool", "joints")
-GAP_MODEL_FORMAT = 1
+DEFAULT_CALIBRATION = CALIBRATION_LEVELS  # the full calibration the data identify
 MIN_SAMPLES = 6  # below this the rigid frame fit is degenerate; the workflow asks for more (engine.gap)
 
 
@@ -60,11 +62,12 @@ MIN_SAMPLES = 6  # below this the rigid frame fit is degenerate; the workflow as
 class ProblemConfig:
     """How the baseline is calibrated and what the noise is."""
 
-    calibrate: tuple[str, ...] = ("frame", "tool")
+    calibrate: tuple[str, ...] = DEFAULT_CALIBRATION
     noise_m: float | None = None  # per-axis 1-sigma; None: the data's sigma column
     noise_source: str = "given"  # given | data column | estimated (see engine.gap.noise)
     parameterisation: str | None = None  # for "joints": dh | mdh | poe (default: the model's)
     max_nfev: int = 100
+    requested: str = "default"  # what the user asked for: "default" (the full calibration) or the levels
 
 
 class KinematicGapProblem:
@@ -118,6 +121,7 @@ class KinematicGapProblem:
         self.accepted: list[tuple[Any, F64]] = []  # (candidate, values)
         self.tied_with: dict[str, tuple[str, ...]] = {}  # tie terms: representative label -> the other members
         self.calibration_notes: list[str] = []
+        self.joint_calibration_failed: str | None = None  # why the joint calibration cannot be used
         self._calibrate_baseline()
 
     # ----------------------------------------------------------------------------- baseline
@@ -136,7 +140,10 @@ class KinematicGapProblem:
             cal = calibrate_kinematics(self.nominal, samples, config=kc)
             self.model = self._gravity_follows_base(cal.model)
             names = list(cal.result.param_names)
-            self.calibration_notes += [r for r in cal.result.reasons if "not identifiable" in r]
+            keep = ("not identifiable", "do not excite", "residuals for")
+            self.calibration_notes += [r for r in cal.result.reasons if any(k in r for k in keep)]
+            if cal.result.verdict == "failed":
+                self.joint_calibration_failed = "; ".join(r for r in cal.result.reasons if r) or "failed"
         else:
             model = initial_frames(self.nominal, samples, frame, tool) if (frame or tool) else self.nominal
             self.model = self._gravity_follows_base(model)
@@ -174,6 +181,18 @@ class KinematicGapProblem:
             sources=model.sources,
             home=model.home,
         )
+
+    def set_noise(self, noise_m: float, source: str) -> None:
+        """State a new per-axis noise sigma (m) for every sample (an estimate, say) and refit.
+
+        The fit itself does not depend on a uniform noise scale (the whitening cancels), so this only
+        rescales the residuals, Jacobians and the chi-square the workflow sees.
+        """
+        if not (np.isfinite(noise_m) and noise_m > 0):
+            raise GapInputError(f"the noise sigma must be a positive number, got {noise_m}")
+        self.sigma = np.full(self.n_samples, float(noise_m))
+        self.cfg = replace(self.cfg, noise_m=float(noise_m), noise_source=source)
+        self.refit()
 
     # ----------------------------------------------------------------------------- prediction
 
@@ -217,8 +236,8 @@ class KinematicGapProblem:
             cols.append(Jp[:, :3, idx])
         if robot:  # differentiated at values inside the effects' domains (linear effects: same columns)
             rw_j = RobotWithEffects(model, [c.effect(c.jac_values(v)) for c, v in robot])
-            for i, (c, _v) in enumerate(robot):
-                cols.append(rw_j.effect_jacobian(i, q, self.ctx)[:, :3, :] @ c.param_map)
+            for i, (c, v) in enumerate(robot):
+                cols.append(rw_j.effect_jacobian(i, q, self.ctx)[:, :3, :] @ c.jac_map(c.jac_values(v)))
         for c, _v in accepted:
             if c.side != "measurement":
                 continue
@@ -263,28 +282,35 @@ class KinematicGapProblem:
             k += val.size
         return model, accepted
 
-    def refit(self) -> tuple[F64, float, int]:
-        """Nonlinear least squares of the baseline parameters and every accepted effect together.
+    def refit(self, *, effects: bool = True) -> tuple[F64, float, int]:
+        """Nonlinear least squares of the baseline parameters and every accepted effect together
+        (``effects=False``: the baseline parameters alone, the effects held at their values).
 
         Returns ``(covariance of the full state, a-posteriori variance factor, dof)``.
         """
         self._reorder_accepted_columns()
         nb = len(self.base_names)
-        x0 = np.concatenate([np.zeros(nb)] + [v for _, v in self.accepted])
+        held = np.concatenate([np.zeros(0)] + [v for _, v in self.accepted])
+        x0 = np.concatenate([np.zeros(nb), held])
         lo = np.concatenate([np.full(nb, -np.inf)] + [c.bounds()[0] for c, _ in self.accepted])
         hi = np.concatenate([np.full(nb, np.inf)] + [c.bounds()[1] for c, _ in self.accepted])
+        if not effects:  # the effects are part of the model being checked: only the baseline moves
+            x0, lo, hi = x0[:nb], lo[:nb], hi[:nb]
         x0 = np.clip(x0, lo, hi)
         meas = self.data.samples.positions
         s = self.sigma[:, None]
 
+        def state(x: F64) -> tuple[RobotModel, list[tuple[Any, F64]]]:
+            return self._unpack_state(x if effects else np.concatenate([x, held]))
+
         def fun(x: F64) -> F64:
-            model, acc = self._unpack_state(x)
+            model, acc = state(x)
             return ((meas - self._predict(model, acc)[0]) / s).ravel()
 
         def jac(x: F64) -> F64:
-            model, acc = self._unpack_state(x)
+            model, acc = state(x)
             J = self._predict(model, acc, jacobian=True)[1]
-            return -(J / s[:, :, None]).reshape(-1, x.size)
+            return -(J / s[:, :, None]).reshape(meas.size, -1)[:, : x.size]
 
         if x0.size:
             sol = least_squares(
@@ -293,7 +319,7 @@ class KinematicGapProblem:
             x = sol.x
         else:
             x = x0
-        self.model, self.accepted = self._unpack_state(x)
+        self.model, self.accepted = state(x)
         return self.covariance()
 
     def covariance(self) -> tuple[F64, float, int]:
@@ -363,15 +389,18 @@ class KinematicGapProblem:
         for c, v in self.accepted:
             std = sd[k : k + v.size]
             k += v.size
+            phys, note = c.physical(v)
             out.append(
                 FittedEffect(
                     c.name,
                     c.where,
-                    {p: float(x) for p, x in zip(c.param_names, v, strict=True)},
+                    {p: float(x) for p, x in zip(c.param_names, phys, strict=True)},
                     {p: float(x) for p, x in zip(c.param_names, std, strict=True)},
                     dict(zip(c.param_names, c.units, strict=True)),
                     c.config(v),
                     self.tied_with.get(f"{c.name}@{c.where}", ()),
+                    tuple(float(x) for x in v),
+                    note,
                 )
             )
         return out
@@ -406,7 +435,8 @@ class KinematicGapProblem:
         q, _, _ = self.current_state()
         effects = [c.effect(c.jac_values(v)) for c, v in robot] + [candidate.effect(candidate.jac_values(values))]
         rw = RobotWithEffects(self.model, effects)
-        J = rw.effect_jacobian(len(effects) - 1, q, self.ctx)[:, :3, :] @ candidate.param_map
+        jmap = candidate.jac_map(candidate.jac_values(values))
+        J = rw.effect_jacobian(len(effects) - 1, q, self.ctx)[:, :3, :] @ jmap
         return (self._output_jacobian() @ J) / self.sigma[:, None, None]
 
     def measurement_columns(self, name: str) -> F64:
@@ -432,115 +462,27 @@ class KinematicGapProblem:
         payload = 0.0 if self.ctx.payload_kg is None else self.ctx.payload_kg
         return self.nominal.gravity_torque(self.q, payload_kg=payload)
 
-    # ----------------------------------------------------------------------------- features
+    # ----------------------------------------------------------------------------- features, files
 
     def features(self) -> list[Feature]:
-        s = self.data.samples
-        out = [
-            Feature(f"q{j + 1}", f"joint {j + 1} angle", "deg", np.degrees(self.q[:, j])) for j in range(self.model.dof)
-        ]
-        tau = self.gravity_torque()
-        if tau is not None:
-            for j in range(self.model.dof):
-                if np.ptp(tau[:, j]) > 1e-6:
-                    out.append(Feature(f"tau{j + 1}", f"gravity torque joint {j + 1}", "N m", tau[:, j]))
-        if s.direction is not None:
-            for j in range(self.model.dof):
-                out.append(Feature(f"dir{j + 1}", f"approach direction joint {j + 1}", "", s.direction[:, j], True))
-        for name, label, unit, v in (
-            ("t_s", "time", "s", s.t_s),
-            ("temp_c", "temperature", "deg C", s.temp_c),
-            ("payload_kg", "payload", "kg", s.payload_kg),
-        ):
-            if v is not None and np.ptp(v) > 0:
-                out.append(Feature(name, label, unit, np.asarray(v, dtype=float), bool(np.unique(v).size <= 3)))
-        if self.qd is not None:
-            speed = np.linalg.norm(np.einsum("nij,nj->ni", self.joint_position_jacobian(), self.qd), axis=1)
-            out.append(Feature("speed", "tool speed", "mm/s", speed * 1e3))
-        if self.data.range_m is not None:
-            out.append(Feature("range", "range (depth)", "mm", self.data.range_m * 1e3))
-        p_base = self.nominal.fk(self.q, frame="base")[:, :3, 3] * 1e3
-        for i, ax in enumerate("xyz"):
-            out.append(Feature(f"work_{ax}", f"workspace {ax} (robot base)", "mm", p_base[:, i]))
-        out.append(Feature("reach", "distance from the base axis", "mm", np.linalg.norm(p_base[:, :2], axis=1)))
-        return out
+        """The per-sample features the residuals are binned along (:func:`.features.features`)."""
+        from .features import features
 
-    # ----------------------------------------------------------------------------- reporting
+        return features(self)
 
     def describe(self) -> dict[str, Any]:
-        T = self.model.T_world_base
-        d = self.data
-        values = dict(zip(self.model.param_names, self.model.param_values, strict=True))
-        nominal = dict(zip(self.nominal.param_names, self.nominal.param_values, strict=True))
-        return {
-            "kind": self.kind,
-            "model": self.nominal.name,
-            "convention": self.model.convention,
-            "data": {
-                "source": d.source,
-                "n_samples": d.n_samples,
-                "columns": sorted(d.columns),
-                "sensor": d.sensor,
-                "warnings": d.warnings + d.samples.check(),
-            },
-            "noise_sigma_mm": float(np.median(self.sigma) * 1e3),
-            "noise_source": self.cfg.noise_source if self.cfg.noise_m is not None else "data column sigma_mm",
-            "calibration": {
-                "levels": list(self.cfg.calibrate),
-                "parameters": list(self.base_names),
-                "notes": self.calibration_notes,
-                "T_meas_base": T.tolist(),
-                "tool_point_flange_mm": (self.model.T_flange_tcp[:3, 3] * 1e3).tolist(),
-                "joint_parameter_changes": {
-                    n: values[n] - nominal.get(n, 0.0)
-                    for n in self.base_names
-                    if n.startswith("joint") and n in values and n in nominal
-                },
-            },
-        }
+        """The problem as the report gives it (:func:`.stored_model.describe`)."""
+        from .stored_model import describe
+
+        return describe(self)
 
     def gap_model_dict(self) -> dict[str, Any]:
-        """The augmented model as a mapping (see :func:`save_model`)."""
-        std = self.effect_std() if self.accepted else {}
-        effects = []
-        for c, v in self.accepted:
-            label = f"{c.name}@{c.where}"
-            entry = {
-                "name": c.name,
-                "where": c.where,
-                "side": c.side,
-                "params": {p: float(x) for p, x in zip(c.param_names, v, strict=True)},
-                "param_std": std.get(label, {}),
-                "units": dict(zip(c.param_names, c.units, strict=True)),
-                "config": c.config(v),
-            }
-            others = self.tied_with.get(label)
-            if others:  # a tie term: evaluated as this effect, standing for the whole group
-                members = sorted({label, *others})
-                entry["tied_with"] = list(others)
-                entry["tie"] = {
-                    "label": "|".join(members),
-                    "note": f"tie term: the data could not tell {' and '.join(members)} apart; it is evaluated as "
-                    f"{label} (the same prediction within the decision margin), which is not a claim that {label} "
-                    "is the cause",
-                }
-            effects.append(entry)
-        return {
-            "vgr_gap_model": GAP_MODEL_FORMAT,
-            "description": "robot model augmented by `vgr gap`: calibrated geometry (base = the measurement "
-            "frame) and the effects the data needed, with one-sigma uncertainties (SI units)",
-            "robot": model_to_dict(self.model),
-            "effects": effects,
-            "noise_sigma_m": float(np.median(self.sigma)),
-            "calibration": {"levels": list(self.cfg.calibrate), "parameters": list(self.base_names)},
-        }
+        """The augmented model as a mapping (:func:`.stored_model.gap_model_dict`)."""
+        from .stored_model import gap_model_dict
+
+        return gap_model_dict(self)
 
     def save_model(self, path: Path) -> Path:
-        path = Path(path)
-        path.write_text(yaml.safe_dump(plain(self.gap_model_dict()), sort_keys=False), encoding="utf-8")
-        return path
+        from .stored_model import save_model
 
-
-def effect_config(effect: Any) -> dict[str, Any]:
-    """A catalog effect as the plain mapping ``effects_from_config`` reads (lists for tuples)."""
-    return plain(asdict(effect))
+        return save_model(self, path)

@@ -11,14 +11,17 @@ truth at ``t - L``, the tracker's law; range scale / bias: the depth camera's la
 Gaussian noise. The dataset carries what a real campaign logs: commanded joints, joint velocities,
 approach directions, time, payload, range. The hidden effects are known only to the caller.
 
-Scenarios: ``tracker`` (the sensor's pose and the tool point are unknown: the workflow calibrates
-``frame`` and ``tool`` first) and ``known`` (both known, e.g. a registered sensor frame and a
-measured TCP: nothing is calibrated, so a base or tool error is observable at all).
+Scenarios: ``full`` (a real cell: the robot has a realistic set of geometric errors -- DH errors of
+0.1-0.5 mm and 0.1-1 mrad on every joint --, the tracker stands metres away in an unknown frame, the
+tool point is only roughly known; the workflow's default baseline calibrates all of it), ``tracker``
+(the nominal geometry, the sensor's pose and the tool point unknown: the workflow calibrates ``frame``
+and ``tool``) and ``known`` (both known, e.g. a registered sensor frame and a measured TCP: nothing is
+calibrated, so a base or tool error is observable at all). A case can log the approach directions
+the other way round (``flip_dir``: +1 after moving towards smaller angles, as some controllers do)
+and a temperature (``temperature``: a ``temp_c`` column that rises as the motors warm up; a single
+link's thermal growth then follows it linearly).
 
-:func:`suite` lists the cases of the issue: every catalog effect alone at two magnitudes (at each of
-its places, ``thermal_drift@robot`` and ``@base`` included), every pair of catalog effects at two
-magnitudes (``base_frame`` / ``tool_offset`` pairs with known frames), and noise-only controls;
-``full=False`` gives the CI-sized subset. :attr:`SimulatedCampaign.gap_m` is the gap all hidden
+The benchmark's suite of cases is :func:`.suite.suite`. :attr:`SimulatedCampaign.gap_m` is the gap all hidden
 effects leave together (two can partly cancel); the campaign also carries the truth (noise-free
 displacement of each hidden effect, the calibration's span, the true frames) from which
 :mod:`.detectability` classifies a case a priori, without the measurements.
@@ -45,11 +48,14 @@ from plugins.sim.sensor_effects import CameraEffects, TrackerEffects
 from plugins.solvers.kinematic_calibration import KinematicSamples
 
 from .data import GapData
-from .effects import uniform_scale_offsets
+from .effects import _link_lengths, uniform_scale_offsets
 
 NOISE_M = 5e-5  # 0.05 mm per axis (laser-tracker class)
 SENSOR = "camera"
 T_WORLD_SENSOR = look_at((1.3, -0.9, 0.9), (0.0, 0.0, 0.25))
+T_WORLD_TRACKER_FAR = look_at((2.7, -1.9, 1.3), (0.0, 0.0, 0.3))  # the ``full`` scenario: 3.5 m away
+DH_LENGTH_ERROR_M = (1e-4, 5e-4)  # the ``full`` scenario's geometric errors: magnitude ranges, random sign
+DH_ANGLE_ERROR_RAD = (1e-4, 1e-3)
 TOOL_TRUE = (0.03, -0.02, 0.12)  # measured point on the flange (m)
 TOOL_GUESS = (0.0, 0.0, 0.1)  # what the user's model says in the tracker scenario
 CAMPAIGN_S = 3 * 3600.0
@@ -95,7 +101,8 @@ PLACES: dict[str, tuple[str, ...]] = {
     "robot_scale": ("robot",),
 }
 KNOWN_FRAME_EFFECTS = ("base_frame", "tool_offset")
-SCENARIO_CALIBRATION = {"tracker": ("frame", "tool"), "known": ()}
+# the baseline calibration of each scenario; None: the workflow's default (the full calibration)
+SCENARIO_CALIBRATION: dict[str, tuple[str, ...] | None] = {"tracker": ("frame", "tool"), "known": (), "full": None}
 
 
 @dataclass(frozen=True)
@@ -119,9 +126,12 @@ class HiddenCase:
     seed: int
     n_samples: int = 200
     noise_m: float = NOISE_M
+    flip_dir: bool = False  # the data's dir columns count the approach direction the other way round
+    temperature: bool = False  # the data log a temp_c column (a link's thermal growth follows it)
 
     @property
-    def calibrate(self) -> tuple[str, ...]:
+    def calibrate(self) -> tuple[str, ...] | None:
+        """The baseline calibration ``vgr gap`` is given (None: its default, the full calibration)."""
         return SCENARIO_CALIBRATION[self.scenario]
 
     @property
@@ -145,7 +155,7 @@ class SimulatedCampaign:
     signals_m: tuple[np.ndarray, ...] = ()
     signal_m: np.ndarray | None = None
     calibration_m: np.ndarray | None = None  # (3N, k) position columns of the scenario's baseline calibration
-    truth_model: RobotModel | None = None  # nominal geometry with the true sensor frame and tool point
+    truth_model: RobotModel | None = None  # true geometry (``full``: with its errors), sensor frame, tool
     truth_data: GapData | None = None  # the campaign's inputs with noise-free, effect-free measurements
 
 
@@ -154,7 +164,9 @@ def _random_unit(rng: np.random.Generator, n: int = 3) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def _unit_effect(e: HiddenEffect, model: RobotModel, rng: np.random.Generator) -> tuple[RobotEffect | None, dict]:
+def _unit_effect(
+    e: HiddenEffect, model: RobotModel, rng: np.random.Generator, temperature: bool = False
+) -> tuple[RobotEffect | None, dict]:
     """The hidden effect at a unit-ish size with a random sign / direction / phase (scaled later)."""
     sign = float(rng.choice((-1.0, 1.0)))
     if e.direction is not None and e.name != "tool_offset":
@@ -176,6 +188,11 @@ def _unit_effect(e: HiddenEffect, model: RobotModel, rng: np.random.Generator) -
         return fx.EncoderEccentricity((j,), (u * np.cos(phase),), (u * np.sin(phase),)), {}
     if e.name == "thermal_drift" and e.where == "base":  # the pedestal / table grows
         return fx.ThermalDrift(("base.tz",), (sign * u,), 1800.0), {}
+    if e.name == "thermal_drift" and j:  # one link grows: with the logged temperature, else in time
+        name = next(n for jj, n, _ in _link_lengths(model) if jj == j)
+        if temperature:
+            return fx.TemperatureExpansion((name,), (sign * u,), 20.0), {}
+        return fx.ThermalDrift((name,), (sign * u,), 1800.0), {}
     if e.name == "thermal_drift":
         return fx.ThermalDrift.linear_expansion(model, 1.0, expansion_per_k=sign * u, time_constant_s=1800.0), {}
     if e.name == "robot_scale":  # every length and the tool point of the true robot times 1 + s
@@ -214,14 +231,18 @@ def simulate_campaign(
     noise_m: float = NOISE_M,
     seed: int = 0,
     robot: str = "ur5e",
+    flip_dir: bool = False,
+    temperature: bool = False,
 ) -> SimulatedCampaign:
     """Run a measurement campaign on the simulated cell with the given hidden effects."""
     if scenario not in SCENARIO_CALIBRATION:
         raise ValueError(f"unknown scenario {scenario!r}")
     rng = np.random.default_rng(seed)
     nominal = load_robot_model(robot)
-    T_meas_world = inv(T_WORLD_SENSOR)
+    T_meas_world = inv(T_WORLD_TRACKER_FAR if scenario == "full" else T_WORLD_SENSOR)
     true_model = nominal.with_tool(_translation(TOOL_TRUE))
+    if scenario == "full":  # a real robot: geometric errors on every joint (their own seed stream)
+        true_model = true_model.with_param_offsets(geometric_errors(nominal, np.random.default_rng([seed, 2])))
 
     # 1. the motion: the controller plans it (the effects do not change what it commands)
     clock = SimClock()
@@ -244,7 +265,8 @@ def simulate_campaign(
         # from a cold start, measured densely during the warm-up: the i-th sample near T (i / n)^2
         clock.advance_to(max(res.end_s, CAMPAIGN_S * ((i + 1) / n_samples) ** 2))
     Q, QD, T_s, PAY = np.array(q), np.array(qd), np.array(t), np.array(pay)
-    ctx = SampleContext(t_s=T_s, direction=np.array(d), payload_kg=PAY)
+    TEMP = motor_temperature(T_s, np.random.default_rng([seed, 3])) if temperature else None
+    ctx = SampleContext(t_s=T_s, direction=np.array(d), payload_kg=PAY, temp_c=TEMP)
 
     # 2. every hidden effect scaled so that the gap it leaves after the calibration has the RMS asked
     def measured(robot_effects, meas: dict) -> np.ndarray:
@@ -257,7 +279,7 @@ def simulate_campaign(
     C = _calibration_columns(true_model, Q, T_meas_world, scenario)
     robot_effects, meas, signals = [], {}, []
     for e in effects:
-        unit, unit_meas = _unit_effect(e, true_model, rng)  # the true tool point (robot_scale scales it)
+        unit, unit_meas = _unit_effect(e, true_model, rng, temperature)  # the true tool point (robot_scale scales it)
         disp = measured([unit] if unit else [], unit_meas) - base
         if C.shape[1]:
             disp = disp - (C @ np.linalg.lstsq(C, disp.reshape(-1), rcond=None)[0]).reshape(disp.shape)
@@ -280,31 +302,54 @@ def simulate_campaign(
     # 3. what the sensor reports: the truth at t - L (the controller's state then), ranged, noisy
     seen = [ctl.state(ti - latency) for ti in T_s]
     ctx_seen = SampleContext(
-        t_s=T_s - latency, direction=np.array([s_.approach_direction for s_ in seen]), payload_kg=PAY
+        t_s=T_s - latency, direction=np.array([s_.approach_direction for s_ in seen]), payload_kg=PAY, temp_c=TEMP
     )
     p_world = truth.fk(np.array([s_.q for s_ in seen]), ctx_seen)[:, :3, 3]
     p_true = p_world @ T_meas_world[:3, :3].T + T_meas_world[:3, 3]
     p = apply_range_distortion(p_true, camera.depth_scale - 1.0, camera.depth_bias_m)
     p = p + rng.normal(0.0, noise_m, p.shape)
-    samples = KinematicSamples(Q, p, None, T_s, np.array(d), None, PAY)
+    logged_dir = -np.array(d) if flip_dir else np.array(d)  # what the controller logs
+    samples = KinematicSamples(Q, p, None, T_s, logged_dir, TEMP, PAY)
     data = GapData(samples, qd=QD, range_m=np.linalg.norm(p, axis=1), sensor=SENSOR, source="simulated")
     # the true frames (the sensor frame as the model's world: so is its gravity vector)
-    known = _with_gravity(
-        nominal.with_base(T_meas_world).with_tool(_translation(TOOL_TRUE)), T_meas_world[:3, :3] @ nominal.gravity_world
-    )
+    known = _with_gravity(true_model.with_base(T_meas_world), T_meas_world[:3, :3] @ nominal.gravity_world)
     model = known if scenario == "known" else nominal.with_tool(_translation(TOOL_GUESS))
-    clean = KinematicSamples(Q, base, None, T_s, np.array(d), None, PAY)
+    clean = KinematicSamples(Q, base, None, T_s, logged_dir, TEMP, PAY)
     truth_data = GapData(clean, qd=QD, range_m=np.linalg.norm(base, axis=1), sensor=SENSOR, source="simulated truth")
     return SimulatedCampaign(
         data, model, truth, camera, tracker, combined_gap, tuple(signals), signal, C, known, truth_data
     )
 
 
+def geometric_errors(model: RobotModel, rng: np.random.Generator) -> dict[str, float]:
+    """A realistic set of geometric errors: every joint's DH ``theta d a alpha`` off by 0.1-1 mrad or
+    0.1-0.5 mm (uniform magnitude, random sign): what a robot's manufacturing and assembly leave."""
+    out = {}
+    for j in range(1, model.dof + 1):
+        for k in ("theta", "d", "a", "alpha"):
+            lo, hi = DH_ANGLE_ERROR_RAD if k in ("theta", "alpha") else DH_LENGTH_ERROR_M
+            out[f"joint{j}.{k}"] = float(rng.choice((-1.0, 1.0)) * rng.uniform(lo, hi))
+    return out
+
+
+def motor_temperature(t_s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A logged motor temperature (deg C) over a warm-up: 20 deg C rising by 9 K with a 40 min time
+    constant, a 0.6 K oscillation of the cell's air conditioning (28 min period), 0.05 K sensor noise."""
+    t = np.asarray(t_s, dtype=float)
+    return (
+        20.0 + 9.0 * (1.0 - np.exp(-t / 2400.0)) + 0.6 * np.sin(2 * np.pi * t / 1680.0) + rng.normal(0, 0.05, t.shape)
+    )
+
+
 def _calibration_columns(model: RobotModel, Q: np.ndarray, T_meas_world: np.ndarray, scenario: str) -> np.ndarray:
-    """Position columns ``(3N, k)`` of what the scenario's baseline calibration fits (frame, tool point)."""
-    if not SCENARIO_CALIBRATION[scenario]:
+    """Position columns ``(3N, k)`` of what the scenario's baseline calibration fits (frame, tool point;
+    the ``full`` scenario every joint parameter too: the span is what matters, redundant columns do not)."""
+    levels = SCENARIO_CALIBRATION[scenario]
+    if levels is not None and not levels:
         return np.zeros((3 * len(Q), 0))
     names = [f"base.{c}" for c in ("tx", "ty", "tz", "rx", "ry", "rz")] + [f"tool.{c}" for c in ("tx", "ty", "tz")]
+    if levels is None:
+        names += [n for n in model.param_names if n.startswith("joint")]
     m = model.with_base(T_meas_world)
     _, J = m.param_jacobian(Q)
     return J[:, :3, [m.chain.index(n) for n in names]].reshape(3 * len(Q), -1)
@@ -326,7 +371,13 @@ def _translation(xyz) -> np.ndarray:
 
 def make_case(case: HiddenCase) -> SimulatedCampaign:
     return simulate_campaign(
-        case.effects, scenario=case.scenario, n_samples=case.n_samples, noise_m=case.noise_m, seed=case.seed
+        case.effects,
+        scenario=case.scenario,
+        n_samples=case.n_samples,
+        noise_m=case.noise_m,
+        seed=case.seed,
+        flip_dir=case.flip_dir,
+        temperature=case.temperature,
     )
 
 

@@ -40,7 +40,10 @@ class ModelGap(Stage):
     class Params(StageParams):
         model: str = Field("ur5e", description="shipped robot name, robot model file or augmented model file")
         noise_mm: float = Field(gt=0.0, description="measurement noise, 1 sigma per axis (mm)")
-        calibrate: list[str] = Field(["frame", "tool"], description="baseline calibration: frame, tool, joints")
+        calibrate: list[str] = Field(
+            ["frame", "tool", "joints"],
+            description="baseline calibration: frame, tool, joints (default: all, as far as the data identify them)",
+        )
         report_dir: str | None = Field(
             None,
             description="folder for gap_report.json, figures and models (default: the stage's run folder)",
@@ -77,7 +80,7 @@ class ModelGap(Stage):
                 p.model,
                 data,
                 noise_mm=p.noise_mm,
-                calibrate=tuple(p.calibrate),
+                calibrate=None if list(p.calibrate) == ["frame", "tool", "joints"] else tuple(p.calibrate),
                 report_dir=self.ctx.output_dir(p.report_dir),
                 config=cfg,
                 families=families,
