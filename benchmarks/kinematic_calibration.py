@@ -47,8 +47,9 @@ from plugins.solvers.kinematic_calibration import (
     KinematicSamples,
     calibrate_kinematics,
     candidate_parameters,
+    expected_holdout_rms,
+    initial_frames,
 )
-from plugins.solvers.kinematic_calibration.calibrate import expected_holdout_rms, initial_frames
 
 SEED = 0
 

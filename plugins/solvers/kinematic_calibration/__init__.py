@@ -3,7 +3,7 @@
 Entry point: :func:`calibrate_kinematics` (see :mod:`.calibrate`); data: :class:`KinematicSamples`,
 :func:`read_csv` / :func:`write_csv` (the plain CSV format shared with the model-gap workflow) and
 :func:`read_json` / :func:`write_json` (the same columns as JSON fields); :func:`read_samples` picks
-by suffix.
+by suffix. Several measured points per pose (a ``point`` column): :mod:`.points`.
 """
 
 from .calibrate import (
@@ -12,10 +12,11 @@ from .calibrate import (
     calibrate_kinematics,
     candidate_parameters,
     expected_holdout_rms,
-    initial_measurement_frame,
 )
 from .data import KinematicSamples, read_csv, read_json, read_samples, write_csv, write_json
+from .frames import initial_frames, initial_measurement_frame
 from .identifiability import Identifiability, analyse
+from .points import ToolPoints
 from .report import format_table, plot_convergence
 
 __all__ = [
@@ -23,11 +24,13 @@ __all__ = [
     "KinematicCalibration",
     "KinematicCalibrationConfig",
     "KinematicSamples",
+    "ToolPoints",
     "analyse",
     "calibrate_kinematics",
     "candidate_parameters",
     "expected_holdout_rms",
     "format_table",
+    "initial_frames",
     "initial_measurement_frame",
     "plot_convergence",
     "read_csv",

@@ -34,14 +34,16 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from engine.transforms import T_from_Rt, so3_left_jacobian_inv
+from engine.transforms import so3_left_jacobian_inv
 from plugins.robot.kinematics import RobotModel
 from plugins.robot.model_file import model_to_dict
 from plugins.solvers.calibration_result import CalibrationResult
 
 from .data import KinematicSamples
+from .frames import _analysis_model, initial_frames
 from .identifiability import Identifiability, analyse
 from .lm import LMResult, levenberg_marquardt
+from .points import ToolPoints, first_point, fit_point_offsets, split_names
 
 F64 = NDArray[np.float64]
 
@@ -83,31 +85,52 @@ class KinematicCalibration:
     structural: Identifiability
     lm: LMResult
     table: list[dict] = field(default_factory=list)  # before/after rows (mm, deg)
+    points: ToolPoints | None = None  # several measured points: their offsets (the model's tool is the first)
 
 
 # --------------------------------------------------------------------------- problem
 
 
 class _Problem:
-    """Residuals and Jacobian of the kept parameters around ``model``'s current values."""
+    """Residuals and Jacobian of the kept parameters around ``model``'s current values.
 
-    def __init__(self, model: RobotModel, samples: KinematicSamples, names: list[str], cfg) -> None:
+    ``names`` may hold point parameters (``tool[k].t*``, several measured points: :mod:`.points`):
+    ``x`` then moves ``points``' offsets too, and every row is evaluated at its own point.
+    """
+
+    def __init__(
+        self, model: RobotModel, samples: KinematicSamples, names: list[str], cfg, points: ToolPoints | None = None
+    ) -> None:
         self.model = model
         self.samples = samples
         self.names = names
-        self.idx = [model.chain.index(n) for n in names]
+        self.chain_pos, self.point_pos = split_names(names)
+        self.idx = [model.chain.index(names[i]) for i in self.chain_pos]
         self.v0 = model.param_values.copy()
+        self.points = points
         self.sp = cfg.noise_position_m
         self.sr = cfg.noise_rotation_rad
 
     def values(self, x: F64) -> F64:
+        """The chain's values (``(P,)``: the model's own, the first point's tool) at ``x``."""
         v = self.v0.copy()
-        v[self.idx] += x
+        v[self.idx] += np.asarray(x)[self.chain_pos]
         return v
+
+    def points_at(self, x: F64) -> ToolPoints | None:
+        """The measured points' offsets at ``x``."""
+        if self.points is None or not self.point_pos:
+            return self.points
+        return self.points.with_offsets(self.points.flat() + np.asarray(x)[self.point_pos])
+
+    def sample_values(self, x: F64) -> F64:
+        """The values each sample is evaluated at (``(N, P)`` with several points)."""
+        pts = self.points_at(x)
+        return self.values(x) if pts is None else pts.values(self.model, self.values(x), self.samples)
 
     def residuals(self, x: F64) -> tuple[F64, F64]:
         """Unwhitened residuals (N, 3) positions [m] and (N, 3) rotation vectors [rad] (or None)."""
-        T = self.model.fk(self.samples.q, self.values(x))
+        T = self.model.fk(self.samples.q, self.sample_values(x))
         rp = self.samples.positions - T[:, :3, 3]
         if not self.samples.full_pose:
             return rp, None
@@ -116,17 +139,20 @@ class _Problem:
 
     def __call__(self, x: F64) -> tuple[F64, F64]:
         """Whitened residual vector and its Jacobian w.r.t. x."""
-        v = self.values(x)
-        T, J = self.model.param_jacobian(self.samples.q, v, frame="base")
-        J = J[:, :, self.idx]
+        T, Jall = self.model.param_jacobian(self.samples.q, self.sample_values(x), frame="base")
+        J = np.zeros((Jall.shape[0], 6, len(self.names)))
+        J[:, :, self.chain_pos] = Jall[:, :, self.idx]
+        pts = self.points_at(x)
+        if self.point_pos and pts is not None:
+            J[:, :, self.point_pos] = pts.columns(Jall, self.model, self.samples)
         rp = (self.samples.positions - T[:, :3, 3]) / self.sp
         Jp = -J[:, :3] / self.sp
         if not self.samples.full_pose:
-            return rp.ravel(), Jp.reshape(-1, len(self.idx))
+            return rp.ravel(), Jp.reshape(-1, len(self.names))
         phi = Rotation.from_matrix(self.samples.rotations @ np.swapaxes(T[:, :3, :3], 1, 2)).as_rotvec()
         Jr = np.stack([-so3_left_jacobian_inv(-p) @ Jw for p, Jw in zip(phi, J[:, 3:], strict=True)])
         r = np.concatenate([rp, phi / self.sr], axis=1).ravel()
-        Jall = np.concatenate([Jp, Jr / self.sr], axis=1).reshape(-1, len(self.idx))
+        Jall = np.concatenate([Jp, Jr / self.sr], axis=1).reshape(-1, len(self.names))
         return r, Jall
 
 
@@ -148,70 +174,18 @@ def candidate_parameters(model: RobotModel, full_pose: bool, cfg: KinematicCalib
     return names
 
 
-def initial_measurement_frame(model: RobotModel, samples: KinematicSamples) -> F64:
-    """Rigid transform mapping the model's world to the measurement frame (least squares on positions)."""
-    pred = model.fk(samples.q)[:, :3, 3]
-    meas = samples.positions
-    cp, cm = pred.mean(axis=0), meas.mean(axis=0)
-    rot, _ = Rotation.align_vectors(meas - cm, pred - cp)
-    R = rot.as_matrix()
-    return T_from_Rt(R, cm - R @ cp)
-
-
-def _fit_tool_point(model: RobotModel, samples: KinematicSamples) -> RobotModel:
-    """Tool point (flange frame) that best explains the measurements given the model's base."""
-    F = _flange_frames(model, samples.q)
-    A = F[:, :3, :3].reshape(-1, 3)
-    b = (samples.positions - F[:, :3, 3]).reshape(-1)
-    p_flange, *_ = np.linalg.lstsq(A, b, rcond=None)
-    return _with_tool_point(model, p_flange)
-
-
-def _with_tool_point(model: RobotModel, p_flange: F64) -> RobotModel:
-    """Set ``tool.tx ty tz`` so that the TCP origin sits at ``p_flange`` in the flange frame."""
-    v = model.param_values.copy()
-    idx = [model.chain.index(f"tool.{k}") for k in ("tx", "ty", "tz")]
-    fixed = model.T_flange_tcp[:3, 3] - v[idx]
-    v[idx] = p_flange - fixed
-    return model.with_values(v)
-
-
-def initial_frames(model: RobotModel, samples: KinematicSamples, base: bool, tool: bool, rounds: int = 5) -> RobotModel:
-    """Initial measurement frame (rigid fit) and tool point (linear least squares), alternated."""
-    for _ in range(rounds if base and tool else 1):
-        if base:
-            model = model.with_base(initial_measurement_frame(model, samples) @ model.T_world_base)
-        if tool:
-            model = _fit_tool_point(model, samples)
-    if tool and samples.full_pose:  # mean orientation error, applied about the TCP axes
-        R_model = model.fk(samples.q)[:, :3, :3]
-        R_err = Rotation.from_matrix(np.swapaxes(R_model, 1, 2) @ samples.rotations).mean().as_matrix()
-        T_fixed = model._fixed_matrix("tool")
-        model = model.with_tool(T_fixed @ T_from_Rt(R_err, np.zeros(3)))
-    return model
-
-
-def _flange_frames(model: RobotModel, q: F64) -> F64:
-    g = model.chain.evaluate(q, record_groups=True).group_frames
-    return g.get("flange", g[f"joint{model.dof}"])
-
-
-def _analysis_model(initial: RobotModel, estimate: RobotModel, q: F64) -> RobotModel:
-    """Nominal joint geometry with the tool point moved to where the estimate puts it."""
-    F = _flange_frames(initial, q)
-    p_world = estimate.fk(q)[:, :3, 3]
-    R_T = np.swapaxes(F[:, :3, :3], 1, 2)
-    p_flange = np.mean((R_T @ (p_world - F[:, :3, 3])[:, :, None])[:, :, 0], axis=0)
-    return _with_tool_point(initial, p_flange)
-
-
 def _random_configs(model: RobotModel, n: int, seed: int) -> F64:
     lo, hi = np.maximum(model.lower, -np.pi), np.minimum(model.upper, np.pi)
     return lo + np.random.default_rng(seed).random((n, model.dof)) * (hi - lo)
 
 
 def expected_holdout_rms(
-    model: RobotModel, holdout: KinematicSamples, names: list[str], cov: F64, sigma_m: float
+    model: RobotModel,
+    holdout: KinematicSamples,
+    names: list[str],
+    cov: F64,
+    sigma_m: float,
+    points: ToolPoints | None = None,
 ) -> tuple[float, float]:
     """Expected 3-D position RMS on held-out poses for a correct model, and its degrees of freedom.
 
@@ -225,8 +199,9 @@ def expected_holdout_rms(
     ``(RMS / expected)^2`` then follows ``chi2(dof) / dof`` (``F(dof, nu)`` when ``sigma`` and ``cov``
     rest on a variance estimated with ``nu`` degrees of freedom).
     """
-    _, J = model.param_jacobian(holdout.q, frame="base")
-    A = J[:, :3, [model.chain.index(n) for n in names]].reshape(-1, len(names))
+    cfg = KinematicCalibrationConfig(noise_position_m=1.0)
+    _, J = _Problem(model, holdout, names, cfg, points)(np.zeros(len(names)))
+    A = -J.reshape(holdout.n_samples, -1, len(names))[:, :3, :].reshape(-1, len(names))
     m = A.shape[0]
     M = cov @ (A.T @ A)  # tr(A cov A^T) = tr(M), tr((A cov A^T)^2) = tr(M^2)
     tr_s = m * sigma_m**2 + float(np.trace(M))
@@ -234,8 +209,8 @@ def expected_holdout_rms(
     return float(np.sqrt(tr_s / holdout.n_samples)), tr_s**2 / tr_s2
 
 
-def _error_rows(model: RobotModel, samples: KinematicSamples) -> dict[str, float]:
-    T = model.fk(samples.q)
+def _error_rows(model: RobotModel, samples: KinematicSamples, points: ToolPoints | None = None) -> dict[str, float]:
+    T = model.fk(samples.q, None if points is None else points.values(model, None, samples))
     e = (samples.positions - T[:, :3, 3]) * 1e3
     row = {
         "rms_mm": float(np.sqrt(np.mean(np.sum(e**2, axis=1)))),
@@ -288,9 +263,19 @@ def calibrate_kinematics(
         )
     conv = cfg.parameterisation or model.convention
     work = model.to_convention(conv)
-    work = initial_frames(work, samples, cfg.estimate_base, cfg.estimate_tool)
-    initial = work
+    points = ToolPoints.of(samples)
+    if points is None:
+        work = initial_frames(work, samples, cfg.estimate_base, cfg.estimate_tool)
+    else:  # frame and the first point from the first point's rows, then each other point's offset
+        if samples.full_pose or not cfg.estimate_tool:
+            raise ValueError("several measured points (a point column) need position data and the tool estimated")
+        work = initial_frames(work, first_point(samples, points), cfg.estimate_base, True)
+        points = fit_point_offsets(work, samples, points)
+    initial, initial_points = work, points
     names = candidate_parameters(work, samples.full_pose, cfg)
+    if points is not None:  # right after the tool: a point offset is kept before a joint parameter
+        at_tool = max(i for i, n in enumerate(names) if n.startswith("tool.")) + 1
+        names = names[:at_tool] + points.param_names() + names[at_tool:]
     # Identifiability is analysed at the nominal joint geometry, where structural redundancies are
     # exact (at calibrated values they become near-redundancies that only slow the solver down).
     # A nominal tool point on the last joint axis hides that axis, so after solving, the analysis is
@@ -300,12 +285,12 @@ def calibrate_kinematics(
     lm: LMResult | None = None
     at = initial
     for _ in range(3):
-        J_at = _Problem(at, samples, names, cfg)(np.zeros(len(names)))[1]
+        J_at = _Problem(at, samples, names, cfg, points)(np.zeros(len(names)))[1]
         ident = analyse(J_at, names, cfg.identifiability_tol)
         if lm is not None and ident.kept == kept:
             break
         kept = ident.kept
-        step_problem = _Problem(work, samples, kept, cfg)
+        step_problem = _Problem(work, samples, kept, cfg, points)
         lm = levenberg_marquardt(
             step_problem,
             np.zeros(len(kept)),
@@ -315,6 +300,7 @@ def calibrate_kinematics(
         offset = len(history) - 1 if history else 0
         history += [h | {"iteration": h["iteration"] + offset} for h in lm.history[(1 if history else 0) :]]
         work = work.with_values(step_problem.values(lm.x))
+        points = step_problem.points_at(lm.x)
         if not lm.converged:
             break
         at = _analysis_model(initial, work, samples.q)
@@ -324,9 +310,12 @@ def calibrate_kinematics(
     calibrated = work
     q_rich = _random_configs(at, cfg.structural_poses, cfg.rng_seed + 1)
     T_rich = at.fk(q_rich)
-    rich = KinematicSamples(q_rich, T_rich[:, :3, 3], T_rich[:, :3, :3] if samples.full_pose else None)
-    structural = analyse(_Problem(at, rich, names, cfg)(np.zeros(len(names)))[1], names, cfg.identifiability_tol)
-    kept_problem = _Problem(work, samples, kept, cfg)
+    labels = None if points is None else np.array(points.names)[np.arange(len(q_rich)) % len(points.names)]
+    rich = KinematicSamples(q_rich, T_rich[:, :3, 3], T_rich[:, :3, :3] if samples.full_pose else None, point=labels)
+    structural = analyse(
+        _Problem(at, rich, names, cfg, points)(np.zeros(len(names)))[1], names, cfg.identifiability_tol
+    )
+    kept_problem = _Problem(work, samples, kept, cfg, points)
     r, J = kept_problem(np.zeros(len(kept)))
     verdict = "ok"
     if ident.dropped:
@@ -397,7 +386,7 @@ def calibrate_kinematics(
     for label, data in (("calibration", samples), ("held-out", holdout)):
         if data is None:
             continue
-        before, after = _error_rows(initial, data), _error_rows(calibrated, data)
+        before, after = _error_rows(initial, data, initial_points), _error_rows(calibrated, data, points)
         table.append({"set": label, "n": data.n_samples, "before": before, "after": after})
     metrics = {
         "rms_before_mm": table[0]["before"]["rms_mm"],
@@ -416,17 +405,25 @@ def calibrate_kinematics(
         metrics["holdout_rms_before_mm"] = table[1]["before"]["rms_mm"]
         metrics["holdout_rms_after_mm"] = table[1]["after"]["rms_mm"]
         if cov is not None and holdout is not None:
-            expected, h_dof = expected_holdout_rms(calibrated, holdout, kept, cov, np.sqrt(s2) * cfg.noise_position_m)
+            sigma = np.sqrt(s2) * cfg.noise_position_m
+            expected, h_dof = expected_holdout_rms(calibrated, holdout, kept, cov, sigma, points)
             metrics["holdout_rms_expected_mm"] = expected * 1e3
             metrics["holdout_rms_dof"] = h_dof
             table[1]["expected_rms_mm"] = expected * 1e3
     values = calibrated.param_values
+    moved = {n: float(values[work.chain.index(n)] - initial.param_values[work.chain.index(n)]) for n in kept
+             if n in work.param_names}  # fmt: skip
+    if points is not None and initial_points is not None:  # a point's offset from the first point moved too
+        moved |= dict(zip(points.param_names(), (points.flat() - initial_points.flat()).tolist(), strict=True))
     estimate = {
         "T_meas_base": calibrated.T_world_base,
         "T_flange_tcp": calibrated.T_flange_tcp,
-        "offsets": {n: float(values[work.chain.index(n)] - initial.param_values[work.chain.index(n)]) for n in kept},
+        "offsets": {n: moved[n] for n in kept},
         "model_file": model_to_dict(calibrated),
     }
+    if points is not None:  # every measured point on the flange (the model's own tool is the first)
+        estimate["tool_points"] = points.flange_points(calibrated)
+        estimate["tool_point_offsets"] = points.as_dict()  # what ToolPoints.of(samples, known) rebuilds
     result = CalibrationResult(
         kind="kinematic",
         verdict=verdict,  # type: ignore[arg-type]
@@ -442,7 +439,7 @@ def calibrate_kinematics(
         method=f"levenberg-marquardt, {conv} parameters, {'pose' if samples.full_pose else 'position'} data",
         iterations=lm.iterations,
     )
-    out = KinematicCalibration(result, calibrated, initial, ident, structural, lm, table)
+    out = KinematicCalibration(result, calibrated, initial, ident, structural, lm, table, points)
     if plot_path is not None:
         from .report import plot_convergence
 

@@ -8,6 +8,8 @@ optional ``qx, qy, qz, qw``  measured orientation of the tool frame in that fram
 optional ``t_s``          time since warm-up start (s)
 optional ``dir1 .. dirN`` approach direction per joint (+1 / -1)
 optional ``temp_c``       temperature (deg C); optional ``payload_kg`` mass at the TCP (kg)
+optional ``point``        the name of the measured point (several reflectors or markers on the tool,
+                          each measured at the same poses: one tool point per name, :mod:`.points`)
 
 JSON form (``read_json`` / ``write_json``), the same columns as named fields of one object per pose::
 
@@ -51,6 +53,7 @@ class KinematicSamples:
     direction: F64 | None = None
     temp_c: F64 | None = None
     payload_kg: F64 | None = None
+    point: NDArray[np.str_] | None = None  # (N,) the name of the measured point (several per pose), or None
     warnings: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -80,6 +83,14 @@ class KinematicSamples:
                     f"(max |R R^T - I| = {err.max():.2e})"
                 )
             self.rotations = R
+        if self.point is not None:
+            names = np.asarray(self.point).astype(str)
+            if names.shape != (n,):
+                raise ValueError(f"point must name the measured point of each of the {n} samples, got {names.shape}")
+            empty = np.flatnonzero(np.char.strip(names) == "")
+            if empty.size:
+                raise ValueError(f"point is empty in samples {empty[:5].tolist()}: name every measured point")
+            self.point = np.char.strip(names)
         # context is validated by SampleContext (broadcast, finite, +-1 directions)
         self.context().for_samples(n, self.q.shape[1])
 
@@ -94,6 +105,13 @@ class KinematicSamples:
     @property
     def full_pose(self) -> bool:
         return self.rotations is not None
+
+    @property
+    def point_names(self) -> tuple[str, ...]:
+        """The measured points' names in order of first appearance (``()`` without a ``point`` column)."""
+        if self.point is None:
+            return ()
+        return tuple(dict.fromkeys(self.point.tolist()))
 
     def context(self) -> SampleContext:
         return SampleContext(self.t_s, self.direction, self.temp_c, self.payload_kg)
@@ -112,12 +130,16 @@ class KinematicSamples:
             pick(self.direction),
             pick(self.temp_c),
             pick(self.payload_kg),
+            pick(self.point),
         )
 
     def check(self) -> list[str]:
         """Warnings a user should see: duplicate poses, suspicious units, too few samples."""
         out = list(self.warnings)
-        _, counts = np.unique(np.round(self.q, 9), axis=0, return_counts=True)
+        key = np.round(self.q, 9)
+        if self.point is not None:  # several points measured at one pose are not duplicates
+            key = np.column_stack([key, np.unique(self.point, return_inverse=True)[1]])
+        _, counts = np.unique(key, axis=0, return_counts=True)
         dup = int(np.sum(counts[counts > 1] - 1))
         if dup:
             out.append(f"{dup} duplicate joint configurations: they add no excitation, only noise averaging")
@@ -222,6 +244,12 @@ def _from_rows(path: Path, header: list[str], rows: list[dict]) -> KinematicSamp
         if [i for i, _ in dir_cols] != list(range(1, len(q_cols) + 1)):
             raise ValueError(f"{path}: need dir1 .. dir{len(q_cols)} together, got {[c for _, c in dir_cols]}")
         direction = np.column_stack([col(c) for _, c in dir_cols])
+    point = None
+    if "point" in header:
+        point = np.array([str(r["point"] if r["point"] is not None else "").strip() for r in rows])
+        blank = np.flatnonzero(point == "")
+        if blank.size:
+            raise ValueError(f"{path}: column 'point' is empty in row(s) {(blank[:5] + 1).tolist()}: name each point")
     samples = KinematicSamples(
         np.radians(q_deg),
         pos_mm / 1000.0,
@@ -230,6 +258,7 @@ def _from_rows(path: Path, header: list[str], rows: list[dict]) -> KinematicSamp
         direction,
         col("temp_c") if "temp_c" in header else None,
         col("payload_kg") if "payload_kg" in header else None,
+        point,
     )
     samples.warnings = warnings
     return samples
@@ -238,18 +267,23 @@ def _from_rows(path: Path, header: list[str], rows: list[dict]) -> KinematicSamp
 def write_json(samples: KinematicSamples, path: str | Path) -> None:
     """Write samples in the JSON form of the module docstring (degrees, millimetres)."""
     header, data = _table(samples)
-    doc = {"format": JSON_FORMAT, "samples": [dict(zip(header, map(float, row), strict=True)) for row in data]}
+    rows = [dict(zip(header, map(float, row), strict=True)) for row in data]
+    if samples.point is not None:
+        for r, name in zip(rows, samples.point.tolist(), strict=True):
+            r["point"] = name
+    doc = {"format": JSON_FORMAT, "samples": rows}
     Path(path).write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
 
 
 def write_csv(samples: KinematicSamples, path: str | Path) -> None:
     """Write samples in the CSV format of the module docstring (degrees, millimetres)."""
     header, data = _table(samples)
+    names = [] if samples.point is None else samples.point.tolist()
     with Path(path).open("w", newline="", encoding="utf-8") as f:
         w = csv.writer(f)
-        w.writerow(header)
-        for row in data:
-            w.writerow([repr(float(v)) for v in row])
+        w.writerow(header + (["point"] if names else []))
+        for i, row in enumerate(data):
+            w.writerow([repr(float(v)) for v in row] + ([names[i]] if names else []))
 
 
 def _table(samples: KinematicSamples) -> tuple[list[str], F64]:

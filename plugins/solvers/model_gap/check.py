@@ -50,7 +50,8 @@ def stored_problem(
             f"{stored.source} does not say the noise it was fitted with: give --noise-mm SIGMA (per axis) or a "
             "sigma_mm column"
         )
-    problem = KinematicGapProblem(stored.robot, data, ProblemConfig((), noise_m=noise_m, noise_source=source))
+    cfg = ProblemConfig((), noise_m=noise_m, noise_source=source, tool_points=stored.tool_points)
+    problem = KinematicGapProblem(stored.robot, data, cfg)
     fams = families if families is not None else families_from_registry()
     by_label = {(c.name, c.where): c for c in collect_candidates(problem, fams) if not c.unavailable}
     for e in stored.effects:
@@ -65,6 +66,12 @@ def stored_problem(
         if e.get("tied_with"):
             problem.tied_with[f"{cand.name}@{cand.where}"] = tuple(e["tied_with"])
     return problem, source
+
+
+def _tool_state(problem: KinematicGapProblem) -> np.ndarray:
+    """The tool translation (the first point's) and every other point's offset, flattened."""
+    tool = problem.model.param_values[[problem.model.chain.index(n) for n in TOOL]]
+    return np.concatenate([tool, np.zeros(0) if problem.points is None else problem.points.flat()])
 
 
 def check_model(
@@ -88,9 +95,9 @@ def check_model(
     gap_data = data if isinstance(data, GapData) else load_gap_data(data, **(data_options or {}))
     problem, source = stored_problem(stored, gap_data, noise_mm=noise_mm, families=families)
     refitted: dict[str, dict[str, float]] = {}
-    before = problem.model.param_values[[problem.model.chain.index(n) for n in TOOL]].copy()
-    if "tool" in refit:
-        problem.base_names = list(TOOL)
+    before = _tool_state(problem)
+    if "tool" in refit:  # every measured point's position on the flange, geometry and effects held
+        problem.base_names = list(TOOL) + ([] if problem.points is None else problem.points.param_names())
         problem.refit(effects=False)
     lin = problem.linearise()
     nb = len(problem.base_names)
@@ -99,8 +106,7 @@ def check_model(
         Jw = lin.jacobian.reshape(lin.residual.size, nb)
         s2 = float(np.sum(lin.residual**2)) / max(1, lin.residual.size - nb)
         std = np.sqrt(np.diag(s2 * np.linalg.inv(Jw.T @ Jw)))
-        after = problem.model.param_values[[problem.model.chain.index(n) for n in TOOL]]
-        for n, b, a, sd in zip(TOOL, before, after, std, strict=True):
+        for n, b, a, sd in zip(problem.base_names, before, _tool_state(problem), std, strict=True):
             refitted[n] = {"stored": float(b), "value": float(a), "std": float(sd)}
     info = {
         "kind": stored.kind,

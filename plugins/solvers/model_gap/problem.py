@@ -44,12 +44,15 @@ from plugins.robot.kinematics import RobotModel
 from plugins.robot.with_effects import RobotWithEffects
 from plugins.solvers.kinematic_calibration import (
     KinematicCalibrationConfig,
+    ToolPoints,
     analyse,
     calibrate_kinematics,
     candidate_parameters,
+    initial_frames,
 )
-from plugins.solvers.kinematic_calibration.calibrate import initial_frames
+from plugins.solvers.kinematic_calibration.points import first_point, fit_point_offsets, split_names
 
+from .columns import CandidateColumns
 from .data import GapData
 
 F64 = NDArray[np.float64]
@@ -68,9 +71,12 @@ class ProblemConfig:
     parameterisation: str | None = None  # for "joints": dh | mdh | poe (default: the model's)
     max_nfev: int = 100
     requested: str = "default"  # what the user asked for: "default" (the full calibration) or the levels
+    # several measured points (a point column): each point's offset from the first, known from a stored
+    # model (name -> tool-parameter offset, m); None: fitted with the tool (kinematic_calibration.points)
+    tool_points: dict[str, list[float]] | None = None
 
 
-class KinematicGapProblem:
+class KinematicGapProblem(CandidateColumns):
     """See the module docstring. Implements :class:`engine.gap.interfaces.GapProblem`."""
 
     kind = "kinematic"
@@ -80,36 +86,7 @@ class KinematicGapProblem:
 
     def __init__(self, model: RobotModel, data: GapData, config: ProblemConfig | None = None) -> None:
         cfg = config or ProblemConfig()
-        bad = [c for c in cfg.calibrate if c not in CALIBRATION_LEVELS]
-        if bad:
-            raise GapInputError(f"unknown calibration level(s) {bad}; use some of {', '.join(CALIBRATION_LEVELS)}")
-        if data.n_samples < MIN_SAMPLES:
-            raise GapInputError(
-                f"{data.n_samples} samples are too few: even the baseline calibration (measurement frame, tool "
-                f"point) needs {MIN_SAMPLES}, and naming an effect with cross-validation needs a few dozen"
-            )
-        if data.n_joints != model.dof:
-            raise GapInputError(f"the data have {data.n_joints} joints but model {model.name!r} has {model.dof}")
-        if cfg.noise_m is not None:
-            if not (np.isfinite(cfg.noise_m) and cfg.noise_m > 0):
-                raise GapInputError(f"the noise sigma must be a positive number, got {cfg.noise_m}")
-            sigma = np.full(data.n_samples, float(cfg.noise_m))
-        elif data.sigma_m is not None:
-            sigma = data.sigma_m.copy()
-        else:
-            raise GapInputError(
-                "the measurement noise is needed to tell a gap from noise: give --noise-mm SIGMA (per-axis "
-                "1-sigma, e.g. 0.05 for a laser tracker, 0.3 for a Vive tracker) or a sigma_mm column"
-            )
-        reach = model.chain.reach_bound(skip_groups=("base",))
-        spread = float(np.ptp(data.samples.positions, axis=0).max())
-        if spread > 20.0 * reach:
-            raise GapInputError(
-                f"the measured points spread over {spread:.1f} m but {model.name} reaches {reach:.2f} m: "
-                "millimetres given as metres?"
-            )
-        if data.n_samples > 3 and spread < 1e-3 * reach:
-            raise GapInputError(f"the measured points span only {spread * 1e3:.3f} mm: metres given as millimetres?")
+        sigma = checked_noise(model, data, cfg)
         self.cfg = cfg
         self.data = data
         self.nominal = model
@@ -122,6 +99,12 @@ class KinematicGapProblem:
         self.tied_with: dict[str, tuple[str, ...]] = {}  # tie terms: representative label -> the other members
         self.calibration_notes: list[str] = []
         self.joint_calibration_failed: str | None = None  # why the joint calibration cannot be used
+        try:
+            self.points = ToolPoints.of(data.samples, cfg.tool_points)
+        except ValueError as e:
+            raise GapInputError(str(e)) from None
+        if self.points is not None and cfg.tool_points is None and "tool" not in cfg.calibrate:
+            raise GapInputError("several measured points (a point column) need the tool calibrated (--calibrate tool)")
         self._calibrate_baseline()
 
     # ----------------------------------------------------------------------------- baseline
@@ -139,15 +122,20 @@ class KinematicGapProblem:
         if "joints" in cfg.calibrate:
             cal = calibrate_kinematics(self.nominal, samples, config=kc)
             self.model = self._gravity_follows_base(cal.model)
+            self.points = cal.points if self.points is not None and cal.points is not None else self.points
             names = list(cal.result.param_names)
             keep = ("not identifiable", "do not excite", "residuals for")
             self.calibration_notes += [r for r in cal.result.reasons if any(k in r for k in keep)]
             if cal.result.verdict == "failed":
                 self.joint_calibration_failed = "; ".join(r for r in cal.result.reasons if r) or "failed"
         else:
-            model = initial_frames(self.nominal, samples, frame, tool) if (frame or tool) else self.nominal
+            first = samples if self.points is None else first_point(samples, self.points)
+            model = initial_frames(self.nominal, first, frame, tool) if (frame or tool) else self.nominal
             self.model = self._gravity_follows_base(model)
             names = [n for n in candidate_parameters(self.model, False, kc) if not n.startswith("joint")]
+            if self.points is not None and tool:
+                self.points = fit_point_offsets(self.model, samples, self.points)
+                names += self.points.param_names()
         self.base_names: list[str] = []
         if names:
             J = self._predict(jacobian=True, base_names=names)[1] / self.sigma[:, None, None]
@@ -201,26 +189,34 @@ class KinematicGapProblem:
         meas = {c.name: float(v[0]) for c, v in accepted if c.side == "measurement"}
         return robot, meas
 
+    def _robot(self, model: RobotModel, effects: list, points: ToolPoints | None) -> RobotWithEffects:
+        """``model`` with ``effects``, every row evaluated at its measured point (several points: the
+        points' offsets come first, as a per-sample effect, so every Jacobian is taken there)."""
+        if points is None:
+            return RobotWithEffects(model, effects)
+        return RobotWithEffects(model, [points.effect(self.data.samples), *effects])
+
     def _predict(
         self,
         model: RobotModel | None = None,
         accepted: list[tuple[Any, F64]] | None = None,
+        points: ToolPoints | None = None,
         *,
         jacobian: bool = False,
         base_names: list[str] | None = None,
     ) -> tuple[F64, F64 | None]:
         """Predicted measurements ``(N, 3)`` and (optionally) their Jacobian ``(N, 3, P)`` (SI, unwhitened).
 
-        Jacobian columns: the ``base_names`` chain parameters, then every accepted effect's values.
+        Jacobian columns: the ``base_names`` chain (or point) parameters, then every accepted effect's values.
         """
         model = self.model if model is None else model
         accepted = self.accepted if accepted is None else accepted
+        points = self.points if points is None else points
         names = self.base_names if base_names is None else base_names
         robot, meas = self._split(accepted)
         lat = meas.get("time_latency", 0.0)
         q = self.q - lat * self.qd if (lat and self.qd is not None) else self.q
-        effects = [c.effect(v) for c, v in robot]
-        rw = RobotWithEffects(model, effects)
+        rw = self._robot(model, [c.effect(v) for c, v in robot], points)
         qa, va = rw.actual_state(q, self.ctx)
         T = model.fk(qa, va)
         p = T[:, :3, 3]
@@ -231,13 +227,18 @@ class KinematicGapProblem:
             return pm, None
         cols = []
         if names:
-            idx = [model.chain.index(n) for n in names]
+            chain_pos, point_pos = split_names(list(names))
             _, Jp = model.chain.screw_jacobian(qa, va, columns="params")
-            cols.append(Jp[:, :3, idx])
+            base = np.zeros((self.n_samples, 3, len(names)))
+            base[:, :, chain_pos] = Jp[:, :3, [model.chain.index(names[i]) for i in chain_pos]]
+            if point_pos and points is not None:
+                base[:, :, point_pos] = points.columns(Jp[:, :3, :], model, self.data.samples)
+            cols.append(base)
         if robot:  # differentiated at values inside the effects' domains (linear effects: same columns)
-            rw_j = RobotWithEffects(model, [c.effect(c.jac_values(v)) for c, v in robot])
+            rw_j = self._robot(model, [c.effect(c.jac_values(v)) for c, v in robot], points)
+            k0 = 0 if points is None else 1
             for i, (c, v) in enumerate(robot):
-                cols.append(rw_j.effect_jacobian(i, q, self.ctx)[:, :3, :] @ c.jac_map(c.jac_values(v)))
+                cols.append(rw_j.effect_jacobian(i + k0, q, self.ctx)[:, :3, :] @ c.jac_map(c.jac_values(v)))
         for c, _v in accepted:
             if c.side != "measurement":
                 continue
@@ -270,17 +271,21 @@ class KinematicGapProblem:
 
     # ----------------------------------------------------------------------------- fitting
 
-    def _unpack_state(self, x: F64) -> tuple[RobotModel, list[tuple[Any, F64]]]:
+    def _unpack_state(self, x: F64) -> tuple[RobotModel, list[tuple[Any, F64]], ToolPoints | None]:
         nb = len(self.base_names)
+        chain_pos, point_pos = split_names(list(self.base_names))
         v = self.model.param_values.copy()
-        if nb:
-            v[[self.model.chain.index(n) for n in self.base_names]] += x[:nb]
+        if chain_pos:
+            v[[self.model.chain.index(self.base_names[i]) for i in chain_pos]] += x[chain_pos]
         model = self._gravity_follows_base(self.model.with_values(v))
+        points = self.points
+        if point_pos and points is not None:
+            points = points.with_offsets(points.flat() + x[point_pos])
         accepted, k = [], nb
         for c, val in self.accepted:
             accepted.append((c, x[k : k + val.size].copy()))
             k += val.size
-        return model, accepted
+        return model, accepted, points
 
     def refit(self, *, effects: bool = True) -> tuple[F64, float, int]:
         """Nonlinear least squares of the baseline parameters and every accepted effect together
@@ -300,16 +305,14 @@ class KinematicGapProblem:
         meas = self.data.samples.positions
         s = self.sigma[:, None]
 
-        def state(x: F64) -> tuple[RobotModel, list[tuple[Any, F64]]]:
+        def state(x: F64) -> tuple[RobotModel, list[tuple[Any, F64]], ToolPoints | None]:
             return self._unpack_state(x if effects else np.concatenate([x, held]))
 
         def fun(x: F64) -> F64:
-            model, acc = state(x)
-            return ((meas - self._predict(model, acc)[0]) / s).ravel()
+            return ((meas - self._predict(*state(x))[0]) / s).ravel()
 
         def jac(x: F64) -> F64:
-            model, acc = state(x)
-            J = self._predict(model, acc, jacobian=True)[1]
+            J = self._predict(*state(x), jacobian=True)[1]
             return -(J / s[:, :, None]).reshape(meas.size, -1)[:, : x.size]
 
         if x0.size:
@@ -319,7 +322,7 @@ class KinematicGapProblem:
             x = sol.x
         else:
             x = x0
-        self.model, self.accepted = state(x)
+        self.model, self.accepted, self.points = state(x)
         return self.covariance()
 
     def covariance(self) -> tuple[F64, float, int]:
@@ -405,63 +408,6 @@ class KinematicGapProblem:
             )
         return out
 
-    def effect_std(self) -> dict[str, dict[str, float]]:
-        """One-sigma uncertainty of every accepted effect's parameters at the current state."""
-        return {f"{fe.name}@{fe.where}": fe.param_std for fe in self.fitted_effects()}
-
-    # -- helpers the candidates use ------------------------------------------------------------
-
-    def current_state(self) -> tuple[F64, F64, F64]:
-        """``(q_seen, q_actual, values_actual)`` of the current model for every sample."""
-        robot, meas = self._split(self.accepted)
-        lat = meas.get("time_latency", 0.0)
-        q = self.q - lat * self.qd if (lat and self.qd is not None) else self.q
-        rw = RobotWithEffects(self.model, [c.effect(v) for c, v in robot])
-        qa, va = rw.actual_state(q, self.ctx)
-        return q, qa, va
-
-    def _output_jacobian(self) -> F64:
-        """``(N, 3, 3)``: derivative of the measured point w.r.t. the true point (range effects)."""
-        _, meas = self._split(self.accepted)
-        if "depth_scale" not in meas and "depth_bias" not in meas:
-            return np.broadcast_to(np.eye(3), (self.n_samples, 3, 3))
-        _, qa, va = self.current_state()
-        p = self.model.fk(qa, va)[:, :3, 3]
-        return range_distortion_jacobian(p, meas.get("depth_scale", 0.0), meas.get("depth_bias", 0.0))
-
-    def robot_columns(self, candidate, values: F64) -> F64:
-        """Whitened ``(N, 3, k)`` derivative of the measurements w.r.t. a robot candidate's values."""
-        robot, _ = self._split(self.accepted)
-        q, _, _ = self.current_state()
-        effects = [c.effect(c.jac_values(v)) for c, v in robot] + [candidate.effect(candidate.jac_values(values))]
-        rw = RobotWithEffects(self.model, effects)
-        jmap = candidate.jac_map(candidate.jac_values(values))
-        J = rw.effect_jacobian(len(effects) - 1, q, self.ctx)[:, :3, :] @ jmap
-        return (self._output_jacobian() @ J) / self.sigma[:, None, None]
-
-    def measurement_columns(self, name: str) -> F64:
-        """Whitened ``(N, 3, 1)`` column of a measurement-side effect at the current state."""
-        _, qa, va = self.current_state()
-        if name == "time_latency":
-            _, Jq = self.model.chain.screw_jacobian(qa, va)
-            col = self._output_jacobian() @ (-np.einsum("nij,nj->ni", Jq[:, :3, :], self.qd))[:, :, None]
-        else:
-            p = self.model.fk(qa, va)[:, :3, 3]
-            col = (p if name == "depth_scale" else p / np.linalg.norm(p, axis=1, keepdims=True))[:, :, None]
-        return col / self.sigma[:, None, None]
-
-    def joint_position_jacobian(self) -> F64:
-        """``(N, 3, n)`` derivative of the measured point w.r.t. each joint angle (SI)."""
-        _, qa, va = self.current_state()
-        _, Jq = self.model.chain.screw_jacobian(qa, va)
-        return self._output_jacobian() @ Jq[:, :3, :]
-
-    def gravity_torque(self) -> F64 | None:
-        if self.model.links is None:
-            return None
-        payload = 0.0 if self.ctx.payload_kg is None else self.ctx.payload_kg
-        return self.nominal.gravity_torque(self.q, payload_kg=payload)
-
     # ----------------------------------------------------------------------------- features, files
 
     def features(self) -> list[Feature]:
@@ -486,3 +432,39 @@ class KinematicGapProblem:
         from .stored_model import save_model
 
         return save_model(self, path)
+
+
+def checked_noise(model: RobotModel, data: GapData, cfg: ProblemConfig) -> F64:
+    """The per-sample noise sigma (m) after the input checks a problem needs (calibration levels, sample
+    count, joints, noise, units); raises :class:`GapInputError` saying what is wrong."""
+    bad = [c for c in cfg.calibrate if c not in CALIBRATION_LEVELS]
+    if bad:
+        raise GapInputError(f"unknown calibration level(s) {bad}; use some of {', '.join(CALIBRATION_LEVELS)}")
+    if data.n_samples < MIN_SAMPLES:
+        raise GapInputError(
+            f"{data.n_samples} samples are too few: even the baseline calibration (measurement frame, tool "
+            f"point) needs {MIN_SAMPLES}, and naming an effect with cross-validation needs a few dozen"
+        )
+    if data.n_joints != model.dof:
+        raise GapInputError(f"the data have {data.n_joints} joints but model {model.name!r} has {model.dof}")
+    if cfg.noise_m is not None:
+        if not (np.isfinite(cfg.noise_m) and cfg.noise_m > 0):
+            raise GapInputError(f"the noise sigma must be a positive number, got {cfg.noise_m}")
+        sigma = np.full(data.n_samples, float(cfg.noise_m))
+    elif data.sigma_m is not None:
+        sigma = data.sigma_m.copy()
+    else:
+        raise GapInputError(
+            "the measurement noise is needed to tell a gap from noise: give --noise-mm SIGMA (per-axis "
+            "1-sigma, e.g. 0.05 for a laser tracker, 0.3 for a Vive tracker) or a sigma_mm column"
+        )
+    reach = model.chain.reach_bound(skip_groups=("base",))
+    spread = float(np.ptp(data.samples.positions, axis=0).max())
+    if spread > 20.0 * reach:
+        raise GapInputError(
+            f"the measured points spread over {spread:.1f} m but {model.name} reaches {reach:.2f} m: "
+            "millimetres given as metres?"
+        )
+    if data.n_samples > 3 and spread < 1e-3 * reach:
+        raise GapInputError(f"the measured points span only {spread * 1e3:.3f} mm: metres given as millimetres?")
+    return sigma

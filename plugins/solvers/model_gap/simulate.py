@@ -19,7 +19,8 @@ and ``tool``) and ``known`` (both known, e.g. a registered sensor frame and a me
 calibrated, so a base or tool error is observable at all). A case can log the approach directions
 the other way round (``flip_dir``: +1 after moving towards smaller angles, as some controllers do)
 and a temperature (``temperature``: a ``temp_c`` column that rises as the motors warm up; a single
-link's thermal growth then follows it linearly).
+link's thermal growth then follows it linearly), and measure several reflectors at every pose
+(``points``: one row per pose and reflector, named in a ``point`` column; :data:`REFLECTORS`).
 
 The benchmark's suite of cases is :func:`.suite.suite`. :attr:`SimulatedCampaign.gap_m` is the gap all hidden
 effects leave together (two can partly cancel); the campaign also carries the truth (noise-free
@@ -58,6 +59,8 @@ DH_LENGTH_ERROR_M = (1e-4, 5e-4)  # the ``full`` scenario's geometric errors: ma
 DH_ANGLE_ERROR_RAD = (1e-4, 1e-3)
 TOOL_TRUE = (0.03, -0.02, 0.12)  # measured point on the flange (m)
 TOOL_GUESS = (0.0, 0.0, 0.1)  # what the user's model says in the tracker scenario
+# reflectors on the tool (TCP frame, m) of a campaign measuring several points per pose: R1 is the TCP
+REFLECTORS = ((0.0, 0.0, 0.0), (0.05, 0.0, 0.0), (0.0, 0.04, 0.02))
 CAMPAIGN_S = 3 * 3600.0
 
 # Hidden magnitudes: the RMS (3-D, over the campaign) of the part of the effect's displacement of the
@@ -128,6 +131,7 @@ class HiddenCase:
     noise_m: float = NOISE_M
     flip_dir: bool = False  # the data's dir columns count the approach direction the other way round
     temperature: bool = False  # the data log a temp_c column (a link's thermal growth follows it)
+    points: int = 1  # reflectors measured at every pose (REFLECTORS; one row each, a point column)
 
     @property
     def calibrate(self) -> tuple[str, ...] | None:
@@ -233,6 +237,7 @@ def simulate_campaign(
     robot: str = "ur5e",
     flip_dir: bool = False,
     temperature: bool = False,
+    points: int = 1,
 ) -> SimulatedCampaign:
     """Run a measurement campaign on the simulated cell with the given hidden effects."""
     if scenario not in SCENARIO_CALIBRATION:
@@ -304,13 +309,19 @@ def simulate_campaign(
     ctx_seen = SampleContext(
         t_s=T_s - latency, direction=np.array([s_.approach_direction for s_ in seen]), payload_kg=PAY, temp_c=TEMP
     )
-    p_world = truth.fk(np.array([s_.q for s_ in seen]), ctx_seen)[:, :3, 3]
+    T_seen = truth.fk(np.array([s_.q for s_ in seen]), ctx_seen)
+    k = len(REFLECTORS[:points]) if points > 1 else 1  # several reflectors: one row per pose and reflector
+    rows = np.repeat(np.arange(len(Q)), k)
+    refl = np.array(REFLECTORS[:k])[np.tile(np.arange(k), len(Q))]
+    p_world = np.einsum("nij,nj->ni", T_seen[rows, :3, :3], refl) + T_seen[rows, :3, 3]
     p_true = p_world @ T_meas_world[:3, :3].T + T_meas_world[:3, 3]
     p = apply_range_distortion(p_true, camera.depth_scale - 1.0, camera.depth_bias_m)
     p = p + rng.normal(0.0, noise_m, p.shape)
     logged_dir = -np.array(d) if flip_dir else np.array(d)  # what the controller logs
-    samples = KinematicSamples(Q, p, None, T_s, logged_dir, TEMP, PAY)
-    data = GapData(samples, qd=QD, range_m=np.linalg.norm(p, axis=1), sensor=SENSOR, source="simulated")
+    names = np.array([f"R{i + 1}" for i in range(k)])[np.tile(np.arange(k), len(Q))] if k > 1 else None
+    temp = None if TEMP is None else TEMP[rows]
+    samples = KinematicSamples(Q[rows], p, None, T_s[rows], logged_dir[rows], temp, PAY[rows], names)
+    data = GapData(samples, qd=QD[rows], range_m=np.linalg.norm(p, axis=1), sensor=SENSOR, source="simulated")
     # the true frames (the sensor frame as the model's world: so is its gravity vector)
     known = _with_gravity(true_model.with_base(T_meas_world), T_meas_world[:3, :3] @ nominal.gravity_world)
     model = known if scenario == "known" else nominal.with_tool(_translation(TOOL_GUESS))
@@ -378,6 +389,7 @@ def make_case(case: HiddenCase) -> SimulatedCampaign:
         seed=case.seed,
         flip_dir=case.flip_dir,
         temperature=case.temperature,
+        points=case.points,
     )
 
 

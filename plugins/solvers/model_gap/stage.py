@@ -26,7 +26,8 @@ from engine.plugin_manager import PluginError
 from engine.stage import Stage, StageParams
 
 from .analyse import analyse_gap, families_from_registry
-from .data import GapDataError, pair_streams, with_payload
+from .data import GapDataError, with_payload
+from .recordings import pair_streams
 
 
 class ModelGap(Stage):

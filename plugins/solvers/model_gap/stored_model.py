@@ -101,6 +101,8 @@ def gap_model_dict(problem: KinematicGapProblem) -> dict[str, Any]:
         "effects": effects,
         "noise_sigma_m": float(np.median(problem.sigma)),
         "noise_source": problem.cfg.noise_source,
+        # several measured points: each one's offset from the first (the robot's own tool point)
+        "tool_points": None if problem.points is None else problem.points.as_dict(),
         "calibration": {"levels": list(problem.cfg.calibrate), "parameters": list(problem.base_names)},
         # the size of the fit: a new measurement's expected error is the noise raised by sqrt(1 + p / n)
         "fit": {
@@ -149,6 +151,7 @@ class StoredModel:
     kind: str  # gap model | kinematic calibration | robot model
     source: str
     noise_sigma_m: float | None = None  # the noise the model was fitted with (per axis)
+    tool_points: dict[str, list[float]] | None = None  # several measured points: offsets from the first
     n_parameters: int | None = None  # how many parameters its fit had, on how many residuals
     n_residuals: int | None = None
 
@@ -185,6 +188,7 @@ def load_stored_model(model: str | Path) -> StoredModel:
             "kinematic calibration",
             str(path),
             None if sigma is None else float(sigma) / 1e3,
+            est.get("tool_point_offsets"),
             p,
             None if (dof is None or p is None) else int(dof) + p,
         )
@@ -195,5 +199,5 @@ def load_stored_model(model: str | Path) -> StoredModel:
             fit = doc.get("fit") or {}
             sigma = doc.get("noise_sigma_m")
             return StoredModel(robot, effects, "gap model", str(path), None if sigma is None else float(sigma),
-                               fit.get("n_parameters"), fit.get("n_residuals"))  # fmt: skip
+                               doc.get("tool_points"), fit.get("n_parameters"), fit.get("n_residuals"))  # fmt: skip
     return StoredModel(robot, [], "robot model", str(model))
