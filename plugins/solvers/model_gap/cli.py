@@ -116,12 +116,7 @@ def cmd_gap(args: argparse.Namespace) -> int:
         SelectionConfig(alpha=args.alpha, cv_folds=args.folds, seed=args.seed), max_effects=args.max_effects
     )
     console = None if args.json else Console(width=None if sys.stdout.isatty() else 160)
-    opts = {
-        "joint_topic": args.joint_topic,
-        "measurement_topic": args.measurement_topic,
-        "sensor": args.sensor,
-        "payload_kg": args.payload_kg,
-    }
+    opts = _data_options(args)
     result = analyse_gap(
         args.model,
         args.data,
@@ -136,6 +131,12 @@ def cmd_gap(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(plain(report_dict(result), nan_as_none=True), indent=2))
     return EXIT_CODES[result.verdict]
+
+
+def _data_options(args: argparse.Namespace) -> dict[str, object]:
+    """The options of ``vgr gap`` and ``vgr gap check`` that say how to read the data file."""
+    keys = ("joint_topic", "measurement_topic", "sensor", "payload_kg")
+    return {k: getattr(args, k) for k in keys}
 
 
 CHECK_EXIT_CODES = {"ok": EXIT_OK, "gap": EXIT_UNEXPLAINED}
@@ -155,12 +156,7 @@ def cmd_check(args: argparse.Namespace) -> int:
         raise ValueError(f"--alpha must be in (0, 0.5), got {args.alpha}")
     refit = _levels(args.refit) or ()
     console = None if args.json else Console(width=None if sys.stdout.isatty() else 160)
-    opts = {
-        "joint_topic": args.joint_topic,
-        "measurement_topic": args.measurement_topic,
-        "sensor": args.sensor,
-        "payload_kg": args.payload_kg,
-    }
+    opts = _data_options(args)
     result = check_model(
         args.model,
         args.data,
