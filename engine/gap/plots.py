@@ -95,8 +95,7 @@ def plot_rounds(result: GapResult, features: list[Feature], path: Path) -> Path:
         if f is None:
             continue
         masks = _masks(f, [b.label for b in g.bins])
-        before = [np.sqrt(np.mean(np.sum(first.residual[m] ** 2, axis=1))) * s for m in masks]
-        after = [np.sqrt(np.mean(np.sum(last.residual[m] ** 2, axis=1))) * s for m in masks]
+        before, after = _rms_per_bin(first.residual, masks, s), _rms_per_bin(last.residual, masks, s)
         xb = np.arange(len(masks))
         ax.bar(xb - 0.2, before, 0.4, label="as given")
         ax.bar(xb + 0.2, after, 0.4, label="augmented")
@@ -106,6 +105,11 @@ def plot_rounds(result: GapResult, features: list[Feature], path: Path) -> Path:
         ax.set_ylabel(f"RMS ({u})")
         ax.legend(fontsize=7)
     return _save(fig, path)
+
+
+def _rms_per_bin(residual: np.ndarray, masks: list[np.ndarray], scale: float) -> list[float]:
+    """3-D RMS of the (N, 3) *residual* in each bin, in report units (*scale* per metre)."""
+    return [float(np.sqrt(np.mean(np.sum(residual[m] ** 2, axis=1)))) * scale for m in masks]
 
 
 def _masks(f: Feature, labels: list[str]) -> list[np.ndarray]:
@@ -246,7 +250,7 @@ def plot_check(c: ModelCheck, features: list[Feature], path: Path) -> Path:
         if f is None:
             continue
         masks = _masks(f, [b.label for b in g.bins])
-        vals = [np.sqrt(np.mean(np.sum(c.residual[mk] ** 2, axis=1))) * s for mk in masks]
+        vals = _rms_per_bin(c.residual, masks, s)
         ax.bar(np.arange(len(vals)), vals)
         ax.axhline(c.expected_rms * s, color="k", ls="--", label="expected")
         ax.set_xticks(np.arange(len(vals)), [b.label for b in g.bins], rotation=20, ha="right", fontsize=7)
