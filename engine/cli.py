@@ -154,11 +154,14 @@ def cmd_run(args: argparse.Namespace) -> int:
         ready_timeout_s=args.ready_timeout,
         freeze_gc=args.own_process,  # the command's own process (not a caller's, e.g. a test): see Runner
     )
-    if args.record:  # a named recording that exists is refused before anything is created
-        recording_path(args, graph, None)
+    # a recording the user named (--record, record.path) does not depend on the run folder: it is
+    # resolved, and refused if it exists, before anything is created
+    named = bool(args.record or recipe.record.path)
+    path = recording_path(args, graph, None) if named else None
     run_dir = runner.run_dir = run_folder.create(args.runs_dir, run_folder.run_name(runner.run_id, args.process))
     run_folder.write_recipe(run_dir, graph.loaded)
-    path = recording_path(args, graph, run_dir)
+    if not named:
+        path = recording_path(args, graph, run_dir)
     if path is not None:
         runner.observers.append(Recorder(path, recipe.record, graph.loaded, registry.plugins))
     with run_folder.logging_to(run_dir):
