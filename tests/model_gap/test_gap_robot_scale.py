@@ -23,10 +23,10 @@ from engine.gap.report import render, report_dict
 from plugins.robot.model_file import load_robot_model
 from plugins.robot.with_effects import RobotWithEffects
 from plugins.solvers.model_gap import analyse_gap
-from plugins.solvers.model_gap.analyse import load_gap_model
 from plugins.solvers.model_gap.effects import RobotScaleFamily, uniform_scale_offsets
 from plugins.solvers.model_gap.problem import KinematicGapProblem, ProblemConfig
 from plugins.solvers.model_gap.simulate import make_case
+from plugins.solvers.model_gap.stored_model import load_gap_model
 
 pytestmark = pytest.mark.timeout(300)
 

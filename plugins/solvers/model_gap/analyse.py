@@ -17,7 +17,7 @@ from plugins.robot.kinematics import RobotModel
 
 from .data import GapData, load_gap_data
 from .problem import DEFAULT_CALIBRATION, KinematicGapProblem, ProblemConfig
-from .stored_model import load_gap_model
+from .stored_model import load_stored_model
 
 
 def families_from_registry(extra_modules: tuple[str, ...] = ()) -> list[Any]:
@@ -47,6 +47,7 @@ def build_problem(
     calibrate: tuple[str, ...] | None = None,
     config: GapConfig | None = None,
     families: list[Any] | None = None,
+    tool_points: dict[str, list[float]] | None = None,
 ) -> KinematicGapProblem:
     """The kinematic gap problem with its baseline calibration and noise.
 
@@ -56,7 +57,8 @@ def build_problem(
     joint geometry at all -- fewer samples than the workflow needs with it, or a joint calibration
     that fails -- the frame and the tool are calibrated alone and the report says why. Explicit levels
     are taken as given. The noise is ``noise_mm`` (per axis), else the data's ``sigma_mm`` column,
-    else estimated (:func:`estimate_noise`).
+    else estimated (:func:`estimate_noise`). ``tool_points``: several measured points' offsets a stored
+    model knows (the start of their fit, or the points themselves when the tool is not calibrated).
     """
     cfg = config or GapConfig()
     fams = families if families is not None else families_from_registry()
@@ -65,9 +67,8 @@ def build_problem(
 
     def make(levels: tuple[str, ...], requested: str) -> KinematicGapProblem:
         source = "estimated" if estimated else "given"
-        return KinematicGapProblem(
-            robot, data, ProblemConfig(levels, noise_m=noise_m, noise_source=source, requested=requested)
-        )
+        cfg = ProblemConfig(levels, noise_m=noise_m, noise_source=source, requested=requested, tool_points=tool_points)
+        return KinematicGapProblem(robot, data, cfg)
 
     if calibrate is not None:
         problem = make(tuple(calibrate), ",".join(calibrate) or "none")
@@ -111,10 +112,16 @@ def analyse_gap(
     (:func:`build_problem`). ``noise_mm`` (per-axis 1-sigma): when neither it nor a ``sigma_mm`` data
     column is given, the noise is estimated from the data (:func:`estimate_noise`) and the report says so.
     """
-    robot, initial = load_gap_model(model)
+    if isinstance(model, RobotModel):
+        robot, initial, points = model, [], None
+    else:  # a robot, or a model vgr wrote (augmented: its effects are applied first; calibrated)
+        stored = load_stored_model(model)
+        robot, initial, points = stored.robot, stored.effects, stored.tool_points
     gap_data = data if isinstance(data, GapData) else load_gap_data(data, **(data_options or {}))
     fams = families if families is not None else families_from_registry()
-    problem = build_problem(robot, gap_data, noise_mm=noise_mm, calibrate=calibrate, config=config, families=fams)
+    problem = build_problem(
+        robot, gap_data, noise_mm=noise_mm, calibrate=calibrate, config=config, families=fams, tool_points=points
+    )
     if initial:
         by_label = {(c.name, c.where): c for c in collect_candidates(problem, fams) if not c.unavailable}
         for e in initial:
