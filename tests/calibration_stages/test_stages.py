@@ -26,12 +26,14 @@ stages:
   calibrate:
     type: handeye_calibration
     inputs: {{robot_pose: data.robot, target_pose: data.target, solve: never.out}}
-    params: {{setup: {setup}, drop_unmatched: {drop}}}
+    params: {{{setup}drop_unmatched: {drop}}}
 """
 
 
-def hand_eye(path, setup="eye_to_hand", skip=(), drop=True):
-    return run(text=HAND_EYE.format(path=path, setup=setup, skip=list(skip), drop=str(drop).lower()))
+def hand_eye(path, setup: str | None = "eye_to_hand", skip=(), drop=True):
+    """Run the stage on a pose-pair file; ``setup=None`` leaves the parameter at its default."""
+    setup_param = "" if setup is None else f"setup: {setup}, "
+    return run(text=HAND_EYE.format(path=path, setup=setup_param, skip=list(skip), drop=str(drop).lower()))
 
 
 def test_hand_eye_stage_on_the_moveit_data_publishes_the_camera_pose_within_one_percent():
@@ -47,6 +49,17 @@ def test_hand_eye_stage_on_the_moveit_data_publishes_the_camera_pose_within_one_
     tfs = msgs[("calibrate", "transform")]
     assert [(t.frame_id, t.child_frame_id) for t in tfs] == [("base", "camera_calibrated"), ("tcp", "target")]
     assert np.allclose(tfs[0].T, res.estimate["T_base_cam"])
+
+
+def test_the_stage_finds_the_set_up_from_the_data_by_default():
+    """MoveIt's pairs are eye to hand; the stage's default (auto) must say so and publish that tree."""
+    summary, msgs = hand_eye(MOVEIT, setup=None)
+    assert summary.ok, summary.stop_reason
+    (res,) = results(msgs)
+    assert res.usable and "T_base_cam" in res.estimate and res.metrics["setup_found_from_data"] == 1.0
+    assert np.allclose(res.estimate["T_base_cam"][:3, 3], MOVEIT_T_BASE_CAM_M, rtol=0.01)
+    tfs = msgs[("calibrate", "transform")]
+    assert [(t.frame_id, t.child_frame_id) for t in tfs] == [("base", "camera_calibrated"), ("tcp", "target")]
 
 
 def test_missed_detections_are_dropped_with_a_warning_or_fail_the_calibration():

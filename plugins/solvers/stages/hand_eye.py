@@ -3,7 +3,8 @@
 Inputs: ``robot_pose`` (PoseStamped ``T_base_tcp`` as the robot reports it), ``target_pose``
 (PoseStamped ``T_cam_target``: the calibration target / known object seen by the camera), ``solve``.
 Samples are paired by stamp (see plugins.solvers.stages.base). Publishes the result and, when
-usable, two transforms: the hand-eye ``X`` (eye in hand: ``tcp -> camera_calibrated``; eye to hand:
+usable, two transforms (of the set-up declared, or by default the one the data show: see
+plugins.solvers.handeye.setup_choice): the hand-eye ``X`` (eye in hand: ``tcp -> camera_calibrated``; eye to hand:
 ``base -> camera_calibrated``) and the other unknown ``Y`` (``base -> target`` or ``tcp -> target``).
 Frame names come from the messages (the robot poses' ``frame_id`` for the base, the target poses'
 ``frame_id`` for the camera, whose estimate is ``<camera>_calibrated`` unless ``camera_frame`` names
@@ -33,7 +34,9 @@ class HandEyeCalibration(CalibrationStage):
     DATA_PORTS: ClassVar = {"robot_pose": PoseStamped, "target_pose": PoseStamped}
 
     class Params(PairingParams):
-        setup: Literal["eye_in_hand", "eye_to_hand"] = "eye_in_hand"
+        setup: Literal["auto", "eye_in_hand", "eye_to_hand"] = Field(
+            "auto", description="auto: the set-up the data show (Vuong's test; refused when they cannot tell)"
+        )
         kind: Literal["hand_eye", "robot_world"] = Field("hand_eye", description="AX=XB or AX=ZB (Shah init)")
         robot_noise_deg_mm: tuple[float, float] | None = Field(None, description="declared robot noise (deg, mm)")
         camera_noise_deg_mm: tuple[float, float] | None = Field(
@@ -67,6 +70,6 @@ class HandEyeCalibration(CalibrationStage):
         base, cam = self.frame_of("robot_pose", "base"), self.frame_of("target_pose", "camera")
         cam = p.camera_frame or calibrated(cam)
         e = result.estimate
-        if p.setup == "eye_in_hand":
+        if "T_tcp_cam" in e:  # eye in hand, declared or found from the data
             return [(e["T_tcp_cam"], p.tcp_frame, cam), (e["T_base_target"], base, p.target_frame)]
         return [(e["T_base_cam"], base, cam), (e["T_tcp_target"], p.tcp_frame, p.target_frame)]
