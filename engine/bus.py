@@ -10,8 +10,9 @@ Key expressions (``<run>`` is the run id)::
     vgr/<run>/_active/<process>       liveliness: the process still has stages producing data
     vgr/<run>/_control                run-wide control (stop), published by any process
 
-The default session is the embedded set-up: peer mode, multicast scouting off, listening on
-loopback only (``tcp/127.0.0.1:0``). Stages of one process exchange message objects in-process
+The default session is the embedded set-up: peer mode, multicast scouting off, and no listener
+unless the run's processes need one (engine.session_config; TLS and access control come from
+there too). Stages of one process exchange message objects in-process
 (engine.inbox); a stream goes through zenoh, encoded, when another process (on its ``_wire`` key,
 see engine.wire) or an external subscriber (on its public key) listens. Streams are reliable with
 congestion control BLOCK: nothing is dropped.
@@ -86,12 +87,16 @@ STOP_ENVELOPE = encode_envelope(Envelope(Kind.STOP, 0, 0, ""))
 REMOTE_CHANNEL_CAPACITY = 1 << 22  # samples an input from another process may have waiting
 
 
-def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
+def zenoh_config(settings: ZenohSettings, extra: dict[str, Any] | None = None) -> zenoh.Config:
+    """zenoh's configuration from *settings* (``listen`` unset: no listener) and *extra*, a map of
+    configuration paths to values (TLS, access control: engine.session_config)."""
     conf = zenoh.Config()
     conf.insert_json5("mode", json.dumps(settings.mode))
     conf.insert_json5("scouting/multicast/enabled", json.dumps(settings.multicast_scouting))
-    conf.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
+    conf.insert_json5("listen/endpoints", json.dumps(list(settings.listen or [])))
     conf.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
+    for path, value in (extra or {}).items():
+        conf.insert_json5(path, json.dumps(value))
     return conf
 
 
@@ -231,10 +236,10 @@ class CancelToken:
 class Bus:
     """One zenoh session and the declarations made on it; ``close()`` undeclares and closes."""
 
-    def __init__(self, settings: ZenohSettings | None = None) -> None:
+    def __init__(self, settings: ZenohSettings | None = None, extra: dict[str, Any] | None = None) -> None:
         self.settings = settings or ZenohSettings()
         try:
-            self.session = zenoh.open(zenoh_config(self.settings))
+            self.session = zenoh.open(zenoh_config(self.settings, extra))
         except Exception as exc:
             raise BusError(
                 f"cannot open zenoh session ({self.settings.mode}, listen={self.settings.listen}, "

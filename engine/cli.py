@@ -146,9 +146,17 @@ def cmd_run(args: argparse.Namespace) -> int:
         )
     from engine.cli_recording import recording_path
     from engine.recorder import Recorder
+    from engine.runner import recipe_dir
+    from engine.session_config import security_problems
 
+    problems = security_problems(graph, base=recipe_dir(graph), certs_dir=args.certs)
+    if problems:  # nothing is started with certificates that cannot work
+        for p in problems:
+            out.print(f"[red]security[/]: {p}")
+        return EXIT_INVALID
     runner = Runner(  # refuses a bad run id or process before anything is created
         graph,
+        certs_dir=args.certs,
         process=args.process,
         run_id=args.run_id,
         ready_timeout_s=args.ready_timeout,
@@ -197,6 +205,14 @@ def _summary_dict(s: RunSummary) -> dict[str, Any]:
 
 def cmd_validate(args: argparse.Namespace) -> int:
     graph, _ = _load_graph(args)
+    from engine.runner import recipe_dir
+    from engine.session_config import security_problems
+
+    problems = security_problems(graph, base=recipe_dir(graph), certs_dir=getattr(args, "certs", None))
+    if problems:
+        for p in problems:
+            out.print(f"[red]security[/]: {p}")
+        return EXIT_INVALID
     out.print(
         f"[green]ok[/]: {graph.loaded.file}: recipe {graph.recipe.name!r}, {len(graph.nodes)} stages, "
         f"{len(graph.edges)} data edges, {len(graph.service_edges)} service edges, "
@@ -271,6 +287,7 @@ VERB_MODULES: dict[str, tuple[str, str]] = {
         "hand-eye, robot-world, Vive desk, TCP, kinematic or camera-intrinsics calibration",
     ),
     "teach": ("plugins.actions.teach_cli", "store the robot's current pose as the recipe's photo or install pose"),
+    "certs": ("engine.cli_security", "development certificates for a recipe's security: block"),
     "gap": (
         "plugins.solvers.model_gap.cli",
         "compare a robot model with measurements, name the missing effect, add it",
@@ -303,6 +320,7 @@ def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
         "--listen", action="append", metavar="ENDPOINT", help="zenoh listen endpoint, e.g. tcp/127.0.0.1:7447"
     )
     p.add_argument("--connect", action="append", metavar="ENDPOINT", help="zenoh endpoint to connect to")
+    p.add_argument("--certs", metavar="DIR", help="certificate folder of the recipe's security: block (overrides it)")
     p.add_argument("--ready-timeout", type=float, default=15.0, help="seconds to wait for the other processes")
     p.add_argument("--no-progress", action="store_true", help="no live progress table")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -311,6 +329,7 @@ def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
 
     p = sub.add_parser("validate", help="check a recipe (types, wiring, parameters, cycles) without running it")
     _add_recipe_args(p)
+    p.add_argument("--certs", metavar="DIR", help="certificate folder of the recipe's security: block (overrides it)")
     p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("graph", help="print a recipe's DAG (Mermaid or Graphviz dot)")

@@ -10,7 +10,11 @@ IP addresses and ports are checked for range.
 from __future__ import annotations
 
 import ipaddress
+import os
 import re
+import stat
+import tempfile
+from pathlib import Path
 
 #: protocols whose address is ``host:port``
 HOST_PORT = ("tcp", "udp", "tls", "quic", "ws")
@@ -23,6 +27,8 @@ _HOSTNAME = re.compile(
 
 def endpoint_problem(endpoint: str) -> str | None:
     """Why *endpoint* is not a zenoh endpoint vgr can use, or None when it is."""
+    if endpoint == PRIVATE:
+        return None
     proto, sep, rest = endpoint.partition("/")
     if not sep or not rest:
         return f"{endpoint!r}: expected <protocol>/<address>, e.g. tcp/127.0.0.1:7447"
@@ -58,3 +64,40 @@ def check_endpoints(endpoints: list[str]) -> list[str]:
     if problems:
         raise ValueError("; ".join(problems))
     return endpoints
+
+
+# --------------------------------------------------------------------------- private unix sockets
+
+#: ``listen: [private]`` in a recipe or ``--listen private``: a unix socket in private_socket_dir()
+PRIVATE = "private"
+
+
+def private_socket_dir() -> Path:
+    """A folder only this user can open, for the unix sockets of runs on this host:
+    ``$XDG_RUNTIME_DIR/vgr`` when set (systemd makes that folder per user, mode 0700), else
+    ``<tmp>/vgr-<uid>``. Created 0700; refused (PermissionError) when it exists but belongs to
+    another user or others may open it, because a folder planted there by someone else would let
+    them take the sockets' names."""
+    runtime = os.environ.get("XDG_RUNTIME_DIR")
+    folder = Path(runtime) / "vgr" if runtime else Path(tempfile.gettempdir()) / f"vgr-{os.getuid()}"
+    folder.mkdir(mode=0o700, exist_ok=True)
+    st = folder.lstat()
+    if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid() or st.st_mode & 0o077:
+        raise PermissionError(
+            f"{folder} must be a folder of user {os.getuid()} with mode 0700 (it is uid {st.st_uid}, "
+            f"mode {stat.S_IMODE(st.st_mode):o}): remove it, or set XDG_RUNTIME_DIR to a private folder"
+        )
+    return folder
+
+
+def private_socket(run: str, process: str) -> str:
+    """The endpoint of *process* of run *run* in private_socket_dir() (the run's folder is made 0700)."""
+    run_dir = private_socket_dir() / run
+    run_dir.mkdir(mode=0o700, exist_ok=True)
+    return f"unixsock-stream/{run_dir / f'{process}.sock'}"
+
+
+def run_sockets(run: str) -> list[str]:
+    """Endpoints of the sockets run *run*'s processes listen on (those that exist now)."""
+    run_dir = private_socket_dir() / run
+    return sorted(f"unixsock-stream/{p}" for p in run_dir.glob("*.sock")) if run_dir.is_dir() else []

@@ -31,6 +31,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from engine.endpoints import check_endpoints
 from engine.errors import Problem, RecipeError, nearest
+from engine.security import SecuritySettings
 from engine.yaml_source import Locations, load_with_locations, locate
 
 NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_-]{0,63}$")
@@ -43,17 +44,18 @@ class _Strict(BaseModel):
 
 
 class ZenohSettings(_Strict):
-    """Zenoh session of one process. The default is the embedded set-up: peer, loopback only."""
+    """Zenoh session of one process. ``listen`` unset is the embedded default (engine.session_config):
+    no listener for a single-process run, private unix sockets between the processes of one host."""
 
     mode: Literal["peer", "client", "router"] = "peer"
-    listen: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:0"])
+    listen: list[str] | None = None
     connect: list[str] = Field(default_factory=list)
     multicast_scouting: bool = False
 
     @field_validator("listen", "connect")
     @classmethod
-    def _endpoints(cls, v: list[str]) -> list[str]:
-        return check_endpoints(v)
+    def _endpoints(cls, v: list[str] | None) -> list[str] | None:
+        return None if v is None else check_endpoints(v)
 
 
 class ProcessSettings(_Strict):
@@ -107,6 +109,7 @@ class Recipe(_Strict):
     vars: dict[str, Any] = Field(default_factory=dict)
     zenoh: ZenohSettings = Field(default_factory=ZenohSettings)
     processes: dict[str, ProcessSettings] = Field(default_factory=dict)
+    security: SecuritySettings | None = None
     record: RecordSettings = Field(default_factory=RecordSettings)
     stages: dict[str, StageSpec]
 

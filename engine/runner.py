@@ -50,6 +50,7 @@ from engine.graph import Graph
 from engine.messages import Event
 from engine.recipe import NAME_RE
 from engine.runtime import StageRuntime, StageStats
+from engine.session_config import plan_session
 from engine.stage import Stage
 from engine.stage_host import MessageObserver
 
@@ -114,6 +115,12 @@ class RunSummary:
         return OUTCOME_EXIT_CODES[self.outcome]
 
 
+def recipe_dir(graph: Graph) -> Path:
+    """The recipe's folder (relative paths of its ``security:`` block start there)."""
+    path = graph.loaded.path
+    return path.resolve().parent if path is not None else Path.cwd()
+
+
 def _driven_stages(graph: Graph) -> set[str]:
     """Sources and every stage reachable from a source through data edges."""
     driven = {n for n, node in graph.nodes.items() if node.cls.is_source()}
@@ -138,6 +145,7 @@ class Runner:
         bus: Bus | None = None,
         freeze_gc: bool = False,
         run_dir: Path | None = None,
+        certs_dir: str | None = None,
     ) -> None:
         recipe = graph.recipe
         if process not in graph.processes():
@@ -173,6 +181,13 @@ class Runner:
         self.multi_process = len(graph.processes()) > 1
         self._own_bus = bus is None
         self._bus = bus
+        # endpoints, TLS and access control of this process's session, refused here (before any
+        # file or session exists) when the recipe's settings cannot make it
+        self.session = (
+            None
+            if bus is not None
+            else plan_session(graph, process, self.run_id, base=recipe_dir(graph), certs_dir=certs_dir)
+        )
         self.runtimes: dict[str, StageRuntime] = {}
         self.events: list[Event] = []
         self._events_lock = threading.Lock()
@@ -287,9 +302,9 @@ class Runner:
         return summary
 
     def _start(self) -> None:
-        recipe = self.graph.recipe
         if self._bus is None:
-            self._bus = Bus(recipe.zenoh_for(self.process))
+            assert self.session is not None
+            self._bus = Bus(self.session.settings, self.session.extra)
         local = self.graph.stages_in(self.process)
         for name in local:
             self.runtimes[name] = StageRuntime(self, self.graph.nodes[name])

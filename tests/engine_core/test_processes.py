@@ -4,35 +4,14 @@ exactly as in one process; Ctrl-C stops a run cleanly with exit code 130."""
 from __future__ import annotations
 
 import json
-import os
 import signal
-import socket
 import subprocess
-import sys
 import time
-from pathlib import Path
 
 import pytest
+from process_helpers import env, free_port, vgr
 
 pytestmark = [pytest.mark.subprocess, pytest.mark.timeout(120)]
-ROOT = Path(__file__).resolve().parents[2]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def vgr(*args: str) -> list[str]:
-    return [sys.executable, "-m", "engine.cli", *args]
-
-
-def env() -> dict[str, str]:
-    e = dict(os.environ)
-    e["PYTHONPATH"] = os.pathsep.join([str(ROOT / "tests"), str(ROOT), e.get("PYTHONPATH", "")])
-    return e
-
 
 RECIPE = """
 name: split
