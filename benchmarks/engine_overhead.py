@@ -5,7 +5,9 @@ Payloads of 64 B, 4 KiB and 1.2 MB, in two topologies:
 * in-process — raw: one zenoh session, ``put`` -> subscriber callback (which reads the payload
   bytes); vgr: ``bench_source`` -> ``bench_sink`` in one process (intra-process hand-over);
 * cross-process over tcp/127.0.0.1 — raw: publisher here, subscriber callback in a child process;
-  vgr: the same two stages in two ``vgr run --process`` processes.
+  vgr: the same two stages in two ``vgr run --process`` processes; ``vgr_secured``: the same with
+  the recipe's ``security:`` block (TLS over 127.0.0.1, mutual TLS, zenoh's access-control list
+  built from the graph; docs/security.md), so ``secured_over_plain_*`` is what security costs.
 
 Latency is one-way, from just before the payload is built (``time.monotonic_ns()``, the same clock in
 every process) to the moment the receiving code holds the data: the entry of the vgr stage handler
@@ -234,21 +236,27 @@ def typed_floor_cross_process(size: int, count: int, interval_s: float) -> dict[
 RECIPE = """
 name: bench
 plugins: [bench_stages]
+{security}
 processes:
-  pub: {{listen: ["tcp/127.0.0.1:{port}"]}}
-  sub: {{connect: ["tcp/127.0.0.1:{port}"], listen: []}}
+  pub: {{listen: ["{proto}/127.0.0.1:{port}"]}}
+  sub: {{connect: ["{proto}/127.0.0.1:{port}"], listen: []}}
 stages:
   src:  {{type: bench_source, process: {p_pub}, params: {{size: {size}, count: {count}, interval_s: {interval}, warmup: {warmup}, output: "{src_out}"}}}}
   sink: {{type: bench_sink, process: {p_sub}, inputs: {{in: src.out}}, params: {{output: "{out}", warmup: {warmup}}}}}
 """
 
 
-def recipe(tmp: str, processes: tuple[str, str], size: int, count: int, interval_s: float) -> tuple[str, Path, Path]:
+def recipe(
+    tmp: str, processes: tuple[str, str], size: int, count: int, interval_s: float, certs: Path | None = None
+) -> tuple[str, Path, Path]:
     """The benchmark recipe with source and sink in *processes*, and the files where sink and source
-    write their figures (in *tmp*)."""
+    write their figures (in *tmp*); with *certs* (a `vgr certs make` folder), secured: TLS, mTLS and
+    the access-control list built from the graph (docs/security.md)."""
     out, src_out = Path(tmp) / "sink.json", Path(tmp) / "src.json"
     p_pub, p_sub = processes
     text = RECIPE.format(
+        security=f'security: {{certs: "{certs}"}}' if certs else "",
+        proto="tls" if certs else "tcp",
         port=free_port(),
         p_pub=p_pub,
         p_sub=p_sub,
@@ -282,10 +290,28 @@ def vgr_in_process(size: int, count: int, interval_s: float) -> dict[str, float]
     return summarize(res["lat_ns"], res["arrivals_ns"], size, cpu)
 
 
-def vgr_cross_process(size: int, count: int, interval_s: float) -> dict[str, float]:
+_CERTS: list[Path] = []  # the development certificates of the secured rows, made once per benchmark run
+
+
+def bench_certs() -> Path:
+    if not _CERTS:
+        from engine.certs import Identity, write_bundle
+
+        folder = Path(tempfile.mkdtemp(prefix="vgr-bench-certs-")) / "certs"
+        write_bundle(folder, [Identity("pub"), Identity("sub")], ca_name="vgr benchmark CA")
+        _CERTS.append(folder)
+    return _CERTS[0]
+
+
+def vgr_secured_cross_process(size: int, count: int, interval_s: float) -> dict[str, float]:
+    """vgr_cross_process with the recipe's security: block: TLS with mTLS and the ACL."""
+    return vgr_cross_process(size, count, interval_s, certs=bench_certs())
+
+
+def vgr_cross_process(size: int, count: int, interval_s: float, certs: Path | None = None) -> dict[str, float]:
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(HERE), str(ROOT), os.environ.get("PYTHONPATH", "")]))
     with tempfile.TemporaryDirectory() as tmp:
-        text, out, src_out = recipe(tmp, ("pub", "sub"), size, count, interval_s)
+        text, out, src_out = recipe(tmp, ("pub", "sub"), size, count, interval_s, certs)
         recipe_file = Path(tmp) / "bench.yaml"
         recipe_file.write_text(text)
         # no recording: the recorder's cost is measured by benchmarks/record_replay.py, and the in-process
@@ -352,7 +378,11 @@ def main() -> None:
         plan = {k: (max(100, v[0] // 10), v[1], max(60, v[2] // 10)) for k, v in plan.items()}
     topologies = {
         "in_process": {"raw_zenoh": raw_in_process, "vgr": vgr_in_process},
-        "cross_process": {"raw_zenoh": raw_cross_process, "vgr": vgr_cross_process},
+        "cross_process": {
+            "raw_zenoh": raw_cross_process,
+            "vgr": vgr_cross_process,
+            "vgr_secured": vgr_secured_cross_process,
+        },
     }
     results: dict[str, dict[str, dict[str, dict[str, float]]]] = {}
     floor_runs: dict[str, list[dict[str, float]]] = {}
@@ -412,6 +442,11 @@ def main() -> None:
                 "latency_ratio_p50_runs": [round(x, 3) for x in run_ratios[f"{topo}/{label}"]["latency"]],
                 "throughput_ratio_runs": [round(x, 3) for x in run_ratios[f"{topo}/{label}"]["throughput"]],
             }
+            if "vgr_secured" in r:  # what TLS, mTLS and the access-control list cost
+                ratios[f"{topo}/{label}"] |= {
+                    "secured_over_plain_latency_p50": r["vgr_secured"]["p50_us"] / r["vgr"]["p50_us"],
+                    "secured_over_plain_throughput": r["vgr_secured"]["msg_per_s"] / r["vgr"]["msg_per_s"],
+                }
             if "typed_floor" in r:  # the best any engine delivering typed messages with this codec can do
                 ratios[f"{topo}/{label}"]["typed_floor_throughput_ratio"] = (
                     r["typed_floor"]["msg_per_s"] / r["raw_zenoh"]["msg_per_s"]
