@@ -116,7 +116,8 @@ class BoardPose(Stage):
         except (BoardNotFoundError, ImageReadError, ValueError) as exc:  # AmbiguousBoardError is a ValueError
             self.refused += 1
             code = "board_not_found" if isinstance(exc, BoardNotFoundError) else "board_pose_refused"
-            self.ctx.event("warning", code, f"{name}: {exc}; no board pose", stamp_ns=image.stamp_ns)
+            why = str(exc) if str(exc).startswith(name) else f"{name}: {exc}"
+            self.ctx.event("warning", code, f"{why}; no board pose", stamp_ns=image.stamp_ns)
             return
         self.rms_px.append(pose.rms_px)
         self.ctx.publish(
