@@ -61,7 +61,7 @@ def test_the_simulated_image_shows_the_board_where_the_truth_puts_it(board_run):
     through the lens model the camera publishes (distortion included)."""
     _, msgs, _ = board_run
     board = parse_board(BOARD)
-    (image, info), truth_tf = (msgs[("camera", "image")][3], msgs[("camera", "image_info")][3]), None
+    image, info, truth_tf = msgs[("camera", "image")][3], msgs[("camera", "image_info")][3], None
     camera = CameraModel.from_camera_info(info)
     assert camera.D[0] != 0 and image.encoding == "mono8" and image.stamp_ns == info.stamp_ns
     for ft in msgs[("camera", "truth/part_poses")]:
@@ -76,7 +76,7 @@ def test_the_simulated_image_shows_the_board_where_the_truth_puts_it(board_run):
 
 
 def test_the_run_replays_identically_and_the_cli_runs_the_images_pipeline_on_it(board_run, tmp_path, capsys):
-    _, msgs, path = board_run
+    path = board_run[2]
     assert_replays_identically(path)
     out = tmp_path / "r.json"
     assert main(["calibrate", "handeye", str(path), "--board", BOARD, "--json", str(out), "--no-samples"]) == 0
