@@ -234,6 +234,24 @@ message Request {                    // a generic service request (capture now, 
 )
 
 
+# --------------------------------------------------------------------------- vgr.v1 pose with covariance
+# A file of its own: adding a message to vgr/v1/messages.proto would change the schema records (the
+# file descriptor set) that recordings store for every type of that file.
+
+VGR_V1_POSE_COVARIANCE = define_proto(
+    "vgr/v1/pose_with_covariance.proto",
+    "vgr.v1",
+    """
+message PoseWithCovarianceInFrame {  // foxglove.PoseInFrame's fields + ROS PoseWithCovariance's covariance
+  google.protobuf.Timestamp timestamp = 1;
+  string frame_id = 2;
+  foxglove.Pose pose = 3;            // T_frame_entity
+  repeated double covariance = 4;    // 6x6 row-major, (x, y, z, rot x, rot y, rot z): m, rad, in frame_id
+}
+""",
+)
+
+
 # --------------------------------------------------------------------------- vgr.v1 recording records
 # Written by engine.recorder next to the data channels; they let engine.replay reproduce a run.
 

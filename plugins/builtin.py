@@ -25,6 +25,7 @@ def vgr_stage_types() -> list[type]:
     from plugins.sim.stages.tracker import SimTracker
     from plugins.solvers.model_gap.stage import ModelGap
     from plugins.solvers.registration.stage import Matcher
+    from plugins.solvers.stages.board_pose import BoardPose
     from plugins.solvers.stages.hand_eye import HandEyeCalibration
     from plugins.solvers.stages.kinematic import KinematicCalibrationStage
     from plugins.solvers.stages.result_file import CalibrationFile
@@ -40,6 +41,7 @@ def vgr_stage_types() -> list[type]:
         SimPointTracker,
         CalibrationPoses,
         TargetPose,
+        BoardPose,
         HandEyeCalibration,
         ViveDeskCalibration,
         ViveToDesktop,

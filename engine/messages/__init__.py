@@ -14,7 +14,8 @@ Where things are (import them from here, ``engine.messages``):
 * ``base`` — :class:`Message` and the hand-over rules of publish (canonical, detach, freeze);
 * ``mapping`` — how a message's fields travel in its schema (:class:`Wire`), and the protobuf helpers;
 * ``geometry`` — types on Foxglove's schemas (point cloud, image, camera info, pose, transforms,
-  joint state, scene meshes), which Foxglove's 3D view shows;
+  joint state, scene meshes), which Foxglove's 3D view shows, and the pose with covariance (a pose
+  on vgr's schema that extends Foxglove's);
 * ``vgr_v1`` — types on vgr's own schemas (blob, tracker pose, event, calibration result, robot
   command and reply, correction, request).
 """
@@ -30,6 +31,7 @@ from engine.messages.geometry import (
     Mesh,
     PointCloud,
     PoseStamped,
+    PoseWithCovarianceStamped,
     SceneMeshes,
     Transform,
 )
@@ -64,6 +66,7 @@ BUILTIN_MESSAGE_TYPES: tuple[type[Message], ...] = (
     Correction,
     Request,
     SceneMeshes,
+    PoseWithCovarianceStamped,
 )
 
 __all__ = [
@@ -84,6 +87,7 @@ __all__ = [
     "Message",
     "PointCloud",
     "PoseStamped",
+    "PoseWithCovarianceStamped",
     "Request",
     "RobotCommand",
     "RobotReply",

@@ -202,6 +202,26 @@ class PoseStamped(Message, schema="foxglove.PoseInFrame"):
 
 
 @dataclass(kw_only=True, eq=False)
+class PoseWithCovarianceStamped(PoseStamped, schema="vgr.v1.PoseWithCovarianceInFrame"):
+    """A :class:`PoseStamped` with the 6x6 ``covariance`` of its perturbation (ROS
+    ``geometry_msgs/PoseWithCovarianceStamped``): ``(dt, dphi)`` ordered ``(x, y, z, rot x, rot y,
+    rot z)``, m and rad, both in ``frame_id``: ``t' = t + dt``, ``R' = exp([dphi]) R``, the decoupled
+    perturbation of engine.transforms and of the hand-eye solver's noise model. A subclass of
+    PoseStamped, so it feeds every input that takes a pose; on vgr's own schema (Foxglove has no pose
+    with covariance), whose first three fields are those of ``foxglove.PoseInFrame``."""
+
+    WIRE: ClassVar[WireMap] = {"covariance": Wire(shape=(6, 6))}
+
+    covariance: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))
+
+    def __post_init__(self) -> None:
+        cov = np.asarray(self.covariance, dtype=float)
+        if cov.shape != (6, 6):
+            raise ValueError(f"PoseWithCovarianceStamped.covariance must be 6x6, got shape {cov.shape}")
+        self.covariance = cov
+
+
+@dataclass(kw_only=True, eq=False)
 class Transform(Message, schema="foxglove.FrameTransform"):
     """``T`` = T_parent_child with parent ``frame_id``."""
 

@@ -139,7 +139,7 @@ def _hand_eye(kind: str) -> Callable[[argparse.Namespace], Outcome]:
         from plugins.solvers.handeye.io import YAML_SUFFIXES
         from plugins.solvers.handeye.problem import check_setup
 
-        if args.images is not None or args.data is None:
+        if args.images is not None or args.data is None or args.board is not None:
             from plugins.solvers.boards.cli import run_handeye_images
 
             return run_handeye_images(args, kind)
@@ -392,7 +392,8 @@ DATA: a plain file (.json / .csv, formats in docs/calibration.md) or a vgr recor
 the samples come from two topics (--*-topic; the defaults match recipes/calibrate_*_sim.yaml),
 paired by stamp (nearest within --max-skew-s) or by order (--pair order).
 intrinsics: IMAGES... (files or folders of png / jpg / bmp) and --board SPEC instead of DATA.
-handeye / robot-world: DATA, or --images DIR --poses FILE --board SPEC [--intrinsics FILE] instead.
+handeye / robot-world: DATA, or --images DIR --poses FILE --board SPEC [--intrinsics FILE] instead, or
+a recording's board images: RUN.mcap --board SPEC (--image-topic, --camera-info-topic, --robot-topic).
 Exit codes: 0 usable result (verdict ok / warning), 1 degenerate or failed (do not use it),
 2 bad input (missing or malformed file, NaN, mixed units, too few samples, unpaired samples)."""
 

@@ -69,6 +69,10 @@ def samples() -> dict[str, m.Message]:
         "PoseStamped/default": m.PoseStamped(),
         "PoseStamped/rotated": m.PoseStamped(T=T1, frame_id="base", stamp_ns=42),
         "PoseStamped/half_turn": m.PoseStamped(T=T3, frame_id="base"),
+        "PoseWithCovarianceStamped/default": m.PoseWithCovarianceStamped(),
+        "PoseWithCovarianceStamped/full": m.PoseWithCovarianceStamped(
+            T=T2, covariance=np.diag([1e-8, 2e-8, 9e-8, 1e-6, 2e-6, 3e-6]) + 1e-9, frame_id="camera", stamp_ns=43
+        ),
         "Transform/default": m.Transform(),
         "Transform/rotated": m.Transform(frame_id="base", child_frame_id="tcp", T=T2, stamp_ns=1_000_000_000),
         "FrameTransforms/empty": m.FrameTransforms(stamp_ns=99),

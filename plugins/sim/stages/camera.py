@@ -1,10 +1,14 @@
 """``sim_camera``: the simulated depth camera as a sensor stage (camera contract + ground truth).
 
-Wraps :class:`plugins.sim.cell.SimCell`. On ``capture`` it asks the simulated robot (client
-``robot``, wired to ``sim_robot.truth``) where the TCP truly is when the camera is on the flange or
-a part is in the gripper, renders the scene with the noise model and the sensor effects (depth
-scale/bias, latency, hand-eye error, placement offsets), and replies with the cloud in the camera
-frame. It also publishes the capture on ``cloud`` (every ``cloud_decimate``-th point: a lighter copy
+Wraps :class:`plugins.sim.cell.SimCell`. On ``capture`` it asks the simulated robot (client ``robot``,
+wired to ``sim_robot.truth``) where the TCP truly is when the camera is on the flange or a part is in
+the gripper, renders the scene with the noise model and the sensor effects (depth scale/bias, latency,
+hand-eye error, placement offsets), and replies with the cloud in the camera frame. With a calibration
+``board`` fixed in the cell (a spec string, :mod:`plugins.sim.board`) it renders the board's intensity
+image too (lens distortion ``image.distortion``, blur, grey-level noise) and publishes it on ``image``
+(mono8) with its camera model on ``image_info`` (CameraInfo with the distortion), both stamped like the
+capture; the board's plate is a part of the depth scene and its frame (``board.name``) a child of
+``world``. It also publishes the capture on ``cloud`` (every ``cloud_decimate``-th point: a lighter copy
 for the recording's 3D view), the depth image, the intrinsics, the nominal frame tree, the workpiece
 meshes (once) and, on ``truth/part_poses``, where the parts, the camera and the TCP truly were.
 
@@ -22,7 +26,7 @@ from dataclasses import replace
 from typing import Any, ClassVar, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from engine.messages import (
     CameraInfo,
@@ -39,10 +43,12 @@ from engine.stage import ServiceSpec, Stage, StageParams
 from plugins.interfaces import CAMERA_OUTPUTS, CAMERA_SERVICES
 from plugins.params import PoseSpec
 from plugins.sensors.camera_output import thinned
+from plugins.sim.board import BoardImager, board_workpiece
 from plugins.sim.camera import DepthCameraModel, DepthNoiseModel, PinholeIntrinsics, default_intrinsics
 from plugins.sim.cell import CameraMount, PartPlacement, SimCell
 from plugins.sim.sensor_effects import SensorEffects
 from plugins.sim.workpieces import make_workpiece
+from plugins.solvers.boards.spec import parse_board
 
 NOISE_PRESETS = ("noiseless", "industrial_structured_light", "realsense_d415", "kinect_v1")
 TRUTH_PREFIX = "truth/"
@@ -88,6 +94,27 @@ class PartSpec(_Strict):
     parent: Literal["world", "tcp"] = "world"
 
 
+class BoardSpecParams(_Strict):
+    spec: str = Field(description="board spec, e.g. chessboard:9x6:25mm (docs/calibration_boards.md)")
+    name: str = Field("board", min_length=1, description="the board's frame (its `target`), a child of world")
+    pose: PoseSpec = Field(default_factory=PoseSpec, description="T_world_board: where the board lies")
+
+    @field_validator("spec")
+    @classmethod
+    def _parses(cls, v: str) -> str:
+        parse_board(v)
+        return v
+
+
+class ImageSpec(_Strict):
+    distortion: tuple[float, float, float, float, float] = Field(
+        (-0.08, 0.05, 0.0, 0.0, 0.0), description="lens distortion k1 k2 p1 p2 k3 of the intensity image"
+    )
+    noise_sigma: float = Field(2.0, ge=0.0, le=64.0, description="grey-level noise (of 255), 1 sigma")
+    blur_sigma_px: float = Field(0.5, ge=0.0, le=10.0, description="defocus blur, Gaussian sigma in pixels")
+    supersample: int = Field(3, ge=1, le=8, description="rays per pixel side (pixel area averaging)")
+
+
 class SimCamera(Stage):
     """Simulated depth camera: renders the workpieces with noise, dropouts and injectable effects."""
 
@@ -99,6 +126,8 @@ class SimCamera(Stage):
         "frames": FrameTransforms,
         "scene": SceneMeshes,
         "truth/part_poses": FrameTransforms,
+        "image": Image,
+        "image_info": CameraInfo,
     }
     uses: ClassVar = {
         "robot": ServiceSpec(Request, RobotReply, "sim_robot.truth: where the TCP truly is", optional=True)
@@ -111,6 +140,8 @@ class SimCamera(Stage):
         max_range_m: float = Field(2.0, gt=0.0)
         mount: MountSpec = Field(default_factory=MountSpec)
         parts: tuple[PartSpec, ...] = Field(default=(), description="workpieces in the scene")
+        board: BoardSpecParams | None = Field(None, description="a calibration board fixed in the cell")
+        image: ImageSpec = Field(default_factory=ImageSpec, description="the board's intensity image")
         effects: dict[str, Any] = Field(default_factory=dict, description="sensor effects (camera/placement)")
         publish_cloud: bool = Field(True, description="also publish each capture on the cloud port")
         publish_depth: bool = Field(True, description="publish the depth image of each capture")
@@ -123,13 +154,16 @@ class SimCamera(Stage):
         @model_validator(mode="after")
         def _part_frames(self) -> SimCamera.Params:
             taken = {*CELL_FRAMES, self.frame_id}
-            for i, part in enumerate(self.parts):
-                if part.name in taken or part.name.startswith(TRUTH_PREFIX):
+            named = [(f"parts[{i}]", part.name) for i, part in enumerate(self.parts)]
+            if self.board is not None:
+                named.append(("board", self.board.name))
+            for where, name in named:
+                if name in taken or name.startswith(TRUTH_PREFIX):
                     raise ValueError(
-                        f"parts[{i}]: the name {part.name!r} is a frame the cell already has (or a truth frame); "
+                        f"{where}: the name {name!r} is a frame the cell already has (or a truth frame); "
                         f"a part's name is its frame: choose another (taken: {', '.join(sorted(taken))})"
                     )
-                taken.add(part.name)
+                taken.add(name)
             return self
 
     def setup(self) -> None:
@@ -144,6 +178,14 @@ class SimCamera(Stage):
         noise = replace(noise, depth_unit_m=p.noise.depth_unit_m)
         model = DepthCameraModel(intr, noise, p.min_range_m, p.max_range_m)
         parts = [PartPlacement(ps.name, make_workpiece(ps.workpiece), ps.pose.T(), ps.parent) for ps in p.parts]
+        self.imager: BoardImager | None = None
+        if p.board is not None:
+            board = parse_board(p.board.spec)
+            parts.append(PartPlacement(p.board.name, board_workpiece(board, p.board.name), p.board.pose.T(), "world"))
+            opts = {"noise_sigma": p.image.noise_sigma, "blur_sigma_px": p.image.blur_sigma_px}
+            self.imager = BoardImager.for_depth_camera(
+                board, intr, p.image.distortion, supersample=p.image.supersample, **opts
+            )
         mount = CameraMount(p.mount.kind, p.mount.pose.T())
         self.cell = SimCell(model, mount, parts, SensorEffects.from_dict(p.effects))
         self.intrinsics = intr
@@ -189,6 +231,10 @@ class SimCamera(Stage):
             intr = self.intrinsics
             info = CameraInfo(width=intr.width, height=intr.height, K=intr.K(), frame_id=p.frame_id, stamp_ns=stamp)
             self.ctx.publish("camera_info", info)
+        if self.imager is not None and p.board is not None:
+            gray = self.imager.render(truth.T_cam_parts[p.board.name], self.ctx.rng)
+            self.ctx.publish("image_info", self.imager.camera.to_camera_info(p.frame_id, stamp))
+            self.ctx.publish("image", Image(data=gray, encoding="mono8", frame_id=p.frame_id, stamp_ns=stamp))
         if p.publish_cloud:
             self.ctx.publish("cloud", thinned(cloud, p.cloud_decimate))
         own = {"camera": p.frame_id}  # SimCell names its camera "camera"

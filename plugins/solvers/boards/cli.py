@@ -1,5 +1,6 @@
 """``vgr calibrate intrinsics IMAGES... --board SPEC`` and ``vgr calibrate handeye|robot-world --images DIR
---poses FILE --board SPEC``: the command-line glue of the board library.
+--poses FILE --board SPEC`` (or ``RUN.mcap --board SPEC``: a recording's images, camera model and robot
+poses, :mod:`.recording`): the command-line glue of the board library.
 
 :mod:`plugins.solvers.calibrate_cli` owns the verb, the exit codes (0 usable, 1 unusable, 2 bad
 input) and the ``--json`` / ``--report`` files; this module adds the options of the ``intrinsics``
@@ -21,7 +22,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from plugins.solvers.boards.recording import DEFAULT_IMAGE_TOPICS
+
 if TYPE_CHECKING:
+    from plugins.solvers.boards.camera import CameraModel
+    from plugins.solvers.boards.detect import Detection, Rejection
     from plugins.solvers.calibrate_cli import Outcome
 
 BOARD_HELP = (
@@ -91,25 +96,79 @@ def handeye_image_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--refine-intrinsics", action="store_true", help="refine the intrinsics with the hand-eye")
     g.add_argument("--no-holdout", action="store_true", help="skip the leave-one-view-out reprojection figures")
     g.add_argument("--workers", type=int, default=None, help="detection threads (default: the CPU count)")
+    r = p.add_argument_group("from a recording's images (DATA.mcap with --board SPEC)")
+    r.add_argument("--image-topic", default=DEFAULT_IMAGE_TOPICS["image"], help="MCAP: RawImage of the board")
+    r.add_argument(
+        "--camera-info-topic",
+        default=DEFAULT_IMAGE_TOPICS["camera_info"],
+        help="MCAP: CameraInfo of those images (unless --intrinsics FILE)",
+    )
 
 
 def run_handeye_images(args: argparse.Namespace, kind: str) -> Outcome:
-    """Images + robot poses -> hand-eye (:mod:`.handeye_images`), packaged for the CLI."""
+    """Images + robot poses (a folder and a pose file, or a recording) -> hand-eye (:mod:`.handeye_images`),
+    packaged for the CLI."""
+    from plugins.solvers.calibration_inputs import CalibrationInputError
+
+    if args.images is None and args.data is None:
+        raise CalibrationInputError("give DATA (a sample file or recording) or --images DIR --poses FILE --board SPEC")
+    if args.data is not None and args.images is not None:
+        raise CalibrationInputError("give DATA or --images, not both")
+    if args.board is None:
+        raise CalibrationInputError("--images needs --poses FILE and --board SPEC; a recording's images need --board")
+    if args.data is not None:
+        return _run_recording(args, kind)
+    if args.poses is None:
+        raise CalibrationInputError("--images needs --poses FILE and --board SPEC")
+    return _run_folder(args, kind)
+
+
+def _run_recording(args: argparse.Namespace, kind: str) -> Outcome:
+    """DATA.mcap --board SPEC: the recording's images, camera model and robot poses (:mod:`.recording`)."""
+    from plugins.solvers.boards.camera import CameraModel
+    from plugins.solvers.boards.recording import recorded_views
+    from plugins.solvers.boards.spec import parse_board
+    from plugins.solvers.calibration_inputs import CalibrationInputError
+
+    if args.data.suffix.lower() != ".mcap":
+        raise CalibrationInputError(f"{args.data}: --board with DATA reads a recording's images: DATA must be .mcap")
+    if args.poses is not None:
+        raise CalibrationInputError("--poses goes with --images; a recording's robot poses come from --robot-topic")
+    if args.mm:
+        raise CalibrationInputError("--mm applies to plain files; recordings are in metres")
+    board = parse_board(args.board)
+    rv = recorded_views(
+        args.data,
+        board,
+        image_topic=args.image_topic,
+        camera_info_topic=None if args.intrinsics is not None else args.camera_info_topic,
+        robot_topic=args.robot_topic,
+        pairing={"mode": args.pair, "max_skew_s": args.max_skew_s, "drop_unmatched": args.drop_unmatched},
+    )
+    notes = [*rv.notes, f"board found in {len(rv.views)} of {len(rv.views) + len(rv.rejected)} image(s): "
+             f"{board.describe()}"]  # fmt: skip
+    notes += [f"{r.name}: {r.reason}; its robot pose is dropped" for r in rv.rejected]
+    if args.intrinsics is not None:
+        camera = CameraModel.load(args.intrinsics)
+        notes.append(f"intrinsics from {args.intrinsics}")
+    else:
+        assert rv.camera is not None
+        camera = rv.camera
+        notes.append(f"intrinsics from {args.camera_info_topic} ({camera.ros_distortion_model})")
+    return _outcome(args, kind, rv.views, rv.T_base_tcp, camera, rv.rejected, notes)
+
+
+def _run_folder(args: argparse.Namespace, kind: str) -> Outcome:
+    """--images DIR --poses FILE --board SPEC."""
     from plugins.solvers.boards.camera import CameraModel
     from plugins.solvers.boards.detect import detect_images, image_files
-    from plugins.solvers.boards.handeye_images import calibrate_handeye_images, pair_views
+    from plugins.solvers.boards.handeye_images import pair_views
     from plugins.solvers.boards.intrinsics import calibrate_intrinsics
     from plugins.solvers.boards.robot_poses import load_robot_poses
     from plugins.solvers.boards.spec import parse_board
     from plugins.solvers.calibrate_cli import Outcome
     from plugins.solvers.calibration_inputs import CalibrationInputError
 
-    if args.images is None:
-        raise CalibrationInputError("give DATA (a sample file or recording) or --images DIR --poses FILE --board SPEC")
-    if args.data is not None:
-        raise CalibrationInputError("give DATA or --images, not both")
-    if args.poses is None or args.board is None:
-        raise CalibrationInputError("--images needs --poses FILE and --board SPEC")
     board = parse_board(args.board)
     files = image_files([args.images])
     if not files:
@@ -133,6 +192,22 @@ def run_handeye_images(args: argparse.Namespace, kind: str) -> Outcome:
         camera = cal.camera
         notes.append(f"intrinsics calibrated from the same images: RMS {cal.rms_px:.3f} px ({cal.model_choice})")
     views, M, rejected = pair_views(files, detections, poses)
+    return _outcome(args, kind, views, M, camera, rejected, notes)
+
+
+def _outcome(
+    args: argparse.Namespace,
+    kind: str,
+    views: list[Detection],
+    M: np.ndarray,
+    camera: CameraModel,
+    rejected: list[Rejection],
+    notes: list[str],
+) -> Outcome:
+    """The images pipeline on paired views, and its report."""
+    from plugins.solvers.boards.handeye_images import calibrate_handeye_images
+    from plugins.solvers.calibrate_cli import Outcome
+
     out = calibrate_handeye_images(
         views,
         M,

@@ -46,12 +46,11 @@ from plugins.solvers.handeye import (
     CLOSED_FORM_METHODS,
     AccuracyTargets,
     NoiseModel,
-    PoseNoise,
     calibrate_hand_eye,
     calibrate_robot_world,
     closed_form,
 )
-from plugins.solvers.handeye.noise import DEFAULT_PRIOR
+from plugins.solvers.handeye.noise import camera_noise_from_covariances
 from plugins.solvers.handeye.problem import Setup, check_setup, frames_of
 
 F64 = NDArray[np.float64]
@@ -103,9 +102,7 @@ def pair_views(
 
 def camera_noise(poses: Sequence[BoardPose]) -> NoiseModel:
     """The hand-eye solver's noise model from the board poses' covariances (module docstring, step 4)."""
-    var = np.median(np.stack([np.diag(p.covariance) for p in poses]), axis=0)
-    sd = np.sqrt(np.maximum(var, 1e-18))
-    return NoiseModel(DEFAULT_PRIOR.robot, PoseNoise(sd[3:], sd[:3]))
+    return camera_noise_from_covariances(np.stack([p.covariance for p in poses]))
 
 
 def _starts(res: CalibrationResult, x: str, y: str, label: str = "pose solver") -> list[tuple[str, F64, F64]]:

@@ -76,6 +76,9 @@ def check_setup_consistency(
     return SetupCheck(mismatch=mismatch, chosen=chosen, best=best, wrong=wrong, message=message)
 
 
+UNIT_T = 4.0  # correlation t statistic of the screw translations below which the scale is unobservable
+
+
 def estimate_unit_scale(
     setup: Setup, T_base_tcp: F64, T_cam_target: F64, *, robust: bool = True
 ) -> tuple[float, float] | None:
@@ -86,7 +89,14 @@ def estimate_unit_scale(
     conjugate (``a_A = R_X a_B`` and ``a_A^T (R_A - I) = 0`` in ``(R_A - I) t_X = R_X t_B - t_A``).
     ``s`` is the slope of ``d_A`` against ``d_B`` over pose pairs with 5-170 degrees of rotation;
     ``robust`` uses Cauchy weights (scale from the median residual) so a few bad samples cannot
-    fake a unit error. ``sigma_s`` is the weighted least-squares standard error.
+    fake a unit error. ``sigma_s`` is the weighted least-squares standard error, widened to half the
+    gap between ``s`` and the reverse regression's slope: both ``d`` carry noise, which pulls the
+    slope of ``d_A`` on ``d_B`` towards 0 and that of ``d_B`` on ``d_A`` (inverted) away from it, and
+    the scale lies between the two. When ``d_A`` and ``d_B`` are not clearly correlated (a correlation
+    t statistic below ``UNIT_T`` over the ``n - 1`` independent motions, or slopes not positive), the
+    screw translations are noise (poses that orbit the target, e.g. a camera kept looking at a board,
+    have ``d`` near 0) and the scale is unobservable: None. Without this a robot pose set of pure
+    orbits made the attenuated slope look like a unit error.
     """
     m: RelativeMotions = relative_motions(setup, T_base_tcp, T_cam_target)
     ra = Rotation.from_matrix(m.A[:, :3, :3]).as_rotvec()
@@ -113,4 +123,9 @@ def estimate_unit_scale(
     # pairs share samples, so they are not independent: inflate by the pairs-per-sample ratio
     n = T_base_tcp.shape[0]
     var *= max(len(r) / max(n - 1, 1), 1.0)
-    return s, float(np.sqrt(var))
+    s_reverse = float(np.sum(w * d_a * d_b) / np.sum(w * d_a * d_a))  # camera per robot length
+    rho2 = s * s_reverse  # squared correlation of d_A and d_B (through the origin)
+    n_eff = max(n - 1, 2)  # independent relative motions
+    if s <= 0.0 or s_reverse <= 0.0 or rho2 * (n_eff - 1) < UNIT_T**2 * (1.0 - rho2):
+        return None
+    return s, max(float(np.sqrt(var)), 0.5 * abs(s - 1.0 / s_reverse))

@@ -19,7 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 
 F64 = NDArray[np.float64]
 
-__all__ = ["DEFAULT_PRIOR", "NoiseModel", "PoseNoise"]
+__all__ = ["DEFAULT_PRIOR", "NoiseModel", "PoseNoise", "camera_noise_from_covariances"]
 
 
 def _sigma3(x: ArrayLike, name: str) -> tuple[float, float, float]:
@@ -97,3 +97,16 @@ class NoiseModel:
 
 #: Starting point when the noise is estimated from the data (typical industrial arm and 3D camera).
 DEFAULT_PRIOR = NoiseModel.isotropic(robot_deg=0.01, robot_mm=0.1, camera_deg=0.1, camera_mm=0.5)
+
+
+def camera_noise_from_covariances(covariances: ArrayLike, robot: PoseNoise | None = None) -> NoiseModel:
+    """The solver's noise model from per-sample camera covariances ``(n, 6, 6)`` (decoupled
+    ``(dt, dphi)`` in the camera frame, m and rad, e.g. each board pose's from its corners): the solver
+    takes one per-axis camera noise for all samples, so each axis gets the median of the samples'
+    variances. ``robot`` defaults to :data:`DEFAULT_PRIOR`'s."""
+    cov = np.asarray(covariances, dtype=float).reshape(-1, 6, 6)
+    if len(cov) == 0 or not np.all(np.isfinite(cov)):
+        raise ValueError("camera covariances must be finite 6x6 matrices, at least one")
+    var = np.median(np.diagonal(cov, axis1=1, axis2=2), axis=0)
+    sd = np.sqrt(np.maximum(var, 1e-18))
+    return NoiseModel(DEFAULT_PRIOR.robot if robot is None else robot, PoseNoise(sd[3:], sd[:3]))

@@ -2,14 +2,17 @@
 
 Inputs: ``robot_pose`` (PoseStamped ``T_base_tcp`` as the robot reports it), ``target_pose``
 (PoseStamped ``T_cam_target``: the calibration target / known object seen by the camera), ``solve``.
-Samples are paired by stamp (see plugins.solvers.stages.base). Publishes the result and, when
+Samples are paired by stamp (see plugins.solvers.stages.base). Target poses that carry a covariance
+(PoseWithCovarianceStamped, e.g. from ``board_pose``) set the camera noise model when none is declared:
+per axis the median of their variances (the solver takes one camera noise for all samples), from which
+the solver still estimates the variance components (``estimate_noise``). Publishes the result and, when
 usable, two transforms (of the set-up declared, or by default the one the data show: see
 plugins.solvers.handeye.setup_choice): the hand-eye ``X`` (eye in hand: ``tcp -> camera_calibrated``; eye to hand:
 ``base -> camera_calibrated``) and the other unknown ``Y`` (``base -> target`` or ``tcp -> target``).
 Frame names come from the messages (the robot poses' ``frame_id`` for the base, the target poses'
-``frame_id`` for the camera, whose estimate is ``<camera>_calibrated`` unless ``camera_frame`` names
-it: the camera stage publishes the camera's own frame with its mount); ``tcp_frame`` and
-``target_frame`` name the others.
+``frame_id`` for the camera, whose estimate is ``<camera>_calibrated`` unless ``camera_frame`` names it:
+the camera stage publishes the camera's own frame with its mount); ``tcp_frame`` and ``target_frame``
+name the others.
 """
 
 from __future__ import annotations
@@ -19,10 +22,11 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import Field
 
-from engine.messages import PoseStamped
+from engine.messages import PoseStamped, PoseWithCovarianceStamped
 from plugins.solvers.calibration_inputs import CalibrationInputError, hand_eye_samples
 from plugins.solvers.calibration_result import CalibrationResult
 from plugins.solvers.handeye import NoiseModel, calibrate_hand_eye, calibrate_robot_world
+from plugins.solvers.handeye.noise import camera_noise_from_covariances
 from plugins.solvers.stages.base import CalibrationStage, PairingParams, calibrated
 
 
@@ -53,16 +57,23 @@ class HandEyeCalibration(CalibrationStage):
         n = len(samples.T_base_tcp)
         if n < 3:
             raise CalibrationInputError(f"{n} pose pair(s): hand-eye calibration needs at least 3 (better 10-15)")
-        noise = None
+        noise, estimate = None, None
+        targets = self.buffers["target_pose"]
         if p.camera_noise_deg_mm is not None:
             r = p.robot_noise_deg_mm or (0.0, 0.0)
             noise = NoiseModel.isotropic(r[0], r[1], *p.camera_noise_deg_mm)
         elif p.robot_noise_deg_mm is not None:
             raise CalibrationInputError("camera_noise_deg_mm is needed when a noise model is declared")
+        elif targets and all(isinstance(m, PoseWithCovarianceStamped) for m in targets):
+            noise, estimate = camera_noise_from_covariances([m.covariance for m in targets]), True
+            n = len(targets)
+            self.ctx.event("info", "camera_noise", f"camera noise from the {n} target poses' covariances: "
+                           f"{noise.camera.describe()} (1 sigma, median per axis)")  # fmt: skip
         solve = calibrate_robot_world if p.kind == "robot_world" else calibrate_hand_eye
         result = solve(
-            samples.T_base_tcp, samples.T_cam_target, setup=p.setup, noise=noise, loss=p.loss, seed=self.ctx.seed
-        )
+            samples.T_base_tcp, samples.T_cam_target, setup=p.setup, noise=noise, estimate_noise=estimate,
+            loss=p.loss, seed=self.ctx.seed,
+        )  # fmt: skip
         return result, notes
 
     def transforms(self, result: CalibrationResult) -> list[tuple[np.ndarray, str, str]]:
