@@ -141,6 +141,7 @@ class Caller(Stage):
 
 
 BUSY_RELEASE: dict[str, threading.Event] = defaultdict(threading.Event)  # run id -> ends t_busy's work
+BUSY_STARTED: dict[str, threading.Event] = defaultdict(threading.Event)  # run id -> t_busy is at work
 
 
 class Busy(Stage):
@@ -155,6 +156,7 @@ class Busy(Stage):
         busy_s: float = 30.0
 
     def on_request(self, service: str, request: Request) -> Request:  # type: ignore[override]
+        BUSY_STARTED[self.ctx.run_id].set()
         BUSY_RELEASE[self.ctx.run_id].wait(self.params.busy_s)  # type: ignore[attr-defined]
         return Request(command="done")
 

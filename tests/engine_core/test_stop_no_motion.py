@@ -120,14 +120,22 @@ stages:
 
 
 def test_a_call_waiting_for_its_reply_returns_at_the_stop_and_a_busy_stage_is_reported_once(monkeypatch):
-    from stage_fixtures import BUSY_RELEASE
+    from stage_fixtures import BUSY_RELEASE, BUSY_STARTED
 
     thread_errors: list = []
     monkeypatch.setattr(threading, "excepthook", thread_errors.append)
     events = RunEvents()
     runner = Runner(graph_from(BUSY), run_id="busy-stop", observers=[events])
-    # the caller has sent its request to the busy stage (which does not look at the stop for 30 s)
-    stop_when(runner, lambda: "call" in runner.runtimes and runner.runtimes["call"].stats.calls_made == 1)
+    # the caller has sent its request and the busy stage is at work on it (not looking at the stop
+    # for 30 s); stopping before the work began would leave nothing stuck (seen on a loaded machine)
+    stop_when(
+        runner,
+        lambda: (
+            "call" in runner.runtimes
+            and runner.runtimes["call"].stats.calls_made == 1
+            and BUSY_STARTED["busy-stop"].is_set()
+        ),
+    )
     try:
         summary = runner.run()
         assert summary.outcome == "interrupted" and summary.exit_code == 130
