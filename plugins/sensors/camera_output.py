@@ -18,7 +18,8 @@ default, identity in ``world``, says "not given" and puts the camera at the worl
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -75,17 +76,20 @@ class CameraFrame:
     source: str = ""  # file name or device frame, for messages
 
 
-def keep_every(frame: CameraFrame, n: int) -> CameraFrame:
-    """Every *n*-th point (with its normal and colour): smaller clouds at a fixed, seed-free rule."""
+_Points = TypeVar("_Points", CameraFrame, PointCloud)
+
+
+def thinned(points: _Points, n: int) -> _Points:
+    """Every *n*-th point of a :class:`CameraFrame` or a PointCloud (with its normal and colour), all
+    else kept: smaller clouds at a fixed, seed-free rule. A camera publishes such a copy on ``cloud``
+    to show a capture without recording all of it twice (the reply has it)."""
     if n <= 1:
-        return frame
-    return CameraFrame(
-        points=frame.points[::n],
-        normals=None if frame.normals is None else frame.normals[::n],
-        colors=None if frame.colors is None else frame.colors[::n],
-        depth_m=frame.depth_m,
-        intrinsics=frame.intrinsics,
-        source=frame.source,
+        return points
+    return replace(
+        points,
+        points=points.points[::n],
+        normals=None if points.normals is None else points.normals[::n],
+        colors=None if points.colors is None else points.colors[::n],
     )
 
 
@@ -98,20 +102,6 @@ def camera_info(intr: DepthIntrinsics, frame_id: str) -> CameraInfo:
         D=np.asarray(intr.coeffs, dtype=float),
         distortion_model=model,
         frame_id=frame_id,
-    )
-
-
-def thinned(cloud: PointCloud, n: int) -> PointCloud:
-    """Every *n*-th point of *cloud* (with its normal and colour), same frame and stamp: what a camera
-    publishes on ``cloud`` to show a capture without recording all of it twice (the reply has it)."""
-    if n <= 1:
-        return cloud
-    return PointCloud(
-        points=cloud.points[::n],
-        normals=None if cloud.normals is None else cloud.normals[::n],
-        colors=None if cloud.colors is None else cloud.colors[::n],
-        frame_id=cloud.frame_id,
-        stamp_ns=cloud.stamp_ns,
     )
 
 
@@ -146,7 +136,7 @@ def publish_capture(ctx: StageContext, params: DepthCameraParams, frame: CameraF
     on ``frames``, then the frame (:func:`publish_frame`); returns the ``capture`` reply."""
     publish_mount(ctx, params)
     p = params
-    frame = keep_every(frame, p.decimate)
+    frame = thinned(frame, p.decimate)
     return publish_frame(
         ctx,
         frame,
