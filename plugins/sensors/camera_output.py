@@ -7,6 +7,7 @@ invalid) and ``camera_info`` go out too. ``camera_info`` carries the pinhole K; 
 librealsense coefficients (k1 k2 p1 p2 k3) with ``distortion_model`` ``plumb_bob`` for none and
 brown_conrady (OpenCV's forward model), ``inverse_brown_conrady`` for RealSense's inverse model.
 
+:class:`DepthCameraAdapter` is the base of the adapter stages (the camera contract and ``frames``);
 :class:`DepthCameraParams` are the parameters every adapter shares: ``frame_id``, the output
 switches (``publish_cloud``, ``publish_depth``, ``decimate``, ``cloud_decimate``: :func:`publish_capture`)
 and where the
@@ -19,14 +20,15 @@ default, identity in ``world``, says "not given" and puts the camera at the worl
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import TypeVar
+from typing import ClassVar, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field, model_validator
 
 from engine.messages import CameraInfo, FrameTransforms, Image, PointCloud, Transform
-from engine.stage import StageContext, StageParams
+from engine.stage import Stage, StageContext, StageParams
+from plugins.interfaces import CAMERA_OUTPUTS, CAMERA_SERVICES
 from plugins.params import PoseSpec
 from plugins.sensors.depth_projection import DepthIntrinsics
 
@@ -53,6 +55,17 @@ class DepthCameraParams(StageParams):
         if self.parent_frame == self.frame_id:
             raise ValueError(f"parent_frame must differ from the camera frame {self.frame_id!r}")
         return self
+
+
+class DepthCameraAdapter(Stage):
+    """Base of the depth-camera adapters (``realsense_camera``, ``file_camera``): the camera contract
+    of :mod:`plugins.interfaces` (role, the ``capture`` service, the camera outputs) and ``frames``
+    for the mount (:func:`publish_mount`, :func:`publish_capture`)."""
+
+    role = "sensor"
+    services: ClassVar = CAMERA_SERVICES
+    outputs: ClassVar = {**CAMERA_OUTPUTS, "frames": FrameTransforms}
+    Params = DepthCameraParams
 
 
 def publish_mount(ctx: StageContext, params: DepthCameraParams) -> None:
