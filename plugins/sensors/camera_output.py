@@ -1,7 +1,7 @@
 """One depth-camera frame and how a camera stage publishes it (the camera contract's outputs).
 
 Every depth-camera adapter (RealSense, file camera) turns what it read into a :class:`CameraFrame`
-and calls :func:`publish_frame`: the cloud (camera frame, metres) goes out on ``cloud`` and is the
+and calls :func:`publish_capture`: the cloud (camera frame, metres) goes out on ``cloud`` and is the
 ``capture`` reply; when the frame has a depth image and intrinsics, ``depth`` (32FC1, metres, NaN
 invalid) and ``camera_info`` go out too. ``camera_info`` carries the pinhole K; ``D`` holds the
 librealsense coefficients (k1 k2 p1 p2 k3) with ``distortion_model`` ``plumb_bob`` for none and
@@ -118,43 +118,23 @@ def camera_info(intr: DepthIntrinsics, frame_id: str) -> CameraInfo:
     )
 
 
-def publish_frame(
-    ctx: StageContext,
-    frame: CameraFrame,
-    *,
-    frame_id: str,
-    publish_cloud: bool,
-    publish_depth: bool,
-    cloud_decimate: int = 1,
-) -> PointCloud:
-    """Publish *frame* on the camera ports (every ``cloud_decimate``-th point on ``cloud``); return the
-    cloud (the ``capture`` reply)."""
-    dtype = np.float32
+def publish_capture(ctx: StageContext, params: DepthCameraParams, frame: CameraFrame) -> PointCloud:
+    """Publish a capture as every depth-camera adapter does: the mount on ``frames``, then every
+    ``decimate``-th point of *frame* as the cloud, on ``cloud`` every ``cloud_decimate``-th of those
+    (``publish_cloud``), and the depth image and ``camera_info`` when the frame has them
+    (``publish_depth``); returns the cloud (the ``capture`` reply)."""
+    publish_mount(ctx, params)
+    frame = thinned(frame, params.decimate)
+    dtype, frame_id = np.float32, params.frame_id
     cloud = PointCloud(
         points=np.ascontiguousarray(frame.points, dtype=dtype),
         normals=None if frame.normals is None else np.ascontiguousarray(frame.normals, dtype=dtype),
         colors=frame.colors,
         frame_id=frame_id,
     )
-    if publish_depth and frame.depth_m is not None and frame.intrinsics is not None:
+    if params.publish_depth and frame.depth_m is not None and frame.intrinsics is not None:
         ctx.publish("depth", Image(data=frame.depth_m, encoding="32FC1", frame_id=frame_id))
         ctx.publish("camera_info", camera_info(frame.intrinsics, frame_id))
-    if publish_cloud:
-        ctx.publish("cloud", thinned(cloud, cloud_decimate))
+    if params.publish_cloud:
+        ctx.publish("cloud", thinned(cloud, params.cloud_decimate))
     return cloud
-
-
-def publish_capture(ctx: StageContext, params: DepthCameraParams, frame: CameraFrame) -> PointCloud:
-    """A capture as every depth-camera adapter publishes it: every ``decimate``-th point, the mount
-    on ``frames``, then the frame (:func:`publish_frame`); returns the ``capture`` reply."""
-    publish_mount(ctx, params)
-    p = params
-    frame = thinned(frame, p.decimate)
-    return publish_frame(
-        ctx,
-        frame,
-        frame_id=p.frame_id,
-        publish_cloud=p.publish_cloud,
-        publish_depth=p.publish_depth,
-        cloud_decimate=p.cloud_decimate,
-    )
