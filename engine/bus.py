@@ -9,6 +9,7 @@ Key expressions (``<run>`` is the run id)::
     vgr/<run>/_started/<process>      liveliness: the process has set up its stages and reads its inputs
     vgr/<run>/_active/<process>       liveliness: the process still has stages producing data
     vgr/<run>/_control                run-wide control (stop), published by any process
+    vgr/<run>/_info/<process>         queryable: the process's topics, types and schemas (engine.discovery)
 
 The default session is the embedded set-up: peer mode, multicast scouting off, and no listener
 unless the run's processes need one (engine.session_config; TLS and access control come from
@@ -294,6 +295,16 @@ class Bus:
         box = Inbox(key)
         box.decl = self._keep(self.session.declare_queryable(key, box))
         return box
+
+    def answer(self, key: str, payload: bytes) -> zenoh.Queryable:
+        """Queryable replying *payload*, a constant, to every query on *key* (on zenoh's thread: a
+        reply of bytes made beforehand never waits)."""
+
+        def reply(query: zenoh.Query) -> None:
+            with contextlib.suppress(Exception):  # the querier may have gone
+                query.reply(key, payload)
+
+        return self._keep(self.session.declare_queryable(key, reply))
 
     def token(self, key: str) -> zenoh.LivelinessToken:
         return self._keep(self.session.liveliness().declare_token(key))

@@ -42,13 +42,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from mcap.writer import CompressionType, Writer
-from mcap_protobuf.schema import build_file_descriptor_set
 
 from engine import __version__, codec
 from engine.codec import Envelope
 from engine.recipe import LoadedRecipe, RecordSettings
 from engine.runner import Observer, Runner, RunSummary
-from engine.schemas import proto_class
+from engine.schemas import descriptor_set, proto_class
 
 if TYPE_CHECKING:
     from engine.messages import Event, Message
@@ -282,8 +281,7 @@ class Recorder(Observer):
     def _schema(self, full_name: str) -> int:
         sid = self._schemas.get(full_name)
         if sid is None:
-            fds = build_file_descriptor_set(proto_class(full_name))
-            sid = self._writer.register_schema(name=full_name, encoding="protobuf", data=fds.SerializeToString())
+            sid = self._writer.register_schema(name=full_name, encoding="protobuf", data=descriptor_set(full_name))
             self._schemas[full_name] = sid
         return sid
 

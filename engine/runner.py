@@ -44,6 +44,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+from engine import discovery
 from engine.bus import Bus, CancelToken, active_key, control_key, ready_key, started_key
 from engine.clock import Clock, make_clock
 from engine.graph import Graph
@@ -319,6 +320,8 @@ class Runner:
                     f"stage {name!r} ({node.cls.type_name}) could not be created: {type(exc).__name__}: {exc}"
                 ) from exc
             rt.declare_outputs()
+        topics = discovery.graph_topics(self.graph, self.run_id, self.process)
+        discovery.announce(self.bus, self.run_id, self.process, topics)  # what `vgr topics` and foreign tools read
         for rt in self.runtimes.values():
             rt.declare_inputs(self.runtimes)
         if self.multi_process:
