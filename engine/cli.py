@@ -286,6 +286,8 @@ VERB_MODULES: dict[str, tuple[str, str]] = {
     "replay": ("engine.cli_recording", "re-run a recording's solver/action stages and diff their outputs"),
     "inspect": ("engine.cli_recording", "topics, counts, rates, time span, recipe and versions of a recording"),
     "recover": ("engine.cli_recording", "rebuild the index of a recording cut short (e.g. kill -9)"),
+    "topics": ("engine.cli_topics", "list, echo or time the topics of a running run (like ros2 topic)"),
+    "play": ("engine.cli_topics", "put a recording's topics back on zenoh at their recorded pace (like ros2 bag play)"),
     "template": ("plugins.solvers.registration.cli", "make or show a matcher template"),
     "calibrate": (
         "plugins.solvers.calibrate_cli",
