@@ -135,7 +135,10 @@ def decode_sample(topic: dict[str, Any], payload: bytes, attachment: bytes, pool
     env = codec.decode_envelope(attachment)
     if env.kind != codec.Kind.DATA:
         return {"topic": topic["topic"], "kind": env.kind.name.lower(), "seq": env.seq}
-    pb = pool.message_class(topic["schema"]).FromString(payload)
+    try:
+        pb = pool.message_class(topic["schema"]).FromString(payload)
+    except Exception as exc:  # protobuf's DecodeError: a sample that is not what its topic says
+        raise codec.CodecError(f"{topic['topic']}: cannot decode {topic['schema']}: {exc}") from None
     doc = json_format.MessageToDict(pb, preserving_proto_field_name=True)
     return {
         "topic": topic["topic"],
