@@ -98,6 +98,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     speed = None if args.speed in (None, "max") else float(args.speed)
     stages = [s for s in (args.stages or "").split(",") if s] or None
     view = start_view(args, Console(stderr=True))
+    if view is not None and Path(args.file).is_file():
+        view.advertise_recording(args.file)
     run_dir = run_folder.create(args.runs_dir, f"replay-{Path(args.file).stem}")
     try:
         with run_folder.logging_to(run_dir):

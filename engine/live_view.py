@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import threading
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from engine import codec
@@ -71,6 +72,23 @@ class LiveView:
                     self._channels[topic] = ch
         return ch
 
+    def advertise_recording(self, path: str | Path) -> None:
+        """Make the channels of the data topics of the recording *path* now (from its summary), so a
+        client can subscribe before their first message. (foxglove-sdk 0.30 refused, as an unknown
+        channel, a subscription that arrived just after a channel made at its first message.)"""
+        from mcap.reader import make_reader
+
+        try:
+            with Path(path).open("rb") as f:
+                summary = make_reader(f).get_summary()
+        except Exception as exc:  # not a recording, cut short: the replay says so itself
+            log.debug("no channels advertised from %s: %s", path, exc)
+            return
+        for ch in summary.channels.values() if summary is not None else ():
+            type_name = ch.metadata.get("type", "")
+            if type_name in codec.registry and not ch.topic.startswith("/_vgr/"):
+                self.channel(ch.topic, codec.registry.get(type_name).SCHEMA)
+
     def log(self, topic: str, schema: str, payload: bytes | memoryview, log_time_ns: int) -> None:
         data = payload if type(payload) is bytes else bytes(payload)
         self.channel(topic, schema).log(data, log_time=log_time_ns)
@@ -97,8 +115,9 @@ class ViewObserver(Observer):
 
     def on_start(self, runner: Runner) -> None:
         self._runner = runner
-        for t in graph_topics(runner.graph, runner.run_id, runner.process):  # advertised before data flows
-            self.view.channel(t.topic, t.schema)
+        for process in runner.graph.processes():  # advertised before data flows (see advertise_recording)
+            for t in graph_topics(runner.graph, runner.run_id, process):
+                self.view.channel(t.topic, t.schema)
 
     def _now(self) -> int:
         assert self._runner is not None
