@@ -268,11 +268,34 @@ def cmd_schemas(args: argparse.Namespace) -> int:
     from engine.schemas import proto_text
 
     load_registry()
+    if args.descriptor_set:
+        return _write_descriptor_set(
+            Path(args.descriptor_set), sorted({registry.get(n).SCHEMA for n in registry.names()})
+        )
     for name in registry.names():
         cls = registry.get(name)
         print(f"// {name}: {(cls.__doc__ or '').strip().splitlines()[0]}")
         print(proto_text(cls.SCHEMA))
         print()
+    return EXIT_OK
+
+
+def _write_descriptor_set(path: Path, schemas: list[str]) -> int:
+    """Every schema in one ``FileDescriptorSet`` (``protoc --descriptor_set_out`` format), to a new file."""
+    from google.protobuf import descriptor_pb2
+
+    from engine.schemas import descriptor_set
+
+    merged = descriptor_pb2.FileDescriptorSet()
+    seen: set[str] = set()
+    for name in schemas:
+        for fd in descriptor_pb2.FileDescriptorSet.FromString(descriptor_set(name)).file:
+            if fd.name not in seen:  # dependencies first, as each set lists them
+                seen.add(fd.name)
+                merged.file.append(fd)
+    with path.open("xb") as f:  # a new file: never replaces one
+        f.write(merged.SerializeToString())
+    out.print(f"{len(schemas)} schemas in {len(merged.file)} files: {escape(str(path))}", highlight=False)
     return EXIT_OK
 
 
@@ -350,6 +373,9 @@ def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_plugins)
 
     p = sub.add_parser("schemas", help="print the protobuf schema of every message type")
+    p.add_argument(
+        "--descriptor-set", metavar="FILE", help="write every schema as one FileDescriptorSet to this new file"
+    )
     p.set_defaults(func=cmd_schemas)
 
     import importlib
@@ -405,7 +431,16 @@ def _main(argv: list[str], own_process: bool = False) -> int:
         for p in exc.problems:
             console.print(f"  {p}", markup=False, highlight=False, soft_wrap=True)
         return EXIT_INVALID
-    except (PluginError, RunError, BusError, FileNotFoundError, ValueError, RecordingError, ReplayError) as exc:
+    except (
+        PluginError,
+        RunError,
+        BusError,
+        FileNotFoundError,
+        FileExistsError,
+        ValueError,
+        RecordingError,
+        ReplayError,
+    ) as exc:
         console.print(f"[red]error[/]: {escape(str(exc))}", highlight=False, soft_wrap=True)
         return EXIT_INVALID
     except KeyboardInterrupt:
