@@ -5,6 +5,7 @@ no _wire, no _control, no service query."""
 from __future__ import annotations
 
 import json
+import signal
 import struct
 import subprocess
 import threading
@@ -13,15 +14,18 @@ from pathlib import Path
 
 import pytest
 import zenoh
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from live_helpers import ROOT, free_port, vgr, vgr_env
 
 from engine.cli import main
-from engine.play import data_messages
+from engine.play import PlayError, Selection, data_messages, select
 from engine.recording import load
 
 pytestmark = [pytest.mark.subprocess, pytest.mark.timeout(120)]
 DEMO = ROOT / "recordings" / "demo.mcap"  # 10 frames at 30 Hz: /source/cloud, /move/cloud, /move/transform, events
 ENV = struct.Struct("<4sBBHQq")
+RECORDING = load(DEMO)
 
 
 class Listener:
@@ -108,3 +112,37 @@ def test_refusals_exit_2(tmp_path, capsys):
     assert main(["play", str(DEMO), "--rate", "0", "--runs-dir", str(tmp_path)]) == 2
     assert main(["play", str(Path(tmp_path, "missing.mcap")), "--runs-dir", str(tmp_path)]) == 2
     assert not any(tmp_path.iterdir())  # a refused play leaves no folder behind
+
+
+def test_a_play_is_found_by_vgr_topics_and_ends_on_ctrl_c(tmp_path, capsys):
+    proc = subprocess.Popen(vgr("play", str(DEMO), "--loop", "--runs-dir", str(tmp_path)), env=vgr_env(), text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not list(tmp_path.glob("*/bus.json")):
+            assert proc.poll() is None and time.monotonic() < deadline, "the play did not start"
+            time.sleep(0.05)
+        assert main(["topics", "list", "--json", "--runs-dir", str(tmp_path)]) == 0
+        doc = json.loads(capsys.readouterr().out)
+        assert doc["run_id"] == "demo" and {t["process"] for t in doc["topics"]} == {"play"}
+        assert {t["topic"] for t in doc["topics"]} == {m.topic for m in data_messages(load(DEMO))}
+    finally:
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(30) == 130
+    assert not any(tmp_path.iterdir())  # its folder held only bus.json: gone with the play
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.one_of(st.none(), st.lists(st.sampled_from(["/source/cloud", "/move/cloud", "/x/y", "move/transform"]))),
+    st.one_of(st.none(), st.floats(-1, 1, allow_nan=False)),
+    st.one_of(st.none(), st.floats(-1, 1, allow_nan=False)),
+)
+def test_any_selection_is_played_within_its_bounds_or_refused(topics, start, end):
+    try:
+        msgs = select(RECORDING, Selection(topics, start, end))
+    except PlayError:
+        return
+    t0 = data_messages(RECORDING)[0].log_time
+    assert msgs and all(start is None or m.log_time - t0 >= start * 1e9 - 1 for m in msgs)
+    assert all(end is None or m.log_time - t0 <= end * 1e9 + 1 for m in msgs)
+    assert topics is None or {m.topic for m in msgs} <= {"/" + t.strip("/") for t in topics}
