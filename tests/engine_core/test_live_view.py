@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import base64
 import json
+import socket
 import struct
 import subprocess
 import time
@@ -96,3 +97,15 @@ def test_replay_view_serves_the_recorded_clouds(tmp_path):
         stop(proc)
     recorded = {m.payload for m in load(DEMO).messages("/source/cloud")}
     assert payload in recorded and cloud.frame_id == "world" and len(cloud.data) == 400 * cloud.point_stride
+
+
+def test_a_taken_port_is_refused_before_the_run_makes_its_folder(tmp_path, capsys):
+    from engine.cli import main
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        code = main(["run", str(ROOT / "recipes/demo.yaml"), "--view", str(port), "--runs-dir", str(tmp_path)])
+    assert code == 2 and "cannot serve the live view on 127.0.0.1" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())
