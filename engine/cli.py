@@ -137,13 +137,13 @@ def run_with_progress(runner: Runner, show: bool) -> RunSummary:
 def cmd_run(args: argparse.Namespace) -> int:
     graph, registry = _load_graph(args)
     recipe = graph.recipe
-    from engine import local_runs
     from engine.recipe import ProcessSettings
 
-    # a port the system would pick is pinned now, so bus.json can tell `vgr topics` where the run is
-    over = recipe.processes.get(args.process) or ProcessSettings()
-    listen = local_runs.pin_ports(args.listen or recipe.zenoh_for(args.process).listen)
-    recipe.processes[args.process] = ProcessSettings(listen=listen, connect=args.connect or over.connect)
+    if args.listen or args.connect:
+        over = recipe.processes.get(args.process) or ProcessSettings()
+        recipe.processes[args.process] = ProcessSettings(
+            listen=args.listen or over.listen, connect=args.connect or over.connect
+        )
     from engine.cli_recording import recording_path
     from engine.recorder import Recorder
     from engine.runner import recipe_dir
@@ -162,9 +162,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         ready_timeout_s=args.ready_timeout,
         freeze_gc=args.own_process,  # the command's own process (not a caller's, e.g. a test): see Runner
     )
+    cli_recording.add_live_view(args, runner.observers, console)  # before the folder: a taken port is refused first
     # a recording the user named (--record, record.path) does not depend on the run folder: it is
     # resolved, and refused if it exists, before anything is created
-    cli_recording.add_live_view(args, runner.observers, console)  # before the folder: a taken port is refused first
     named = bool(args.record or recipe.record.path)
     path = recording_path(args, graph, None) if named else None
     run_dir = runner.run_dir = run_folder.create(args.runs_dir, run_folder.run_name(runner.run_id, args.process))
@@ -173,12 +173,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         path = recording_path(args, graph, run_dir)
     if path is not None:
         runner.observers.append(Recorder(path, recipe.record, graph.loaded, registry.plugins))
-    local_runs.write(run_dir, runner.run_id, args.process, listen)
-    try:
-        with run_folder.logging_to(run_dir):
-            summary = run_with_progress(runner, show=not args.no_progress and console.is_terminal)
-    finally:
-        local_runs.remove(run_dir)
+    with run_folder.logging_to(run_dir):
+        summary = run_with_progress(runner, show=not args.no_progress and console.is_terminal)
     summary.artifacts["run folder"] = str(run_dir)
     if args.json:
         out.print_json(json.dumps(_summary_dict(summary)))

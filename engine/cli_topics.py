@@ -18,21 +18,15 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from engine import local_runs, run_folder
-
 out = Console(width=None if sys.stdout.isatty() else 160)
 err = Console(stderr=True)
 EXIT_OK, EXIT_NOTHING = 0, 1
 
 
-def _endpoints(args: argparse.Namespace) -> list[str]:
-    return list(args.connect or local_runs.local_endpoints(args.runs_dir))
-
-
 def cmd_topics(args: argparse.Namespace) -> int:
-    from engine.topics import choose_run, echo, hz, open_client
+    from engine.topics import choose_run, echo, hz, local_endpoints, open_client
 
-    with open_client(_endpoints(args)) as bus:
+    with open_client(list(args.connect or local_endpoints())) as bus:
         run = choose_run(bus, args.run_id, args.discovery_timeout)
         if args.action == "list":
             return _print_list(run, args.json)
@@ -76,21 +70,20 @@ def _print_list(run: Any, as_json: bool) -> int:
 
 def cmd_play(args: argparse.Namespace) -> int:
     from engine.bus import Bus
-    from engine.discovery import find_runs
-    from engine.play import Player, Selection, select
+    from engine.endpoints import PRIVATE, private_socket, run_sockets
+    from engine.play import PROCESS, Player, Selection, select
     from engine.recipe import ZenohSettings
     from engine.recording import load
 
     rec = load(args.file)
     msgs = select(rec, Selection(args.topics, args.start, args.end))
     run_id = args.run_id or rec.metadata.get("vgr.run", {}).get("run_id") or Path(args.file).stem
-    listen = local_runs.pin_ports(args.listen or ["tcp/127.0.0.1:0"])
+    live = run_sockets(run_id)
+    if args.run_id is None and live:  # a run (or a play) of that id listens on this host
+        raise ValueError(f"run {run_id!r} listens on this host ({live[0]}): play under another id with --run-id")
+    listen = [private_socket(run_id, PROCESS) if e == PRIVATE else e for e in (args.listen or [PRIVATE])]
     with Bus(ZenohSettings(listen=listen, connect=list(args.connect or []))) as bus:
-        if args.run_id is None and run_id in find_runs(bus, 0.3):
-            raise ValueError(f"run {run_id!r} is running on this bus: play under another id with --run-id")
         player = Player(bus, run_id, msgs, args.rate)
-        folder = run_folder.create(args.runs_dir, f"play-{Path(args.file).stem}")
-        local_runs.write(folder, run_id, "play", listen)
         previous = signal.getsignal(signal.SIGINT)
         in_main = threading.current_thread() is threading.main_thread()
         if in_main:
@@ -108,16 +101,14 @@ def cmd_play(args: argparse.Namespace) -> int:
         finally:
             if in_main:
                 signal.signal(signal.SIGINT, previous)
-            local_runs.remove(folder)
-            run_folder.remove_if_unused(folder)
     out.print(f"played {n} messages", highlight=False)
     return 130 if player.stopped else EXIT_OK
 
 
-def _add_bus_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--connect", action="append", metavar="ENDPOINT", help="zenoh endpoint to connect to (repeatable)")
-    run_folder_help = "where live runs wrote bus.json (default runs/); used when --connect is not given"
-    p.add_argument("--runs-dir", metavar="DIR", default=run_folder.DEFAULT_PARENT, help=run_folder_help)
+def _add_connect_option(p: argparse.ArgumentParser, default: str) -> None:
+    p.add_argument(
+        "--connect", action="append", metavar="ENDPOINT", help=f"zenoh endpoint to connect to (repeatable; {default})"
+    )
 
 
 def add_verbs(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -127,7 +118,7 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg
     common.add_argument("--run-id", help="the run to look at (default: the only one running)")
     common.add_argument("--json", action="store_true", help="JSON output (one object per line for echo and hz)")
     common.add_argument("--discovery-timeout", type=float, default=1.0, metavar="S", help="seconds to find runs")
-    _add_bus_options(common)
+    _add_connect_option(common, "default: the private sockets of this user's runs on this host")
     a = acts.add_parser("list", parents=[common], help="topics with their message type, schema and stage")
     a = acts.add_parser("echo", parents=[common], help="print decoded messages of topics")
     a.add_argument("topic", nargs="+", help="topic: /stage/port (or stage.port)")
@@ -161,7 +152,7 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg
         "--wait-subscribers", type=float, default=0.0, metavar="S",
         help="wait up to S seconds for a subscriber on every played topic before the first message (default 0)",
     )  # fmt: skip
-    _add_bus_options(p)
+    _add_connect_option(p, "default: none")
     p.set_defaults(func=cmd_play)
 
 

@@ -8,7 +8,6 @@ or replay wrote is replaced by another. It holds:
 * ``<recipe>.mcap``: the recording (unless ``--record FILE`` / ``record.path`` names another file);
 * ``recipe.yaml``: the recipe as run (after ``-p`` overrides and ``vars``), with the source named;
 * ``run.log``: the engine's and the stages' log at INFO and above (results, warnings, alarms);
-* ``bus.json``: while the run lasts, where its zenoh session listens (engine.local_runs);
 * one folder per stage that writes files (``<stage>/``: reports, plots, model files), or the folder
   a stage's own parameter names (a relative one lies inside the run folder).
 

@@ -2,8 +2,9 @@
 messages decoded, measure their rates (the ``vgr topics`` verbs, engine.cli_topics).
 
 The tool is an ordinary foreign subscriber: a zenoh session that listens on nothing and connects to
-the runs' endpoints (``--connect``, else those the live runs of this machine wrote, see
-engine.local_runs), finds the runs by their ``_info`` documents (engine.discovery) and decodes each
+the runs' endpoints (``--connect``, else the private unix sockets of this user's runs on this host,
+engine.endpoints: a single-process run has one with ``--listen private``), finds the runs by their
+``_info`` documents (engine.discovery) and decodes each
 sample with the envelope of docs/zenoh_layout.md and the schema the run published, not with vgr's
 message classes: what it shows is what any subscriber gets. Every loop here ends: after ``count``
 messages or ``timeout_s`` (echo), after its windows (hz).
@@ -26,6 +27,7 @@ from google.protobuf import descriptor_pb2, descriptor_pool, json_format, messag
 from engine import codec
 from engine.bus import Bus
 from engine.discovery import find_runs
+from engine.endpoints import private_socket_dir
 from engine.recipe import ZenohSettings
 
 BYTES_SHOWN = 48  # longer bytes fields (point data, images) are shown as their length
@@ -35,12 +37,19 @@ class NoRunError(ValueError):
     """No run (or no such run, or no such topic) to look at: exit code 2."""
 
 
+def local_endpoints() -> list[str]:
+    """The private unix sockets runs of this user listen on, on this host (engine.endpoints:
+    ``<dir>/<run>/<process>.sock``; a socket a killed run left behind connects to nothing)."""
+    return sorted(f"unixsock-stream/{p}" for p in private_socket_dir().glob("*/*.sock"))
+
+
 def open_client(endpoints: list[str]) -> Bus:
     """A session that listens on nothing and connects to *endpoints*."""
     if not endpoints:
         raise NoRunError(
-            "no vgr run found: no live run wrote its endpoint (bus.json) in the runs folder; start one with "
-            "`vgr run RECIPE`, or name its endpoint with --connect (e.g. tcp/127.0.0.1:7447)"
+            f"no vgr run found: no run of this user listens on a private socket in {private_socket_dir()}; "
+            "start one with `vgr run RECIPE --listen private` (a single-process run opens no listener "
+            "otherwise), or name its endpoint with --connect"
         )
     return Bus(ZenohSettings(listen=[], connect=list(endpoints)))
 

@@ -106,29 +106,34 @@ def test_start_and_end_select_a_time_slice(listener):
     assert [seq for _, _, kind, seq in listener.samples if kind == 0] == want and len(want) == 3
 
 
-def test_refusals_exit_2(tmp_path, capsys):
-    assert main(["play", str(DEMO), "--topics", "/nope/x", "--runs-dir", str(tmp_path)]) == 2
+def test_refusals_exit_2(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))
+    assert main(["play", str(DEMO), "--topics", "/nope/x"]) == 2
     assert "no topic /nope/x" in capsys.readouterr().err
-    assert main(["play", str(DEMO), "--rate", "0", "--runs-dir", str(tmp_path)]) == 2
-    assert main(["play", str(Path(tmp_path, "missing.mcap")), "--runs-dir", str(tmp_path)]) == 2
-    assert not any(tmp_path.iterdir())  # a refused play leaves no folder behind
+    assert main(["play", str(DEMO), "--rate", "0"]) == 2
+    assert main(["play", str(Path(tmp_path, "missing.mcap"))]) == 2
+    assert main(["play", str(DEMO), "--loop", "-1", "--listen", "tcp/127.0.0.1:0"]) == 2
 
 
-def test_a_play_is_found_by_vgr_topics_and_ends_on_ctrl_c(tmp_path, capsys):
-    proc = subprocess.Popen(vgr("play", str(DEMO), "--loop", "--runs-dir", str(tmp_path)), env=vgr_env(), text=True)
+def test_a_play_is_found_by_vgr_topics_and_ends_on_ctrl_c(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))  # the play's private socket goes there
+    proc = subprocess.Popen(vgr("play", str(DEMO), "--loop"), env=vgr_env(), text=True)
     try:
+        socket = tmp_path / "vgr" / "demo" / "play.sock"
         deadline = time.monotonic() + 60
-        while not list(tmp_path.glob("*/bus.json")):
+        while not socket.exists():
             assert proc.poll() is None and time.monotonic() < deadline, "the play did not start"
             time.sleep(0.05)
-        assert main(["topics", "list", "--json", "--runs-dir", str(tmp_path)]) == 0
+        assert main(["topics", "list", "--json"]) == 0
         doc = json.loads(capsys.readouterr().out)
         assert doc["run_id"] == "demo" and {t["process"] for t in doc["topics"]} == {"play"}
         assert {t["topic"] for t in doc["topics"]} == {m.topic for m in data_messages(load(DEMO))}
+        assert main(["play", str(DEMO)]) == 2  # a second play of run demo here: refused without --run-id
+        assert "--run-id" in capsys.readouterr().err
     finally:
         proc.send_signal(signal.SIGINT)
         assert proc.wait(30) == 130
-    assert not any(tmp_path.iterdir())  # its folder held only bus.json: gone with the play
+    assert not socket.exists()  # closed with the play: the next one may take the name
 
 
 @settings(max_examples=100, deadline=None)

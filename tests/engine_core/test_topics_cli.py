@@ -1,5 +1,5 @@
 """``vgr topics list|echo|hz`` against a real running run on loopback (the demo recipe on the wall clock,
-found through the bus.json of its run folder), and their refusals: no run, several runs, no topic."""
+listening on its private socket, found there), and their refusals: no run, several runs, no topic."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from live_helpers import demo_streaming, vgr, vgr_env
 
-from engine import codec, discovery, local_runs
+from engine import codec, discovery
 from engine.bus import Bus
 from engine.cli import main
 from engine.recipe import ZenohSettings
@@ -26,22 +26,26 @@ pytestmark = [pytest.mark.subprocess, pytest.mark.timeout(120)]
 
 @pytest.fixture(scope="module")
 def live(tmp_path_factory):
-    """A demo run streaming at 20 Hz for up to a minute; its runs folder."""
-    runs = tmp_path_factory.mktemp("runs")
-    proc = subprocess.Popen(
-        vgr(*demo_streaming(20, 1200, 200), "--no-record", "--runs-dir", str(runs)),
-        env=vgr_env(),
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-    )
-    deadline = time.monotonic() + 60
-    while not list(runs.glob("*/bus.json")):
-        assert proc.poll() is None and time.monotonic() < deadline, "the run did not start"
-        time.sleep(0.1)
-    yield runs
-    proc.send_signal(signal.SIGINT)
-    assert proc.wait(30) == 130  # interrupted: its bus.json is gone with it
-    assert not list(runs.glob("*/bus.json"))
+    """A demo run streaming at 20 Hz for up to a minute on its private socket, in a socket folder of
+    its own (XDG_RUNTIME_DIR, for this process too); the socket's endpoint."""
+    runtime = tmp_path_factory.mktemp("xdg")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("XDG_RUNTIME_DIR", str(runtime))
+        runs = str(tmp_path_factory.mktemp("runs"))
+        proc = subprocess.Popen(
+            vgr(*demo_streaming(20, 1200, 200), "--no-record", "--listen", "private", "--runs-dir", runs),
+            env=vgr_env(),
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+        )
+        socket = runtime / "vgr" / "demo" / "main.sock"
+        deadline = time.monotonic() + 60
+        while not socket.exists():
+            assert proc.poll() is None and time.monotonic() < deadline, "the run did not start"
+            time.sleep(0.1)
+        yield f"unixsock-stream/{socket}"
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(30) == 130
 
 
 def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
@@ -52,7 +56,7 @@ def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
 
 
 def test_list_names_every_output_with_its_type_schema_and_stage(live, capsys):
-    code, out, _ = run_cli(capsys, "topics", "list", "--json", "--runs-dir", str(live))
+    code, out, _ = run_cli(capsys, "topics", "list", "--json")
     assert code == 0
     doc = json.loads(out)
     assert doc["run_id"] == "demo"
@@ -70,23 +74,21 @@ def test_list_names_every_output_with_its_type_schema_and_stage(live, capsys):
 
 
 def test_echo_prints_count_decoded_messages(live, capsys):
-    code, out, _ = run_cli(
-        capsys, "topics", "echo", "move.transform", "--count", "3", "--json", "--runs-dir", str(live)
-    )
+    code, out, _ = run_cli(capsys, "topics", "echo", "move.transform", "--count", "3", "--json")
     assert code == 0
     docs = [json.loads(line) for line in out.splitlines()]
     assert len(docs) == 3
     assert [d["seq"] for d in docs] == list(range(docs[0]["seq"], docs[0]["seq"] + 3))
     pos = docs[0]["message"]["pose"]["position"]
     assert (pos["x"], pos["y"], pos["z"], docs[0]["type"]) == (0.01, -0.005, 0.5, "PoseStamped")
-    code, out, _ = run_cli(capsys, "topics", "echo", "/source/cloud", "--json", "--runs-dir", str(live))
+    code, out, _ = run_cli(capsys, "topics", "echo", "/source/cloud", "--json")
     (cloud,) = [json.loads(line) for line in out.splitlines()]
     assert cloud["message"]["data"] == f"<{200 * 12} bytes>" and cloud["message"]["point_stride"] == 12
 
 
 def test_hz_counts_the_messages_of_each_window(live, capsys):
     argv = ["topics", "hz", "/source/cloud", "/move/cloud", "--window", "0.5", "--windows", "2", "--json"]
-    code, out, _ = run_cli(capsys, *argv, "--runs-dir", str(live))
+    code, out, _ = run_cli(capsys, *argv)
     assert code == 0
     docs = [json.loads(line) for line in out.splitlines()]
     assert [d["topic"] for d in docs] == ["/source/cloud", "/move/cloud"] * 2
@@ -94,24 +96,24 @@ def test_hz_counts_the_messages_of_each_window(live, capsys):
 
 
 def test_several_runs_need_a_run_id_and_an_unknown_one_is_refused(live, capsys):
-    (endpoint,) = local_runs.local_endpoints(live)
-    listen = local_runs.pin_ports(["tcp/127.0.0.1:0"])
-    with Bus(ZenohSettings(listen=listen)) as other:  # a second "run" answering on the bus
+    from engine.endpoints import private_socket
+
+    with Bus(ZenohSettings(listen=[private_socket("other", "main")])) as other:  # a second run of this user
         discovery.announce(other, "other", "main", [discovery.topic_info("other", "s", "p", "Event", "vgr.v1.Event")])
-        both = ["--connect", endpoint, "--connect", listen[0]]
-        code, _, err = run_cli(capsys, "topics", "list", *both)
+        code, _, err = run_cli(capsys, "topics", "list")
         assert code == 2 and "several runs" in err and "demo, other" in err
-        code, out, _ = run_cli(capsys, "topics", "list", "--json", "--run-id", "other", *both)
+        code, out, _ = run_cli(capsys, "topics", "list", "--json", "--run-id", "other")
         assert code == 0 and [t["topic"] for t in json.loads(out)["topics"]] == ["/s/p"]
-        code, _, err = run_cli(capsys, "topics", "list", "--run-id", "nope", *both)
-        assert code == 2 and "no run 'nope'" in err
+        code, _, err = run_cli(capsys, "topics", "list", "--run-id", "nope", "--connect", live)
+        assert code == 2 and "no run 'nope'" in err and "runs found: demo" in err
 
 
-def test_no_run_and_no_topic_exit_2(live, tmp_path, capsys):
-    code, _, err = run_cli(capsys, "topics", "list", "--runs-dir", str(tmp_path))
-    assert code == 2 and "no vgr run found" in err
-    code, _, err = run_cli(capsys, "topics", "echo", "/move/nothing", "--runs-dir", str(live))
+def test_no_run_and_no_topic_exit_2(live, tmp_path, capsys, monkeypatch):
+    code, _, err = run_cli(capsys, "topics", "echo", "/move/nothing")
     assert code == 2 and "no topic '/move/nothing'" in err and "/move/cloud" in err
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))  # a user with no run
+    code, _, err = run_cli(capsys, "topics", "list")
+    assert code == 2 and "no vgr run found" in err and "--listen private" in err
 
 
 def test_rates_from_arrival_times():
