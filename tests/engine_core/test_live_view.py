@@ -17,7 +17,7 @@ import time
 
 import pytest
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
-from live_helpers import ROOT, demo_streaming, free_port, vgr, vgr_env
+from process_helpers import ROOT, demo_streaming, env, free_port, vgr
 from websockets.sync.client import connect
 
 from engine.recording import load
@@ -70,7 +70,7 @@ def stop(proc: subprocess.Popen[str]) -> None:
 def test_run_view_serves_a_point_cloud_channel(tmp_path):
     port = free_port()
     argv = vgr(*demo_streaming(20, 400, 300), "--no-record", "--runs-dir", str(tmp_path), "--view", str(port))
-    proc = subprocess.Popen(argv, env=vgr_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(argv, env=env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         channel, cloud, _ = first_cloud(port, proc, "/move/cloud")
     finally:
@@ -89,7 +89,7 @@ def test_run_view_serves_a_point_cloud_channel(tmp_path):
 def test_replay_view_serves_the_recorded_clouds(tmp_path):
     port = free_port()
     argv = vgr("replay", str(DEMO), "--speed", "0.1", "--runs-dir", str(tmp_path), "--view", str(port))
-    proc = subprocess.Popen(argv, env=vgr_env(), stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(argv, env=env(), stdout=subprocess.PIPE, text=True)
     try:
         _, cloud, payload = first_cloud(port, proc, "/source/cloud")  # played back from the file
         assert proc.wait(60) == 0  # the replay itself is unchanged: every output identical

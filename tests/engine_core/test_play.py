@@ -16,7 +16,7 @@ import pytest
 import zenoh
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from live_helpers import ROOT, free_port, vgr, vgr_env
+from process_helpers import ROOT, env, free_port, vgr
 
 from engine.cli import main
 from engine.play import PlayError, Selection, data_messages, select
@@ -52,7 +52,7 @@ class Listener:
         argv = vgr(
             "play", str(DEMO), "--connect", self.endpoint, "--wait-subscribers", "20", "--listen", "tcp/127.0.0.1:0"
         )
-        return subprocess.run([*argv, *args], env=vgr_env(), capture_output=True, text=True, timeout=90)
+        return subprocess.run([*argv, *args], env=env(), capture_output=True, text=True, timeout=90)
 
     def close(self) -> None:
         self.session.close()
@@ -117,7 +117,7 @@ def test_refusals_exit_2(tmp_path, capsys, monkeypatch):
 
 def test_a_play_is_found_by_vgr_topics_and_ends_on_ctrl_c(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))  # the play's private socket goes there
-    proc = subprocess.Popen(vgr("play", str(DEMO), "--loop"), env=vgr_env(), text=True)
+    proc = subprocess.Popen(vgr("play", str(DEMO), "--loop"), env=env(), text=True)
     try:
         socket = tmp_path / "vgr" / "demo" / "play.sock"
         deadline = time.monotonic() + 60

@@ -12,7 +12,7 @@ import time
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from live_helpers import demo_streaming, vgr, vgr_env
+from process_helpers import demo_streaming, env, vgr
 
 from engine import codec, discovery
 from engine.bus import Bus
@@ -34,7 +34,7 @@ def live(tmp_path_factory):
         runs = str(tmp_path_factory.mktemp("runs"))
         proc = subprocess.Popen(
             vgr(*demo_streaming(20, 1200, 200), "--no-record", "--listen", "private", "--runs-dir", runs),
-            env=vgr_env(),
+            env=env(),
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,
         )

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from live_helpers import demo_streaming, free_port, vgr, vgr_env
+from process_helpers import demo_streaming, env, free_port, vgr
 
 pytestmark = [pytest.mark.subprocess, pytest.mark.timeout(120)]
 
@@ -38,7 +38,7 @@ def test_foreign_subscriber_decodes_a_run_with_the_published_schemas_alone(tmp_p
     record, runs = tmp_path / "run.mcap", tmp_path / "runs"
     run = subprocess.run(
         vgr(*demo_streaming(20, 80, 500), "--connect", endpoint, "--record", str(record), "--runs-dir", str(runs)),
-        env=vgr_env(),
+        env=env(),
         capture_output=True,
         text=True,
         timeout=90,
