@@ -8,8 +8,8 @@ so sleeping late once does not delay the rest. After the last message of the las
 topic gets an end of stream, as a live port does.
 
 It never drives a device. It publishes on the public data keys only: no ``_wire`` key (the one vgr
-stages read from other processes), no ``_control`` (a run's stop), no query (so no service, no robot
-command), and the engine's own records (``/_vgr/*``, service exchanges, deliveries) are not played.
+stages read from other processes), no ``_control`` (a run's stop), no query at all (so no service, no
+robot command), and the engine's own records (``/_vgr/*``, service exchanges, deliveries) are not played.
 A running stage therefore never receives what it plays; a foreign subscriber (a controller, a
 dashboard, ``vgr topics echo``) does. The player answers ``vgr/<run>/_info/play`` like a run's
 process (engine.discovery, ``source: play``), so ``vgr topics`` finds it.
