@@ -26,7 +26,7 @@ EXIT_OK, EXIT_NOTHING = 0, 1
 def cmd_topics(args: argparse.Namespace) -> int:
     from engine.topics import choose_run, echo, hz, local_endpoints, open_client
 
-    with open_client(list(args.connect or local_endpoints())) as bus:
+    with open_client(list(args.connect or local_endpoints()), args.certs, args.identity) as bus:
         run = choose_run(bus, args.run_id, args.discovery_timeout)
         if args.action == "list":
             return _print_list(run, args.json)
@@ -117,8 +117,12 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--run-id", help="the run to look at (default: the only one running)")
     common.add_argument("--json", action="store_true", help="JSON output (one object per line for echo and hz)")
-    common.add_argument("--discovery-timeout", type=float, default=1.0, metavar="S", help="seconds to find runs")
+    common.add_argument("--discovery-timeout", type=float, default=2.0, metavar="S", help="seconds to find runs")
     _add_connect_option(common, "default: the private sockets of this user's runs on this host")
+    common.add_argument(
+        "--certs", metavar="DIR", help="a secured run: folder with ca.pem and the observer's certificate"
+    )
+    common.add_argument("--identity", metavar="NAME", help="with --certs: the observer (its NAME.pem / NAME.key)")
     a = acts.add_parser("list", parents=[common], help="topics with their message type, schema and stage")
     a = acts.add_parser("echo", parents=[common], help="print decoded messages of topics")
     a.add_argument("topic", nargs="+", help="topic: /stage/port (or stage.port)")

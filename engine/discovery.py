@@ -85,11 +85,13 @@ def announce(bus: Bus, run_id: str, process: str, topics: list[TopicInfo], sourc
     bus.answer(info_key(run_id, process), info_document(run_id, process, topics, source))
 
 
-def find_runs(bus: Bus, timeout_s: float = 1.0) -> dict[str, list[dict[str, Any]]]:
-    """Info documents of every process reachable from *bus*, by run id (replies that are not a
+def find_runs(bus: Bus, timeout_s: float = 1.0, run_id: str | None = None) -> dict[str, list[dict[str, Any]]]:
+    """Info documents of every process reachable from *bus* (or of run *run_id* only: a secured
+    run lets an observer ask its own key, not every run's), by run id (replies that are not a
     document of this layout are skipped)."""
     runs: dict[str, list[dict[str, Any]]] = {}
-    for reply in bus.session.get(ALL_INFO, timeout=timeout_s):
+    key = ALL_INFO if run_id is None else info_key(run_id, "*")
+    for reply in bus.session.get(key, timeout=timeout_s):
         if reply.ok is None:
             continue
         try:

@@ -20,6 +20,7 @@ import statistics
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from google.protobuf import descriptor_pb2, descriptor_pool, json_format, message_factory
@@ -43,15 +44,26 @@ def local_endpoints() -> list[str]:
     return sorted(f"unixsock-stream/{p}" for p in private_socket_dir().glob("*/*.sock"))
 
 
-def open_client(endpoints: list[str]) -> Bus:
-    """A session that listens on nothing and connects to *endpoints*."""
+def open_client(endpoints: list[str], certs: str | None = None, identity: str | None = None) -> Bus:
+    """A session that listens on nothing and connects to *endpoints*; with *certs* (a folder of
+    ``ca.pem`` and ``<identity>.pem/.key``), over mutual TLS as *identity*, an observer the secured
+    run's ``security.observers`` names (docs/security.md)."""
     if not endpoints:
         raise NoRunError(
             f"no vgr run found: no run of this user listens on a private socket in {private_socket_dir()}; "
             "start one with `vgr run RECIPE --listen private` (a single-process run opens no listener "
             "otherwise), or name its endpoint with --connect"
         )
-    return Bus(ZenohSettings(listen=[], connect=list(endpoints)))
+    extra = None
+    if certs is not None:
+        from engine.security import SECURE_PROTOCOLS, ProcessIdentity, tls_config
+
+        if identity is None:
+            raise NoRunError("--certs needs --identity NAME: the observer certificate to show the run")
+        folder = Path(certs)
+        ident = ProcessIdentity(identity, folder / "ca.pem", folder / f"{identity}.pem", folder / f"{identity}.key")
+        extra = {"transport/link/tls": tls_config(ident), "transport/link/protocols": list(SECURE_PROTOCOLS)}
+    return Bus(ZenohSettings(listen=[], connect=list(endpoints)), extra)
 
 
 @dataclass
@@ -83,10 +95,10 @@ class Run:
 def choose_run(bus: Bus, run_id: str | None, timeout_s: float = 1.0) -> Run:
     """The run *run_id*, or the only run reachable; NoRunError naming the runs found otherwise."""
     deadline = time.monotonic() + max(timeout_s, 0.1)
-    runs = find_runs(bus, timeout_s)
+    runs = find_runs(bus, timeout_s, run_id)
     while not runs and time.monotonic() < deadline:  # a connection just made may need a moment
         time.sleep(0.1)
-        runs = find_runs(bus, timeout_s)
+        runs = find_runs(bus, timeout_s, run_id)
     if run_id is not None:
         if run_id not in runs:
             found = ", ".join(sorted(runs)) or "none"

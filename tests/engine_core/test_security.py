@@ -242,10 +242,34 @@ def test_a_secured_run_admits_only_its_certificates_and_observers_only_read(tmp_
         "another CA's consumer": tls_peer(other, "consumer", endpoint, ca=certs / "ca.pem"),
         "observer": tls_peer(certs, "watcher", endpoint),
     }
+    watch = subprocess.Popen(  # the observer's certificate lets vgr topics list the secured run
+        vgr(
+            "topics",
+            "list",
+            "--json",
+            "--run-id",
+            "split",
+            "--discovery-timeout",
+            "4",
+            "--connect",
+            endpoint,
+            "--certs",
+            str(certs),
+            "--identity",
+            "watcher",
+        ),
+        env=env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     seen = intruders(tries)
+    listed, why = watch.communicate(timeout=60)
     finish(consumer, producer)
     for what in ("plain tcp", "tls without a certificate", "another CA's consumer"):
         assert seen[what] == {"peers": 0, "samples": 0, "replies": 0, "tokens": [], "info": 0}, what
+    assert watch.returncode == 0, why
+    assert "/relay/out" in listed
     obs = seen["observer"]
     assert obs["peers"] == 1 and obs["samples"] > 0 and obs["tokens"], obs  # it may watch...
     assert obs["info"] == 1  # ...and read the description of the process it reached (topics, schemas)...
