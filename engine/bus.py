@@ -337,7 +337,9 @@ class Bus:
                 payload=payload,
                 attachment=attachment,
                 timeout=timeout_s,
-                target=zenoh.QueryTarget.BEST_MATCHING,
+                # every queryable on the key, not zenoh's pick of one: a second replier is seen (and refused)
+                target=zenoh.QueryTarget.ALL,
+                consolidation=zenoh.ConsolidationMode.NONE,  # (zenoh's default keeps one reply per key)
                 source_info=self.source_info(),
                 cancellation_token=cancel.zenoh if cancel is not None else None,
             )

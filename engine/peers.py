@@ -189,10 +189,11 @@ class PeerWatch:
             self._cv.wait_for(lambda: not missing(), deadline_s)
             return missing()
 
-    def restarted_under_way(self, process: str) -> list[str]:
-        """The other processes that passed their barrier with other members than those seen now
-        (an earlier epoch of *process*, typically): then *process* joins a run already under way."""
-        epochs = self.epochs()
+    def restarted_under_way(self, process: str, epoch: str) -> list[str]:
+        """The other processes that passed their barrier with other members than those seen now, with
+        *epoch* for *process* (an earlier epoch of it, typically): then *process* joins a run already
+        under way."""
+        epochs = {**self.epochs(), process: epoch}
         digest = members_digest(epochs)
         with self._cv:
             return sorted(p for p, m in self._members.items() if p != process and m.started and m.started != digest)

@@ -467,10 +467,10 @@ class Runner:
         missing = self.peers.wait_for(procs, self.ready_timeout_s)
         if missing:
             raise RunError(f"processes {', '.join(sorted(missing))} did not say who they are (engine.peers)")
-        digest = members_digest(self.peers.epochs())
+        digest = members_digest({**self.peers.epochs(), self.process: self.epoch})
         self._tokens["peer_started"] = self.bus.token(f"{self._peer_key}/started/{digest}")
         self.peers.wait_for(procs - {self.process}, self.ready_timeout_s, "started")
-        under_way = self.peers.restarted_under_way(self.process)
+        under_way = self.peers.restarted_under_way(self.process, self.epoch)
         if under_way and not self.graph.recipe.rejoin:
             msg = (
                 f"process {self.process!r} (epoch {self.epoch}) joins run {self.run_id} already under way "
