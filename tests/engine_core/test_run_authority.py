@@ -123,7 +123,7 @@ def two(rid: str, port: int, n: int = 40, rejoin: bool = False) -> tuple[str, ..
 
 def test_stop_and_control_from_outside_the_run_are_refused_and_the_run_finishes_ok(tmp_path: Path):
     rid, port = "outsider_t2", free_port()
-    text = two(rid, port)[0]
+    text = two(rid, port, n=150)[0]
     graph = graph_from(text)
     rec = Recorder(tmp_path / "a.mcap", graph.recipe.record, graph.loaded, PLUGINS)
     ta, ra = in_thread(Runner(graph, process="a", observers=[rec], ready_timeout_s=20))
@@ -139,13 +139,13 @@ def test_stop_and_control_from_outside_the_run_are_refused_and_the_run_finishes_
         tb.join(30)
     a, b = ra["summary"], rb["summary"]
     assert a.ok and b.ok, (a.stop_reason, b.stop_reason)
-    assert len(COLLECTED[rid]["sink"]) == 40 and all(r["command"] == "echo" for r in COLLECTED[rid]["sink"])
+    assert len(COLLECTED[rid]["sink"]) == 150 and all(r["command"] == "echo" for r in COLLECTED[rid]["sink"])
     codes_a = [e.code for e in a.events]  # (b listens nowhere: the intruder reaches a only)
     assert "control_refused" in codes_a and "stop_refused" in codes_a
-    # every request a served is recorded with its caller: process b's 40, and the outsider's one
+    # every request a served is recorded with its caller: process b's 150, and the outsider's one
     served = [r for r in load(tmp_path / "a.mcap").records if r[0] == "served"]
     callers = [r[3] for r in served]
-    assert callers.count("b") == 40
+    assert callers.count("b") == 150
     outside = [r for r in served if r[3] == ""]
     assert len(outside) == 1 and outside[0][4] == ""  # a plain session's query does not say who it is
     assert {r[4] for r in served if r[3] == "b"} and "" not in {r[4] for r in served if r[3] == "b"}
