@@ -295,5 +295,14 @@ message Delivery {                   // a stage is about to handle message `seq`
 message StageFinish {                // all inputs of `stage` ended; its finish() runs now
   string stage = 1;
 }
+message ServedCall {                 // a request a stage served, as seen by the provider
+  string provider = 1;
+  string service = 2;
+  string caller_process = 3;         // empty: the calling session is not one of the run's processes
+  string caller_zid = 4;             // the caller's zenoh session (empty: the query did not say)
+  string request_type = 5;
+  uint64 request_seq = 6;
+  string error = 7;                  // why it was not answered; empty when it was
+}
 """,
 )
