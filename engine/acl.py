@@ -16,7 +16,7 @@ engine.bus):
   replies to Q's queries of its own services the same way; nobody else may declare or answer them;
 - ``_control`` (the run-wide stop) between the run's processes;
 - liveliness: Q may declare only its own tokens (``_ready/<its stages>``, ``_started/Q``,
-  ``_active/Q``); any process may watch the run's tokens.
+  ``_active/Q``, ``_peer/Q/**``); any process may watch the run's tokens.
 
 Observers (``security.observers``) may subscribe to anything of the run and watch its tokens, and
 query P's description ``_info/P`` (engine.discovery: its topics and schemas, read-only); they may
@@ -61,10 +61,12 @@ class _Rules:
 
 
 def process_token_keys(run: str, graph: Graph, process: str) -> list[str]:
-    """The liveliness tokens *process* declares in a run (engine.runner)."""
+    """The liveliness tokens *process* declares in a run (engine.runner; its membership, epoch and
+    end under ``_peer/<process>/``, engine.peers)."""
     return [
         started_key(run, process),
         active_key(run, process),
+        f"vgr/{run}/_peer/{process}/**",
         *(ready_key(run, s) for s in graph.stages_in(process)),
     ]
 
