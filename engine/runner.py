@@ -353,6 +353,8 @@ class Runner:
 
     def _on_control(self, sample: Any) -> None:
         zid = sender_zid(sample)
+        if zid is not None and self._bus is not None and zid == self._bus.zid:
+            return  # this process's own message (its own stop, already acted on), delivered back to it
         sender = self.peers.process_of(zid) if self.peers is not None else None
         try:
             msg = json.loads(sample.payload.to_bytes())

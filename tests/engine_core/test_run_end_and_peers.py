@@ -9,8 +9,8 @@ import time
 from pathlib import Path
 
 import pytest
+from process_helpers import env, free_port, vgr
 from recipe_helpers import graph_from
-from test_processes import env, free_port, vgr
 
 from engine.runner import Runner
 
@@ -64,21 +64,30 @@ stages:
 
 @pytest.mark.subprocess
 @pytest.mark.timeout(120)
-@pytest.mark.xfail(
-    reason="unfinished: in this set-up the consumer never sees the producer's stages (barrier times out, "
-    "exit 2) before the kill; not yet found why (test_processes.py's same start order works)",
-    strict=False,
-)
 def test_a_peer_killed_mid_run_is_an_alarm_naming_it_and_the_run_fails(tmp_path):
     recipe = tmp_path / "kill.yaml"
-    recipe.write_text(KILL.format(port=free_port()))
+    port = free_port()
+    recipe.write_text(KILL.format(port=port))
 
     opts = {"env": env(), "cwd": tmp_path, "stdout": subprocess.PIPE, "stderr": subprocess.STDOUT, "text": True}
     producer, consumer = (
         subprocess.Popen(vgr("run", str(recipe), "--process", p, "--no-progress"), **opts)
         for p in ("producer", "consumer")
     )
-    time.sleep(6)  # both set up, messages flowing
+    # both processes set up and answering (engine.discovery), messages flowing: a fixed sleep was too
+    # short on a loaded machine, where starting the two processes took more than 6 s
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        listed = subprocess.run(
+            vgr("topics", "list", "--json", "--run-id", "kill_t5", "--connect", f"tcp/127.0.0.1:{port}"),
+            env=env(),
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        if listed.returncode == 0 and "/src/out" in listed.stdout:
+            break
+    time.sleep(1.0)
     producer.kill()  # SIGKILL: no done marker
     producer.wait(10)
     out, _ = consumer.communicate(timeout=60)
