@@ -7,7 +7,6 @@ recipe says ``rejoin: true``. The intruder is a plain zenoh session on 127.0.0.1
 from __future__ import annotations
 
 import json
-import socket
 import threading
 import time
 from collections.abc import Iterator
@@ -16,6 +15,7 @@ from pathlib import Path
 
 import pytest
 import zenoh
+from process_helpers import free_port
 from recipe_helpers import graph_from
 from stage_fixtures import COLLECTED
 
@@ -28,12 +28,6 @@ from engine.runner import Runner, RunSummary
 
 pytestmark = pytest.mark.timeout(90)
 PLUGINS = ["builtin", "stage_fixtures"]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @contextmanager
