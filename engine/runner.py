@@ -179,6 +179,7 @@ class Runner:
         self.started = False  # True once every local stage's setup() has run
         self.stop_reason: str | None = None
         self.failed_stages: list[str] = []
+        self.lost_peer: str | None = None  # why a peer process was lost (crashed, lease lost): the run failed
         self.driven = _driven_stages(graph)
         self.multi_process = len(graph.processes()) > 1
         self._own_bus = bus is None
@@ -283,12 +284,14 @@ class Runner:
             return
         msg = f"process {process!r} (zenoh session {zid}) vanished without finishing: crashed or lost its lease"
         self._run_event("alarm", "peer_lost", "", msg, process=process, zid=zid)
+        self.lost_peer = self.lost_peer or msg  # the run failed, even when it was ending anyway
         self.stop(msg)
 
     def _rejoin_overdue(self, process: str) -> None:
         if self.peers is not None and self.peers.owner(process) is None and not self.stop_event.is_set():
             msg = f"process {process!r} vanished and did not rejoin within {self.ready_timeout_s:g} s"
             self._run_event("alarm", "peer_lost", "", msg, process=process)
+            self.lost_peer = self.lost_peer or msg
             self.stop(msg)
 
     def _peer_restarted(self, process: str, old: str, new: str, accepted: bool) -> None:
@@ -391,13 +394,13 @@ class Runner:
                     self.stop("interrupted (Ctrl-C)")
             finally:
                 self._shutdown()
-        ok = not self.failed_stages and self.stop_reason is None
+        ok = not self.failed_stages and self.stop_reason is None and self.lost_peer is None
         summary = RunSummary(
             self.run_id,
             self.graph.recipe.name,
             self.process,
             ok,
-            self.stop_reason,
+            self.stop_reason or self.lost_peer,
             [rt.stats for rt in self.runtimes.values()],
             time.monotonic() - t0,
             list(self.events),
