@@ -16,10 +16,11 @@ engine.bus):
   replies to Q's queries of its own services the same way; nobody else may declare or answer them;
 - ``_control`` (the run-wide stop) between the run's processes;
 - liveliness: Q may declare only its own tokens (``_ready/<its stages>``, ``_started/Q``,
-  ``_active/Q``); any process may watch the run's tokens.
+  ``_active/Q``, ``_peer/Q/**``); any process may watch the run's tokens.
 
-Observers (``security.observers``) may subscribe to anything of the run and watch its tokens;
-they may put, query, declare a queryable or a token nowhere. Anyone else gets nothing: no subject,
+Observers (``security.observers``) may subscribe to anything of the run and watch its tokens, and
+query P's description ``_info/P`` (engine.discovery: its topics and schemas, read-only); they may
+put, declare a queryable or a token nowhere and query nothing else. Anyone else gets nothing: no subject,
 no policy.
 """
 
@@ -28,6 +29,7 @@ from __future__ import annotations
 from typing import Any
 
 from engine.bus import active_key, control_key, ready_key, service_key, started_key, wire_key
+from engine.discovery import info_key
 from engine.graph import Graph
 
 ALL_TOKENS = ("liveliness_token", "declare_liveliness_subscriber", "liveliness_query")
@@ -59,10 +61,12 @@ class _Rules:
 
 
 def process_token_keys(run: str, graph: Graph, process: str) -> list[str]:
-    """The liveliness tokens *process* declares in a run (engine.runner)."""
+    """The liveliness tokens *process* declares in a run (engine.runner; its membership, epoch and
+    end under ``_peer/<process>/``, engine.peers)."""
     return [
         started_key(run, process),
         active_key(run, process),
+        f"vgr/{run}/_peer/{process}/**",
         *(ready_key(run, s) for s in graph.stages_in(process)),
     ]
 
@@ -118,6 +122,10 @@ def acl_for(graph: Graph, process: str, run: str, observers: list[str]) -> dict[
             run_keys,
         )
         r.allow(subj, "observe", "egress", ["put", "liveliness_token", "reply"], run_keys)
+        # a query of every process's description (vgr/<run>/_info/*) must be allowed as written:
+        # zenoh refuses a key expression wider than the rule's; this process alone answers it here
+        r.allow(subj, "read the description", "ingress", ["query"], [info_key(run, "*")])
+        r.allow(subj, "read the description", "egress", ["declare_queryable", "reply"], [info_key(run, process)])
     subjects = [{"id": _process_subject(p), "cert_common_names": [p]} for p in graph.processes() if p != process]
     subjects += [{"id": _observer_subject(o), "cert_common_names": [o]} for o in observers]
     return {

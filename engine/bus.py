@@ -9,6 +9,7 @@ Key expressions (``<run>`` is the run id)::
     vgr/<run>/_started/<process>      liveliness: the process has set up its stages and reads its inputs
     vgr/<run>/_active/<process>       liveliness: the process still has stages producing data
     vgr/<run>/_control                run-wide control (stop), published by any process
+    vgr/<run>/_info/<process>         queryable: the process's topics, types and schemas (engine.discovery)
 
 The default session is the embedded set-up: peer mode, multicast scouting off, and no listener
 unless the run's processes need one (engine.session_config; TLS and access control come from
@@ -46,6 +47,7 @@ from typing import Any
 import zenoh
 
 from engine.codec import Envelope, Kind, encode_envelope
+from engine.peers import Answer
 from engine.recipe import ZenohSettings
 from engine.shm import ShmPool
 from engine.shm import session_entries as shm_entries
@@ -112,13 +114,13 @@ class _Attachment:
         return self._raw
 
 
-class _StopMarker:
+class StopMarker:
     """Looks like a zenoh Sample/Query carrying the STOP envelope."""
 
     attachment = _Attachment(STOP_ENVELOPE)
     payload = None
 
-    def __enter__(self) -> _StopMarker:
+    def __enter__(self) -> StopMarker:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -167,7 +169,7 @@ class Inbox:
             return self._items.popleft()
 
     def wake(self) -> None:
-        self(_StopMarker())
+        self(StopMarker())
 
     def __len__(self) -> int:
         return len(self._items)
@@ -251,6 +253,8 @@ class Bus:
             ) from exc
         self._decls: list[Any] = []
         self._lock = threading.Lock()
+        self._source_id: Any = None  # an entity of this session, named in source infos
+        self._source_sn = 0
         self.closed = False
         # the pool large payloads to other processes of this host are put from (engine.shm)
         self.shm: ShmPool | None = ShmPool() if self.settings.shared_memory else None
@@ -301,6 +305,16 @@ class Bus:
         box.decl = self._keep(self.session.declare_queryable(key, box))
         return box
 
+    def answer(self, key: str, payload: bytes) -> zenoh.Queryable:
+        """Queryable replying *payload*, a constant, to every query on *key* (on zenoh's thread: a
+        reply of bytes made beforehand never waits)."""
+
+        def reply(query: zenoh.Query) -> None:
+            with contextlib.suppress(Exception):  # the querier may have gone
+                query.reply(key, payload)
+
+        return self._keep(self.session.declare_queryable(key, reply))
+
     def token(self, key: str) -> zenoh.LivelinessToken:
         return self._keep(self.session.liveliness().declare_token(key))
 
@@ -328,12 +342,16 @@ class Bus:
         attachment: bytes,
         timeout_s: float,
         cancel: CancelToken | None = None,
-    ) -> tuple[bytes, bytes]:
-        """Send a query and return the first reply's (payload, attachment).
+    ) -> list[Answer]:
+        """Send a query and return every reply that came, each with the ZenohId of the session that
+        sent it (zenoh's ``Reply.replier_id``), once every queryable reached has answered: whether the
+        one reply came from the stage's owner, and whether there was only one, is the caller's to
+        check (engine.peers.owners_answer). The query carries this session's id (``source_info``),
+        which the provider records as its caller.
 
         Raises TimeoutError when nothing answered in time, LookupError when no service exists,
-        RuntimeError with the provider's message when it replied with an error, RequestCancelled
-        when *cancel* was cancelled before the reply came (or before the query left).
+        RequestCancelled when *cancel* was cancelled before the reply came (or before the query left).
+        A provider's error reply is an :class:`Answer` with its ``error``.
         """
         try:
             replies = self.session.get(
@@ -341,27 +359,57 @@ class Bus:
                 payload=payload,
                 attachment=attachment,
                 timeout=timeout_s,
-                target=zenoh.QueryTarget.BEST_MATCHING,
+                # every queryable on the key, not zenoh's pick of one: a second replier is seen (and refused)
+                target=zenoh.QueryTarget.ALL,
+                consolidation=zenoh.ConsolidationMode.NONE,  # (zenoh's default keeps one reply per key)
+                source_info=self.source_info(),
                 cancellation_token=cancel.zenoh if cancel is not None else None,
             )
         except zenoh.ZError:
             if cancel is not None and cancel.cancelled:  # zenoh refuses a query whose token is cancelled
                 raise RequestCancelled(f"{key}: not sent, cancelled") from None
             raise
+        answers: list[Answer] = []
         for reply in replies:
+            replier = str(reply.replier_id.zid) if reply.replier_id is not None else None
             if reply.ok is not None:
                 att = reply.ok.attachment
-                return reply.ok.payload.to_bytes(), att.to_bytes() if att is not None else b""
+                answers.append(Answer(reply.ok.payload.to_bytes(), att.to_bytes() if att is not None else b"", replier))
+                continue
             err = reply.err.payload.to_bytes().decode(errors="replace") if reply.err is not None else "?"
-            if err == "Timeout":
+            if err == "Timeout" and replier is None:  # zenoh's own: a queryable reached did not finish in time
+                if answers:
+                    break
                 raise TimeoutError(f"no reply from {key} within {timeout_s:g} s")
-            raise RuntimeError(err)
+            answers.append(Answer(b"", b"", replier, err))
+        if answers:
+            return answers
         if cancel is not None and cancel.cancelled:  # the token ended the wait: no reply came
             raise RequestCancelled(f"{key}: cancelled while waiting for the reply")
         raise LookupError(f"no service answers at {key} (is its stage running?)")
 
+    def source_info(self) -> zenoh.SourceInfo:
+        """What the engine's own puts and queries carry: this session's id (engine.peers.sender_zid)."""
+        if self._source_id is None:
+            pub = self._keep(self.session.declare_publisher(f"vgr/_source/{self.zid}"))
+            self._source_id = pub.id
+        with self._lock:
+            self._source_sn = sn = self._source_sn + 1
+        return zenoh.SourceInfo(self._source_id, sn)
+
+    @property
+    def zid(self) -> str:
+        """This session's ZenohId, as zenoh names it in replies and source infos."""
+        return str(self.session.zid())
+
     def put(self, key: str, payload: bytes, attachment: bytes | None = None) -> None:
-        self.session.put(key, payload, attachment=attachment, congestion_control=zenoh.CongestionControl.BLOCK)
+        self.session.put(
+            key,
+            payload,
+            attachment=attachment,
+            congestion_control=zenoh.CongestionControl.BLOCK,
+            source_info=self.source_info(),
+        )
 
     # -- shutdown --------------------------------------------------------------------------
     def close(self) -> None:

@@ -162,6 +162,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         ready_timeout_s=args.ready_timeout,
         freeze_gc=args.own_process,  # the command's own process (not a caller's, e.g. a test): see Runner
     )
+    cli_recording.add_live_view(args, runner.observers, console)  # before the folder: a taken port is refused first
     # a recording the user named (--record, record.path) does not depend on the run folder: it is
     # resolved, and refused if it exists, before anything is created
     named = bool(args.record or recipe.record.path)
@@ -263,11 +264,34 @@ def cmd_schemas(args: argparse.Namespace) -> int:
     from engine.schemas import proto_text
 
     load_registry()
+    if args.descriptor_set:
+        return _write_descriptor_set(
+            Path(args.descriptor_set), sorted({registry.get(n).SCHEMA for n in registry.names()})
+        )
     for name in registry.names():
         cls = registry.get(name)
         print(f"// {name}: {(cls.__doc__ or '').strip().splitlines()[0]}")
         print(proto_text(cls.SCHEMA))
         print()
+    return EXIT_OK
+
+
+def _write_descriptor_set(path: Path, schemas: list[str]) -> int:
+    """Every schema in one ``FileDescriptorSet`` (``protoc --descriptor_set_out`` format), to a new file."""
+    from google.protobuf import descriptor_pb2
+
+    from engine.schemas import descriptor_set
+
+    merged = descriptor_pb2.FileDescriptorSet()
+    seen: set[str] = set()
+    for name in schemas:
+        for fd in descriptor_pb2.FileDescriptorSet.FromString(descriptor_set(name)).file:
+            if fd.name not in seen:  # dependencies first, as each set lists them
+                seen.add(fd.name)
+                merged.file.append(fd)
+    with path.open("xb") as f:  # a new file: never replaces one
+        f.write(merged.SerializeToString())
+    out.print(f"{len(schemas)} schemas in {len(merged.file)} files: {escape(str(path))}", highlight=False)
     return EXIT_OK
 
 
@@ -281,6 +305,8 @@ VERB_MODULES: dict[str, tuple[str, str]] = {
     "replay": ("engine.cli_recording", "re-run a recording's solver/action stages and diff their outputs"),
     "inspect": ("engine.cli_recording", "topics, counts, rates, time span, recipe and versions of a recording"),
     "recover": ("engine.cli_recording", "rebuild the index of a recording cut short (e.g. kill -9)"),
+    "topics": ("engine.cli_topics", "list, echo or time the topics of a running run (like ros2 topic)"),
+    "play": ("engine.cli_topics", "put a recording's topics back on zenoh at their recorded pace (like ros2 bag play)"),
     "template": ("plugins.solvers.registration.cli", "make or show a matcher template"),
     "calibrate": (
         "plugins.solvers.calibrate_cli",
@@ -343,6 +369,9 @@ def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_plugins)
 
     p = sub.add_parser("schemas", help="print the protobuf schema of every message type")
+    p.add_argument(
+        "--descriptor-set", metavar="FILE", help="write every schema as one FileDescriptorSet to this new file"
+    )
     p.set_defaults(func=cmd_schemas)
 
     import importlib
@@ -398,7 +427,16 @@ def _main(argv: list[str], own_process: bool = False) -> int:
         for p in exc.problems:
             console.print(f"  {p}", markup=False, highlight=False, soft_wrap=True)
         return EXIT_INVALID
-    except (PluginError, RunError, BusError, FileNotFoundError, ValueError, RecordingError, ReplayError) as exc:
+    except (
+        PluginError,
+        RunError,
+        BusError,
+        FileNotFoundError,
+        FileExistsError,
+        ValueError,
+        RecordingError,
+        ReplayError,
+    ) as exc:
         console.print(f"[red]error[/]: {escape(str(exc))}", highlight=False, soft_wrap=True)
         return EXIT_INVALID
     except KeyboardInterrupt:

@@ -1,4 +1,5 @@
-"""CLI verbs of recordings: ``vgr replay``, ``vgr inspect``, ``vgr recover`` (and the recorder of ``vgr run``)."""
+"""CLI verbs of recordings: ``vgr replay``, ``vgr inspect``, ``vgr recover`` (and the recorder and live
+view options of ``vgr run``)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import json
 import sys
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
 from rich.markup import escape
@@ -14,6 +16,9 @@ from rich.table import Table
 
 from engine import run_folder
 from engine.graph import Graph
+
+if TYPE_CHECKING:
+    from engine.live_view import LiveView
 
 out = Console(width=None if sys.stdout.isatty() else 160)
 EXIT_OK, EXIT_INVALID = 0, 2
@@ -36,6 +41,46 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--no-record", action="store_true", help="do not record this run")
     add_runs_dir_option(p, "the run's folder (recording, reports, log, recipe)")
+    add_view_options(p)
+
+
+def add_view_options(p: argparse.ArgumentParser) -> None:
+    """``--view [PORT]`` and ``--view-host HOST``: the Foxglove live view (engine.live_view)."""
+    from engine.live_view import DEFAULT_PORT
+
+    p.add_argument(
+        "--view",
+        nargs="?",
+        type=int,
+        const=DEFAULT_PORT,
+        metavar="PORT",
+        help=f"serve every topic to Foxglove over WebSocket on PORT (default {DEFAULT_PORT}; 0: any free port)",
+    )
+    p.add_argument(
+        "--view-host", default="127.0.0.1", help="address the live view binds to (default 127.0.0.1, loopback only)"
+    )
+
+
+def start_view(args: argparse.Namespace, console: Console) -> LiveView | None:
+    """The live view ``--view`` asks for (None without it); ValueError when its port cannot be had."""
+    if getattr(args, "view", None) is None:
+        return None
+    from engine.live_view import LiveView
+
+    if not 0 <= args.view <= 65535:
+        raise ValueError(f"--view {args.view}: a port is 0..65535")
+    view = LiveView(args.view_host, args.view)
+    console.print(f"live view: {view.url} (Foxglove: Open connection, Foxglove WebSocket)", highlight=False)
+    return view
+
+
+def add_live_view(args: argparse.Namespace, observers: list[Any], console: Console) -> None:
+    """``vgr run --view``: a :class:`~engine.live_view.ViewObserver` among the run's observers."""
+    view = start_view(args, console)
+    if view is not None:
+        from engine.live_view import ViewObserver
+
+        observers.append(ViewObserver(view))
 
 
 def add_runs_dir_option(p: argparse.ArgumentParser, folder: str) -> None:
@@ -52,15 +97,27 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     speed = None if args.speed in (None, "max") else float(args.speed)
     stages = [s for s in (args.stages or "").split(",") if s] or None
+    view = start_view(args, Console(stderr=True))
+    if view is not None and Path(args.file).is_file():
+        view.advertise_recording(args.file)
     run_dir = run_folder.create(args.runs_dir, f"replay-{Path(args.file).stem}")
     try:
         with run_folder.logging_to(run_dir):
             report, rec, graph = replay(
-                args.file, recipe=args.recipe, overrides=args.param or [], stages=stages, speed=speed, run_dir=run_dir
+                args.file,
+                recipe=args.recipe,
+                overrides=args.param or [],
+                stages=stages,
+                speed=speed,
+                run_dir=run_dir,
+                view=view.log_typed if view is not None else None,
             )
     except BaseException:
         run_folder.remove_if_unused(run_dir)
         raise
+    finally:
+        if view is not None:
+            view.close()
     run_folder.write_recipe(run_dir, graph.loaded)
     verdicts = (*report.streams, *report.requests)
     recorded = rec.metadata.get("vgr.summary", {}).get("outcome", "")
@@ -181,6 +238,7 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg
     p.add_argument("--update", action="store_true", help="rewrite the recording with the replayed outputs (new golden)")
     p.add_argument("--json", action="store_true", help="print the outcome and every stream's verdict as JSON")
     add_runs_dir_option(p, "the replay's folder (its log, recipe, verdicts and stage files)")
+    add_view_options(p)
     p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("inspect", help="topics, counts, rates, time span, recipe and versions of a recording")

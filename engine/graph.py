@@ -19,6 +19,7 @@ import graphlib
 import itertools
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 from pydantic import ValidationError
@@ -73,10 +74,21 @@ class Graph:
         return self.loaded.recipe
 
     def inputs_of(self, stage: str) -> list[Edge]:
-        return [e for e in self.edges if e.dst == stage]
+        """The data edges into *stage* (an index built once: the run asks per stage and per
+        recorded delivery, and a walk over every edge each time made a run quadratic in its stages)."""
+        return self._index[0].get(stage, [])
 
     def consumers_of(self, stage: str, port: str) -> list[Edge]:
-        return [e for e in self.edges if e.src == stage and e.src_port == port]
+        return self._index[1].get((stage, port), [])
+
+    @cached_property
+    def _index(self) -> tuple[dict[str, list[Edge]], dict[tuple[str, str], list[Edge]]]:
+        into: dict[str, list[Edge]] = {}
+        out_of: dict[tuple[str, str], list[Edge]] = {}
+        for e in self.edges:
+            into.setdefault(e.dst, []).append(e)
+            out_of.setdefault((e.src, e.src_port), []).append(e)
+        return into, out_of
 
     def stages_in(self, process: str) -> list[str]:
         return [n for n in self.order if self.nodes[n].spec.process == process]

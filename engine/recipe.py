@@ -106,6 +106,9 @@ class Recipe(_Strict):
     clock: Literal["wall", "sim"] = "wall"
     run_id: str | None = None
     on_error: Literal["stop", "continue"] = "stop"
+    # a process of a multi-process run that starts again mid-run (a new epoch) is refused, and one
+    # that vanishes without finishing fails the run, unless this is true (engine.peers, docs/design.md)
+    rejoin: bool = False
     plugins: list[str] = Field(default_factory=list)
     vars: dict[str, Any] = Field(default_factory=dict)
     zenoh: ZenohSettings = Field(default_factory=ZenohSettings)
@@ -197,7 +200,7 @@ def apply_overrides(data: dict[str, Any], overrides: list[str], file: str | None
         if not parts:
             problems.append(Problem("empty override key", where.key, where.file))
             continue
-        if parts[0] in ("seed", "name", "clock", "run_id", "on_error") and len(parts) == 1:
+        if parts[0] in ("seed", "name", "clock", "run_id", "on_error", "rejoin") and len(parts) == 1:
             data[parts[0]] = value
             continue
         if parts[0] == "vars" and len(parts) == 2:

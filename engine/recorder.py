@@ -9,6 +9,9 @@ One file per process: ``<recipe>.mcap`` in the run's folder (engine.run_folder),
   that arrived from other processes are recorded on their producer's topic, so the file is
   self-contained;
 * ``/<stage>/_svc/<client>`` (vgr.v1.ServiceExchange): every service call with request and reply;
+* ``/_vgr/served`` (vgr.v1.ServedCall): every request a stage of this process served, with its caller:
+  the caller's process, or empty when the calling zenoh session is not one of the run's, and its
+  ZenohId (empty when the query did not say); a call from outside the run is there too;
 * ``/_vgr/deliveries`` (vgr.v1.Delivery) and ``/_vgr/finish`` (vgr.v1.StageFinish): the order in
   which each stage handled its inputs, which replay follows instead of arrival order;
 * ``/_vgr/run`` (vgr.v1.Event): the runner's own account of a stop, in order (engine.runner): ``stop``
@@ -42,23 +45,23 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from mcap.writer import CompressionType, Writer
-from mcap_protobuf.schema import build_file_descriptor_set
 
 from engine import __version__, codec
 from engine.codec import Envelope
 from engine.recipe import LoadedRecipe, RecordSettings
 from engine.runner import Observer, Runner, RunSummary
-from engine.schemas import proto_class
+from engine.schemas import descriptor_set, proto_class
 
 if TYPE_CHECKING:
     from engine.messages import Event, Message
-    from engine.stage_host import ServiceCall
+    from engine.stage_host import ServedCall, ServiceCall
 
 log = logging.getLogger("vgr.recorder")
 
 TOPIC_DELIVERIES = "/_vgr/deliveries"
 TOPIC_FINISH = "/_vgr/finish"
 TOPIC_RUN = "/_vgr/run"
+TOPIC_SERVED = "/_vgr/served"
 PACKAGES = (
     "numpy",
     "scipy",
@@ -227,6 +230,9 @@ class Recorder(Observer):
         reply_type = codec.decode_envelope(call.reply_env).type_name if call.reply_env else ""
         self._q.put(("svc", call, req.type_name, req.seq, reply_type, self._now()))
 
+    def on_served(self, call: ServedCall) -> None:
+        self._q.put(("served", call, self._now()))
+
     def on_run_event(self, ev: Event) -> None:
         self._q.put(("run", ev))  # (SimpleQueue.put: safe in the SIGINT handler too)
 
@@ -282,8 +288,7 @@ class Recorder(Observer):
     def _schema(self, full_name: str) -> int:
         sid = self._schemas.get(full_name)
         if sid is None:
-            fds = build_file_descriptor_set(proto_class(full_name))
-            sid = self._writer.register_schema(name=full_name, encoding="protobuf", data=fds.SerializeToString())
+            sid = self._writer.register_schema(name=full_name, encoding="protobuf", data=descriptor_set(full_name))
             self._schemas[full_name] = sid
         return sid
 
@@ -333,6 +338,18 @@ class Recorder(Observer):
                 publish_time=ev.stamp_ns,
                 sequence=self._run_seq,
             )
+        elif kind == "served":
+            _, served, log_time = item
+            fields = {
+                "provider": served.stage,
+                "service": served.service,
+                "caller_process": served.caller_process,
+                "caller_zid": served.caller_zid,
+                "request_type": served.request_type,
+                "request_seq": served.request_seq,
+                "error": served.error,
+            }
+            self._add_record(TOPIC_SERVED, "vgr.v1.ServedCall", {"kind": "served"}, log_time, fields)
         elif kind == "finish":
             _, stage, log_time = item
             self._add_record(TOPIC_FINISH, "vgr.v1.StageFinish", {"kind": "finish"}, log_time, {"stage": stage})

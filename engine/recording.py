@@ -21,7 +21,7 @@ from mcap.writer import CompressionType, Writer
 
 from engine import __version__
 from engine.files import replacing
-from engine.recorder import TOPIC_DELIVERIES, TOPIC_FINISH
+from engine.recorder import TOPIC_DELIVERIES, TOPIC_FINISH, TOPIC_SERVED
 from engine.schemas import proto_class
 
 
@@ -82,6 +82,10 @@ def _records_from(schemas: dict[int, Schema], channels: dict[int, Channel], msg:
         pb = proto_class("vgr.v1.Delivery")()
         pb.ParseFromString(msg.data)
         return ("deliver", pb.stage, pb.port, pb.source_topic, pb.seq, msg.log_time)
+    if ch.topic == TOPIC_SERVED:
+        pb = proto_class("vgr.v1.ServedCall")()
+        pb.ParseFromString(msg.data)
+        return ("served", pb.provider, pb.service, pb.caller_process, pb.caller_zid, pb.request_seq, pb.error)
     if ch.topic == TOPIC_FINISH:
         pb = proto_class("vgr.v1.StageFinish")()
         pb.ParseFromString(msg.data)

@@ -20,6 +20,7 @@ import logging
 import tempfile
 import time
 from collections import defaultdict, deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -37,6 +38,7 @@ from engine.recording import Exchange, RecordedMessage, Recording, load
 from engine.stage import EVENTS_PORT, PLAYBACK_ROLES, ServiceError, ServiceTimeoutError, StageContext
 
 log = logging.getLogger("vgr.replay")
+ViewSink = Callable[[str, str, bytes, int], None]  # (topic, vgr type, payload, log time ns): a live view
 
 
 class ReplayError(RuntimeError):
@@ -129,6 +131,8 @@ class _ReplayContext(StageContext):
         out = Output(msg.seq, msg.stamp_ns, msg.TYPE, codec.encode_payload(msg), msg)
         topic = topic_of(self.name, port)
         self.replayer.outputs[topic].append(out)
+        if self.replayer.view is not None:
+            self.replayer.view(topic, msg.TYPE, out.payload, self.clock.now_ns())
         self.replayer.output_by_seq[(topic, msg.seq)] = out
 
     def call(self, client: str, request: Message, timeout_s: float = 10.0) -> Message:
@@ -147,9 +151,16 @@ class _ReplayContext(StageContext):
 
 class Replayer:
     def __init__(
-        self, rec: Recording, graph: Graph, rerun: list[str], speed: float | None = None, run_dir: Path | None = None
+        self,
+        rec: Recording,
+        graph: Graph,
+        rerun: list[str],
+        speed: float | None = None,
+        run_dir: Path | None = None,
+        view: ViewSink | None = None,
     ) -> None:
         self.rec = rec
+        self.view = view  # shown every played-back and re-run message (engine.live_view)
         self.run_dir = run_dir
         self.graph = graph
         self.rerun = rerun
@@ -261,6 +272,8 @@ class Replayer:
             if self.speed and t is not None and last_t is not None and t > last_t:
                 time.sleep((t - last_t) / 1e9 / self.speed)  # throttling only; never read back
             last_t = t if t is not None else last_t
+            if r[0] == "msg" and self.view is not None and r[1].stage not in rerun:
+                self.view(r[1].topic, r[1].type_name, r[1].payload, r[1].log_time)
             if r[0] == "deliver":
                 self._deliver(r, playback)
             elif r[0] == "finish" and r[1] in self.stages:
@@ -395,9 +408,11 @@ def replay(
     speed: float | None = None,
     registry: Registry | None = None,
     run_dir: Path | None = None,
+    view: ViewSink | None = None,
 ) -> tuple[ReplayReport, Recording, Graph]:
     """Replay *path*; *recipe* replaces the recorded recipe (e.g. a changed solver parameter).
-    Stages that write files write them in *run_dir* (the replay's folder), none without one."""
+    Stages that write files write them in *run_dir* (the replay's folder), none without one; *view*
+    sees every message (``vgr replay --view``)."""
     rec = load(path)
     if recipe is not None:
         loaded = load_recipe(recipe, overrides)
@@ -419,7 +434,7 @@ def replay(
         rerun = [n for n in graph.order if n in stages]
     else:
         rerun = default_rerun(graph, process)
-    report = Replayer(rec, graph, rerun, speed, run_dir).run()
+    report = Replayer(rec, graph, rerun, speed, run_dir, view).run()
     return report, rec, graph
 
 

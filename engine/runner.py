@@ -44,10 +44,12 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-from engine.bus import Bus, CancelToken, active_key, control_key, ready_key, started_key
+from engine import discovery
+from engine.bus import Bus, CancelToken, LiveSet, active_key, control_key, ready_key, started_key
 from engine.clock import Clock, make_clock
 from engine.graph import Graph
 from engine.messages import Event
+from engine.peers import PeerWatch, members_digest, new_epoch, peer_key, sender_zid
 from engine.recipe import NAME_RE
 from engine.runtime import StageRuntime, StageStats
 from engine.session_config import plan_session
@@ -194,6 +196,15 @@ class Runner:
         self._progress = threading.Event()
         self._tokens: dict[str, Any] = {}
         self.started_at = datetime.now(UTC)
+        self.epoch = new_epoch()  # this start of this process (engine.peers)
+        self.peers: PeerWatch | None = None  # the run's processes (multi-process runs)
+        self._active: LiveSet | None = None  # other processes' _active tokens (multi-process runs)
+        # end-of-run detection, incremental: the driven stages of this process not yet settled, and
+        # for each, its inputs fed by driven stages (see _settle); done_checks counts the evaluations
+        self._open_driven: set[str] = set()
+        self._driven_ports: dict[str, frozenset[str]] = {}
+        self._open_lock = threading.Lock()
+        self.done_checks = 0
 
     @property
     def bus(self) -> Bus:
@@ -220,7 +231,87 @@ class Runner:
                 log.exception("observer %r failed on a run event", obs)
 
     def stage_done(self, stage: str) -> None:
+        self._settle(stage)
+
+    def input_ended(self, stage: str) -> None:
+        self._settle(stage)
+
+    def _settle(self, stage: str) -> None:
+        """Re-evaluate one driven stage of this process (a change came from it): it is settled when
+        it has handled all its data, or when every input still open comes from a stage nothing drives
+        (a device's truth stream, say: it ends only when the run ends, so it must not hold the run
+        open). O(its ports) per change: the run's end is never found by walking the whole graph."""
+        rt = self.runtimes.get(stage)
+        if rt is None or stage not in self._driven_ports:
+            return
+        self.done_checks += 1
+        pending = rt.pending_inputs
+        settled = rt.data_done.is_set() or (bool(pending) and not (pending & self._driven_ports[stage]))
+        if settled:
+            with self._open_lock:
+                self._open_driven.discard(stage)
         self._progress.set()
+
+    # -- who is who (engine.peers) ---------------------------------------------------------------
+    def service_owner(self, stage: str) -> str | None:
+        process = self.graph.nodes[stage].spec.process
+        if process == self.process or self.peers is None:
+            return self.bus.zid
+        return self.peers.owner(process)
+
+    def process_of(self, zid: str | None) -> str | None:
+        if zid is not None and self._bus is not None and zid == self._bus.zid:
+            return self.process
+        return self.peers.process_of(zid) if self.peers is not None else None
+
+    def _peer_lost(self, process: str, zid: str) -> None:
+        """A process's token vanished without its ``done`` marker: it crashed or lost its lease."""
+        if self.stop_event.is_set() or process == self.process:
+            return
+        if self.graph.recipe.rejoin:
+            self._run_event(
+                "warning",
+                "peer_lost",
+                "",
+                f"process {process!r} (zenoh session {zid}) "
+                f"vanished; waiting {self.ready_timeout_s:g} s for it to rejoin",
+                process=process,
+            )
+            timer = threading.Timer(self.ready_timeout_s, self._rejoin_overdue, (process,))
+            timer.daemon = True
+            timer.start()
+            return
+        msg = f"process {process!r} (zenoh session {zid}) vanished without finishing: crashed or lost its lease"
+        self._run_event("alarm", "peer_lost", "", msg, process=process, zid=zid)
+        self.stop(msg)
+
+    def _rejoin_overdue(self, process: str) -> None:
+        if self.peers is not None and self.peers.owner(process) is None and not self.stop_event.is_set():
+            msg = f"process {process!r} vanished and did not rejoin within {self.ready_timeout_s:g} s"
+            self._run_event("alarm", "peer_lost", "", msg, process=process)
+            self.stop(msg)
+
+    def _peer_restarted(self, process: str, old: str, new: str, accepted: bool) -> None:
+        if accepted:
+            self._run_event(
+                "warning",
+                "peer_rejoined",
+                "",
+                f"process {process!r} rejoined: epoch {old} -> {new}",
+                process=process,
+                epoch=new,
+            )
+        else:
+            self._run_event(
+                "warning",
+                "rejoin_refused",
+                "",
+                f"process {process!r} started again (epoch {new}, "
+                f"the run's is {old}): refused, its replies and control messages are not taken "
+                "(the recipe's `rejoin: true` allows it)",
+                process=process,
+                epoch=new,
+            )
 
     def stage_failed(self, stage: str) -> None:
         rt = self.runtimes[stage]
@@ -230,7 +321,7 @@ class Runner:
         else:
             rt.close_outputs()
             rt.data_done.set()
-            self._progress.set()
+            self._settle(stage)
 
     def stop(self, reason: str, *, broadcast: bool = True) -> None:
         """Stop the run (idempotent). Other processes of the run are told unless *broadcast* is False."""
@@ -261,12 +352,28 @@ class Runner:
             rt.wake()
 
     def _on_control(self, sample: Any) -> None:
+        zid = sender_zid(sample)
+        if zid is not None and self._bus is not None and zid == self._bus.zid:
+            return  # this process's own message (its own stop, already acted on), delivered back to it
+        sender = self.peers.process_of(zid) if self.peers is not None else None
         try:
             msg = json.loads(sample.payload.to_bytes())
+            said = msg.get("process") if isinstance(msg, dict) else None
         except ValueError:
+            msg, said = None, None
+        if sender is None or sender == self.process or said != sender:  # not one of the run's processes
+            who = f"zenoh session {zid}" if zid else "a session that did not say who it is"
+            self._run_event(
+                "warning",
+                "control_refused",
+                "",
+                f"refused a _control message from {who} (claims {said!r}): not one of the run's processes",
+                zid=zid or "",
+                claimed=str(said),
+            )
             return
-        if "stop" in msg and msg.get("process") != self.process:
-            self.stop(f"stopped by process {msg.get('process')!r}: {msg['stop']}", broadcast=False)
+        if "stop" in msg:
+            self.stop(f"stopped by process {sender!r}: {msg['stop']}", broadcast=False)
 
     # -- the run -----------------------------------------------------------------------------
     def run(self) -> RunSummary:
@@ -308,6 +415,7 @@ class Runner:
         local = self.graph.stages_in(self.process)
         for name in local:
             self.runtimes[name] = StageRuntime(self, self.graph.nodes[name])
+        self._track_driven()
         for obs in self.observers:
             obs.on_start(self)
         for name, rt in self.runtimes.items():
@@ -319,16 +427,21 @@ class Runner:
                     f"stage {name!r} ({node.cls.type_name}) could not be created: {type(exc).__name__}: {exc}"
                 ) from exc
             rt.declare_outputs()
+        topics = discovery.graph_topics(self.graph, self.run_id, self.process)
+        discovery.announce(self.bus, self.run_id, self.process, topics)  # what `vgr topics` and foreign tools read
         for rt in self.runtimes.values():
             rt.declare_inputs(self.runtimes)
         if self.multi_process:
+            self._join_peers()
             self.bus.subscribe(control_key(self.run_id), self._on_control)
             if self.driven & self.runtimes.keys():
                 self._tokens["active"] = self.bus.token(active_key(self.run_id, self.process))
+            self._active = self.bus.watch_alive(active_key(self.run_id, "*"))
         for name in local:
             self._tokens[name] = self.bus.token(ready_key(self.run_id, name))
         if self.multi_process:
             self._barrier()
+            self._check_epochs()
         for name in local:
             rt = self.runtimes[name]
             rt.stats.state = "running"
@@ -355,6 +468,46 @@ class Runner:
             self._start_barrier()
         for name in local:
             self.runtimes[name].start_source()
+
+    def _join_peers(self) -> None:
+        """Watch the run's processes and declare this one (its session and epoch), before its stages'
+        ready tokens: whoever sees a stage ready has its owner's token already (engine.peers)."""
+        peers = self.peers = PeerWatch(
+            self.run_id, self.graph.recipe.rejoin, on_lost=self._peer_lost, on_restart=self._peer_restarted
+        )
+        peers.start(self.bus)
+        self._peer_key = peer_key(self.run_id, self.process, self.bus.zid, self.epoch)
+        self._tokens["peer"] = self.bus.token(self._peer_key)
+
+    def _check_epochs(self) -> None:
+        """Say with which members this process starts; a process that finds the others started with
+        another epoch of it (it was restarted mid-run) is refused unless the recipe says ``rejoin: true``."""
+        assert self.peers is not None
+        procs = set(self.graph.processes())
+        missing = self.peers.wait_for(procs, self.ready_timeout_s)
+        if missing:
+            raise RunError(f"processes {', '.join(sorted(missing))} did not say who they are (engine.peers)")
+        digest = members_digest({**self.peers.epochs(), self.process: self.epoch})
+        self._tokens["peer_started"] = self.bus.token(f"{self._peer_key}/started/{digest}")
+        self.peers.wait_for(procs - {self.process}, self.ready_timeout_s, "started")
+        under_way = self.peers.restarted_under_way(self.process, self.epoch)
+        if under_way and not self.graph.recipe.rejoin:
+            msg = (
+                f"process {self.process!r} (epoch {self.epoch}) joins run {self.run_id} already under way "
+                f"(process(es) {', '.join(under_way)} started with another epoch of it): refused; "
+                "the recipe's `rejoin: true` allows it"
+            )
+            self._run_event("alarm", "rejoin_refused", "", msg, process=self.process, epoch=self.epoch)
+            self.stop(msg, broadcast=False)
+        elif under_way:
+            self._run_event(
+                "warning",
+                "rejoined",
+                "",
+                f"process {self.process!r} rejoins run {self.run_id} (epoch {self.epoch})",
+                process=self.process,
+                epoch=self.epoch,
+            )
 
     def _start_barrier(self) -> None:
         """Every process has set up its stages and reads its inputs: only then do sources start, so
@@ -400,26 +553,25 @@ class Runner:
         finally:
             live.close()
 
-    def _local_driven_done(self) -> bool:
-        driven = (rt for name, rt in self.runtimes.items() if name in self.driven)
-        return all(rt.data_done.is_set() or self._waits_only_on_undriven(rt) for rt in driven)
-
-    def _waits_only_on_undriven(self, rt: StageRuntime) -> bool:
-        """True when every input of *rt* still open comes from a stage nothing drives (a device's truth
-        stream, say): those end only when the run ends, so that stage must not hold the run open."""
-        srcs = {e.dst_port: e.src for e in self.graph.inputs_of(rt.name)}
-        pending = set(rt.pending_inputs)
-        return bool(pending) and all(srcs.get(port) not in self.driven for port in pending)
+    def _track_driven(self) -> None:
+        """Before the stages start: every driven stage of this process is open until :meth:`_settle`."""
+        for name in self.runtimes:
+            if name in self.driven:
+                ports = frozenset(e.dst_port for e in self.graph.inputs_of(name) if e.src in self.driven)
+                self._driven_ports[name] = ports
+                self._open_driven.add(name)
 
     def _remote_active(self) -> bool:
-        if not self.multi_process:
+        if self._active is None:
             return False
         own = active_key(self.run_id, self.process)
-        return bool(self.bus.alive(active_key(self.run_id, "*")) - {own})
+        return bool(self._active.snapshot()[0] - {own})
 
     def _wait_until_done(self) -> None:
+        for name in list(self._driven_ports):  # (whatever ended before this loop began)
+            self._settle(name)
         while not self.stop_event.is_set():
-            if self._local_driven_done():
+            if not self._open_driven:
                 token = self._tokens.pop("active", None)
                 if token is not None:
                     token.undeclare()
@@ -451,6 +603,12 @@ class Runner:
         self._join_stages()
         for name in reversed(self.graph.stages_in(self.process)):
             self.runtimes[name].teardown()
+        if self.peers is not None:  # ended in order: said before the tokens go (engine.peers)
+            with contextlib.suppress(Exception):
+                self._tokens["peer_done"] = self.bus.token(f"{self._peer_key}/done")
+            self.peers.close()
+        if self._active is not None:
+            self._active.close()
         for tok in self._tokens.values():
             with contextlib.suppress(Exception):
                 tok.undeclare()

@@ -45,15 +45,16 @@ from time import perf_counter
 from typing import Any
 
 from engine import codec
-from engine.bus import RequestCancelled, overdue_ms, service_key, wire_key
+from engine.bus import RequestCancelled, StopMarker, overdue_ms, service_key, wire_key
 from engine.codec import CodecError, Envelope, Kind
 from engine.graph import StageNode
 from engine.inbox import END, STOP, PortInbox
 from engine.messages import Event, Message, canonical, detach, freeze_arrays
 from engine.output_port import OutputPort
+from engine.peers import ForgedReply, owners_answer, sender_zid
 from engine.remote_input import RemoteInput
 from engine.stage import EVENTS_PORT, RunStoppingError, ServiceError, ServiceTimeoutError, Stage, StageContext
-from engine.stage_host import ServiceCall, StageHost
+from engine.stage_host import ServedCall, ServiceCall, StageHost
 
 log = logging.getLogger("vgr.runtime")
 LOCAL_QUEUE_DEPTH = 64  # messages a local producer may run ahead of its consumer
@@ -192,8 +193,19 @@ class StageRuntime(StageContext):
         self.stats.calls_made += 1
         reply_payload, reply_att, error = b"", b"", ""
         try:
-            reply_payload, reply_att = self.host.bus.request(key, payload, att, timeout_s, self.host.calls_token)
+            answers = self.host.bus.request(key, payload, att, timeout_s, self.host.calls_token)
+            where = f"{self.name} -> {edge.provider}.{edge.service}"
+            answer = owners_answer(answers, self.host.service_owner(edge.provider), where)
+            assert answer is not None
+            if answer.error is not None:
+                raise RuntimeError(answer.error)
+            reply_payload, reply_att = answer.payload, answer.attachment
             reply = codec.decode(reply_payload, codec.decode_envelope(reply_att))
+        except ForgedReply as exc:  # nothing is taken from this request: no result, no motion
+            error = str(exc)
+            repliers = sorted({a.replier or "unknown" for a in answers})
+            self.event("alarm", "forged_reply", error, service=f"{edge.provider}.{edge.service}", repliers=repliers)
+            raise ServiceError(error) from None
         except RequestCancelled:  # the stop came first: no reply is awaited (nor sent, if it was not yet)
             error = "cut short: the run is stopping"
             raise RunStoppingError(f"{self.name} -> {edge.provider}.{edge.service}: {error}") from None
@@ -370,6 +382,7 @@ class StageRuntime(StageContext):
         self.pending_inputs.discard(port)
         self.inboxes[port].close()  # its pump exits (the end may have been handled inline)
         if self.pending_inputs or self.data_done.is_set():
+            self.host.input_ended(self.name)
             return
         if not self.failed and self.stage is not None:
             for obs in self._observers:
@@ -401,11 +414,15 @@ class StageRuntime(StageContext):
             with query:
                 if stop.is_set():
                     return
+                if isinstance(query, StopMarker):  # the runner's own wake-up (see wake())
+                    return
                 att = query.attachment
+                caller_zid = sender_zid(query)
                 try:
                     env = codec.decode_envelope(att.to_bytes() if att is not None else b"")
-                    if env.kind == _STOP:
-                        return
+                    if env.kind == _STOP:  # no zenoh query of a run carries STOP: refused, never acted on
+                        self._refuse_stop(svc, caller_zid, query)
+                        continue
                     payload = query.payload.to_bytes() if query.payload is not None else b""
                     request = codec.decode(payload, env)
                     if not isinstance(request, spec.request):
@@ -420,10 +437,25 @@ class StageRuntime(StageContext):
                     query.reply_err(f"{self.name}.{svc}: {why}")
                     continue
                 reply_bytes, error = self._serve(svc, spec.reply, request)
+                self._served(svc, caller_zid, request, error)
                 if reply_bytes is not None:
                     query.reply(query.key_expr, reply_bytes[0], attachment=reply_bytes[1])
                 else:
                     query.reply_err(f"{self.name}.{svc} failed: {error}")
+
+    def _refuse_stop(self, svc: str, caller_zid: str | None, query: Any) -> None:
+        who = self.host.process_of(caller_zid) or f"zenoh session {caller_zid or 'unknown'}"
+        msg = f"{svc}: refused a STOP envelope sent as a request by {who}"
+        self.event("warning", "stop_refused", msg, service=svc, caller_zid=caller_zid or "")
+        query.reply_err(f"{self.name}.{svc}: a STOP envelope is not a request")
+
+    def _served(self, svc: str, caller_zid: str | None, request: Message, error: str) -> None:
+        """Tell the observers (the recorder) who called: the caller's process and session."""
+        if self._observers:
+            caller = self.host.process_of(caller_zid) or ""
+            served = ServedCall(self.name, svc, caller, caller_zid or "", request.TYPE, request.seq, error)
+            for obs in self._observers:
+                obs.on_served(served)
 
     def _serve(self, svc: str, reply_type: type[Message], request: Message) -> tuple[tuple[bytes, bytes] | None, str]:
         with self.lock:

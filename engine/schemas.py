@@ -31,7 +31,7 @@ from foxglove_schemas_protobuf import (  # noqa: F401  (imports register the fil
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory, timestamp_pb2  # noqa: F401
 from google.protobuf.message import Message as ProtoMessage
 
-__all__ = ["SCHEMA_VERSION", "ProtoMessage", "define_proto", "proto_class", "proto_text"]
+__all__ = ["SCHEMA_VERSION", "ProtoMessage", "define_proto", "descriptor_set", "proto_class", "proto_text"]
 
 SCHEMA_VERSION = 1
 
@@ -114,6 +114,21 @@ def proto_class(full_name: str) -> type[ProtoMessage]:
     """The generated message class of a fully qualified protobuf type (e.g. ``foxglove.PointCloud``)."""
     desc = descriptor_pool.Default().FindMessageTypeByName(full_name)
     return message_factory.GetMessageClass(desc)
+
+
+def descriptor_set(full_name: str) -> bytes:
+    """The serialised ``google.protobuf.FileDescriptorSet`` of *full_name* and every file it imports:
+    the schema record vgr writes in MCAP and publishes on the bus (docs/zenoh_layout.md), from
+    which any protobuf library builds the message class."""
+    data = _DESCRIPTOR_SETS.get(full_name)
+    if data is None:
+        from mcap_protobuf.schema import build_file_descriptor_set
+
+        data = _DESCRIPTOR_SETS[full_name] = build_file_descriptor_set(proto_class(full_name)).SerializeToString()
+    return data
+
+
+_DESCRIPTOR_SETS: dict[str, bytes] = {}
 
 
 def proto_text(full_name: str) -> str:
@@ -279,6 +294,15 @@ message Delivery {                   // a stage is about to handle message `seq`
 }
 message StageFinish {                // all inputs of `stage` ended; its finish() runs now
   string stage = 1;
+}
+message ServedCall {                 // a request a stage served, as seen by the provider
+  string provider = 1;
+  string service = 2;
+  string caller_process = 3;         // empty: the calling session is not one of the run's processes
+  string caller_zid = 4;             // the caller's zenoh session (empty: the query did not say)
+  string request_type = 5;
+  uint64 request_seq = 6;
+  string error = 7;                  // why it was not answered; empty when it was
 }
 """,
 )

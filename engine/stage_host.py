@@ -39,6 +39,20 @@ class ServiceCall:
     error: str  # why the call failed; empty when it was answered
 
 
+@dataclass(frozen=True, slots=True)
+class ServedCall:
+    """A request *stage* served on its *service*, and who sent it: the caller's process (empty when
+    the calling session is not one of the run's) and zenoh session (empty when the query did not say)."""
+
+    stage: str
+    service: str
+    caller_process: str
+    caller_zid: str
+    request_type: str
+    request_seq: int
+    error: str  # why it was not answered; empty when it was
+
+
 class MessageObserver:
     """Sees every message the stages of a process publish, receive, handle and exchange, in order.
 
@@ -59,6 +73,9 @@ class MessageObserver:
 
     def on_service(self, call: ServiceCall) -> None:
         """A stage's service call is complete (answered or failed)."""
+
+    def on_served(self, call: ServedCall) -> None:
+        """A stage has served a request (answered or failed), from the caller named in *call*."""
 
 
 class StageHost(Protocol):
@@ -83,7 +100,13 @@ class StageHost(Protocol):
     # all its data (its outputs have ended); that it failed (its error is in its stats), upon which
     # the host stops the run or goes on, as the recipe says
     def note_event(self, ev: Event) -> None: ...
+
+    # who is who: the ZenohId that owns *stage* (its replies are the only ones taken), and the run's
+    # process that a ZenohId is (None: not one of the run's)
+    def service_owner(self, stage: str) -> str | None: ...
+    def process_of(self, zid: str | None) -> str | None: ...
     def stage_done(self, stage: str) -> None: ...
+    def input_ended(self, stage: str) -> None: ...  # one input of *stage* ended (others still open)
     def stage_failed(self, stage: str) -> None: ...
 
 

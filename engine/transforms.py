@@ -108,13 +108,19 @@ def pose7_from_T(T: ArrayLike) -> tuple[F64, F64]:
     return T[:3, 3].copy(), q
 
 
+def _finite_square(A: ArrayLike, n: int, name: str) -> F64:
+    """*A* as a float n x n array of finite numbers; ValueError naming *name* otherwise."""
+    M = np.asarray(A, dtype=float)
+    if M.shape != (n, n):
+        raise ValueError(f"{name} must be {n}x{n}, got shape {M.shape}")
+    if not np.all(np.isfinite(M)):
+        raise ValueError(f"{name} contains NaN or infinity")
+    return M
+
+
 def as_transform(T: ArrayLike, *, name: str = "transform", tol: float = 1e-6) -> F64:
     """Validate and return a float 4x4 rigid transform; raise ValueError naming *name* otherwise."""
-    A = np.asarray(T, dtype=float)
-    if A.shape != (4, 4):
-        raise ValueError(f"{name} must be 4x4, got shape {A.shape}")
-    if not np.all(np.isfinite(A)):
-        raise ValueError(f"{name} contains NaN or infinity")
+    A = _finite_square(T, 4, name)
     if not np.allclose(A[3], (0.0, 0.0, 0.0, 1.0), atol=tol):
         raise ValueError(f"{name} last row must be [0, 0, 0, 1], got {A[3]}")
     check_rotation(A[:3, :3], name=f"{name} rotation", tol=tol)
@@ -134,11 +140,7 @@ def is_rotation(R: ArrayLike, tol: float = 1e-6) -> bool:
 
 def check_rotation(R: ArrayLike, *, name: str = "rotation", tol: float = 1e-6) -> F64:
     """Return R as float 3x3 or raise ValueError saying how far it is from a rotation."""
-    A = np.asarray(R, dtype=float)
-    if A.shape != (3, 3):
-        raise ValueError(f"{name} must be 3x3, got shape {A.shape}")
-    if not np.all(np.isfinite(A)):
-        raise ValueError(f"{name} contains NaN or infinity")
+    A = _finite_square(R, 3, name)
     ortho = float(np.max(np.abs(A.T @ A - np.eye(3))))
     det = float(np.linalg.det(A))
     if ortho > tol or abs(det - 1.0) > tol:

@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -23,6 +24,7 @@ from scipy import stats
 
 from .check import ModelCheck
 from .interfaces import Feature
+from .localise import FeatureGap
 from .report import display
 from .workflow import GapResult, Iteration
 
@@ -89,22 +91,34 @@ def plot_rounds(result: GapResult, features: list[Feature], path: Path) -> Path:
     ax.set_xticks(range(len(vals)), labels, rotation=20, ha="right", fontsize=7)
     ax.set_ylabel(f"held-out RMS ({u})")
     ax.legend(fontsize=7)
-    by_name = {f.name: f for f in features}
-    for ax, g in zip(axes[1:], top, strict=False):
-        f = by_name.get(g.name)
-        if f is None:
-            continue
-        masks = _masks(f, [b.label for b in g.bins])
+    for ax, g, masks in _group_panels(axes[1:], top, features):
         before, after = _rms_per_bin(first.residual, masks, s), _rms_per_bin(last.residual, masks, s)
         xb = np.arange(len(masks))
         ax.bar(xb - 0.2, before, 0.4, label="as given")
         ax.bar(xb + 0.2, after, 0.4, label="augmented")
         ax.axhline(first.comparison.noise_rms * s, color="k", ls="--")
-        ax.set_xticks(xb, [b.label for b in g.bins], rotation=20, ha="right", fontsize=7)
-        ax.set_title(f"{g.label} ({g.unit})" if g.unit else g.label, fontsize=9)
-        ax.set_ylabel(f"RMS ({u})")
-        ax.legend(fontsize=7)
+        _label_bins(ax, g, u)
     return _save(fig, path)
+
+
+def _group_panels(
+    axes: Any, groups: list[FeatureGap], features: list[Feature]
+) -> Iterator[tuple[Any, FeatureGap, list[np.ndarray]]]:
+    """(axis, group, one mask of the samples per bin) for the groups side by side with *axes*; a
+    group whose feature is not in *features* leaves its axis empty."""
+    by_name = {f.name: f for f in features}
+    for ax, g in zip(axes, groups, strict=False):
+        f = by_name.get(g.name)
+        if f is not None:
+            yield ax, g, _masks(f, [b.label for b in g.bins])
+
+
+def _label_bins(ax: Any, g: FeatureGap, unit: str) -> None:
+    """Bin labels, title and legend of a panel of RMS per bin of group *g* (RMS in *unit*)."""
+    ax.set_xticks(np.arange(len(g.bins)), [b.label for b in g.bins], rotation=20, ha="right", fontsize=7)
+    ax.set_title(f"{g.label} ({g.unit})" if g.unit else g.label, fontsize=9)
+    ax.set_ylabel(f"RMS ({unit})")
+    ax.legend(fontsize=7)
 
 
 def _rms_per_bin(residual: np.ndarray, masks: list[np.ndarray], scale: float) -> list[float]:
@@ -244,19 +258,11 @@ def plot_check(c: ModelCheck, features: list[Feature], path: Path) -> Path:
     ax.set_xlabel(f"3-D error ({u})")
     ax.legend(fontsize=8)
     ax.set_title("error per sample")
-    by_name = {f.name: f for f in features}
-    for ax, g in zip(axes[2:], top, strict=False):
-        f = by_name.get(g.name)
-        if f is None:
-            continue
-        masks = _masks(f, [b.label for b in g.bins])
+    for ax, g, masks in _group_panels(axes[2:], top, features):
         vals = _rms_per_bin(c.residual, masks, s)
         ax.bar(np.arange(len(vals)), vals)
         ax.axhline(c.expected_rms * s, color="k", ls="--", label="expected")
-        ax.set_xticks(np.arange(len(vals)), [b.label for b in g.bins], rotation=20, ha="right", fontsize=7)
-        ax.set_title(f"{g.label} ({g.unit})" if g.unit else g.label, fontsize=9)
-        ax.set_ylabel(f"RMS ({u})")
-        ax.legend(fontsize=7)
+        _label_bins(ax, g, u)
     fig.suptitle(f"vgr gap check: {c.verdict}", fontsize=10)
     return _save(fig, path)
 

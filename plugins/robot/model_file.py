@@ -34,6 +34,7 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
 
+from engine.plain_data import read_document
 from engine.transforms import T_from_pose7, T_from_Rt, as_transform, inv
 
 from .conventions import DHRow, PoeJoint, build_chain
@@ -285,13 +286,7 @@ def load_robot_model(name_or_path: str | Path) -> RobotModel:
                 "or give the path of a model file (.yaml)"
             )
         path = ROBOTS_DIR / f"{text}.yaml"
-    if not path.is_file():
-        raise ValueError(f"robot model file {path} does not exist")
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except yaml.YAMLError as e:
-        raise ValueError(f"robot model file {path} is not valid YAML: {e}") from None
-    return robot_model_from_dict(data, source=str(path))
+    return robot_model_from_dict(read_document(path, "yaml", "robot model file"), source=str(path))
 
 
 def transform_entry(T: np.ndarray) -> dict[str, Any]:

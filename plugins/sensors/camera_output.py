@@ -1,12 +1,13 @@
 """One depth-camera frame and how a camera stage publishes it (the camera contract's outputs).
 
 Every depth-camera adapter (RealSense, file camera) turns what it read into a :class:`CameraFrame`
-and calls :func:`publish_frame`: the cloud (camera frame, metres) goes out on ``cloud`` and is the
+and calls :func:`publish_capture`: the cloud (camera frame, metres) goes out on ``cloud`` and is the
 ``capture`` reply; when the frame has a depth image and intrinsics, ``depth`` (32FC1, metres, NaN
 invalid) and ``camera_info`` go out too. ``camera_info`` carries the pinhole K; ``D`` holds the
 librealsense coefficients (k1 k2 p1 p2 k3) with ``distortion_model`` ``plumb_bob`` for none and
 brown_conrady (OpenCV's forward model), ``inverse_brown_conrady`` for RealSense's inverse model.
 
+:class:`DepthCameraAdapter` is the base of the adapter stages (the camera contract and ``frames``);
 :class:`DepthCameraParams` are the parameters every adapter shares: ``frame_id``, the output
 switches (``publish_cloud``, ``publish_depth``, ``decimate``, ``cloud_decimate``: :func:`publish_capture`)
 and where the
@@ -18,14 +19,16 @@ default, identity in ``world``, says "not given" and puts the camera at the worl
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import ClassVar, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field, model_validator
 
 from engine.messages import CameraInfo, FrameTransforms, Image, PointCloud, Transform
-from engine.stage import StageContext, StageParams
+from engine.stage import Stage, StageContext, StageParams
+from plugins.interfaces import CAMERA_OUTPUTS, CAMERA_SERVICES
 from plugins.params import PoseSpec
 from plugins.sensors.depth_projection import DepthIntrinsics
 
@@ -54,6 +57,17 @@ class DepthCameraParams(StageParams):
         return self
 
 
+class DepthCameraAdapter(Stage):
+    """Base of the depth-camera adapters (``realsense_camera``, ``file_camera``): the camera contract
+    of :mod:`plugins.interfaces` (role, the ``capture`` service, the camera outputs) and ``frames``
+    for the mount (:func:`publish_mount`, :func:`publish_capture`)."""
+
+    role = "sensor"
+    services: ClassVar = CAMERA_SERVICES
+    outputs: ClassVar = {**CAMERA_OUTPUTS, "frames": FrameTransforms}
+    Params = DepthCameraParams
+
+
 def publish_mount(ctx: StageContext, params: DepthCameraParams) -> None:
     """Publish ``parent_frame -> frame_id`` (``T_parent_cam``) on ``frames``, stamped now."""
     now = ctx.clock.now_ns()
@@ -75,17 +89,20 @@ class CameraFrame:
     source: str = ""  # file name or device frame, for messages
 
 
-def keep_every(frame: CameraFrame, n: int) -> CameraFrame:
-    """Every *n*-th point (with its normal and colour): smaller clouds at a fixed, seed-free rule."""
+_Points = TypeVar("_Points", CameraFrame, PointCloud)
+
+
+def thinned(points: _Points, n: int) -> _Points:
+    """Every *n*-th point of a :class:`CameraFrame` or a PointCloud (with its normal and colour), all
+    else kept: smaller clouds at a fixed, seed-free rule. A camera publishes such a copy on ``cloud``
+    to show a capture without recording all of it twice (the reply has it)."""
     if n <= 1:
-        return frame
-    return CameraFrame(
-        points=frame.points[::n],
-        normals=None if frame.normals is None else frame.normals[::n],
-        colors=None if frame.colors is None else frame.colors[::n],
-        depth_m=frame.depth_m,
-        intrinsics=frame.intrinsics,
-        source=frame.source,
+        return points
+    return replace(
+        points,
+        points=points.points[::n],
+        normals=None if points.normals is None else points.normals[::n],
+        colors=None if points.colors is None else points.colors[::n],
     )
 
 
@@ -101,57 +118,23 @@ def camera_info(intr: DepthIntrinsics, frame_id: str) -> CameraInfo:
     )
 
 
-def thinned(cloud: PointCloud, n: int) -> PointCloud:
-    """Every *n*-th point of *cloud* (with its normal and colour), same frame and stamp: what a camera
-    publishes on ``cloud`` to show a capture without recording all of it twice (the reply has it)."""
-    if n <= 1:
-        return cloud
-    return PointCloud(
-        points=cloud.points[::n],
-        normals=None if cloud.normals is None else cloud.normals[::n],
-        colors=None if cloud.colors is None else cloud.colors[::n],
-        frame_id=cloud.frame_id,
-        stamp_ns=cloud.stamp_ns,
-    )
-
-
-def publish_frame(
-    ctx: StageContext,
-    frame: CameraFrame,
-    *,
-    frame_id: str,
-    publish_cloud: bool,
-    publish_depth: bool,
-    cloud_decimate: int = 1,
-) -> PointCloud:
-    """Publish *frame* on the camera ports (every ``cloud_decimate``-th point on ``cloud``); return the
-    cloud (the ``capture`` reply)."""
-    dtype = np.float32
+def publish_capture(ctx: StageContext, params: DepthCameraParams, frame: CameraFrame) -> PointCloud:
+    """Publish a capture as every depth-camera adapter does: the mount on ``frames``, then every
+    ``decimate``-th point of *frame* as the cloud, on ``cloud`` every ``cloud_decimate``-th of those
+    (``publish_cloud``), and the depth image and ``camera_info`` when the frame has them
+    (``publish_depth``); returns the cloud (the ``capture`` reply)."""
+    publish_mount(ctx, params)
+    frame = thinned(frame, params.decimate)
+    dtype, frame_id = np.float32, params.frame_id
     cloud = PointCloud(
         points=np.ascontiguousarray(frame.points, dtype=dtype),
         normals=None if frame.normals is None else np.ascontiguousarray(frame.normals, dtype=dtype),
         colors=frame.colors,
         frame_id=frame_id,
     )
-    if publish_depth and frame.depth_m is not None and frame.intrinsics is not None:
+    if params.publish_depth and frame.depth_m is not None and frame.intrinsics is not None:
         ctx.publish("depth", Image(data=frame.depth_m, encoding="32FC1", frame_id=frame_id))
         ctx.publish("camera_info", camera_info(frame.intrinsics, frame_id))
-    if publish_cloud:
-        ctx.publish("cloud", thinned(cloud, cloud_decimate))
+    if params.publish_cloud:
+        ctx.publish("cloud", thinned(cloud, params.cloud_decimate))
     return cloud
-
-
-def publish_capture(ctx: StageContext, params: DepthCameraParams, frame: CameraFrame) -> PointCloud:
-    """A capture as every depth-camera adapter publishes it: every ``decimate``-th point, the mount
-    on ``frames``, then the frame (:func:`publish_frame`); returns the ``capture`` reply."""
-    publish_mount(ctx, params)
-    p = params
-    frame = keep_every(frame, p.decimate)
-    return publish_frame(
-        ctx,
-        frame,
-        frame_id=p.frame_id,
-        publish_cloud=p.publish_cloud,
-        publish_depth=p.publish_depth,
-        cloud_decimate=p.cloud_decimate,
-    )

@@ -11,14 +11,12 @@ at set-up and with every capture (:mod:`plugins.sensors.camera_output`).
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Any
 
 from pydantic import Field
 
-from engine.messages import FrameTransforms, PointCloud
-from engine.stage import Stage
-from plugins.interfaces import CAMERA_OUTPUTS, CAMERA_SERVICES
-from plugins.sensors.camera_output import DepthCameraParams, publish_capture, publish_mount
+from engine.messages import PointCloud
+from plugins.sensors.camera_output import DepthCameraAdapter, DepthCameraParams, publish_capture, publish_mount
 from plugins.sensors.frame_files import FrameFileError, list_frame_files, load_frame
 
 
@@ -31,13 +29,10 @@ class FileCameraParams(DepthCameraParams):
     unit_scale_m: float = Field(1.0, gt=0.0, description="metres per file unit (0.001 for files in mm)")
 
 
-class FileCamera(Stage):
+class FileCamera(DepthCameraAdapter):
     """Plays PLY/PCD/NPZ point-cloud frames from a folder, one per capture, in name order."""
 
     type_name = "file_camera"
-    role = "sensor"
-    services: ClassVar = CAMERA_SERVICES
-    outputs: ClassVar = {**CAMERA_OUTPUTS, "frames": FrameTransforms}
     Params = FileCameraParams
 
     def setup(self) -> None:

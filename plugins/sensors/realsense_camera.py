@@ -13,15 +13,19 @@ pyrealsense2 is an optional extra (``pip install 'vgr[realsense]'``), imported a
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 from pydantic import Field, model_validator
 
-from engine.messages import FrameTransforms, PointCloud
-from engine.stage import Stage
-from plugins.interfaces import CAMERA_OUTPUTS, CAMERA_SERVICES
-from plugins.sensors.camera_output import CameraFrame, DepthCameraParams, publish_capture, publish_mount
+from engine.messages import PointCloud
+from plugins.sensors.camera_output import (
+    CameraFrame,
+    DepthCameraAdapter,
+    DepthCameraParams,
+    publish_capture,
+    publish_mount,
+)
 from plugins.sensors.depth_projection import deproject_depth, normalized_rays
 from plugins.sensors.realsense_device import RealSenseConfig, RealSenseDevice
 from plugins.util.sdk import import_sdk
@@ -52,13 +56,10 @@ class RealSenseCameraParams(DepthCameraParams):
         return self
 
 
-class RealSenseCamera(Stage):
+class RealSenseCamera(DepthCameraAdapter):
     """Intel RealSense depth camera (pyrealsense2): live or .bag/.db3 playback, cloud in metres."""
 
     type_name = "realsense_camera"
-    role = "sensor"
-    services: ClassVar = CAMERA_SERVICES
-    outputs: ClassVar = {**CAMERA_OUTPUTS, "frames": FrameTransforms}
     Params = RealSenseCameraParams
 
     device: RealSenseDevice | None = None

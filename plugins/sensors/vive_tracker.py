@@ -39,6 +39,7 @@ from plugins.sensors.openvr_poses import (
     reading_from_pose,
     select_device,
 )
+from plugins.util.run_scoped_port import RunScopedPort
 from plugins.util.sdk import import_sdk
 
 RESCAN_INTERVAL_S = 1.0  # how often a lost device is looked up again
@@ -104,8 +105,7 @@ class ViveTracker(Stage):
     def setup(self) -> None:
         p: ViveTrackerParams = self.params  # type: ignore[assignment]
         self._lock = threading.Lock()
-        self._frames_lock = threading.Lock()  # frames are published until the stream (run) ends
-        self._frames_open = True
+        self._frames = RunScopedPort(self.ctx, "frames")  # published until the stream (run) ends
         self._last_valid: bool | None = None
         self._last_scan_s = -np.inf
         openvr = import_sdk("openvr", stage_type=self.type_name, extra="vive", package="openvr")
@@ -185,9 +185,7 @@ class ViveTracker(Stage):
         ]
         if reading is not None and reading.valid:
             tree.append(Transform(frame_id=p.frame_id, child_frame_id=p.tracker_frame, T=reading.T, stamp_ns=now))
-        with self._frames_lock:
-            if self._frames_open:
-                self.ctx.publish("frames", FrameTransforms(stamp_ns=now, transforms=tree))
+        self._frames.publish(FrameTransforms(stamp_ns=now, transforms=tree))
 
     def on_request(self, service: str, request: Any) -> TrackerPose:
         msg = self._message()
@@ -195,11 +193,7 @@ class ViveTracker(Stage):
         return msg
 
     def run(self) -> None:
-        try:
-            self._stream()
-        finally:
-            with self._frames_lock:  # the engine ends the outputs when run() returns
-                self._frames_open = False
+        self._frames.run(self._stream)
 
     def _stream(self) -> None:
         p: ViveTrackerParams = self.params  # type: ignore[assignment]

@@ -267,61 +267,45 @@ class SimRobotController:
 
     # ----------------------------------------------------------------------------- commands
 
-    def _admit(self, command_id: str, kind: MoveKind) -> tuple[MoveResult | None, float]:
-        """Idempotency and busy checks. Returns (early answer or None, now)."""
+    def _command(self, command_id: str, kind: MoveKind, plan: Callable[[float], _Segment]) -> MoveResult:
+        """Run one move command: a repeated id returns its first result (``duplicate``), a command
+        while a move runs is refused as busy; else *plan* (given the time now) makes the move's
+        segment, which is accepted, or raises :class:`_RefusedError`, which refuses the command with
+        its reason and moves nothing. Either result is kept under the id."""
         if not isinstance(command_id, str) or not command_id:
             raise ValueError("command_id must be a non-empty string")
         if command_id in self._results:
-            return replace(self._results[command_id], duplicate=True), 0.0
+            return replace(self._results[command_id], duplicate=True)
         now = self._now()
-        seg, moving = self._segment_at(now)
-        if moving:
-            return self._refuse(
-                command_id, kind, now, f"busy: command {seg.command_id!r} is moving until t = {seg.t1:.3f} s"
-            ), now
-        return None, now
-
-    def _refuse(self, command_id: str, kind: MoveKind, now: float, reason: str) -> MoveResult:
-        res = MoveResult(command_id, kind, False, reason, now, now)
+        try:
+            running, moving = self._segment_at(now)
+            if moving:
+                raise _RefusedError(f"busy: command {running.command_id!r} is moving until t = {running.t1:.3f} s")
+            seg = plan(now)
+        except _RefusedError as refusal:
+            res = MoveResult(command_id, kind, False, str(refusal), now, now)
+        else:
+            self._segments.append(seg)
+            res = MoveResult(seg.command_id, seg.kind, True, "ok", seg.t0, seg.t1, seg.q1.copy())
         self._results[command_id] = res
         return res
-
-    def _accept(self, seg: _Segment) -> MoveResult:
-        self._segments.append(seg)
-        res = MoveResult(seg.command_id, seg.kind, True, "ok", seg.t0, seg.t1, seg.q1.copy())
-        self._results[seg.command_id] = res
-        return res
-
-    @staticmethod
-    def _check_limit(name: str, value: float) -> str | None:
-        if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
-            return f"{name} must be a finite positive number, got {value!r}"
-        return None
 
     @_locked
     def move_j(
         self, command_id: str, q_target: ArrayLike, speed: float = MOVEJ_SPEED, accel: float = MOVEJ_ACCEL
     ) -> MoveResult:
         """Joint move to ``q_target`` (rad); ``speed``/``accel`` of the leading axis (rad/s, rad/s^2)."""
-        early, now = self._admit(command_id, "movej")
-        if early is not None:
-            return early
-        for name, v in (("speed", speed), ("accel", accel)):
-            if (msg := self._check_limit(name, v)) is not None:
-                return self._refuse(command_id, "movej", now, msg)
+        return self._command(command_id, "movej", lambda now: self._plan_j(command_id, now, q_target, speed, accel))
+
+    def _plan_j(self, cid: str, now: float, q_target: ArrayLike, speed: float, accel: float) -> _Segment:
+        _check_limits(speed=speed, accel=accel)
         try:
             q1 = self.nominal.check_joints(q_target, name="q_target")[0][0]
         except ValueError as e:
-            return self._refuse(command_id, "movej", now, str(e))
+            raise _RefusedError(str(e)) from None
         if not self.nominal.within_limits(q1):
-            return self._refuse(
-                command_id,
-                "movej",
-                now,
-                "target out of joint limits: " + "; ".join(self.nominal.limit_violations(q1)),
-            )
-        q0 = self.state(now).q
-        return self._accept(self._joint_segment(command_id, now, q0, q1, speed, accel))
+            raise _RefusedError("target out of joint limits: " + "; ".join(self.nominal.limit_violations(q1)))
+        return self._joint_segment(cid, now, self.state(now).q, q1, speed, accel)
 
     def _joint_segment(self, cid: str, now: float, q0: F64, q1: F64, speed: float, accel: float) -> _Segment:
         dq = q1 - q0
@@ -341,18 +325,14 @@ class SimRobotController:
         self, command_id: str, T_base_tcp: ArrayLike, speed: float = MOVEJ_SPEED, accel: float = MOVEJ_ACCEL
     ) -> MoveResult:
         """Joint move to a Cartesian target (IK from the current joints, nearest branch first)."""
-        early, now = self._admit(command_id, "movej")
-        if early is not None:
-            return early
-        try:
-            T_w = self.nominal.T_world_base @ as_transform(T_base_tcp, name="target T_base_tcp")
-        except ValueError as e:
-            return self._refuse(command_id, "movej", now, str(e))
-        q0 = self.state(now).q
-        ik = solve_ik(self.nominal, T_w, q0)
-        if not ik.success:
-            return self._refuse(command_id, "movej", now, f"{ik.status}: {ik.reason}")
-        return self.move_j(command_id, ik.q, speed, accel)
+
+        def plan(now: float) -> _Segment:
+            ik = solve_ik(self.nominal, self.nominal.T_world_base @ _target(T_base_tcp), self.state(now).q)
+            if not ik.success:
+                raise _RefusedError(f"{ik.status}: {ik.reason}")
+            return self._plan_j(command_id, now, ik.q, speed, accel)
+
+        return self._command(command_id, "movej", plan)
 
     @_locked
     def move_l(
@@ -370,21 +350,24 @@ class SimRobotController:
         points, joint limits and branch flips near singularities are refused. The time law is slowed
         down where needed so that no joint exceeds its speed or acceleration limit.
         """
-        early, now = self._admit(command_id, "movel")
-        if early is not None:
-            return early
-        for name, v in (
-            ("speed", speed),
-            ("accel", accel),
-            ("angular_speed", angular_speed),
-            ("angular_accel", angular_accel),
-        ):
-            if (msg := self._check_limit(name, v)) is not None:
-                return self._refuse(command_id, "movel", now, msg)
-        try:
-            T1 = as_transform(T_base_tcp, name="target T_base_tcp")
-        except ValueError as e:
-            return self._refuse(command_id, "movel", now, str(e))
+        return self._command(
+            command_id,
+            "movel",
+            lambda now: self._plan_l(command_id, now, T_base_tcp, speed, accel, angular_speed, angular_accel),
+        )
+
+    def _plan_l(
+        self,
+        cid: str,
+        now: float,
+        T_base_tcp: ArrayLike,
+        speed: float,
+        accel: float,
+        angular_speed: float,
+        angular_accel: float,
+    ) -> _Segment:
+        _check_limits(speed=speed, accel=accel, angular_speed=angular_speed, angular_accel=angular_accel)
+        T1 = _target(T_base_tcp)
         st = self.state(now)
         T0 = st.T_base_tcp
         dp = T1[:3, 3] - T0[:3, 3]
@@ -395,27 +378,21 @@ class SimRobotController:
         T_wb = self.nominal.T_world_base
         end = solve_ik(self.nominal, T_wb @ T1, st.q)
         if not end.success:
-            return self._refuse(command_id, "movel", now, f"target {end.status}: {end.reason}")
+            raise _RefusedError(f"target {end.status}: {end.reason}")
         qs = [st.q]
         for s in s_grid[1:]:
             T_s = T_wb @ _interp_pose(T0[:3, 3], T0[:3, :3], dp, phi, s)
             ik = solve_ik(self.nominal, T_s, qs[-1], n_random_seeds=0, classify_failures=False)
             if not ik.success:
                 where = f"{s * L * 1e3:.1f} mm along the path" if L > 0 else f"{s * 100:.0f} % of the rotation"
-                return self._refuse(
-                    command_id,
-                    "movel",
-                    now,
+                raise _RefusedError(
                     f"the straight path cannot be followed within the joint limits at {where} "
-                    f"(leaves the workspace or the limits); use move_j or add a via point",
+                    f"(leaves the workspace or the limits); use move_j or add a via point"
                 )
             if np.max(np.abs(ik.q - qs[-1])) > MOVEL_MAX_JOINT_STEP_RAD:
-                return self._refuse(
-                    command_id,
-                    "movel",
-                    now,
+                raise _RefusedError(
                     f"path passes through or near a singularity at {s * L * 1e3:.1f} mm along the path "
-                    "(joint solution jumps); use move_j or add a via point",
+                    "(joint solution jumps); use move_j or add a via point"
                 )
             qs.append(ik.q)
         path_q = np.array(qs)
@@ -431,8 +408,8 @@ class SimRobotController:
             profile = trapezoid(0.0, 1.0, 1.0)
         else:
             profile = trapezoid(1.0, float(min(v_caps)), float(min(a_caps)))
-        seg = _Segment(
-            command_id,
+        return _Segment(
+            cid,
             "movel",
             now,
             st.q,
@@ -444,7 +421,6 @@ class SimRobotController:
             pose0=(T0[:3, 3].copy(), T0[:3, :3].copy()),
             pose_delta=(dp, phi),
         )
-        return self._accept(seg)
 
     def _movel_joints(self, seg: _Segment, s: float) -> tuple[F64, F64]:
         """Joints on the straight-line path at parameter s (IK seeded by the waypoint table)."""
@@ -462,6 +438,25 @@ class SimRobotController:
             seg.cache.clear()
         seg.cache[s] = q
         return q, dq_ds
+
+
+class _RefusedError(Exception):
+    """A move command the controller refuses before anything moves; the message says why."""
+
+
+def _check_limits(**limits: float) -> None:
+    """Refuse the first speed or acceleration (by keyword name) that is not a finite positive number."""
+    for name, value in limits.items():
+        if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
+            raise _RefusedError(f"{name} must be a finite positive number, got {value!r}")
+
+
+def _target(T_base_tcp: ArrayLike) -> F64:
+    """The Cartesian target as a rigid 4x4, or refused with the reason it is not one."""
+    try:
+        return as_transform(T_base_tcp, name="target T_base_tcp")
+    except ValueError as e:
+        raise _RefusedError(str(e)) from None
 
 
 def _last_motion_direction(steps: F64, previous: F64) -> F64:

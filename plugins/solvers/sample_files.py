@@ -4,7 +4,8 @@ Both formats (docs/vive_and_tcp.md) are a JSON document ``{"format": ..., <metad
 {...}, <list of samples>}`` or a CSV file of ``# key = value`` metadata lines (the JSON top-level and
 noise keys; several comma-separated numbers make a list) followed by a header row and one row per
 sample. This module owns reading and writing that frame: the length units (``"m"`` / ``"mm"``),
-quaternion columns (x, y, z, w; unit within 1e-3), the metadata and the numbered data rows; the
+quaternion columns (x, y, z, w; unit within 1e-3), a sample's pose (``T_base_<name>`` 4x4 or
+``<name>_position`` + ``<name>_quat_xyzw``), the metadata and the numbered data rows; the
 calibration packages own their keys and columns.
 """
 
@@ -20,6 +21,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
+
+from engine.transforms import T_from_Rt, pose7_from_T
 
 LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
 
@@ -42,6 +45,27 @@ def quat_matrix(q: ArrayLike, where: str) -> NDArray[np.float64]:
     return Rotation.from_quat(q / n).as_matrix()
 
 
+def sample_pose(sample: Mapping[str, Any], name: str, scale: float, where: str) -> NDArray[np.float64]:
+    """The pose ``T_base_<name>`` of one sample: the 4x4 under that key, else ``<name>_position`` and
+    ``<name>_quat_xyzw``; positions times *scale* (metres per file unit)."""
+    key = f"T_base_{name}"
+    if key in sample:
+        T = np.array(sample[key], dtype=float)
+        if T.shape != (4, 4):
+            raise ValueError(f"{where}: {key} must be 4x4")
+        T[:3, 3] *= scale
+        return T
+    R = quat_matrix(sample[f"{name}_quat_xyzw"], f"{where} {name}_quat_xyzw")
+    return T_from_Rt(R, np.asarray(sample[f"{name}_position"], dtype=float) * scale)
+
+
+def pose_entries(T: ArrayLike, name: str) -> dict[str, list[float]]:
+    """``<name>_position`` (metres) and ``<name>_quat_xyzw`` of the 4x4 *T*: how a written file gives a
+    sample's pose, read back by :func:`sample_pose`."""
+    p, q = pose7_from_T(T)
+    return {f"{name}_position": p.tolist(), f"{name}_quat_xyzw": q.tolist()}
+
+
 def read_json_samples(path: str | Path, fmt: str, list_key: str) -> tuple[dict[str, Any], list[Any]]:
     """(metadata, samples) of a JSON document of format *fmt* (a missing ``format`` is accepted): the
     metadata are the top-level keys with those of ``noise`` merged in, the samples are ``list_key``."""
@@ -49,6 +73,12 @@ def read_json_samples(path: str | Path, fmt: str, list_key: str) -> tuple[dict[s
     if d.get("format", fmt) != fmt:
         raise ValueError(f"{path}: format {d.get('format')!r} is not {fmt!r}")
     return {**d, **d.get("noise", {})}, list(d.get(list_key, []))
+
+
+def written_metadata(fmt: str, noise: Mapping[str, Any], **keys: Any) -> dict[str, Any]:
+    """The metadata of a sample file vgr writes: format *fmt*, lengths in metres (``units``), the
+    other top-level *keys*, then ``noise``."""
+    return {"format": fmt, "units": "m", **keys, "noise": dict(noise)}
 
 
 def _metadata_value(text: str) -> Any:

@@ -1,4 +1,5 @@
-"""Running `vgr` in child processes for the tests of runs spread over processes (and intruders)."""
+"""Running `vgr` in child processes for the tests of runs spread over processes (and intruders), and of
+the tools that watch a live run from outside (topics, play, the layout, the live view)."""
 
 from __future__ import annotations
 
@@ -9,12 +10,13 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
+DEMO = ROOT / "recipes" / "demo.yaml"
 
 
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+        return int(s.getsockname()[1])
 
 
 def vgr(*args: str) -> list[str]:
@@ -37,3 +39,9 @@ def start(recipe: Path, process: str, cwd: Path, *extra: str) -> subprocess.Pope
         stderr=subprocess.STDOUT,
         text=True,
     )
+
+
+def demo_streaming(rate_hz: float, frames: int, points: int) -> list[str]:
+    """``vgr run`` arguments of the demo recipe publishing *frames* clouds at *rate_hz* on the wall clock."""
+    overrides = ["clock=wall", f"source.rate_hz={rate_hz:g}", f"source.frames={frames}", f"vars.n_points={points}"]
+    return ["run", str(DEMO), "--no-progress", *(a for o in overrides for a in ("-p", o))]

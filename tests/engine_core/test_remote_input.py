@@ -22,6 +22,7 @@ from engine import codec
 from engine.bus import active_key, ready_key, started_key, wire_key
 from engine.codec import Envelope, Kind
 from engine.messages import Request
+from engine.peers import members_digest, peer_key
 from engine.runner import Runner
 from engine.wire import BATCH_ENVELOPE, pack_batch
 
@@ -55,9 +56,12 @@ def test_remote_input_delivers_fast_path_general_path_and_end_of_stream_in_order
     conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
     session = zenoh.open(conf)
     try:
+        # process a as engine.peers knows a process: its session and epoch, the members it started with
+        peer = peer_key(rid, "a", str(session.zid()), "e1")
+        started = f"{peer}/started/{members_digest({'a': 'e1', 'b': runner.epoch})}"
         tokens = [
             session.liveliness().declare_token(k)
-            for k in (ready_key(rid, "src"), started_key(rid, "a"), active_key(rid, "a"))
+            for k in (peer, started, ready_key(rid, "src"), started_key(rid, "a"), active_key(rid, "a"))
         ]
         pub = session.declare_publisher(wire_key(rid, "src", "out"), congestion_control=zenoh.CongestionControl.BLOCK)
         result: dict[str, object] = {}

@@ -32,6 +32,7 @@ from plugins.interfaces import TRACKER_OUTPUTS, TRACKER_SERVICES
 from plugins.params import PoseSpec
 from plugins.sim.sensor_effects import TrackerEffects
 from plugins.sim.tracker import SimulatedViveTracker, ViveTrackerModel
+from plugins.util.run_scoped_port import RunScopedPort
 
 
 class SimTracker(Stage):
@@ -60,8 +61,7 @@ class SimTracker(Stage):
         if p.tracker_frame in ("world", "lighthouse"):
             raise ValueError(f"tracker_frame must differ from 'world' and 'lighthouse', got {p.tracker_frame!r}")
         self._lock = threading.Lock()
-        self._frames_lock = threading.Lock()  # frames are published until the stream (run) ends
-        self._frames_open = True
+        self._frames = RunScopedPort(self.ctx, "frames")  # published until the stream (run) ends
         self._tcp_now: np.ndarray | None = None
         self.T_lh_world = inv(p.T_world_lighthouse.T())
         self.T_tcp_tracker = p.T_tcp_tracker.T()
@@ -106,11 +106,7 @@ class SimTracker(Stage):
         return reading, truth.T_lighthouse_tracker_at_stamp
 
     def _publish_frames(self, T_lighthouse_tracker: np.ndarray | None, stamp_ns: int) -> None:
-        with self._frames_lock:
-            if self._frames_open:
-                self.ctx.publish(
-                    "frames", FrameTransforms(stamp_ns=stamp_ns, transforms=self._tree(T_lighthouse_tracker, stamp_ns))
-                )
+        self._frames.publish(FrameTransforms(stamp_ns=stamp_ns, transforms=self._tree(T_lighthouse_tracker, stamp_ns)))
 
     def _tree(self, T_lighthouse_tracker: np.ndarray | None, stamp_ns: int) -> list[Transform]:
         p: SimTracker.Params = self.params  # type: ignore[assignment]
@@ -127,11 +123,7 @@ class SimTracker(Stage):
         return self._reading()[0]
 
     def run(self) -> None:
-        try:
-            self._stream()
-        finally:
-            with self._frames_lock:  # the engine ends the outputs when run() returns
-                self._frames_open = False
+        self._frames.run(self._stream)
 
     def _stream(self) -> None:
         p: SimTracker.Params = self.params  # type: ignore[assignment]

@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
+from engine.plain_data import read_document
 from plugins.robot.effects.base import SampleContext
 
 F64 = NDArray[np.float64]
@@ -171,12 +172,7 @@ def read_csv(path: str | Path) -> KinematicSamples:
 def read_json(path: str | Path) -> KinematicSamples:
     """Read the JSON form of the module docstring (the CSV columns as fields of one object per pose)."""
     path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"{path} does not exist")
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{path}: not valid JSON ({e})") from None
+    doc = read_document(path, "json", "kinematic samples file")
     if isinstance(doc, dict):
         fmt = doc.get("format", JSON_FORMAT)
         if fmt != JSON_FORMAT:

@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from typing import Any
 
 from rich.console import Console
 
@@ -98,16 +99,14 @@ def _levels(text: str | None) -> tuple[str, ...] | None:
 def cmd_gap(args: argparse.Namespace) -> int:
     from engine.gap import GapConfig, SelectionConfig
     from engine.gap.report import report_dict
-    from engine.plain_data import plain
 
-    from .analyse import analyse_gap, families_from_registry
+    from .analyse import analyse_gap
 
     if args.action == "check":
         return cmd_check(args)
     if args.refit is not None:
         raise ValueError("--refit is an option of vgr gap check (the workflow refits everything)")
-    if not (0 < args.alpha < 0.5):
-        raise ValueError(f"--alpha must be in (0, 0.5), got {args.alpha}")
+    _check_alpha(args.alpha)
     if args.folds < 2:
         raise ValueError(f"--folds must be >= 2, got {args.folds}")
     if args.max_effects < 0:
@@ -115,28 +114,37 @@ def cmd_gap(args: argparse.Namespace) -> int:
     cfg = GapConfig(
         SelectionConfig(alpha=args.alpha, cv_folds=args.folds, seed=args.seed), max_effects=args.max_effects
     )
-    console = None if args.json else Console(width=None if sys.stdout.isatty() else 160)
-    opts = _data_options(args)
-    result = analyse_gap(
-        args.model,
-        args.data,
-        noise_mm=args.noise_mm,
-        calibrate=_levels(args.calibrate),
-        report_dir=args.report,
-        config=cfg,
-        families=families_from_registry(tuple(args.plugin or ())),
-        console=console,
-        data_options={k: v for k, v in opts.items() if v is not None},
-    )
+    result = analyse_gap(args.model, args.data, calibrate=_levels(args.calibrate), config=cfg, **_common(args))
     if args.json:
-        print(json.dumps(plain(report_dict(result), nan_as_none=True), indent=2))
+        _print_json(report_dict(result))
     return EXIT_CODES[result.verdict]
 
 
-def _data_options(args: argparse.Namespace) -> dict[str, object]:
-    """The options of ``vgr gap`` and ``vgr gap check`` that say how to read the data file."""
-    keys = ("joint_topic", "measurement_topic", "sensor", "payload_kg")
-    return {k: getattr(args, k) for k in keys}
+def _check_alpha(alpha: float) -> None:
+    if not (0 < alpha < 0.5):
+        raise ValueError(f"--alpha must be in (0, 0.5), got {alpha}")
+
+
+def _common(args: argparse.Namespace) -> dict[str, Any]:
+    """The arguments ``vgr gap`` and ``vgr gap check`` give their library function alike: the noise,
+    the report folder, the console (none with --json), the effect families (with --plugin's) and the
+    options that say how to read the data file (those given)."""
+    from .analyse import families_from_registry
+
+    data_options = {k: getattr(args, k) for k in ("joint_topic", "measurement_topic", "sensor", "payload_kg")}
+    return {
+        "noise_mm": args.noise_mm,
+        "report_dir": args.report,
+        "console": None if args.json else Console(width=None if sys.stdout.isatty() else 160),
+        "families": families_from_registry(tuple(args.plugin or ())),
+        "data_options": {k: v for k, v in data_options.items() if v is not None},
+    }
+
+
+def _print_json(report: dict[str, Any]) -> None:
+    from engine.plain_data import plain
+
+    print(json.dumps(plain(report, nan_as_none=True), indent=2))
 
 
 CHECK_EXIT_CODES = {"ok": EXIT_OK, "gap": EXIT_UNEXPLAINED}
@@ -145,29 +153,13 @@ CHECK_EXIT_CODES = {"ok": EXIT_OK, "gap": EXIT_UNEXPLAINED}
 def cmd_check(args: argparse.Namespace) -> int:
     """``vgr gap check``: score a stored model on new data (:func:`.check.check_model`)."""
     from engine.gap.check import check_report_dict
-    from engine.plain_data import plain
 
-    from .analyse import families_from_registry
     from .check import check_model
 
     if args.calibrate is not None:
         raise ValueError("--calibrate does not apply to vgr gap check: it refits nothing (or --refit tool)")
-    if not (0 < args.alpha < 0.5):
-        raise ValueError(f"--alpha must be in (0, 0.5), got {args.alpha}")
-    refit = _levels(args.refit) or ()
-    console = None if args.json else Console(width=None if sys.stdout.isatty() else 160)
-    opts = _data_options(args)
-    result = check_model(
-        args.model,
-        args.data,
-        noise_mm=args.noise_mm,
-        refit=refit,
-        alpha=args.alpha,
-        families=families_from_registry(tuple(args.plugin or ())),
-        report_dir=args.report,
-        console=console,
-        data_options={k: v for k, v in opts.items() if v is not None},
-    )
+    _check_alpha(args.alpha)
+    result = check_model(args.model, args.data, refit=_levels(args.refit) or (), alpha=args.alpha, **_common(args))
     if args.json:
-        print(json.dumps(plain(check_report_dict(result), nan_as_none=True), indent=2))
+        _print_json(check_report_dict(result))
     return CHECK_EXIT_CODES[result.verdict]

@@ -11,7 +11,6 @@ back, as well as a robot model file, a shipped robot name, or the result file of
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -19,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import yaml
 
-from engine.plain_data import plain
+from engine.plain_data import plain, read_document
 from plugins.robot.kinematics import RobotModel
 from plugins.robot.model_file import load_robot_model, model_to_dict, robot_model_from_dict
 
@@ -133,10 +132,7 @@ def load_gap_model(model: str | Path | RobotModel) -> tuple[RobotModel, list[dic
         return model, []
     path = Path(str(model))
     if path.suffix in (".yaml", ".yml") and path.is_file():
-        try:
-            data = yaml.safe_load(path.read_text(encoding="utf-8"))
-        except yaml.YAMLError as e:
-            raise ValueError(f"model file {path} is not valid YAML: {e}") from None
+        data = read_document(path, "yaml", "model file")
         if isinstance(data, dict) and "vgr_gap_model" in data:
             return robot_model_from_dict(data.get("robot"), source=str(path)), list(data.get("effects") or [])
     return load_robot_model(model), []
@@ -171,10 +167,7 @@ def load_stored_model(model: str | Path) -> StoredModel:
     they are). Raises ValueError naming what the file is not."""
     path = Path(str(model))
     if path.suffix.lower() == ".json" and path.is_file():
-        try:
-            doc = json.loads(path.read_text(encoding="utf-8"))
-        except json.JSONDecodeError as e:
-            raise ValueError(f"{path} is not valid JSON: {e}") from None
+        doc = read_document(path, "json")
         est = doc.get("estimate") if isinstance(doc, dict) else None
         if not isinstance(est, dict) or doc.get("kind") != "kinematic" or "model_file" not in est:
             raise ValueError(f"{path} is not a kinematic calibration result (vgr calibrate kinematics --json)")

@@ -26,14 +26,16 @@ from typing import Any
 
 import numpy as np
 
-from engine.transforms import T_from_Rt, pose7_from_T
+from engine.transforms import pose7_from_T
 from plugins.solvers.sample_files import (
     length_scale,
-    quat_matrix,
+    pose_entries,
     read_csv_samples,
     read_json_samples,
     row_numbers,
+    sample_pose,
     write_csv_samples,
+    written_metadata,
 )
 from plugins.solvers.tcp_camera.data import TcpCameraData, TcpNoiseModel
 from plugins.vendor_poses import T_from_ur
@@ -54,17 +56,11 @@ def _build(meta: dict[str, Any], samples: list[dict[str, Any]]) -> TcpCameraData
     for i, s in enumerate(samples):
         where = f"sample {i + 1}"
         labels.append(str(s.get("label") or f"S{i + 1}"))
-        if "T_base_flange" in s:
-            Ti = np.array(s["T_base_flange"], dtype=float)
-            if Ti.shape != (4, 4):
-                raise ValueError(f"{where}: T_base_flange must be 4x4")
-            Ti[:3, 3] *= k_r
-        elif "ur_pose" in s:
+        if "ur_pose" in s and "T_base_flange" not in s:  # UR pose 6-vector (a 4x4 T_base_flange wins)
             u = np.asarray(s["ur_pose"], dtype=float).reshape(6)
-            Ti = T_from_ur(np.concatenate([u[:3] * k_r, u[3:]]))
+            T.append(T_from_ur(np.concatenate([u[:3] * k_r, u[3:]])))
         else:
-            Ti = T_from_Rt(quat_matrix(s["flange_quat_xyzw"], where), np.asarray(s["flange_position"], float) * k_r)
-        T.append(Ti)
+            T.append(sample_pose(s, "flange", k_r, where))
         P.append(np.asarray(s["p_cam"], dtype=float) * k_c)
     cam_sigma = np.broadcast_to(np.asarray(meta.get("camera_sigma", 0.3e-3 / k_c), dtype=float), (3,)) * k_c
     noise = TcpNoiseModel(
@@ -103,26 +99,20 @@ def load_tcp_csv(path: str | Path) -> TcpCameraData:
 
 def _metadata(data: TcpCameraData) -> dict[str, Any]:
     nz = data.noise
-    return {
-        "format": FORMAT,
-        "units": "m",
-        "camera_units": "m",
-        "noise": {
-            "camera_sigma": list(nz.camera_sigma_m),
-            "robot_position_sigma": nz.robot_position_sigma_m,
-            "robot_rotation_sigma_deg": float(np.degrees(nz.robot_rotation_sigma_rad)),
-        },
+    noise = {
+        "camera_sigma": list(nz.camera_sigma_m),
+        "robot_position_sigma": nz.robot_position_sigma_m,
+        "robot_rotation_sigma_deg": float(np.degrees(nz.robot_rotation_sigma_rad)),
     }
+    return written_metadata(FORMAT, noise, camera_units="m")
 
 
 def tcp_to_json_dict(data: TcpCameraData) -> dict[str, Any]:
     samples = []
     for i in range(data.n):
-        p, q = pose7_from_T(data.T_base_flange[i])
         samples.append(
-            {"label": data.labels[i], "flange_position": p.tolist(), "flange_quat_xyzw": q.tolist(),
-             "p_cam": data.p_cam[i].tolist()}
-        )  # fmt: skip
+            {"label": data.labels[i], **pose_entries(data.T_base_flange[i], "flange"), "p_cam": data.p_cam[i].tolist()}
+        )
     return {**_metadata(data), "samples": samples}
 
 

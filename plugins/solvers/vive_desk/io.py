@@ -28,14 +28,17 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from engine.transforms import T_from_Rt, pose7_from_T
+from engine.transforms import pose7_from_T
 from plugins.solvers.sample_files import (
     length_scale,
+    pose_entries,
     quat_matrix,
     read_csv_samples,
     read_json_samples,
     row_numbers,
+    sample_pose,
     write_csv_samples,
+    written_metadata,
 )
 from plugins.solvers.vive_desk.data import ViveDeskData, ViveNoiseModel
 
@@ -71,17 +74,7 @@ def _build(meta: dict[str, Any], rows: list[dict[str, Any]]) -> ViveDeskData:
         where = f"contact {i + 1}"
         labels.append(str(c.get("label") or f"P{i + 1}"))
         P.append(np.asarray(c["desk_point"], dtype=float) * k)
-        if "T_base_tracker" in c:
-            Ti = np.array(c["T_base_tracker"], dtype=float)
-            if Ti.shape != (4, 4):
-                raise ValueError(f"{where}: T_base_tracker must be 4x4")
-            Ti[:3, 3] *= k
-        else:
-            Ti = T_from_Rt(
-                quat_matrix(c["tracker_quat_xyzw"], f"{where} tracker_quat_xyzw"),
-                np.asarray(c["tracker_position"], dtype=float) * k,
-            )
-        T.append(Ti)
+        T.append(sample_pose(c, "tracker", k, where))
         fq = c.get("fixture_quat_xyzw")
         known.append(fq != "free")
         R.append(R_default if fq in (None, "free") else quat_matrix(fq, f"{where} fixture_quat_xyzw"))
@@ -128,28 +121,23 @@ def load_vive_csv(path: str | Path) -> ViveDeskData:
 
 def _metadata(data: ViveDeskData) -> dict[str, Any]:
     nz = data.noise
-    return {
-        "format": FORMAT,
-        "units": "m",
-        "noise": {
-            "tracker_position_sigma": nz.tracker_position_sigma_m,
-            "tracker_rotation_sigma_deg": float(np.degrees(nz.tracker_rotation_sigma_rad)),
-            "fixture_rotation_sigma_deg": float(np.degrees(nz.fixture_rotation_sigma_rad)),
-            "desk_point_sigma": nz.desk_point_sigma_m,
-        },
+    noise = {
+        "tracker_position_sigma": nz.tracker_position_sigma_m,
+        "tracker_rotation_sigma_deg": float(np.degrees(nz.tracker_rotation_sigma_rad)),
+        "fixture_rotation_sigma_deg": float(np.degrees(nz.fixture_rotation_sigma_rad)),
+        "desk_point_sigma": nz.desk_point_sigma_m,
     }
+    return written_metadata(FORMAT, noise)
 
 
 def vive_to_json_dict(data: ViveDeskData) -> dict[str, Any]:
     """The JSON document of *data* (metres), the inverse of :func:`load_vive_json`."""
     contacts = []
     for i in range(data.n):
-        p, q = pose7_from_T(data.T_base_tracker[i])
         c: dict[str, Any] = {
             "label": data.labels[i],
             "desk_point": data.desk_points[i].tolist(),
-            "tracker_position": p.tolist(),
-            "tracker_quat_xyzw": q.tolist(),
+            **pose_entries(data.T_base_tracker[i], "tracker"),
             "tcp_offset": data.tcp_offsets_desktop[i].tolist(),
         }
         if data.orientation_known[i]:
