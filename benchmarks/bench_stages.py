@@ -99,7 +99,7 @@ class BenchSink(Stage):
     def finish(self) -> None:  # right after the last message (its end of stream follows it)
         self.cpu[1] = time.process_time()
         Path(self.params.output).write_text(
-            json.dumps({"lat_ns": self.lat, "arrivals_ns": self.arrivals, "cpu_s": self.cpu})
+            json.dumps({"lat_ns": self.lat, "arrivals_ns": self.arrivals, "cpu_s": self.cpu, "n": self.n})
         )
 
 

@@ -30,7 +30,20 @@ zenoh's included) from the first to the last measured message: ``cpu_us_per_msg`
 CPU-bound run would show. On a machine shared with other work that figure is the steadier one; the
 wall-clock ratios are what the targets name.
 
-For 64 B and 4 KiB across processes a third row, ``typed_floor`` (benchmarks/wire_floor.py), gives the
+Across processes, ``dora`` is the same pair of stages as a dora-rs 1.1 dataflow of two Python nodes
+(benchmarks/dora_peer.py: same payload, same stamp, same receive point, run with ``dora run``), the
+peer a user would pick instead of vgr; it runs in the same alternation (raw, vgr, vgr_secured, dora
+for each payload) and ``ratios_vgr_over_dora`` gives vgr / dora per row. dora's input queue keeps
+its default (10, oldest dropped when full), so a burst loses messages: every row says what it
+delivered (``delivered_paced``, ``delivered_burst``: received / sent, the lowest over the runs), and
+dora's throughput is the measured messages it received over the time from the first measured send
+to the last arrival (a rate over its arrivals alone would count the few messages left in its queue
+at the end, which arrive back to back).
+dora has no in-process row (``dora_in_process`` says why). For payloads of at least
+engine.shm.SHM_MIN_BYTES, ``vgr_noshm`` is vgr with ``zenoh: {shared_memory: false}`` (every byte
+through the unix socket), the A/B of vgr's shared memory (``shm_ab``).
+
+For 64 B and 4 KiB across processes a further row, ``typed_floor`` (benchmarks/wire_floor.py), gives the
 throughput of vgr's codec alone: the same Blobs built, encoded, packed 64 to a zenoh sample, decoded
 and handed to the sink's code in the receiving process, with no engine at all. An engine delivering
 typed messages through this codec cannot beat it; ``typed_floor_throughput_ratio`` = that row / raw.
@@ -63,8 +76,12 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path[:0] = [str(HERE), str(ROOT)]
 
+import dora_peer  # noqa: E402
 from bench_stages import make_payload, pace  # noqa: E402
+from overhead_ratios import dora_ratios, paired, print_ratios, raw_ratios  # noqa: E402
 from wire_floor import BATCH, floor_subscriber_main, send_batched  # noqa: E402
+
+from engine.shm import SHM_MIN_BYTES  # noqa: E402
 
 BENCH_KEY = "bench/data"  # key of the raw and typed-floor runs
 SIZES = {"64B": 64, "4KiB": 4096, "1.2MB": 1_200_000}
@@ -93,9 +110,16 @@ def summarize(
     size: int,
     cpu_s: float | None = None,
     lat_entry_ns: list[int] | None = None,
+    sent_received: tuple[int, int] | None = None,
+    since_ns: int | None = None,
 ) -> dict[str, float]:
+    """Latency percentiles, messages per second at the receiver and CPU per message of one run;
+    *since_ns*: the rate is taken from then (the first measured send) to the last arrival, for a
+    receiver that may drop (dora): its few last messages can arrive back to back."""
     lat = np.asarray(lat_ns, dtype=float) / 1e3
     out: dict[str, float] = {}
+    if sent_received:
+        out["delivered"] = sent_received[1] / sent_received[0]
     if lat_entry_ns:
         out["p50_entry_us"] = float(np.median(np.asarray(lat_entry_ns, dtype=float))) / 1e3
     if cpu_s is not None and len(arrivals_ns):
@@ -107,10 +131,13 @@ def summarize(
             "p99_us": float(np.percentile(lat, 99)),
             "n": len(lat),
         }
-    if len(arrivals_ns) > 1:
-        span = (arrivals_ns[-1] - arrivals_ns[0]) / 1e9
-        rate = (len(arrivals_ns) - 1) / span if span > 0 else float("nan")
-        out |= {"msg_per_s": rate, "MB_per_s": rate * size / 1e6}
+    if since_ns is not None and arrivals_ns:
+        span, n = (arrivals_ns[-1] - since_ns) / 1e9, len(arrivals_ns)
+    else:
+        span = (arrivals_ns[-1] - arrivals_ns[0]) / 1e9 if len(arrivals_ns) > 1 else 0.0
+        n = len(arrivals_ns) - 1
+    rate = n / span if span > 0 else 0.0  # (dora may deliver one message or none)
+    out |= {"msg_per_s": rate, "MB_per_s": rate * size / 1e6}
     return out
 
 
@@ -156,7 +183,7 @@ def raw_in_process(size: int, count: int, interval_s: float) -> dict[str, float]
     sub.undeclare()
     pub.undeclare()
     s.close()
-    return summarize(rx.lat, rx.arr, size, max(cpu1, rx.cpu[1]) - cpu0, rx.lat_entry)
+    return summarize(rx.lat, rx.arr, size, max(cpu1, rx.cpu[1]) - cpu0, rx.lat_entry, (count + WARMUP, rx.n))
 
 
 def send(pub: zenoh.Publisher, size: int, count: int, interval_s: float) -> tuple[float, float]:
@@ -180,7 +207,7 @@ def raw_subscriber_main(endpoint: str, out: str, total: int) -> None:
     s.declare_subscriber(BENCH_KEY, rx)
     rx.done.wait(300)
     Path(out).write_text(
-        json.dumps({"lat_ns": rx.lat, "lat_entry_ns": rx.lat_entry, "arrivals_ns": rx.arr, "cpu_s": rx.cpu})
+        json.dumps({"lat_ns": rx.lat, "lat_entry_ns": rx.lat_entry, "arrivals_ns": rx.arr, "cpu_s": rx.cpu, "n": rx.n})
     )
     s.close()
 
@@ -212,7 +239,8 @@ def to_child(flag: str, count: int, send_fn: Callable[[zenoh.Publisher], tuple[f
 def raw_cross_process(size: int, count: int, interval_s: float) -> dict[str, float]:
     res, tx_cpu = to_child("raw-sub", count, lambda pub: send(pub, size, count, interval_s))
     rx_cpu = res["cpu_s"][1] - res["cpu_s"][0]
-    return summarize(res["lat_ns"], res["arrivals_ns"], size, tx_cpu + rx_cpu, res["lat_entry_ns"])
+    received = (count + WARMUP, res["n"])
+    return summarize(res["lat_ns"], res["arrivals_ns"], size, tx_cpu + rx_cpu, res["lat_entry_ns"], received)
 
 
 def floor_subscriber_process(endpoint: str, out: str, total: int) -> None:
@@ -237,6 +265,7 @@ RECIPE = """
 name: bench
 plugins: [bench_stages]
 {security}
+{zenoh}
 processes:
   pub: {{listen: ["{proto}/127.0.0.1:{port}"]}}
   sub: {{connect: ["{proto}/127.0.0.1:{port}"], listen: []}}
@@ -247,15 +276,22 @@ stages:
 
 
 def recipe(
-    tmp: str, processes: tuple[str, str], size: int, count: int, interval_s: float, certs: Path | None = None
+    tmp: str,
+    processes: tuple[str, str],
+    size: int,
+    count: int,
+    interval_s: float,
+    certs: Path | None = None,
+    shm: bool = True,
 ) -> tuple[str, Path, Path]:
     """The benchmark recipe with source and sink in *processes*, and the files where sink and source
     write their figures (in *tmp*); with *certs* (a `vgr certs make` folder), secured: TLS, mTLS and
-    the access-control list built from the graph (docs/security.md)."""
+    the access-control list built from the graph (docs/security.md); *shm* False: no shared memory."""
     out, src_out = Path(tmp) / "sink.json", Path(tmp) / "src.json"
     p_pub, p_sub = processes
     text = RECIPE.format(
         security=f'security: {{certs: "{certs}"}}' if certs else "",
+        zenoh="" if shm else "zenoh: {shared_memory: false}",
         proto="tls" if certs else "tcp",
         port=free_port(),
         p_pub=p_pub,
@@ -287,7 +323,7 @@ def vgr_in_process(size: int, count: int, interval_s: float) -> dict[str, float]
         assert summary.ok, summary.stop_reason
         res, src = json.loads(out.read_text()), json.loads(src_out.read_text())
     cpu = max(src["cpu_s"][1], res["cpu_s"][1]) - src["cpu_s"][0]
-    return summarize(res["lat_ns"], res["arrivals_ns"], size, cpu)
+    return summarize(res["lat_ns"], res["arrivals_ns"], size, cpu, sent_received=(count + WARMUP, res["n"]))
 
 
 _CERTS: list[Path] = []  # the development certificates of the secured rows, made once per benchmark run
@@ -308,10 +344,24 @@ def vgr_secured_cross_process(size: int, count: int, interval_s: float) -> dict[
     return vgr_cross_process(size, count, interval_s, certs=bench_certs())
 
 
-def vgr_cross_process(size: int, count: int, interval_s: float, certs: Path | None = None) -> dict[str, float]:
+def vgr_noshm_cross_process(size: int, count: int, interval_s: float) -> dict[str, float]:
+    """vgr_cross_process with shared memory off: every payload through the unix socket."""
+    return vgr_cross_process(size, count, interval_s, shm=False)
+
+
+def dora_cross_process(size: int, count: int, interval_s: float) -> dict[str, float]:
+    """The same two stages as a dora-rs dataflow of two Python nodes (benchmarks/dora_peer.py)."""
+    r = dora_peer.run_dataflow(size, count, interval_s, WARMUP)
+    sent_received = (r["sent"], r["received"])
+    return summarize(r["lat_ns"], r["arrivals_ns"], size, r["cpu_s"], sent_received=sent_received, since_ns=r["t0_ns"])
+
+
+def vgr_cross_process(
+    size: int, count: int, interval_s: float, certs: Path | None = None, shm: bool = True
+) -> dict[str, float]:
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(HERE), str(ROOT), os.environ.get("PYTHONPATH", "")]))
     with tempfile.TemporaryDirectory() as tmp:
-        text, out, src_out = recipe(tmp, ("pub", "sub"), size, count, interval_s, certs)
+        text, out, src_out = recipe(tmp, ("pub", "sub"), size, count, interval_s, certs, shm)
         recipe_file = Path(tmp) / "bench.yaml"
         recipe_file.write_text(text)
         # no recording: the recorder's cost is measured by benchmarks/record_replay.py, and the in-process
@@ -325,7 +375,7 @@ def vgr_cross_process(size: int, count: int, interval_s: float, certs: Path | No
             raise RuntimeError(f"vgr processes failed: {err_pub}\n{err_sub}")
         res, src = json.loads(out.read_text()), json.loads(src_out.read_text())
     cpu = (src["cpu_s"][1] - src["cpu_s"][0]) + (res["cpu_s"][1] - res["cpu_s"][0])
-    return summarize(res["lat_ns"], res["arrivals_ns"], size, cpu)
+    return summarize(res["lat_ns"], res["arrivals_ns"], size, cpu, sent_received=(count + WARMUP, res["n"]))
 
 
 # --------------------------------------------------------------------------- main
@@ -382,13 +432,17 @@ def main() -> None:
             "raw_zenoh": raw_cross_process,
             "vgr": vgr_cross_process,
             "vgr_secured": vgr_secured_cross_process,
+            "vgr_noshm": vgr_noshm_cross_process,  # (large payloads only: the A/B of shared memory)
+            "dora": dora_cross_process,
         },
     }
     results: dict[str, dict[str, dict[str, dict[str, float]]]] = {}
     floor_runs: dict[str, list[dict[str, float]]] = {}
     run_ratios: dict[str, dict[str, list[float]]] = {}  # vgr / raw of each pair of alternated runs
-    for topo, fns in topologies.items():
+    dora_runs: dict[str, dict[str, list[float]]] = {}  # vgr / dora of each pair of alternated runs
+    for topo, all_fns in topologies.items():
         for label, size in SIZES.items():
+            fns = {who: fn for who, fn in all_fns.items() if who != "vgr_noshm" or size >= SHM_MIN_BYTES}
             n_lat, interval, n_tp = plan[label]
             lat_runs: dict[str, list[dict[str, float]]] = {who: [] for who in fns}
             tp_runs: dict[str, list[dict[str, float]]] = {who: [] for who in fns}
@@ -399,23 +453,21 @@ def main() -> None:
                     tp_runs[who].append(fn(size, n_tp, 0.0))
                 if topo == "cross_process" and size <= FLOOR_MAX_SIZE:
                     floor_runs.setdefault(label, []).append(typed_floor_cross_process(size, n_tp, 0.0))
-            run_ratios[f"{topo}/{label}"] = {
-                "latency": [
-                    v["p50_us"] / r["p50_us"] for r, v in zip(lat_runs["raw_zenoh"], lat_runs["vgr"], strict=True)
-                ],
-                "throughput": [
-                    v["msg_per_s"] / r["msg_per_s"] for r, v in zip(tp_runs["raw_zenoh"], tp_runs["vgr"], strict=True)
-                ],
-            }
+            run_ratios[f"{topo}/{label}"] = paired(lat_runs, tp_runs, "raw_zenoh")
+            if "dora" in fns:
+                dora_runs[f"{topo}/{label}"] = paired(lat_runs, tp_runs, "dora")
             for who in fns:
                 lat, tp = median_of(lat_runs[who]), median_of(tp_runs[who])
                 row = {k: v for k, v in lat.items() if k.endswith("_us") or k == "n"}  # (p50_entry_us: raw only)
                 row |= {k: v for k, v in tp.items() if k in ("msg_per_s", "MB_per_s", "cpu_us_per_msg")}
+                row["delivered_paced"] = min(r["delivered"] for r in lat_runs[who])  # received / sent, worst run
+                row["delivered_burst"] = min(r["delivered"] for r in tp_runs[who])
                 results.setdefault(topo, {}).setdefault(label, {})[who] = row
                 print(
                     f"{topo:14s} {label:6s} {who:10s} p50 {row['p50_us']:8.1f} us  p99 {row['p99_us']:8.1f} us  "
                     f"{row['msg_per_s']:10.0f} msg/s  {row['MB_per_s']:8.1f} MB/s  "
-                    f"cpu {row['cpu_us_per_msg']:8.1f} us/msg",
+                    f"cpu {row['cpu_us_per_msg']:8.1f} us/msg  "
+                    f"delivered {row['delivered_paced']:.3f} / {row['delivered_burst']:.3f}",
                     flush=True,
                 )
     for label, runs in floor_runs.items():
@@ -426,31 +478,7 @@ def main() -> None:
             f"{row['MB_per_s']:8.1f} MB/s  cpu {row['cpu_us_per_msg']:8.1f} us/msg   (codec, {BATCH} per sample, no engine)",
             flush=True,
         )
-    ratios = {}
-    for topo, by_size in results.items():
-        for label, r in by_size.items():
-            lat_ratio = r["vgr"]["p50_us"] / r["raw_zenoh"]["p50_us"]
-            tp_ratio = r["vgr"]["msg_per_s"] / r["raw_zenoh"]["msg_per_s"]
-            ratios[f"{topo}/{label}"] = {
-                "latency_ratio_p50": lat_ratio,
-                "throughput_ratio": tp_ratio,
-                "throughput_ratio_cpu": r["raw_zenoh"]["cpu_us_per_msg"] / r["vgr"]["cpu_us_per_msg"],
-                "meets_latency_target_1.5x": lat_ratio <= 1.5,
-                "meets_throughput_target_0.7x": tp_ratio >= 0.7,
-                # the same ratios run by run (raw and vgr alternated, paired in order): their spread
-                # is the run-to-run noise of this machine
-                "latency_ratio_p50_runs": [round(x, 3) for x in run_ratios[f"{topo}/{label}"]["latency"]],
-                "throughput_ratio_runs": [round(x, 3) for x in run_ratios[f"{topo}/{label}"]["throughput"]],
-            }
-            if "vgr_secured" in r:  # what TLS, mTLS and the access-control list cost
-                ratios[f"{topo}/{label}"] |= {
-                    "secured_over_plain_latency_p50": r["vgr_secured"]["p50_us"] / r["vgr"]["p50_us"],
-                    "secured_over_plain_throughput": r["vgr_secured"]["msg_per_s"] / r["vgr"]["msg_per_s"],
-                }
-            if "typed_floor" in r:  # the best any engine delivering typed messages with this codec can do
-                ratios[f"{topo}/{label}"]["typed_floor_throughput_ratio"] = (
-                    r["typed_floor"]["msg_per_s"] / r["raw_zenoh"]["msg_per_s"]
-                )
+    ratios = raw_ratios(results, run_ratios)
     elapsed = time.monotonic() - t_start
     doc = {
         "benchmark": "engine_overhead",
@@ -461,20 +489,14 @@ def main() -> None:
         "plan": {k: {"latency_messages": v[0], "pacing_s": v[1], "throughput_messages": v[2]} for k, v in plan.items()},
         "results": results,
         "ratios_vgr_over_raw": ratios,
+        "ratios_vgr_over_dora": dora_ratios(results, dora_runs),
+        "dora_in_process": dora_peer.IN_PROCESS_NOTE,
         "duration_s": round(elapsed, 1),
     }
     out = args.out or HERE / "results" / ("engine_overhead_quick.json" if args.quick else "engine_overhead.json")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(doc, indent=2))
-    for k, v in ratios.items():
-        floor = v.get("typed_floor_throughput_ratio")
-        lat_runs, tp_runs = v["latency_ratio_p50_runs"], v["throughput_ratio_runs"]
-        print(
-            f"{k:22s} latency x{v['latency_ratio_p50']:.2f} [{min(lat_runs):.2f}-{max(lat_runs):.2f}]  "
-            f"throughput x{v['throughput_ratio']:.2f} [{min(tp_runs):.2f}-{max(tp_runs):.2f}]  "
-            f"(CPU per message: x{v['throughput_ratio_cpu']:.2f})"
-            + (f"  typed floor x{floor:.2f}" if floor is not None else "")
-        )
+    print_ratios(ratios, doc["ratios_vgr_over_dora"])
     print(f"written {out} after {elapsed:.0f} s")
 
 

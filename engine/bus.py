@@ -49,6 +49,8 @@ import zenoh
 from engine.codec import Envelope, Kind, encode_envelope
 from engine.peers import Answer
 from engine.recipe import ZenohSettings
+from engine.shm import ShmPool
+from engine.shm import session_entries as shm_entries
 
 _open_buses: weakref.WeakSet[Bus] = weakref.WeakSet()
 
@@ -97,6 +99,8 @@ def zenoh_config(settings: ZenohSettings, extra: dict[str, Any] | None = None) -
     conf.insert_json5("scouting/multicast/enabled", json.dumps(settings.multicast_scouting))
     conf.insert_json5("listen/endpoints", json.dumps(list(settings.listen or [])))
     conf.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
+    for path, value in shm_entries(settings.shared_memory).items():  # (engine.shm)
+        conf.insert_json5(path, json.dumps(value))
     for path, value in (extra or {}).items():
         conf.insert_json5(path, json.dumps(value))
     return conf
@@ -252,6 +256,8 @@ class Bus:
         self._source_id: Any = None  # an entity of this session, named in source infos
         self._source_sn = 0
         self.closed = False
+        # the pool large payloads to other processes of this host are put from (engine.shm)
+        self.shm: ShmPool | None = ShmPool() if self.settings.shared_memory else None
         _open_buses.add(self)
 
     # -- declarations ----------------------------------------------------------------------

@@ -2,7 +2,8 @@
 
 Consumers in this process are offer functions of their input queues (``local``, see
 engine.runtime.StageRuntime._offerer). Consumers in other vgr processes get the port's messages
-through ``wire`` (engine.wire.WireSender, on the internal key ``vgr/<run>/_wire/<stage>/<port>``);
+through ``wire`` (engine.wire.WireSender, on the internal key ``vgr/<run>/_wire/<stage>/<port>``;
+large payloads from the bus's shared-memory pool, engine.shm);
 the public key ``vgr/<run>/<stage>/<port>`` is put to, one message per sample, only while a foreign
 subscriber (a robot controller, a viewer) listens there — zenoh's matching status says when. The
 publish path itself is the stage runtime's (engine.runtime.StageRuntime.publish); the port sees that
@@ -42,7 +43,11 @@ class OutputPort:
         self.publisher = host.bus.remote_publisher(data_key(host.run_id, rt.name, port))
         self.put = self.publisher.put
         self.wire = (
-            WireSender(host.bus.remote_publisher(wire_key(host.run_id, rt.name, port)), f"{rt.name}.{port}")
+            WireSender(
+                host.bus.remote_publisher(wire_key(host.run_id, rt.name, port)),
+                f"{rt.name}.{port}",
+                getattr(host.bus, "shm", None),  # large payloads through shared memory (engine.shm)
+            )
             if self.remote_consumers
             else None
         )

@@ -51,6 +51,7 @@ class ZenohSettings(_Strict):
     listen: list[str] | None = None
     connect: list[str] = Field(default_factory=list)
     multicast_scouting: bool = False
+    shared_memory: bool = True  # large payloads to processes of this host through shared memory (engine.shm)
 
     @field_validator("listen", "connect")
     @classmethod

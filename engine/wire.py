@@ -23,6 +23,10 @@ once per batch.
   gathered — runs of small messages as batches of up to ``BATCH_BYTES``, large ones alone — and
   keeps going while the producer keeps adding. The queue is bounded (``MAX_PENDING`` messages,
   ``MAX_PENDING_BYTES`` of payload): a producer that outruns the network waits, nothing is dropped.
+
+A payload of at least engine.shm.SHM_MIN_BYTES is put from a shared-memory buffer when the sender
+has a pool (engine.shm.ShmPool: the session has shared memory on): consumers on this host map it,
+others get the bytes through the network.
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from engine.codec import CodecError, Envelope, Kind, encode_envelope
+from engine.shm import ShmPool
 
 BATCH_ENVELOPE = encode_envelope(Envelope(Kind.BATCH, 0, 0, ""))
 SMALL_BYTES = 16 * 1024  # payloads up to this size may share a sample
@@ -46,6 +51,10 @@ MAX_PENDING = 4096  # messages a port may have waiting for its sender thread
 # bound, 118k with 128 KiB or 512 KiB of bytes; 64 B messages unchanged (the count bounds them).
 MAX_PENDING_BYTES = 256 * 1024
 _RECORD = struct.Struct("<II")
+
+
+def _as_is(payload: bytes) -> bytes:
+    return payload
 
 
 def pack_batch(items: list[tuple[bytes, bytes]]) -> bytes:
@@ -79,8 +88,9 @@ class WireSender:
     """Sends one output port's messages to its consumers in other processes (see the module
     docstring). :meth:`send` is called in publication order (the port's lock held)."""
 
-    def __init__(self, publisher: Any, name: str) -> None:
+    def __init__(self, publisher: Any, name: str, shm: ShmPool | None = None) -> None:
         self._put = publisher.put
+        self._wrap = shm.wrap if shm is not None else _as_is  # large payloads into shared memory
         self._name = name
         self._pending: list[tuple[bytes, bytes]] = []
         self._pending_bytes = 0  # payload bytes in _pending
@@ -103,7 +113,7 @@ class WireSender:
             self._last_ns = now
             idle = not self._pending and not self._busy
             if self._closed or (idle and (not burst or len(payload) > SMALL_BYTES)):
-                self._put(payload, attachment=envelope)  # idle port: no hand-over, no wait
+                self._put(self._wrap(payload), attachment=envelope)  # idle port: no hand-over, no wait
                 self.samples += 1
                 return
             while (
@@ -167,7 +177,7 @@ class WireSender:
             if len(payload) > SMALL_BYTES:
                 self._put_run(run)
                 run, size = [], 0
-                self._put(payload, attachment=env)
+                self._put(self._wrap(payload), attachment=env)
                 self.samples += 1
                 continue
             run.append((env, payload))

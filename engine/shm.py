@@ -1,0 +1,110 @@
+"""Large payloads to the other vgr processes of this host through zenoh's shared memory.
+
+zenoh 1.10 (``zenoh.shm``, unstable API) lets a publisher put a buffer it allocated from a
+:class:`zenoh.shm.ShmProvider` (a POSIX shared-memory segment, ``/dev/shm/*.zenoh``): a subscriber on
+the same host that can map the segment gets a reference to the buffer instead of the bytes, so a
+1.2 MB point cloud crosses without the socket's copies and fragmentation. One that cannot (another
+host, or shared memory disabled in its session) gets the bytes through the network: zenoh copies
+the buffer into the message for that link. The same recipe therefore works on one host, across
+hosts and in replay (recordings hold the encoded payload, never a buffer: engine.recorder sees the
+bytes before they are put).
+
+What vgr does (engine.wire.WireSender, for the internal ``_wire`` key only):
+
+* a payload of at least :data:`SHM_MIN_BYTES` is copied once into a buffer of the process's pool
+  (:class:`ShmPool`, :data:`POOL_BYTES`, made on the first such payload) and put from there;
+* smaller payloads, and batches of small messages (at most engine.wire.BATCH_BYTES, below the
+  threshold), go through the socket as before;
+* the pool full (a receiver that holds many buffers) or no shared memory on this host (no
+  ``/dev/shm``): the payload goes as bytes, as it would without shared memory. Nothing waits.
+
+zenoh's own *transport optimisation* (``transport/shared_memory/transport_optimization``: copy any
+message above its threshold into an implicit pool, 3072 bytes by default) is kept, with its
+threshold raised to :data:`SHM_MIN_BYTES`: below it the socket was as fast or faster.
+
+Why 64 KiB (``python benchmarks/shm_threshold.py``: one-way p50 between two processes over a unix
+socket, three alternated runs each, on the shared 2-core VM, so noisy; results/shm_threshold.json):
+16 KiB socket 148-223 us, shm 167-195 us; 32 KiB socket 232-267, shm 238-261; 64 KiB socket
+235-311, shm 258-325; 128 KiB socket 259-384, shm 194-356; 1.2 MB socket 965-2104, shm 429-492.
+Below 64 KiB the socket is as fast or faster, at 64 KiB the two are within the noise, above it
+shared memory wins (2-4x at 1.2 MB). Batches of small messages (at most engine.wire.BATCH_BYTES,
+60 KiB) stay on the socket.
+
+The receiving side (engine.remote_input) reads a shared-memory payload with ``ZBytes.to_bytes()``
+like any other: zenoh-python 1.10's ``ZBytes`` and ``ZShm`` expose no Python buffer protocol, so
+one copy out of the segment is the least a Python reader can do; the codec then decodes the bulk
+array as a numpy view of those bytes (engine.codec.decode_payload), no further copy.
+
+A recipe turns it off with ``zenoh: {shared_memory: false}`` (zenoh's
+``transport/shared_memory/enabled``): every payload then travels through the socket.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+from typing import Any
+
+import zenoh
+import zenoh.shm
+
+SHM_MIN_BYTES = 64 * 1024  # payloads from this size go through shared memory (see the docstring)
+POOL_BYTES = 32 * 1024 * 1024  # one process's pool: ~26 point clouds of 1.2 MB in flight
+
+
+def session_entries(enabled: bool) -> dict[str, Any]:
+    """zenoh configuration entries (path -> value) for a session with shared memory on or off."""
+    if not enabled:
+        return {"transport/shared_memory/enabled": False}
+    return {
+        "transport/shared_memory/enabled": True,
+        "transport/shared_memory/transport_optimization/message_size_threshold": SHM_MIN_BYTES,
+    }
+
+
+class ShmPool:
+    """One process's shared-memory pool, made on first use; :meth:`wrap` turns a large payload
+    into a zenoh buffer of the pool (or leaves it as it is)."""
+
+    def __init__(self, size: int = POOL_BYTES, min_bytes: int = SHM_MIN_BYTES) -> None:
+        self.size = size
+        self.min_bytes = min_bytes
+        self._provider: Any = None
+        self._failed = False  # no shared memory on this host: never try again
+        self._lock = threading.Lock()
+        self.shared = 0  # payloads put from the pool
+        self.fallbacks = 0  # large payloads sent as bytes (pool full or unavailable)
+
+    def _get_provider(self) -> Any:
+        with self._lock:
+            if self._provider is None and not self._failed:
+                try:
+                    self._provider = zenoh.shm.ShmProvider.default_backend(self.size)
+                except Exception:  # no /dev/shm, a limit on segments: bytes it is
+                    self._failed = True
+            return self._provider
+
+    def wrap(self, payload: bytes) -> bytes | zenoh.ZBytes:
+        """*payload* in a shared-memory buffer when it is large and the pool has room, else itself."""
+        n = len(payload)
+        if n < self.min_bytes:
+            return payload
+        provider = self._provider or self._get_provider()
+        if provider is None:
+            self.fallbacks += 1
+            return payload
+        try:
+            buf = provider.alloc(n, _POLICY)
+        except zenoh.ZError:  # out of memory: receivers still hold the pool's buffers
+            self.fallbacks += 1
+            return payload
+        buf[0:n] = payload
+        self.shared += 1
+        return zenoh.ZBytes(buf)
+
+    def close(self) -> None:
+        with self._lock, contextlib.suppress(Exception):
+            self._provider = None
+
+
+_POLICY = zenoh.shm.GarbageCollect()  # reclaim buffers the receivers released, never block
