@@ -45,3 +45,8 @@ def demo_streaming(rate_hz: float, frames: int, points: int) -> list[str]:
     """``vgr run`` arguments of the demo recipe publishing *frames* clouds at *rate_hz* on the wall clock."""
     overrides = ["clock=wall", f"source.rate_hz={rate_hz:g}", f"source.frames={frames}", f"vars.n_points={points}"]
     return ["run", str(DEMO), "--no-progress", *(a for o in overrides for a in ("-p", o))]
+
+
+def run_vgr(*args: str, cwd: Path, timeout: float = 120.0) -> subprocess.CompletedProcess[str]:
+    """`vgr ARGS` in a child, waited for, output captured."""
+    return subprocess.run(vgr(*args), env=env(), cwd=cwd, capture_output=True, text=True, timeout=timeout)

@@ -6,13 +6,12 @@ alarm, and the robot must make no correction move."""
 from __future__ import annotations
 
 import json
-import subprocess
 
 import numpy as np
 import pytest
 import yaml
 import zenoh
-from process_helpers import ROOT, env, free_port, vgr
+from process_helpers import ROOT, free_port, run_vgr
 
 from engine import codec
 from engine.recording import load
@@ -49,14 +48,7 @@ def test_a_forged_matcher_is_refused_with_an_alarm_and_the_robot_makes_no_correc
         queryables = [
             intruder.declare_queryable(f"vgr/{run}/matcher/srv/{svc}", forge) for svc in ("match", "match_first")
         ]
-        done = subprocess.run(
-            vgr("run", str(recipe), "--no-progress"),
-            env=env(),
-            cwd=tmp_path,
-            capture_output=True,
-            text=True,
-            timeout=240,
-        )
+        done = run_vgr("run", str(recipe), "--no-progress", cwd=tmp_path, timeout=240)
         for q in queryables:
             q.undeclare()
     out = done.stdout + done.stderr

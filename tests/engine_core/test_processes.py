@@ -9,7 +9,7 @@ import subprocess
 import time
 
 import pytest
-from process_helpers import env, free_port, vgr
+from process_helpers import env, free_port, run_vgr, start, vgr
 
 pytestmark = [pytest.mark.subprocess, pytest.mark.timeout(120)]
 
@@ -48,31 +48,14 @@ def test_two_processes_exchange_messages_like_one(tmp_path):
     )
 
     # consumer first: it must wait for the producer (start-up barrier), not lose early messages
-    def start(process: str) -> subprocess.Popen[str]:
-        return subprocess.Popen(
-            vgr("run", str(split), "--process", process, "--no-progress"),
-            env=env(),
-            cwd=tmp_path,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-
-    consumer = start("consumer")
+    consumer = start(split, "consumer", tmp_path)
     time.sleep(1.0)
-    producer = start("producer")
+    producer = start(split, "producer", tmp_path)
     out_c, _ = consumer.communicate(timeout=60)
     out_p, _ = producer.communicate(timeout=60)
     assert consumer.returncode == 0, out_c
     assert producer.returncode == 0, out_p
-    one = subprocess.run(
-        vgr("run", str(single), "--no-progress"),
-        env=env(),
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    one = run_vgr("run", str(single), "--no-progress", cwd=tmp_path, timeout=60)
     assert one.returncode == 0, one.stdout + one.stderr
     rows_split = json.loads((tmp_path / "split.json").read_text())
     rows_single = json.loads((tmp_path / "single.json").read_text())

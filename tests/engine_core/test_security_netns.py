@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from process_helpers import ROOT, env, vgr
+from process_helpers import ROOT, env, run_vgr, vgr
 
 from engine import codec
 from engine.recording import load
@@ -103,14 +103,7 @@ def docking_error(out: str) -> str:
 
 
 def test_a_secured_dock_across_two_namespaces_docks_as_in_one_process(tmp_path):
-    one = subprocess.run(
-        vgr("run", str(ROOT / "recipes/eye_in_hand_dock.yaml"), "--no-progress"),
-        env=env(),
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    one = run_vgr("run", str(ROOT / "recipes/eye_in_hand_dock.yaml"), "--no-progress", cwd=tmp_path)
     assert one.returncode == 0, one.stdout + one.stderr
     recipe = split_dock(tmp_path)
     with two_namespaces() as (cell_ns, vision_ns, _):
