@@ -94,6 +94,17 @@ class StageStats:
         return sum(v for k, v in self.published.items() if k != EVENTS_PORT)
 
 
+class _InlineDepth(threading.local):
+    depth = 0  # handlers of this thread running inline, one inside the other (a chain of stages)
+
+
+_INLINE = _InlineDepth()
+# A chain of idle stages would otherwise run each handler inside its producer's, one stack level
+# set per stage: a chain of 200 stages overflowed Python's recursion limit. Past this depth the
+# message goes to the consumer's own pump thread, as it does when the consumer is busy.
+MAX_INLINE_DEPTH = 16
+
+
 class StageRuntime(StageContext):
     """The engine side of one stage in this process (implements StageContext for the stage and
     PortOwner for its ports), run by *host*."""
@@ -302,11 +313,13 @@ class StageRuntime(StageContext):
             if not host.started:  # published during setup(): delivered once every stage is set up
                 put(msg, block=False)
                 return
-            if inline and claim():
+            if inline and _INLINE.depth < MAX_INLINE_DEPTH and claim():
                 if acquire(False):
+                    _INLINE.depth += 1
                     try:
                         deliver(msg)
                     finally:
+                        _INLINE.depth -= 1
                         release()
                         done()
                     return

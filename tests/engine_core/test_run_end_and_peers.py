@@ -48,6 +48,19 @@ def test_a_chain_of_stages_walks_the_graph_a_fixed_number_of_times():
     assert runner.done_checks <= 3 * (n + 2)  # one evaluation per change of a stage
 
 
+@pytest.mark.timeout(180)
+def test_a_chain_of_200_idle_stages_in_one_process_delivers_everything_in_order():
+    """Each idle stage's handler runs on its producer's thread; nested 200 deep that overflowed the
+    interpreter's stack (RecursionError). Past engine.runtime.MAX_INLINE_DEPTH a message goes to the
+    consumer's own thread instead."""
+    from stage_fixtures import COLLECTED
+
+    summary = Runner(graph_from(chain(200, "chain_200"))).run()
+    assert summary.ok, summary.stop_reason
+    rows = COLLECTED["chain_200"]["sink"]
+    assert [r["args"]["i"] for r in rows] == list(range(200))
+
+
 KILL = """
 name: kill
 record: {{enabled: false}}
