@@ -101,7 +101,7 @@ def choose_run(bus: Bus, run_id: str | None, timeout_s: float = 1.0) -> Run:
         runs = find_runs(bus, timeout_s, run_id)
     if run_id is not None:
         if run_id not in runs:
-            found = ", ".join(sorted(runs)) or "none"
+            found = ", ".join(sorted(find_runs(bus, timeout_s))) or "none"  # what there is, to say so
             raise NoRunError(f"no run {run_id!r} on the bus (runs found: {found})")
         return Run(run_id, runs[run_id])
     if not runs:
