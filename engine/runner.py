@@ -1,18 +1,29 @@
-"""Running a recipe's stages in this process, from start-up barrier to clean shutdown.
+"""Running a recipe's stages in this process, from start-up barrier to clean shutdown: the
+process's lifetime, the end of its run, its stop and its shutdown.
+
+What the process is to the rest of the run (its tokens, the start-up barriers, the other processes
+lost or finished, run control messages, who owns a service) is its :class:`~engine.membership.Membership`,
+which the runner calls at the steps marked *membership* below; what a run comes to (its summary,
+outcome, exit code, or RunError) is in engine.run_summary. Each stage runs in a
+:class:`~engine.runtime.StageRuntime`, which sees the runner only as its
+:class:`~engine.stage_host.StageHost`.
 
 Life of a run (per process):
 
 1. open the bus, construct this process's stages, declare publishers, input channels, services;
-2. declare liveliness tokens and, when the recipe spans several processes, wait until every
-   stage of the recipe is declared (so no message is published before its consumer listens);
+2. *membership*: declare liveliness tokens and, when the recipe spans several processes, wait
+   until every stage of the recipe is declared (so no message is published before its consumer
+   listens);
 3. ``setup()`` each stage, start pump threads; when the recipe spans several processes, wait (a
-   while at most) until every process got this far, so sources do not stream into a process still
-   setting up; then start the source threads;
+   while at most, *membership*) until every process got this far, so sources do not stream into a
+   process still setting up; then start the source threads;
 4. wait until every *driven* stage (sources and everything downstream of them) has finished here
-   and no other process still has active stages; service-only stages then end their streams;
-5. on a stage failure (``on_error: stop``), Ctrl-C or a stop from another process: stop
-   everything promptly (below);
-6. ``teardown()`` every stage, undeclare, close the zenoh session, return a :class:`RunSummary`.
+   (found incrementally, see :meth:`Runner._settle`) and no other process still has active stages
+   (*membership*); service-only stages then end their streams;
+5. on a stage failure (``on_error: stop``), Ctrl-C or a stop from another process (*membership*):
+   stop everything promptly (below);
+6. ``teardown()`` every stage, undeclare (*membership*), close the zenoh session, return a
+   :class:`~engine.run_summary.RunSummary`.
 
 A stop, in order. :meth:`Runner.stop` (any thread, the SIGINT handler's included) only flags the run
 and cancels its calls token: from then on ``ctx.call`` sends nothing (no robot move leaves any stage,
@@ -32,38 +43,35 @@ from __future__ import annotations
 
 import contextlib
 import gc
-import json
 import logging
 import tempfile
 import threading
 import time
-from collections.abc import Callable
-from dataclasses import dataclass, field
 from datetime import UTC, datetime
-from functools import partial
 from pathlib import Path
 from typing import Any
 
 from engine import discovery
-from engine.bus import Bus, CancelToken, LiveSet, active_key, control_key, ready_key, started_key
+from engine.bus import Bus, CancelToken
 from engine.clock import Clock, make_clock
 from engine.graph import Graph
+from engine.membership import Membership
 from engine.messages import Event
-from engine.peers import PeerWatch, members_digest, new_epoch, peer_key, sender_zid
 from engine.recipe import NAME_RE
+
+# (defined in engine.run_summary; the engine and its users import them from here as well)
+from engine.run_summary import OUTCOME_EXIT_CODES, RunError, RunSummary
 from engine.runtime import StageRuntime, StageStats
 from engine.session_config import plan_session
 from engine.stage import Stage
 from engine.stage_host import MessageObserver
 
+__all__ = ["OUTCOME_EXIT_CODES", "Observer", "RunError", "RunSummary", "Runner", "recipe_dir"]
+
 log = logging.getLogger("vgr.runner")
 
 STOP_GRACE_S = 2.0  # after a stop, how long the stages' threads have to end before they are reported
 DRAIN_TIMEOUT_S = 10.0  # at the normal end, how long consumers have to drain what service-only stages sent
-
-
-class RunError(RuntimeError):
-    """The run could not start (bus, stage construction, start-up barrier)."""
 
 
 class Observer(MessageObserver):
@@ -73,48 +81,13 @@ class Observer(MessageObserver):
         """The stages exist and are declared; nothing has run yet."""
 
     def on_run_event(self, ev: Event) -> None:
-        """The runner's own account of a stop: ``stop``, ``halted``, ``stage_stopped``,
-        ``stage_stuck``, ``stop_done`` (see the module docstring). Called from any thread, the SIGINT
-        handler's included: only enqueue here."""
+        """The run's own events, not a stage's: the runner's account of a stop (``stop``, ``halted``,
+        ``stage_stopped``, ``stage_stuck``, ``stop_done``; see the module docstring) and what its
+        membership saw of the other processes (``peer_lost``, ``control_refused``, ...; engine.membership).
+        Called from any thread, the SIGINT handler's and zenoh's included: only enqueue here."""
 
     def on_finish(self, runner: Runner, summary: RunSummary) -> None:
         """The run is over (sessions closed); *summary* may be annotated (artifacts)."""
-
-
-# exit codes of `vgr run` by outcome; 2 (invalid recipe) is decided before a run exists
-OUTCOME_EXIT_CODES = {"ok": 0, "failed": 1, "refused": 3, "interrupted": 130}
-
-
-@dataclass
-class RunSummary:
-    run_id: str
-    recipe: str
-    process: str
-    ok: bool
-    stop_reason: str | None
-    stages: list[StageStats]
-    wall_s: float
-    events: list[Event] = field(default_factory=list)  # warnings, errors and alarms
-    artifacts: dict[str, str] = field(default_factory=dict)  # e.g. recording path
-    stop_to_end_s: float | None = None  # a stopped run: from the stop to the end of its last stage's threads
-
-    @property
-    def outcome(self) -> str:
-        """What the job came to, for a cell controller: ``ok``; ``refused`` (the run went through but
-        a stage raised an alarm: a dock, move or calibration step was refused, so its motion was not
-        done); ``failed`` (a stage failed); ``interrupted`` (Ctrl-C or a stop request)."""
-        if self.stop_reason and "interrupted" in self.stop_reason:
-            return "interrupted"
-        if not self.ok:
-            return "failed"
-        if any(e.level == "alarm" for e in self.events):
-            return "refused"
-        return "ok"
-
-    @property
-    def exit_code(self) -> int:
-        """The exit code of ``vgr run`` for :attr:`outcome` (README, *Command line*)."""
-        return OUTCOME_EXIT_CODES[self.outcome]
 
 
 def recipe_dir(graph: Graph) -> Path:
@@ -169,7 +142,6 @@ class Runner:
         self.seed = recipe.seed
         self.clock = clock or make_clock(recipe.clock)
         self.observers = list(observers or [])
-        self.ready_timeout_s = ready_timeout_s
         self.freeze_gc = freeze_gc
         self.stop_event = threading.Event()
         self.calls_token = CancelToken()  # cancelled by stop(): the stages' calls end (engine.bus)
@@ -179,9 +151,7 @@ class Runner:
         self.started = False  # True once every local stage's setup() has run
         self.stop_reason: str | None = None
         self.failed_stages: list[str] = []
-        self.lost_peer: str | None = None  # why a peer process was lost (crashed, lease lost): the run failed
         self.driven = _driven_stages(graph)
-        self.multi_process = len(graph.processes()) > 1
         self._own_bus = bus is None
         self._bus = bus
         # endpoints, TLS and access control of this process's session, refused here (before any
@@ -195,11 +165,9 @@ class Runner:
         self.events: list[Event] = []
         self._events_lock = threading.Lock()
         self._progress = threading.Event()
-        self._tokens: dict[str, Any] = {}
         self.started_at = datetime.now(UTC)
-        self.epoch = new_epoch()  # this start of this process (engine.peers)
-        self.peers: PeerWatch | None = None  # the run's processes (multi-process runs)
-        self._active: LiveSet | None = None  # other processes' _active tokens (multi-process runs)
+        # this process in the run: tokens, barriers, peers, control messages, who owns what
+        self.members = Membership(graph, process, self.run_id, ready_timeout_s, self, bus)
         # end-of-run detection, incremental: the driven stages of this process not yet settled, and
         # for each, its inputs fed by driven stages (see _settle); done_checks counts the evaluations
         self._open_driven: set[str] = set()
@@ -220,8 +188,9 @@ class Runner:
             level = {"result": logging.INFO, "warning": logging.WARNING}.get(ev.level, logging.ERROR)
             logging.getLogger(f"vgr.stage.{ev.stage}").log(level, "[%s] %s", ev.code, ev.message)
 
-    def _run_event(self, level: str, code: str, stage: str, message: str, **details: Any) -> None:
-        """An event of the runner's own (the stop and its steps): the summary's events, the observers."""
+    def run_event(self, level: str, code: str, stage: str, message: str, **details: Any) -> None:
+        """An event of the run's own, not a stage's (the stop and its steps; the membership's, such as
+        ``peer_lost`` or ``control_refused``): the summary's events, the observers."""
         ev = Event(level=level, code=code, stage=stage, message=message, details=details)
         ev.stamp_ns = self.clock.now_ns()
         self.note_event(ev)
@@ -253,68 +222,12 @@ class Runner:
                 self._open_driven.discard(stage)
         self._progress.set()
 
-    # -- who is who (engine.peers) ---------------------------------------------------------------
+    # -- who is who (the membership answers; engine.stage_host.StageHost) --------------------
     def service_owner(self, stage: str) -> str | None:
-        process = self.graph.nodes[stage].spec.process
-        if process == self.process or self.peers is None:
-            return self.bus.zid
-        return self.peers.owner(process)
+        return self.members.service_owner(stage)
 
     def process_of(self, zid: str | None) -> str | None:
-        if zid is not None and self._bus is not None and zid == self._bus.zid:
-            return self.process
-        return self.peers.process_of(zid) if self.peers is not None else None
-
-    def _peer_lost(self, process: str, zid: str) -> None:
-        """A process's token vanished without its ``done`` marker: it crashed or lost its lease."""
-        if self.stop_event.is_set() or process == self.process:
-            return
-        if self.graph.recipe.rejoin:
-            self._run_event(
-                "warning",
-                "peer_lost",
-                "",
-                f"process {process!r} (zenoh session {zid}) "
-                f"vanished; waiting {self.ready_timeout_s:g} s for it to rejoin",
-                process=process,
-            )
-            timer = threading.Timer(self.ready_timeout_s, self._rejoin_overdue, (process,))
-            timer.daemon = True
-            timer.start()
-            return
-        msg = f"process {process!r} (zenoh session {zid}) vanished without finishing: crashed or lost its lease"
-        self._run_event("alarm", "peer_lost", "", msg, process=process, zid=zid)
-        self.lost_peer = self.lost_peer or msg  # the run failed, even when it was ending anyway
-        self.stop(msg)
-
-    def _rejoin_overdue(self, process: str) -> None:
-        if self.peers is not None and self.peers.owner(process) is None and not self.stop_event.is_set():
-            msg = f"process {process!r} vanished and did not rejoin within {self.ready_timeout_s:g} s"
-            self._run_event("alarm", "peer_lost", "", msg, process=process)
-            self.lost_peer = self.lost_peer or msg
-            self.stop(msg)
-
-    def _peer_restarted(self, process: str, old: str, new: str, accepted: bool) -> None:
-        if accepted:
-            self._run_event(
-                "warning",
-                "peer_rejoined",
-                "",
-                f"process {process!r} rejoined: epoch {old} -> {new}",
-                process=process,
-                epoch=new,
-            )
-        else:
-            self._run_event(
-                "warning",
-                "rejoin_refused",
-                "",
-                f"process {process!r} started again (epoch {new}, "
-                f"the run's is {old}): refused, its replies and control messages are not taken "
-                "(the recipe's `rejoin: true` allows it)",
-                process=process,
-                epoch=new,
-            )
+        return self.members.process_of(zid)
 
     def stage_failed(self, stage: str) -> None:
         rt = self.runtimes[stage]
@@ -335,7 +248,7 @@ class Runner:
         self.stop_reason = reason
         self._stopped_at = time.monotonic()
         # the stop event first: it is recorded before anything the stop causes (the halts, ...)
-        self._run_event("info", "stop", "", f"stopping: {reason}", reason=reason, process=self.process)
+        self.run_event("info", "stop", "", f"stopping: {reason}", reason=reason, process=self.process)
         self.stop_event.set()  # nothing new is sent: ctx.call checks it before a request leaves...
         self.calls_token.cancel()  # ...and the calls waiting for their replies return now
         self._progress.set()
@@ -343,40 +256,13 @@ class Runner:
         # stop() may run on a stage's own thread (a failure) or in the SIGINT handler: it only flags;
         # the main thread halts the devices and wakes the readers in _shutdown, so nothing here can
         # block on a full channel.
-        if broadcast and self.multi_process and self._bus is not None and not self._bus.closed:
-            try:
-                self._bus.put(control_key(self.run_id), json.dumps({"stop": reason, "process": self.process}).encode())
-            except Exception:
-                log.exception("could not broadcast the stop")
+        if broadcast:
+            self.members.broadcast_stop(reason)
 
     def _wake_all(self) -> None:
         """Unblock every pump thread of this process (non-blocking)."""
         for rt in self.runtimes.values():
             rt.wake()
-
-    def _on_control(self, sample: Any) -> None:
-        zid = sender_zid(sample)
-        if zid is not None and self._bus is not None and zid == self._bus.zid:
-            return  # this process's own message (its own stop, already acted on), delivered back to it
-        sender = self.peers.process_of(zid) if self.peers is not None else None
-        try:
-            msg = json.loads(sample.payload.to_bytes())
-            said = msg.get("process") if isinstance(msg, dict) else None
-        except ValueError:
-            msg, said = None, None
-        if sender is None or sender == self.process or said != sender:  # not one of the run's processes
-            who = f"zenoh session {zid}" if zid else "a session that did not say who it is"
-            self._run_event(
-                "warning",
-                "control_refused",
-                "",
-                f"refused a _control message from {who} (claims {said!r}): not one of the run's processes",
-                zid=zid or "",
-                claimed=str(said),
-            )
-            return
-        if "stop" in msg:
-            self.stop(f"stopped by process {sender!r}: {msg['stop']}", broadcast=False)
 
     # -- the run -----------------------------------------------------------------------------
     def run(self) -> RunSummary:
@@ -394,13 +280,13 @@ class Runner:
                     self.stop("interrupted (Ctrl-C)")
             finally:
                 self._shutdown()
-        ok = not self.failed_stages and self.stop_reason is None and self.lost_peer is None
+        ok = not self.failed_stages and self.stop_reason is None and self.members.lost_peer is None
         summary = RunSummary(
             self.run_id,
             self.graph.recipe.name,
             self.process,
             ok,
-            self.stop_reason or self.lost_peer,
+            self.stop_reason or self.members.lost_peer,
             [rt.stats for rt in self.runtimes.values()],
             time.monotonic() - t0,
             list(self.events),
@@ -414,7 +300,7 @@ class Runner:
     def _start(self) -> None:
         if self._bus is None:
             assert self.session is not None
-            self._bus = Bus(self.session.settings, self.session.extra)
+            self._bus = self.members.bus = Bus(self.session.settings, self.session.extra)
         local = self.graph.stages_in(self.process)
         for name in local:
             self.runtimes[name] = StageRuntime(self, self.graph.nodes[name])
@@ -434,17 +320,8 @@ class Runner:
         discovery.announce(self.bus, self.run_id, self.process, topics)  # what `vgr topics` and foreign tools read
         for rt in self.runtimes.values():
             rt.declare_inputs(self.runtimes)
-        if self.multi_process:
-            self._join_peers()
-            self.bus.subscribe(control_key(self.run_id), self._on_control)
-            if self.driven & self.runtimes.keys():
-                self._tokens["active"] = self.bus.token(active_key(self.run_id, self.process))
-            self._active = self.bus.watch_alive(active_key(self.run_id, "*"))
-        for name in local:
-            self._tokens[name] = self.bus.token(ready_key(self.run_id, name))
-        if self.multi_process:
-            self._barrier()
-            self._check_epochs()
+        self.members.join(local, drives=bool(self.driven & self.runtimes.keys()))
+        self.members.await_stages()
         for name in local:
             rt = self.runtimes[name]
             rt.stats.state = "running"
@@ -467,94 +344,9 @@ class Runner:
             if name not in self.driven and not rt.node.cls.inputs:
                 rt.data_done.set()  # pure service providers do not hold the run open
             rt.start_threads()
-        if self.multi_process:
-            self._start_barrier()
+        self.members.await_started()
         for name in local:
             self.runtimes[name].start_source()
-
-    def _join_peers(self) -> None:
-        """Watch the run's processes and declare this one (its session and epoch), before its stages'
-        ready tokens: whoever sees a stage ready has its owner's token already (engine.peers)."""
-        peers = self.peers = PeerWatch(
-            self.run_id, self.graph.recipe.rejoin, on_lost=self._peer_lost, on_restart=self._peer_restarted
-        )
-        peers.start(self.bus)
-        self._peer_key = peer_key(self.run_id, self.process, self.bus.zid, self.epoch)
-        self._tokens["peer"] = self.bus.token(self._peer_key)
-
-    def _check_epochs(self) -> None:
-        """Say with which members this process starts; a process that finds the others started with
-        another epoch of it (it was restarted mid-run) is refused unless the recipe says ``rejoin: true``."""
-        assert self.peers is not None
-        procs = set(self.graph.processes())
-        missing = self.peers.wait_for(procs, self.ready_timeout_s)
-        if missing:
-            raise RunError(f"processes {', '.join(sorted(missing))} did not say who they are (engine.peers)")
-        digest = members_digest({**self.peers.epochs(), self.process: self.epoch})
-        self._tokens["peer_started"] = self.bus.token(f"{self._peer_key}/started/{digest}")
-        self.peers.wait_for(procs - {self.process}, self.ready_timeout_s, "started")
-        under_way = self.peers.restarted_under_way(self.process, self.epoch)
-        if under_way and not self.graph.recipe.rejoin:
-            msg = (
-                f"process {self.process!r} (epoch {self.epoch}) joins run {self.run_id} already under way "
-                f"(process(es) {', '.join(under_way)} started with another epoch of it): refused; "
-                "the recipe's `rejoin: true` allows it"
-            )
-            self._run_event("alarm", "rejoin_refused", "", msg, process=self.process, epoch=self.epoch)
-            self.stop(msg, broadcast=False)
-        elif under_way:
-            self._run_event(
-                "warning",
-                "rejoined",
-                "",
-                f"process {self.process!r} rejoins run {self.run_id} (epoch {self.epoch})",
-                process=self.process,
-                epoch=self.epoch,
-            )
-
-    def _start_barrier(self) -> None:
-        """Every process has set up its stages and reads its inputs: only then do sources start, so
-        the first messages do not pile up in a process still setting up (they would not be lost,
-        only late). A process slower than ``ready_timeout_s`` is warned about, not waited for."""
-        self._tokens["started"] = self.bus.token(started_key(self.run_id, self.process))
-        missing = self._wait_alive(partial(started_key, self.run_id), set(self.graph.processes()))
-        if missing and not self.stop_event.is_set():
-            log.warning(
-                "starting the sources although process(es) %s not set up after %g s",
-                ", ".join(sorted(missing)),
-                self.ready_timeout_s,
-            )
-
-    def _barrier(self) -> None:
-        """Wait until every stage of the recipe is declared, in whichever process."""
-        missing = self._wait_alive(partial(ready_key, self.run_id), set(self.graph.nodes))
-        if missing and self.stop_event.is_set():
-            raise RunError(f"run stopped while waiting for stages: {self.stop_reason}")
-        if missing:
-            where = ", ".join(f"{m} (process {self.graph.nodes[m].spec.process})" for m in sorted(missing))
-            raise RunError(
-                f"after {self.ready_timeout_s:g} s these stages are not running: {where}. "
-                f"Start `vgr run RECIPE --process NAME` for each process, with the same run id "
-                f"({self.run_id}) and zenoh endpoints that connect them."
-            )
-
-    def _wait_alive(self, key: Callable[[str], str], names: set[str]) -> set[str]:
-        """Wait until the liveliness token ``key(name)`` of each of *names* is up, the run stops, or
-        ``ready_timeout_s`` has passed; returns the names still missing. A liveliness subscriber
-        reports each token as it appears, so every process goes on as soon as the last one is up
-        (no polling delay between the processes' starts)."""
-        deadline = time.monotonic() + self.ready_timeout_s
-        live = self.bus.watch_alive(key("*"))
-        try:
-            while True:
-                keys, version = live.snapshot()
-                missing = {n for n in names if key(n) not in keys}
-                left = deadline - time.monotonic()
-                if not missing or left <= 0 or self.stop_event.is_set():
-                    return missing
-                live.wait(version, min(left, 0.5))  # (0.5 s: notice a stop without a token change)
-        finally:
-            live.close()
 
     def _track_driven(self) -> None:
         """Before the stages start: every driven stage of this process is open until :meth:`_settle`."""
@@ -564,22 +356,12 @@ class Runner:
                 self._driven_ports[name] = ports
                 self._open_driven.add(name)
 
-    def _remote_active(self) -> bool:
-        if self._active is None:
-            return False
-        own = active_key(self.run_id, self.process)
-        return bool(self._active.snapshot()[0] - {own})
-
     def _wait_until_done(self) -> None:
         for name in list(self._driven_ports):  # (whatever ended before this loop began)
             self._settle(name)
         while not self.stop_event.is_set():
-            if not self._open_driven:
-                token = self._tokens.pop("active", None)
-                if token is not None:
-                    token.undeclare()
-                if not self._remote_active():
-                    break
+            if not self._open_driven and self.members.ended_everywhere():
+                break
             self._progress.wait(0.05)
             self._progress.clear()
         if self.stop_event.is_set():
@@ -606,16 +388,7 @@ class Runner:
         self._join_stages()
         for name in reversed(self.graph.stages_in(self.process)):
             self.runtimes[name].teardown()
-        if self.peers is not None:  # ended in order: said before the tokens go (engine.peers)
-            with contextlib.suppress(Exception):
-                self._tokens["peer_done"] = self.bus.token(f"{self._peer_key}/done")
-            self.peers.close()
-        if self._active is not None:
-            self._active.close()
-        for tok in self._tokens.values():
-            with contextlib.suppress(Exception):
-                tok.undeclare()
-        self._tokens.clear()
+        self.members.leave()
         if self._own_bus:
             self._bus.close()
 
@@ -642,10 +415,10 @@ class Runner:
                 rt.stats.error = rt.stats.error or (
                     f"still busy {STOP_GRACE_S:g} s after the stop ({', '.join(stuck)}): left behind"
                 )
-                self._run_event("warning", "stage_stuck", rt.name, rt.stats.error, threads=stuck)
+                self.run_event("warning", "stage_stuck", rt.name, rt.stats.error, threads=stuck)
             elif stopped and was_running:
                 ended_by = max(ended_by, after_s)
-                self._run_event(
+                self.run_event(
                     "info", "stage_stopped", rt.name, f"stopped {after_s:.3f} s after the stop", after_s=after_s
                 )
         if stopped and self._stopped_at is not None:
@@ -654,7 +427,7 @@ class Runner:
                 msg = f"stage(s) {', '.join(stuck_stages)} did not end within {STOP_GRACE_S:g} s of the stop"
             else:
                 msg = f"every stage ended within {ended_by:.3f} s of the stop"
-            self._run_event("info", "stop_done", "", msg, after_s=self.stop_to_end_s, stuck=stuck_stages)
+            self.run_event("info", "stop_done", "", msg, after_s=self.stop_to_end_s, stuck=stuck_stages)
 
     def _halt_devices(self) -> None:
         """Motion stops first: every stage that drives a device halts it before anything else ends."""
@@ -667,9 +440,9 @@ class Runner:
             except Exception as exc:  # the others must still be halted
                 log.error("halting %s failed: %s: %s", name, type(exc).__name__, exc)
                 log.debug("halting %s failed", name, exc_info=True)  # (its traceback, with -vv)
-                self._run_event("error", "halt_failed", name, f"{type(exc).__name__}: {exc}")
+                self.run_event("error", "halt_failed", name, f"{type(exc).__name__}: {exc}")
             else:
-                self._run_event("warning", "halted", name, f"halted: {self.stop_reason}")
+                self.run_event("warning", "halted", name, f"halted: {self.stop_reason}")
 
     def snapshot(self) -> list[StageStats]:
         """Live per-stage counters (for progress displays)."""

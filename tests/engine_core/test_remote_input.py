@@ -58,7 +58,7 @@ def test_remote_input_delivers_fast_path_general_path_and_end_of_stream_in_order
     try:
         # process a as engine.peers knows a process: its session and epoch, the members it started with
         peer = peer_key(rid, "a", str(session.zid()), "e1")
-        started = f"{peer}/started/{members_digest({'a': 'e1', 'b': runner.epoch})}"
+        started = f"{peer}/started/{members_digest({'a': 'e1', 'b': runner.members.epoch})}"
         tokens = [
             session.liveliness().declare_token(k)
             for k in (peer, started, ready_key(rid, "src"), started_key(rid, "a"), active_key(rid, "a"))
