@@ -92,7 +92,8 @@ def add_runs_dir_option(p: argparse.ArgumentParser, folder: str) -> None:
 
 def cmd_replay(args: argparse.Namespace) -> int:
     from engine.diff import DIFFERENT, IDENTICAL, WITHIN
-    from engine.replay import replay, write_updated
+    from engine.replay import replay
+    from engine.replay_update import write_updated
     from engine.runner import OUTCOME_EXIT_CODES
 
     speed = None if args.speed in (None, "max") else float(args.speed)

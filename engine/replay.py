@@ -11,11 +11,13 @@ only throttles how fast records are fed, for watching). A re-run stage's service
 by the recorded reply of the same client's k-th call (and the request it sends is compared with the
 recorded one) unless the provider re-runs too, in which case the provider answers. Each stage gets
 the same seed-derived random generator as in the run. Outputs are then compared with engine.diff.
+
+A replay's outputs may become the new golden recording (``vgr replay --update``): engine.replay_update
+writes it.
 """
 
 from __future__ import annotations
 
-import json
 import logging
 import tempfile
 import time
@@ -28,7 +30,6 @@ from typing import Any
 from engine import codec
 from engine.clock import SimClock
 from engine.diff import DIFFERENT, StreamVerdict, compare_stream
-from engine.files import replacing
 from engine.graph import Graph, StageNode, build_graph
 from engine.messages import Event, Message, canonical, freeze
 from engine.plugin_manager import Registry, load_registry
@@ -71,7 +72,7 @@ class ReplayReport:
 
     @property
     def outcome(self) -> str:
-        """The replay's outcome, named as a run's (engine.runner.RunSummary.outcome): ``failed`` when
+        """The replay's outcome, named as a run's (engine.run_summary.RunSummary.outcome): ``failed`` when
         a stage failed or an output differs from the recording, ``refused`` when the replayed run
         raised an alarm (its job was refused, as it may have been when recorded), else ``ok``."""
         if self.failures or not self.ok:
@@ -436,93 +437,3 @@ def replay(
         rerun = default_rerun(graph, process)
     report = Replayer(rec, graph, rerun, speed, run_dir, view).run()
     return report, rec, graph
-
-
-def write_updated(
-    report: ReplayReport,
-    rec: Recording,
-    out: str | Path,
-    recipe_text: str | None = None,
-    overrides: list[str] | None = None,
-) -> Path:
-    """Write *rec* with the replayed outputs (and requests) in place of the recorded ones: the new golden.
-
-    *recipe_text* and *overrides* (those the replay used) replace the recorded recipe when given.
-
-    Written to a temporary file and renamed, so the golden recording is never left half-written.
-    """
-    from mcap.reader import make_reader
-    from mcap.writer import CompressionType, Writer
-
-    if report.failures:  # a failed stage stopped producing: its later golden outputs would be dropped
-        raise ReplayError(f"not updating {out}: a stage failed during the replay ({report.failures[0]})")
-    out = Path(out)
-    counters: dict[str, int] = defaultdict(int)
-    svc_sent = {f"/{c}/_svc/{k}": v for (c, k), v in report.requests_sent.items()}
-    with replacing(out) as tmp, rec.path.open("rb") as f, tmp.open("wb") as g:
-        reader = make_reader(f)
-        summary = reader.get_summary()
-        assert summary is not None
-        w = Writer(g, compression=CompressionType.ZSTD)
-        w.start(profile="", library="vgr replay --update")
-        schema_ids = {sid: w.register_schema(s.name, s.encoding, s.data) for sid, s in summary.schemas.items()}
-        chan_ids = {
-            cid: w.register_channel(c.topic, c.message_encoding, schema_ids.get(c.schema_id, 0), dict(c.metadata))
-            for cid, c in summary.channels.items()
-        }
-        topic_chan = {c.topic: chan_ids[cid] for cid, c in summary.channels.items()}
-        for m in reader.iter_metadata():
-            data = dict(m.metadata)
-            if m.name == "vgr.recipe" and recipe_text is not None:
-                data["text"] = recipe_text
-                data["overrides"] = json.dumps(overrides or [])
-            w.add_metadata(m.name, data)
-        for a in reader.iter_attachments():
-            data = recipe_text.encode() if (a.name == "recipe.yaml" and recipe_text is not None) else a.data
-            w.add_attachment(a.create_time, a.log_time, a.name, a.media_type, data)
-        last = 0
-        rerun_topics = set(report.outputs) | {v.topic for v in report.streams}
-        for _s, ch, msg in reader.iter_messages(log_time_order=False):
-            last = max(last, msg.log_time)
-            data, seq, pub = msg.data, msg.sequence, msg.publish_time
-            if ch.topic in rerun_topics:
-                k = counters[ch.topic]
-                counters[ch.topic] += 1
-                outs = report.outputs.get(ch.topic, [])
-                if k >= len(outs):
-                    continue  # the replay produced fewer messages: they are gone from the golden
-                data, seq, pub = outs[k].payload, outs[k].seq, outs[k].stamp_ns
-            elif ch.topic in svc_sent:
-                k = counters[ch.topic]
-                counters[ch.topic] += 1
-                pb = _exchange_pb(msg.data)
-                if k < len(svc_sent[ch.topic]):
-                    pb.request = svc_sent[ch.topic][k][1]
-                data = pb.SerializeToString()
-            w.add_message(chan_ids[ch.id], msg.log_time, data, pub, seq & 0xFFFFFFFF)
-        for topic, outs in report.outputs.items():  # extra replayed messages (and topics new to the file)
-            for o in outs[counters.get(topic, 0) :]:
-                if topic not in topic_chan:
-                    topic_chan[topic] = _new_channel(w, topic, o.type_name)
-                w.add_message(topic_chan[topic], last, o.payload, o.stamp_ns, o.seq & 0xFFFFFFFF)
-        w.add_metadata("vgr.updated", {"by": "vgr replay --update", "rerun": ",".join(report.rerun)})
-        w.finish()
-    return out
-
-
-def _new_channel(w: Any, topic: str, type_name: str) -> int:
-    from mcap_protobuf.schema import build_file_descriptor_set
-
-    cls = codec.registry.get(type_name)
-    fds = build_file_descriptor_set(type(cls.proto()))
-    sid = w.register_schema(cls.SCHEMA, "protobuf", fds.SerializeToString())
-    stage, port = topic.strip("/").split("/", 1)
-    return int(w.register_channel(topic, "protobuf", sid, {"stage": stage, "port": port, "type": type_name}))
-
-
-def _exchange_pb(data: bytes) -> Any:
-    from engine.schemas import proto_class
-
-    pb = proto_class("vgr.v1.ServiceExchange")()
-    pb.ParseFromString(data)
-    return pb

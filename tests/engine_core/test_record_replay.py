@@ -16,7 +16,8 @@ from engine import recorder as recorder_mod
 from engine.cli import main
 from engine.recorder import Recorder
 from engine.recording import inspect, load
-from engine.replay import replay, write_updated
+from engine.replay import replay
+from engine.replay_update import write_updated
 from engine.runner import Runner
 
 pytestmark = pytest.mark.timeout(120)
