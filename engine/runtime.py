@@ -18,7 +18,10 @@ Data path of ``publish(port, msg)``:
 
 An input fed by a stage of another process is a :class:`~engine.remote_input.RemoteInput`: a zenoh
 subscriber with a FIFO channel whose pump thread decodes the messages and hands them to
-:meth:`StageRuntime._deliverer`'s function for the port, as local inputs do.
+:meth:`StageRuntime._deliverer`'s function for the port, as local inputs do. A service the stage
+serves is a :class:`~engine.service_port.ServicePort`: its pump thread takes the queries, refuses
+what must not be served and replies; the runtime's serve function (``_serve``) runs the stage's
+handler under the stage's lock.
 
 Per message the hot paths do only what the message needs: everything fixed for a port (its
 publisher, envelope format, message class, consumers' offer functions, the deliver function with
@@ -45,20 +48,21 @@ from time import perf_counter
 from typing import Any
 
 from engine import codec
-from engine.bus import RequestCancelled, StopMarker, overdue_ms, service_key, wire_key
+from engine.bus import RequestCancelled, service_key, wire_key
 from engine.codec import CodecError, Envelope, Kind
 from engine.graph import StageNode
 from engine.inbox import END, STOP, PortInbox
 from engine.messages import Event, Message, canonical, detach, freeze_arrays
 from engine.output_port import OutputPort
-from engine.peers import ForgedReply, owners_answer, sender_zid
+from engine.peers import ForgedReply, owners_answer
 from engine.remote_input import RemoteInput
+from engine.service_port import ServicePort
 from engine.stage import EVENTS_PORT, RunStoppingError, ServiceError, ServiceTimeoutError, Stage, StageContext
-from engine.stage_host import ServedCall, ServiceCall, StageHost
+from engine.stage_host import ServiceCall, StageHost
 
 log = logging.getLogger("vgr.runtime")
 LOCAL_QUEUE_DEPTH = 64  # messages a local producer may run ahead of its consumer
-_EOS, _STOP = Kind.EOS, Kind.STOP  # (an Enum attribute lookup costs more than the test)
+_EOS = Kind.EOS  # (an Enum attribute lookup costs more than the test)
 _encode_payload = codec.encode_payload
 
 
@@ -129,7 +133,7 @@ class StageRuntime(StageContext):
         )
         self.outputs: dict[str, OutputPort] = {}
         self.inboxes: dict[str, PortInbox | RemoteInput] = {}
-        self.queryables: dict[str, Any] = {}  # service -> bus.Inbox
+        self.service_ports: dict[str, ServicePort] = {}  # service -> its queryable and pump (engine.service_port)
         self._deliver: dict[str, Any] = {}  # input port -> its deliver function (see _deliverer)
         self.pending_inputs: set[str] = set(node.cls.inputs)
         self.failed = False
@@ -256,7 +260,8 @@ class StageRuntime(StageContext):
         for port in self.node.cls.all_outputs():
             self.outputs[port] = OutputPort(self, port)
         for svc in self.node.cls.services:
-            self.queryables[svc] = self.host.bus.queryable(service_key(self.run_id, self.name, svc))
+            queryable = self.host.bus.queryable(service_key(self.run_id, self.name, svc))
+            self.service_ports[svc] = ServicePort(self, svc, queryable, self._serve)
 
     def declare_inputs(self, local: Mapping[str, StageRuntime]) -> None:
         """Create the input queues; producers among the *local* stages (this process's, their outputs
@@ -278,8 +283,8 @@ class StageRuntime(StageContext):
                 self._spawn(f"{self.name}.{port}", self._input_pump, port, box)
             else:
                 self._spawn(f"{self.name}.{port}", box.pump)
-        for svc, q in self.queryables.items():
-            self._spawn(f"{self.name}.srv.{svc}", self._service_pump, svc, q)
+        for svc, service in self.service_ports.items():
+            self._spawn(f"{self.name}.srv.{svc}", service.pump)
 
     def start_source(self) -> None:
         if self.node.cls.is_source():
@@ -407,7 +412,7 @@ class StageRuntime(StageContext):
         self.close_outputs()
         self._mark_data_done()
 
-    # -- sources and services ------------------------------------------------------------------
+    # -- sources and served requests ---------------------------------------------------------
     def _source_main(self) -> None:
         assert self.stage is not None
         try:
@@ -419,58 +424,9 @@ class StageRuntime(StageContext):
                 self.close_outputs()
             self._mark_data_done()
 
-    def _service_pump(self, svc: str, queryable: Any) -> None:
-        stop = self._stop_event
-        spec = self.node.cls.services[svc]
-        while True:
-            arrived_ns, query = queryable.recv_timed()
-            with query:
-                if stop.is_set():
-                    return
-                if isinstance(query, StopMarker):  # the runner's own wake-up (see wake())
-                    return
-                att = query.attachment
-                caller_zid = sender_zid(query)
-                try:
-                    env = codec.decode_envelope(att.to_bytes() if att is not None else b"")
-                    if env.kind == _STOP:  # no zenoh query of a run carries STOP: refused, never acted on
-                        self._refuse_stop(svc, caller_zid, query)
-                        continue
-                    payload = query.payload.to_bytes() if query.payload is not None else b""
-                    request = codec.decode(payload, env)
-                    if not isinstance(request, spec.request):
-                        raise CodecError(f"service {svc!r} takes {spec.request.TYPE}, got {type(request).__name__}")
-                except CodecError as exc:
-                    query.reply_err(f"bad request to {self.name}.{svc}: {exc}")
-                    continue
-                late_ms = overdue_ms(query, arrived_ns)
-                if late_ms is not None:  # its caller gave up while it queued: doing it now helps no one
-                    why = f"not served: its caller stopped waiting {late_ms:.0f} ms before this stage was free"
-                    self.event("warning", "request_expired", f"{svc}: request {request.seq} {why}", service=svc)
-                    query.reply_err(f"{self.name}.{svc}: {why}")
-                    continue
-                reply_bytes, error = self._serve(svc, spec.reply, request)
-                self._served(svc, caller_zid, request, error)
-                if reply_bytes is not None:
-                    query.reply(query.key_expr, reply_bytes[0], attachment=reply_bytes[1])
-                else:
-                    query.reply_err(f"{self.name}.{svc} failed: {error}")
-
-    def _refuse_stop(self, svc: str, caller_zid: str | None, query: Any) -> None:
-        who = self.host.process_of(caller_zid) or f"zenoh session {caller_zid or 'unknown'}"
-        msg = f"{svc}: refused a STOP envelope sent as a request by {who}"
-        self.event("warning", "stop_refused", msg, service=svc, caller_zid=caller_zid or "")
-        query.reply_err(f"{self.name}.{svc}: a STOP envelope is not a request")
-
-    def _served(self, svc: str, caller_zid: str | None, request: Message, error: str) -> None:
-        """Tell the observers (the recorder) who called: the caller's process and session."""
-        if self._observers:
-            caller = self.host.process_of(caller_zid) or ""
-            served = ServedCall(self.name, svc, caller, caller_zid or "", request.TYPE, request.seq, error)
-            for obs in self._observers:
-                obs.on_served(served)
-
     def _serve(self, svc: str, reply_type: type[Message], request: Message) -> tuple[tuple[bytes, bytes] | None, str]:
+        """Hand *request* to the stage's service *svc* (for its ServicePort): the encoded reply, or
+        None and the error, which the stage survives (it goes on serving)."""
         with self.lock:
             t0 = time.perf_counter()
             self._causal.stamp = request.stamp_ns
@@ -544,8 +500,8 @@ class StageRuntime(StageContext):
         """Unblock every pump thread of this stage (the run is stopping)."""
         for box in self.inboxes.values():
             box.close()
-        for q in self.queryables.values():
-            q.wake()
+        for service in self.service_ports.values():
+            service.wake()
 
     def teardown(self) -> None:
         if self.stage is not None:

@@ -111,7 +111,8 @@ class StageHost(Protocol):
 
 
 class PortOwner(Protocol):
-    """What a port (engine.output_port, engine.remote_input) uses of its stage's runtime."""
+    """What a port (engine.output_port, engine.remote_input, engine.service_port) uses of its stage's
+    runtime."""
 
     name: str
     node: StageNode
