@@ -61,7 +61,7 @@ class _Rules:
 
 
 def process_token_keys(run: str, graph: Graph, process: str) -> list[str]:
-    """The liveliness tokens *process* declares in a run (engine.runner; its membership, epoch and
+    """The liveliness tokens *process* declares in a run (engine.membership; its membership, epoch and
     end under ``_peer/<process>/``, engine.peers)."""
     return [
         started_key(run, process),
