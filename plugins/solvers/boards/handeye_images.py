@@ -36,11 +36,19 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.stats import chi2
 
 from plugins.solvers.boards.board_pose import BoardPose, board_pose
 from plugins.solvers.boards.camera import CameraModel
 from plugins.solvers.boards.detect import Detection, Detections, Rejection
-from plugins.solvers.boards.reprojection import Refinement, holdout_rms, refine_reprojection, world_spread
+from plugins.solvers.boards.reprojection import (
+    ESTIMATE,
+    Refinement,
+    holdout_rms,
+    refine_reprojection,
+    robot_aware_covariance,
+    world_spread,
+)
 from plugins.solvers.calibration_result import CalibrationResult
 from plugins.solvers.handeye import (
     CLOSED_FORM_METHODS,
@@ -57,13 +65,21 @@ from plugins.solvers.handeye.problem import Setup, check_setup, frames_of
 F64 = NDArray[np.float64]
 Kind = Literal["hand_eye", "robot_world"]
 
-__all__ = ["HandEyeFromImages", "ImagePoseMismatchError", "calibrate_handeye_images", "camera_noise", "pair_views"]
+__all__ = [
+    "HandEyeFromImages",
+    "ImagePoseMismatchError",
+    "calibrate_handeye_images",
+    "camera_noise",
+    "moved_views",
+    "pair_views",
+]
 
 MIN_VIEWS = 3
 MAX_RMS_PX = 2.0  # above: failed (the model does not fit the corners)
 ACCURACY = AccuracyTargets()
 _STD_ADVICE = "add poses with larger rotations about different axes, or reduce the measurement noise"
 HOLDOUT_FACTOR = 3.0  # held-out RMS above this times the fit RMS: warning (over-fit or inconsistent views)
+OUTLIER_P = 1e-4  # a view's robot-pose correction beyond chi-square(6)'s 1 - p quantile: an outlier
 SCALE_TOL = 0.005  # camera / robot length scale beyond 0.5 %: the board's size is probably wrong
 
 
@@ -84,6 +100,7 @@ class HandEyeFromImages:
     ml_result: CalibrationResult | None = None
     refinement: Refinement | None = None
     holdout_px: F64 = field(default_factory=lambda: np.zeros(0))
+    outlier_views: list[str] = field(default_factory=list)
 
 
 def pair_views(
@@ -106,6 +123,18 @@ def camera_noise(poses: Sequence[BoardPose]) -> NoiseModel:
     var = np.median(np.stack([np.diag(p.covariance) for p in poses]), axis=0)
     sd = np.sqrt(np.maximum(var, 1e-18))
     return NoiseModel(DEFAULT_PRIOR.robot, PoseNoise(sd[3:], sd[:3]))
+
+
+def moved_views(d2: F64, p: float = OUTLIER_P) -> NDArray[np.bool_]:
+    """Views whose robot-pose correction is too large for the others: its whitened square ``d2``
+    (6 dof) beyond chi-square's ``1 - p`` quantile, scaled so that the median view is chi-square's
+    median (the corrections share the noise estimate that an outlier inflates)."""
+    d2 = np.asarray(d2, float)
+    if len(d2) < 2 * MIN_VIEWS:
+        return np.zeros(len(d2), dtype=bool)
+    scale = max(float(np.median(d2)) / chi2.median(6), 1e-12)
+    flagged = d2 > scale * chi2.ppf(1.0 - p, 6)
+    return flagged if flagged.sum() <= len(d2) // 3 else np.zeros(len(d2), dtype=bool)
 
 
 def _starts(res: CalibrationResult, x: str, y: str, label: str = "pose solver") -> list[tuple[str, F64, F64]]:
@@ -138,6 +167,8 @@ def calibrate_handeye_images(
     rejected: Sequence[Rejection] = (),
     holdout: bool = True,
     sigma_px: float | None = None,
+    model_robot_noise: bool = False,
+    check_outliers: bool = True,
 ) -> HandEyeFromImages:
     """Hand-eye from paired views (steps 3-6 of the module docstring; :func:`pair_views` gives the input)."""
     setup = check_setup(setup)
@@ -186,14 +217,51 @@ def calibrate_handeye_images(
     ]
     start, ref = min(refs, key=lambda lr: lr[1].rms_px)
     X0 = next(x for label, x, _ in starts if label == start)
+    # the same corners with every robot pose corrected under a prior: the corner and robot noise
+    # (variance components), each view's correction (outliers) and, if asked, the estimate
+    noisy = refine_reprojection(
+        setup, M, views, ref.camera, ref.X, ref.Y, refine_intrinsics=refine_intrinsics, robot_noise=ESTIMATE
+    )
+    assert noisy.robot_noise is not None
+    flagged = moved_views(noisy.robot_d2) if check_outliers else np.zeros(len(views), dtype=bool)
+    if flagged.any() and len(views) - flagged.sum() >= MIN_VIEWS:
+        keep = np.flatnonzero(~flagged)
+        out = calibrate_handeye_images(
+            [views[i] for i in keep], M[keep], camera, kind=kind, setup=setup, refine_intrinsics=refine_intrinsics,
+            rejected=rejected, holdout=holdout, sigma_px=sigma_px, model_robot_noise=model_robot_noise,
+            check_outliers=False,
+        )  # fmt: skip
+        names = [Path(views[i].name).name for i in np.flatnonzero(flagged)]
+        out.result.reasons.insert(
+            len(notes),
+            f"{len(names)} view(s) left out, their corners do not fit through their robot poses (the board moved, "
+            f"or the robot pose is not the image's): {', '.join(names)}",
+        )
+        out.result.estimate["outlier_views"] = names
+        out.result.metrics["n_outlier_views"] = float(len(names))
+        if out.result.verdict == "ok":
+            out.result.verdict = "warning"
+        out.outlier_views = names
+        return out
+    if model_robot_noise:
+        ref = noisy
     cam = ref.camera
+    fixed_noise = noisy.robot_noise if model_robot_noise else None
 
     def fit(train: NDArray[np.int64]) -> tuple[F64, F64]:
-        r = refine_reprojection(setup, M[train], [views[i] for i in train], cam, ref.X, ref.Y)
+        r = refine_reprojection(
+            setup, M[train], [views[i] for i in train], cam, ref.X, ref.Y, robot_noise=fixed_noise,
+            sigma_px=noisy.sigma_px,
+        )  # fmt: skip
         return r.X, r.Y
 
     held = holdout_rms(setup, M, views, cam, fit) if holdout and len(views) > MIN_VIEWS else np.full(len(views), np.nan)
     spread_t, spread_r, _ = world_spread(setup, M, B, ref.X)
+    covariance = (
+        ref.covariance
+        if model_robot_noise
+        else robot_aware_covariance(setup, M, views, ref, noisy.sigma_px, noisy.robot_noise)
+    )
     # the pose solver's own uncertainty check is replaced by the one of the pixel refinement
     ml_reasons = [r for r in ml.reasons if "uncertainty" not in r]
     if not ml.usable:
@@ -204,7 +272,7 @@ def calibrate_handeye_images(
     verdict: Any = "warning" if ml_reasons else "ok"
     reasons = notes + ml_reasons
     advice = [a for a in ml.advice if a != _STD_ADVICE]
-    sd = np.sqrt(np.clip(np.diag(ref.covariance)[:6], 0.0, None))
+    sd = np.sqrt(np.clip(np.diag(covariance)[:6], 0.0, None))
     std_t, std_r = float(np.linalg.norm(sd[:3])), float(np.linalg.norm(sd[3:]))
     if std_t > ACCURACY.max_std_trans_m or std_r > ACCURACY.max_std_rot_rad:
         verdict = "warning"
@@ -232,6 +300,9 @@ def calibrate_handeye_images(
         "n_rejected": float(len(rejected)),
         "rms_px": ref.rms_px,
         "sigma_px": ref.sigma_px,
+        "corner_sigma_px": noisy.sigma_px,  # per coordinate, with the robot poses corrected
+        "robot_sigma_trans_m": noisy.robot_noise.trans_m,  # per axis, estimated from the corners
+        "robot_sigma_rot_rad": noisy.robot_noise.rot_rad,
         "holdout_rms_px": held_rms,
         "world_spread_trans_rms_m": spread_t,
         "world_spread_rot_rms_rad": spread_r,
@@ -257,7 +328,7 @@ def calibrate_handeye_images(
         verdict=verdict,
         estimate=estimate,
         param_names=_param_names(frames.x_name, frames.y_name, cam, ref.intrinsics_refined),
-        covariance=ref.covariance,
+        covariance=covariance,
         residuals=np.column_stack([ref.view_rms_px, ref.view_max_px, held]),
         residual_names=["rms_px", "max_px", "holdout_rms_px"],
         outliers=np.zeros(len(views), dtype=bool),
