@@ -79,7 +79,11 @@ MAX_RMS_PX = 2.0  # above: failed (the model does not fit the corners)
 ACCURACY = AccuracyTargets()
 _STD_ADVICE = "add poses with larger rotations about different axes, or reduce the measurement noise"
 HOLDOUT_FACTOR = 3.0  # held-out RMS above this times the fit RMS: warning (over-fit or inconsistent views)
-OUTLIER_P = 1e-4  # a view's robot-pose correction beyond chi-square(6)'s 1 - p quantile: an outlier
+# a view's robot-pose correction beyond chi-square(6)'s 1 - p quantile and its RMS through the robot
+# RMS_FACTOR times the median view's: an outlier (p this small: a detector's error shared by a view's
+# corners has a heavy tail, on rendered images up to 45x chi-square's median)
+OUTLIER_P = 1e-9
+RMS_FACTOR = 2.0
 SCALE_TOL = 0.005  # camera / robot length scale beyond 0.5 %: the board's size is probably wrong
 
 
@@ -125,15 +129,17 @@ def camera_noise(poses: Sequence[BoardPose]) -> NoiseModel:
     return NoiseModel(DEFAULT_PRIOR.robot, PoseNoise(sd[3:], sd[:3]))
 
 
-def moved_views(d2: F64, p: float = OUTLIER_P) -> NDArray[np.bool_]:
-    """Views whose robot-pose correction is too large for the others: its whitened square ``d2``
+def moved_views(d2: F64, view_rms_px: F64, p: float = OUTLIER_P) -> NDArray[np.bool_]:
+    """Views whose corners do not fit through their robot poses like the others (the board moved, or
+    a robot pose is not its image's): the whitened square ``d2`` of the view's robot-pose correction
     (6 dof) beyond chi-square's ``1 - p`` quantile, scaled so that the median view is chi-square's
-    median (the corrections share the noise estimate that an outlier inflates)."""
-    d2 = np.asarray(d2, float)
+    median (an outlier inflates the noise estimate the corrections share), and the view's RMS
+    through its robot pose (the exact-robot fit) above ``RMS_FACTOR`` times the median view's."""
+    d2, rms = np.asarray(d2, float), np.asarray(view_rms_px, float)
     if len(d2) < 2 * MIN_VIEWS:
         return np.zeros(len(d2), dtype=bool)
     scale = max(float(np.median(d2)) / chi2.median(6), 1e-12)
-    flagged = d2 > scale * chi2.ppf(1.0 - p, 6)
+    flagged = (d2 > scale * chi2.ppf(1.0 - p, 6)) & (rms > RMS_FACTOR * np.median(rms))
     return flagged if flagged.sum() <= len(d2) // 3 else np.zeros(len(d2), dtype=bool)
 
 
@@ -223,7 +229,7 @@ def calibrate_handeye_images(
         setup, M, views, ref.camera, ref.X, ref.Y, refine_intrinsics=refine_intrinsics, robot_noise=ESTIMATE
     )
     assert noisy.robot_noise is not None
-    flagged = moved_views(noisy.robot_d2) if check_outliers else np.zeros(len(views), dtype=bool)
+    flagged = moved_views(noisy.robot_d2, ref.view_rms_px) if check_outliers else np.zeros(len(views), dtype=bool)
     if flagged.any() and len(views) - flagged.sum() >= MIN_VIEWS:
         keep = np.flatnonzero(~flagged)
         out = calibrate_handeye_images(
@@ -234,8 +240,8 @@ def calibrate_handeye_images(
         names = [Path(views[i].name).name for i in np.flatnonzero(flagged)]
         out.result.reasons.insert(
             len(notes),
-            f"{len(names)} view(s) left out, their corners do not fit through their robot poses (the board moved, "
-            f"or the robot pose is not the image's): {', '.join(names)}",
+            f"{len(names)} view(s) left out, their corners do not fit through their robot poses like the others' do "
+            f"(the board moved, the robot pose is not the image's, or a poor detection): {', '.join(names)}",
         )
         out.result.estimate["outlier_views"] = names
         out.result.metrics["n_outlier_views"] = float(len(names))

@@ -93,7 +93,7 @@ class RobotNoise:
 
 
 ESTIMATE = "estimate"
-ROBOT_START = RobotNoise(1e-4, np.radians(0.01))  # 0.1 mm / 0.01 deg: where the estimate of the robot's noise starts
+ROBOT_START = RobotNoise(1e-4, float(np.radians(0.01)))  # 0.1 mm / 0.01 deg: the estimate starts there
 ROBOT_FLOOR = RobotNoise(1e-7, 1e-8)  # smallest robot noise kept (the prior's weight stays finite)
 VCE_ITERATIONS = 12
 VCE_TOL = 0.01  # relative change of every variance component that ends the estimation
@@ -238,10 +238,10 @@ def refine_reprojection(
             pix, prior = slice(0, model.m), np.arange(model.m, model.m + 6 * len(views)).reshape(-1, 6)
             t_rows, r_rows = prior[:, :3].ravel(), prior[:, 3:].ravel()
             ratios = [float(np.sum(w2[g]) / max(np.sum(1.0 - lev[g]), 1e-3)) for g in (pix, t_rows, r_rows)]
-            s_px = s_px * np.sqrt(ratios[0]) if sigma_px is None else s_px
+            s_px = float(s_px * np.sqrt(ratios[0])) if sigma_px is None else s_px
             noise = RobotNoise(
-                max(noise.trans_m * np.sqrt(ratios[1]), ROBOT_FLOOR.trans_m),
-                max(noise.rot_rad * np.sqrt(ratios[2]), ROBOT_FLOOR.rot_rad),
+                float(max(noise.trans_m * np.sqrt(ratios[1]), ROBOT_FLOOR.trans_m)),
+                float(max(noise.rot_rad * np.sqrt(ratios[2]), ROBOT_FLOOR.rot_rad)),
             )
             if all(abs(x - 1.0) < VCE_TOL for x in ratios[1:] + ratios[: 1 if sigma_px is None else 0]):
                 break
