@@ -59,6 +59,7 @@ from plugins.solvers.handeye import (
     calibrate_robot_world,
     closed_form,
 )
+from plugins.solvers.handeye.consistency import estimate_unit_scale
 from plugins.solvers.handeye.noise import DEFAULT_PRIOR
 from plugins.solvers.handeye.problem import Setup, check_setup, frames_of
 
@@ -175,6 +176,7 @@ def calibrate_handeye_images(
     sigma_px: float | None = None,
     model_robot_noise: bool = False,
     check_outliers: bool = True,
+    left_out: Sequence[str] = (),
 ) -> HandEyeFromImages:
     """Hand-eye from paired views (steps 3-6 of the module docstring; :func:`pair_views` gives the input)."""
     setup = check_setup(setup)
@@ -197,6 +199,14 @@ def calibrate_handeye_images(
         sigma_px = float(rms) / np.sqrt(2.0) if rms else None  # RMS distance -> per coordinate
     poses = [board_pose(v, camera, sigma_px=sigma_px) for v in views]
     B = np.stack([p.T_cam_target for p in poses])
+    unit = estimate_unit_scale(setup, M, B)
+    if unit is not None and unit[0] < 0.0 and abs(unit[0]) > 5.0 * unit[1]:
+        return _failed(
+            kind,
+            [*notes, f"the camera moved mirrored to the robot (robot translations = {unit[0]:.3f} x the camera's): "
+             "mirrored images (a camera or driver set to flip the image?) or the wrong set-up"],
+            ["turn off any image flip in the camera or its driver; check --setup"], rejected,
+        )  # fmt: skip
     solve = calibrate_robot_world if kind == "robot_world" else calibrate_hand_eye
     ml = solve(M, B, setup=setup, noise=camera_noise(poses), estimate_noise=True)
     scale = ml.metrics.get("unit_scale_robot_per_camera")
@@ -230,25 +240,14 @@ def calibrate_handeye_images(
     )
     assert noisy.robot_noise is not None
     flagged = moved_views(noisy.robot_d2, ref.view_rms_px) if check_outliers else np.zeros(len(views), dtype=bool)
-    if flagged.any() and len(views) - flagged.sum() >= MIN_VIEWS:
-        keep = np.flatnonzero(~flagged)
-        out = calibrate_handeye_images(
+    n_flagged = int(flagged.sum())
+    if n_flagged and len(left_out) + n_flagged <= (len(views) + len(left_out)) // 3:
+        keep = np.flatnonzero(~flagged)  # left out, and the rest checked again (an outlier hides others)
+        return calibrate_handeye_images(
             [views[i] for i in keep], M[keep], camera, kind=kind, setup=setup, refine_intrinsics=refine_intrinsics,
             rejected=rejected, holdout=holdout, sigma_px=sigma_px, model_robot_noise=model_robot_noise,
-            check_outliers=False,
+            left_out=sorted([*left_out, *(Path(views[i].name).name for i in np.flatnonzero(flagged))]),
         )  # fmt: skip
-        names = [Path(views[i].name).name for i in np.flatnonzero(flagged)]
-        out.result.reasons.insert(
-            len(notes),
-            f"{len(names)} view(s) left out, their corners do not fit through their robot poses like the others' do "
-            f"(the board moved, the robot pose is not the image's, or a poor detection): {', '.join(names)}",
-        )
-        out.result.estimate["outlier_views"] = names
-        out.result.metrics["n_outlier_views"] = float(len(names))
-        if out.result.verdict == "ok":
-            out.result.verdict = "warning"
-        out.outlier_views = names
-        return out
     if model_robot_noise:
         ref = noisy
     cam = ref.camera
@@ -275,8 +274,14 @@ def calibrate_handeye_images(
             f"the pose solver alone gave verdict {ml.verdict} ({'; '.join(ml_reasons[-2:])}); the pixel "
             f"refinement started from the best of {len(refs)} starts: {start}"
         ]
-    verdict: Any = "warning" if ml_reasons else "ok"
+    verdict: Any = "warning" if ml_reasons or left_out else "ok"
     reasons = notes + ml_reasons
+    if left_out:
+        reasons.insert(
+            len(notes),
+            f"{len(left_out)} view(s) left out, their corners do not fit through their robot poses like the others' "
+            f"do (the board moved, the robot pose is not the image's, or a poor detection): {', '.join(left_out)}",
+        )
     advice = [a for a in ml.advice if a != _STD_ADVICE]
     sd = np.sqrt(np.clip(np.diag(covariance)[:6], 0.0, None))
     std_t, std_r = float(np.linalg.norm(sd[:3])), float(np.linalg.norm(sd[3:]))
@@ -329,6 +334,9 @@ def calibrate_handeye_images(
         "sample_labels": [Path(v.name).name for v in views],
         f"initial_{frames.x_name}": X0,
     }
+    if left_out:
+        estimate["outlier_views"] = list(left_out)
+        metrics["n_outlier_views"] = float(len(left_out))
     result = CalibrationResult(
         kind=kind,
         verdict=verdict,
@@ -345,4 +353,4 @@ def calibrate_handeye_images(
         + (" and the intrinsics" if ref.intrinsics_refined else ""),
         iterations=ref.nfev,
     )
-    return HandEyeFromImages(result, views, M, poses, rejected, ml, ref, held)
+    return HandEyeFromImages(result, views, M, poses, rejected, ml, ref, held, list(left_out))
