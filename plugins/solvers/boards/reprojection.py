@@ -6,12 +6,26 @@ hand ``B_i = X^-1 M_i^-1 Y``, ``X = T_tcp_cam``, ``Y = T_base_target``; eye to h
 ``B_i = X^-1 M_i Y``, ``X = T_base_cam``, ``Y = T_tcp_target``), and the camera model projects the
 board's points. This module owns:
 
-* :func:`refine_reprojection`: ``scipy.optimize.least_squares`` over ``X``, ``Y`` (decoupled
-  perturbations, :func:`engine.transforms.retract`) and optionally the intrinsics (fx, fy, cx, cy and
-  the distortion coefficients), minimising every corner's pixel residual. With 12 (+ 4 + k)
-  parameters that every residual depends on, the Jacobian is dense and its finite differences cost
-  13-22 projections of all views: cheap, so no analytic Jacobian is written. The robot poses are
-  taken as exact. Covariance ``s² (JᵀJ)⁻¹`` with ``s²`` the residuals' variance per pixel coordinate.
+* :func:`refine_reprojection`: least squares over ``X``, ``Y`` (decoupled perturbations,
+  :func:`engine.transforms.retract`) and optionally the intrinsics (fx, fy, cx, cy and the
+  distortion coefficients), minimising every corner's pixel residual. With ``robot_noise``, every
+  robot pose gets a 6-dof correction ``d_i`` (base frame, :func:`retract`) with the prior
+  ``N(0, diag(s_t², s_t², s_t², s_r², s_r², s_r²))``: the errors-in-variables form of the maximum-
+  likelihood hand-eye with noisy robot poses (Strobl & Hirzinger 2006, "Optimal hand-eye
+  calibration", IROS: weight the robot's and the camera's errors by their variances, estimated from
+  the data), written on the corners as in Koide & Menegatti 2019, "General hand-eye calibration
+  based on reprojection error minimization", RA-L. ``robot_noise="estimate"`` estimates the corner
+  noise and ``s_t``, ``s_r`` by variance components (Förstner 1979; Koch, "Parameter estimation and
+  hypothesis testing in linear models", 1999): each group's sum of whitened squares over its
+  redundancy ``Σ(1 - h_jj)`` (``h``: the hat matrix's diagonal), iterated. The solver is
+  Levenberg-Marquardt on the normal equations (12 + intrinsics + 6 per view columns, many rows);
+  the Jacobian is forward differences, one evaluation per global parameter and six for all views'
+  corrections (view ``i``'s corners depend on ``d_i`` only). Covariance: ``(JᵀJ)⁻¹`` of the
+  whitened problem (the corrections marginalised); robot poses exact: ``s² (JᵀJ)⁻¹`` with ``s²``
+  the residuals' variance per pixel coordinate.
+* :func:`robot_aware_covariance`: the covariance of the exact-robot fit when the corners and the
+  robot poses have the given noise (sandwich ``A⁻¹ Jᵀ Σ J A⁻¹``).
+* :func:`crlb`: the Cramér–Rao bound of the same model (inverse Fisher information at the truth).
 * :func:`holdout_rms`: leave-one-view-out. A fitting function gets the other views, returns
   ``(X, Y)``; the left-out view's corners are predicted and compared with the detected ones.
 * :func:`world_spread`: each view's own estimate of the board's world pose ``A_i X B_i`` (with its
@@ -274,8 +288,11 @@ class _Solution:
 
 def _least_squares(model: _Model, p0: F64, s_px: float, sd6: F64, max_iter: int = 100) -> _Solution:
     """Levenberg-Marquardt (Marquardt's diagonal scaling) on the normal equations: the Jacobian has
-    few columns (12 + intrinsics + 6 per view) and many rows, so ``JᵀJ`` is cheap where an SVD of
-    ``J`` (scipy's ``trf`` solver) is not."""
+    few columns (12 + intrinsics + 6 per view) and many rows, so ``JᵀJ`` is cheap where a
+    factorisation of ``J`` is not. Measured on kuka_2 with the robot noise estimated (23016 x 180):
+    scipy's ``least_squares`` ``trf`` (an SVD of J per step) took 6x as long, ``lm`` (MINPACK's QR)
+    2.4x, both to the same minimum (1e-9); ``trf`` with ``lsmr`` on the sparse Jacobian stopped at a
+    wrong one (the robot noise collapsed to its floor)."""
     p = np.asarray(p0, float).copy()
     r = model.whitened(p, s_px, sd6)
     cost, lam, nfev, success = float(r @ r), 1e-4, 1, False
