@@ -30,8 +30,8 @@ mean CRLB trace), ``ratio_*`` (RMS / bound, with a bootstrap 95 % interval over 
 and ``mahalanobis2_mean`` / ``_median`` (in the reported covariance's metric: 6 / 5.35 if honest),
 ``outlier_views`` (views the pipeline left out, over all trials).
 
-Usage: ``python benchmarks/handeye_images_crlb.py [--trials N]`` (default: 400 and 200 for the
-point-noise scenarios, 40 for the rendered ones); writes benchmarks/results/handeye_images_crlb.json.
+Usage: ``python benchmarks/handeye_images_crlb.py [--trials N]`` (default: 400 and 150 for the
+point-noise scenarios, 30 for the rendered ones); writes benchmarks/results/handeye_images_crlb.json.
 """
 
 from __future__ import annotations
@@ -62,9 +62,9 @@ SEED0 = 20261127
 # scenario -> (default trials, robot noise, rendered, estimators)
 SCENARIOS: dict[str, tuple[int, RobotNoise | None, bool, tuple[str, ...]]] = {
     "corner_noise": (400, None, False, ("default",)),
-    "corner_and_robot_noise": (200, ROBOT, False, ("default", "robot_noise")),
-    "rendered": (40, None, True, ("default", "robot_noise")),
-    "rendered_robot_noise": (40, ROBOT, True, ("default", "robot_noise")),
+    "corner_and_robot_noise": (150, ROBOT, False, ("default", "robot_noise")),
+    "rendered": (30, None, True, ("default", "robot_noise")),
+    "rendered_robot_noise": (30, ROBOT, True, ("default", "robot_noise")),
 }
 
 
