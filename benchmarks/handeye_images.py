@@ -9,8 +9,10 @@ vgr's detections (``detect_images``), the intrinsics calibrated from all images 
 
 Methods: ``vgr_pose_ml`` (vgr's ML hand-eye solver on the board poses alone, the camera noise from
 their covariances), ``vgr`` (the whole pipeline of ``plugins/solvers/boards/handeye_images.py``: ML hand-eye
-solver, then the corners' reprojection refinement over the hand-eye and the board's world pose),
-``vgr_intrinsics`` (the same, refining the intrinsics too), OpenCV's ``calibrateHandEye`` (Tsai,
+solver, then the corners' reprojection refinement over the hand-eye and the board's world pose, the
+robot poses taken as exact), ``vgr_intrinsics`` (the same, refining the intrinsics too),
+``vgr_robot_noise`` / ``vgr_robot_noise_intrinsics`` (``model_robot_noise=True``: every robot pose
+corrected under a prior whose sigma is estimated from the corners), OpenCV's ``calibrateHandEye`` (Tsai,
 Park, Horaud, Andreff, Daniilidis; the board's world pose is the mean of the training views' own
 estimates ``T_base_tcp X T_cam_target``) and ``calibrateRobotWorldHandEye`` (Shah, Li; its own world
 pose).
@@ -28,6 +30,11 @@ Figures per method and data set:
 * ``ms_per_image``: wall time of the fit to all views divided by the number of images (median over
   ``--repeats``, methods run alternately in each repeat); detection and intrinsics are timed once
   and reported apart (shared by every method).
+* vgr's rows: ``std_x_mm`` / ``std_x_deg`` (the reported 1-sigma of the hand-eye, norm over the
+  three axes), ``robot_sigma_mm`` / ``robot_sigma_deg`` / ``corner_sigma_px`` (the robot-pose and
+  corner noise estimated from the corners, per axis / coordinate); on the synthetic set
+  ``gt_x_mahalanobis2``: the hand-eye's error to the ground truth in the reported covariance's metric
+  (6 dof: near 6 if the covariance is honest).
 * synthetic set: ``gt_x_mm`` / ``gt_x_deg`` (hand-eye) and ``gt_y_mm`` / ``gt_y_deg`` (the board's world
   pose, the ground truth's ``grid`` frame mapped to vgr's ``target`` frame: OpenCV's origin at the
   first inner corner, y down, z into the board) errors to the ground truth.
@@ -52,7 +59,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks.bench_results import machine, write_result  # noqa: E402
-from engine.transforms import angle_between, inv  # noqa: E402
+from engine.transforms import angle_between, inv, pose_delta  # noqa: E402
 from plugins.solvers.boards.board_pose import BoardPose, board_pose  # noqa: E402
 from plugins.solvers.boards.camera import CameraModel  # noqa: E402
 from plugins.solvers.boards.detect import Detection, detect_images, image_files  # noqa: E402
@@ -76,6 +83,14 @@ GT_BASE_GRID = np.array(
      [0, 0, 0, 1.0]]
 )  # fmt: skip
 SETUP = "eye_in_hand"
+# vgr's rows: (name, intrinsics refined, robot-pose noise modelled in the pixel refinement)
+VGR_ROWS = (
+    ("vgr", False, False),
+    ("vgr_intrinsics", True, False),
+    ("vgr_robot_noise", False, True),
+    ("vgr_robot_noise_intrinsics", True, True),
+)
+COVARIANCE: dict[str, tuple[F64, dict[str, float]]] = {}  # vgr row -> (6x6 covariance of X, metrics), fit to all views
 Fit = Callable[[np.ndarray], tuple[F64, F64, CameraModel]]
 
 
@@ -145,13 +160,18 @@ def _fits(views: list[Detection], M: F64, poses: list[BoardPose], camera: Camera
         return np.asarray(res.estimate["T_tcp_cam"]), np.asarray(res.estimate["T_base_target"]), camera
 
     fits["vgr_pose_ml"] = ml
-    for name, refine in (("vgr", False), ("vgr_intrinsics", True)):
+    for name, refine, noisy in VGR_ROWS:
 
-        def g(idx: np.ndarray, refine: bool = refine) -> tuple[F64, F64, CameraModel]:
+        def g(
+            idx: np.ndarray, refine: bool = refine, noisy: bool = noisy, name: str = name
+        ) -> tuple[F64, F64, CameraModel]:
             out = calibrate_handeye_images([views[i] for i in idx], M[idx], camera, setup=SETUP,
-                                           refine_intrinsics=refine, holdout=False)  # fmt: skip
+                                           refine_intrinsics=refine, holdout=False, model_robot_noise=noisy)  # fmt: skip
             assert out.refinement is not None, out.result.reasons
-            return out.refinement.X, out.refinement.Y, out.refinement.camera
+            if len(idx) == len(views):
+                COVARIANCE[name] = (out.result.covariance[:6, :6], out.result.metrics)
+            est = out.result.estimate
+            return est["T_tcp_cam"], est["T_base_target"], CameraModel.from_dict(est["camera"])
 
         fits[name] = g
     return fits
@@ -203,8 +223,19 @@ def run_set(name: str, folder: Path, spec: str, repeats: int, loo: bool) -> dict
                 Xi, Yi, ci = fit(np.delete(everything, i))
                 held += view_residuals(SETUP, M[i : i + 1], Xi, Yi, ci, [views[i]])
             row["holdout_rms_px"] = _rms(held)
+        if k in COVARIANCE:
+            cov, m = COVARIANCE[k]
+            sd = np.sqrt(np.diag(cov))
+            row["std_x_mm"] = float(np.linalg.norm(sd[:3]) * 1e3)  # the reported 1-sigma (norm over the axes)
+            row["std_x_deg"] = float(np.degrees(np.linalg.norm(sd[3:])))
+            row["robot_sigma_mm"] = m["robot_sigma_trans_m"] * 1e3  # estimated from the corners, per axis
+            row["robot_sigma_deg"] = float(np.degrees(m["robot_sigma_rot_rad"]))
+            row["corner_sigma_px"] = m["corner_sigma_px"]
         if name == "synthetic_1":
             Y_true = GT_BASE_GRID @ _grid_to_target(board.rows, board.square_m)
+            if k in COVARIANCE:  # the error to the ground truth in the reported covariance's metric (6 dof)
+                e = pose_delta(X, GT_X)[0]
+                row["gt_x_mahalanobis2"] = float(e @ np.linalg.solve(COVARIANCE[k][0], e))
             row["gt_x_mm"] = float(np.linalg.norm(X[:3, 3] - GT_X[:3, 3]) * 1e3)
             row["gt_x_deg"] = float(np.degrees(angle_between(X[:3, :3], GT_X[:3, :3])))
             row["gt_y_mm"] = float(np.linalg.norm(Y[:3, 3] - Y_true[:3, 3]) * 1e3)
