@@ -209,7 +209,7 @@ def calibrate_handeye_images(
         sigma_px = float(rms) / np.sqrt(2.0) if rms else None  # RMS distance -> per coordinate
     poses = [board_pose(v, camera, sigma_px=sigma_px) for v in views]
     B = np.stack([p.T_cam_target for p in poses])
-    unit = estimate_unit_scale(setup, M, B)
+    unit = estimate_unit_scale(setup, M, B, signed=True)
     if unit is not None and unit[0] < 0.0 and abs(unit[0]) > 5.0 * unit[1]:
         return _failed(
             kind,

@@ -80,7 +80,7 @@ UNIT_T = 4.0  # correlation t statistic of the screw translations below which th
 
 
 def estimate_unit_scale(
-    setup: Setup, T_base_tcp: F64, T_cam_target: F64, *, robust: bool = True
+    setup: Setup, T_base_tcp: F64, T_cam_target: F64, *, robust: bool = True, signed: bool = False
 ) -> tuple[float, float] | None:
     """(s, sigma_s) with robot length = s * camera length; None when unobservable.
 
@@ -92,10 +92,12 @@ def estimate_unit_scale(
     fake a unit error. ``sigma_s`` is the weighted least-squares standard error, widened to half the
     gap between ``s`` and the reverse regression's slope: both ``d`` carry noise, which pulls the
     slope of ``d_A`` on ``d_B`` towards 0 and that of ``d_B`` on ``d_A`` (inverted) away from it, and
-    the scale lies between the two. When ``d_A`` and ``d_B`` are not clearly correlated (a correlation
-    t statistic below ``UNIT_T`` over the ``n - 1`` independent motions, or slopes not positive), the
-    screw translations are noise (poses that orbit the target, e.g. a camera kept looking at a board,
-    have ``d`` near 0) and the scale is unobservable: None. Without this a robot pose set of pure
+    the scale lies between the two. With ``signed``, a negative ``s`` (both slopes negative, clearly
+    correlated) is returned: the camera moved mirrored to the robot; without, it is None. When
+    ``d_A`` and ``d_B`` are not clearly correlated (a correlation t statistic below ``UNIT_T`` over
+    the ``n - 1`` independent motions, or slopes of opposite signs), the screw translations are
+    noise (poses that orbit the target, e.g. a camera kept looking at a board, have ``d`` near 0)
+    and the scale is unobservable: None. Without this a robot pose set of pure
     orbits made the attenuated slope look like a unit error.
     """
     m: RelativeMotions = relative_motions(setup, T_base_tcp, T_cam_target)
@@ -126,6 +128,8 @@ def estimate_unit_scale(
     s_reverse = float(np.sum(w * d_a * d_b) / np.sum(w * d_a * d_a))  # camera per robot length
     rho2 = s * s_reverse  # squared correlation of d_A and d_B (through the origin)
     n_eff = max(n - 1, 2)  # independent relative motions
-    if s <= 0.0 or s_reverse <= 0.0 or rho2 * (n_eff - 1) < UNIT_T**2 * (1.0 - rho2):
-        return None
+    if s * s_reverse <= 0.0 or rho2 * (n_eff - 1) < UNIT_T**2 * (1.0 - rho2) or (s < 0.0 and not signed):
+        return None  # the slopes disagree in sign, or no clear correlation: unobservable
+    # (signed) both slopes negative and clearly correlated: the camera moved mirrored to the robot
+    # (flipped images, or the wrong set-up), returned as a negative scale for the caller to say so
     return s, max(float(np.sqrt(var)), 0.5 * abs(s - 1.0 / s_reverse))

@@ -83,10 +83,15 @@ class _Run:
 
 def _check_units(setup: Setup, M: F64, B: F64) -> None:
     """Raise HandEyeInputError when robot and camera lengths differ by a unit factor (``consistency``)."""
-    unit = estimate_unit_scale(setup, M, B)
+    unit = estimate_unit_scale(setup, M, B, signed=True)
     if unit is None:
         return
     scale, scale_sd = unit
+    if scale < 0.0 and abs(scale) > 5.0 * scale_sd:
+        raise HandEyeInputError(
+            f"the camera moved mirrored to the robot (robot translations = {scale:.4g} x camera translations): "
+            "mirrored images (a camera or driver set to flip the image?) or the wrong set-up"
+        )
     if not 0.5 <= scale <= 2.0 and abs(scale - 1.0) > 5.0 * scale_sd:
         side = "camera" if scale < 1 else "robot"
         raise HandEyeInputError(
