@@ -32,8 +32,6 @@ from engine.bus import active_key, control_key, ready_key, service_key, started_
 from engine.discovery import info_key
 from engine.graph import Graph
 
-ALL_TOKENS = ("liveliness_token", "declare_liveliness_subscriber", "liveliness_query")
-
 
 def _process_subject(name: str) -> str:
     return f"process {name}"

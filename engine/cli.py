@@ -146,13 +146,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         )
     from engine.cli_recording import recording_path
     from engine.recorder import Recorder
-    from engine.runner import recipe_dir
-    from engine.session_config import security_problems
 
-    problems = security_problems(graph, base=recipe_dir(graph), certs_dir=args.certs)
-    if problems:  # nothing is started with certificates that cannot work
-        for p in problems:
-            out.print(f"[red]security[/]: {p}")
+    if _security_refused(graph, args.certs):  # nothing is started with certificates that cannot work
         return EXIT_INVALID
     runner = Runner(  # refuses a bad run id or process before anything is created
         graph,
@@ -204,15 +199,21 @@ def _summary_dict(s: RunSummary) -> dict[str, Any]:
     }
 
 
-def cmd_validate(args: argparse.Namespace) -> int:
-    graph, _ = _load_graph(args)
+def _security_refused(graph: Graph, certs_dir: str | None) -> bool:
+    """Print what keeps the recipe's ``security:`` block from working (engine.session_config);
+    True when there is anything."""
     from engine.runner import recipe_dir
     from engine.session_config import security_problems
 
-    problems = security_problems(graph, base=recipe_dir(graph), certs_dir=getattr(args, "certs", None))
-    if problems:
-        for p in problems:
-            out.print(f"[red]security[/]: {p}")
+    problems = security_problems(graph, base=recipe_dir(graph), certs_dir=certs_dir)
+    for p in problems:
+        out.print(f"[red]security[/]: {p}")
+    return bool(problems)
+
+
+def cmd_validate(args: argparse.Namespace) -> int:
+    graph, _ = _load_graph(args)
+    if _security_refused(graph, args.certs):
         return EXIT_INVALID
     out.print(
         f"[green]ok[/]: {graph.loaded.file}: recipe {graph.recipe.name!r}, {len(graph.nodes)} stages, "

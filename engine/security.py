@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
@@ -68,14 +69,27 @@ class ProcessIdentity:
     key: Path
 
 
+def folder_identity(folder: Path, name: str, ca: Path | None = None) -> ProcessIdentity:
+    """*name*'s files in a `vgr certs make` folder: ``<name>.pem``, ``<name>.key`` and ``ca.pem``
+    (unless *ca* names another CA certificate)."""
+    return ProcessIdentity(name, ca or folder / "ca.pem", folder / f"{name}.pem", folder / f"{name}.key")
+
+
 def identity(sec: SecuritySettings, process: str, base: Path, certs_dir: str | None = None) -> ProcessIdentity:
     """Where *process*'s CA, certificate and key are (*certs_dir*: a command-line override)."""
     folder = (base / (certs_dir or sec.certs)).resolve()
-    ca = (base / sec.ca).resolve() if sec.ca and not certs_dir else folder / "ca.pem"
+    ca = (base / sec.ca).resolve() if sec.ca and not certs_dir else None
     own = sec.processes.get(process)
     if own is not None and not certs_dir:
-        return ProcessIdentity(process, ca, (base / own.cert).resolve(), (base / own.key).resolve())
-    return ProcessIdentity(process, ca, folder / f"{process}.pem", folder / f"{process}.key")
+        cert, key = (base / own.cert).resolve(), (base / own.key).resolve()
+        return ProcessIdentity(process, ca or folder / "ca.pem", cert, key)
+    return folder_identity(folder, process, ca)
+
+
+def tls_entries(ident: ProcessIdentity) -> dict[str, Any]:
+    """zenoh configuration entries (path -> value) for a session that speaks TLS or QUIC only, with
+    mutual TLS as *ident*."""
+    return {"transport/link/tls": tls_config(ident), "transport/link/protocols": list(SECURE_PROTOCOLS)}
 
 
 def tls_config(ident: ProcessIdentity) -> dict[str, object]:

@@ -26,7 +26,7 @@ from engine.acl import acl_for
 from engine.endpoints import PRIVATE, private_socket
 from engine.graph import Graph
 from engine.recipe import ZenohSettings
-from engine.security import SECURE_PROTOCOLS, identity, identity_problems, insecure_endpoints, tls_config
+from engine.security import SECURE_PROTOCOLS, identity, identity_problems, insecure_endpoints, tls_entries
 
 
 class SessionConfigError(ValueError):
@@ -67,11 +67,7 @@ def plan_session(
             f"(not {', '.join(plain)})"
         )
     ident = identity(sec, process, base or Path.cwd(), certs_dir)
-    extra: dict[str, Any] = {
-        "transport/link/tls": tls_config(ident),
-        "transport/link/protocols": list(SECURE_PROTOCOLS),
-        "access_control": acl_for(graph, process, run, sec.observers),
-    }
+    extra: dict[str, Any] = {**tls_entries(ident), "access_control": acl_for(graph, process, run, sec.observers)}
     return SessionPlan(settings, extra, secured=True)
 
 

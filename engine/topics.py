@@ -56,13 +56,11 @@ def open_client(endpoints: list[str], certs: str | None = None, identity: str | 
         )
     extra = None
     if certs is not None:
-        from engine.security import SECURE_PROTOCOLS, ProcessIdentity, tls_config
+        from engine.security import folder_identity, tls_entries
 
         if identity is None:
             raise NoRunError("--certs needs --identity NAME: the observer certificate to show the run")
-        folder = Path(certs)
-        ident = ProcessIdentity(identity, folder / "ca.pem", folder / f"{identity}.pem", folder / f"{identity}.key")
-        extra = {"transport/link/tls": tls_config(ident), "transport/link/protocols": list(SECURE_PROTOCOLS)}
+        extra = tls_entries(folder_identity(Path(certs), identity))
     return Bus(ZenohSettings(listen=[], connect=list(endpoints)), extra)
 
 
