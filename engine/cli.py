@@ -194,6 +194,7 @@ def _summary_dict(s: RunSummary) -> dict[str, Any]:
         "stop_reason": s.stop_reason,
         "wall_s": s.wall_s,
         "artifacts": s.artifacts,
+        "shared_memory": s.shared_memory,
         "stages": [{**vars(st), "messages_in": st.messages_in, "messages_out": st.messages_out} for st in s.stages],
         "events": [{"level": e.level, "stage": e.stage, "code": e.code, "message": e.message} for e in s.events],
     }

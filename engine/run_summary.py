@@ -35,6 +35,9 @@ class RunSummary:
     events: list[Event] = field(default_factory=list)  # warnings, errors and alarms
     artifacts: dict[str, str] = field(default_factory=dict)  # e.g. recording path
     stop_to_end_s: float | None = None  # a stopped run: from the stop to the end of its last stage's threads
+    # large payloads this process sent to other processes through shared memory, and those sent as
+    # bytes because the pool was full or the host has none (engine.shm); empty with shared memory off
+    shared_memory: dict[str, int] = field(default_factory=dict)
 
     @property
     def outcome(self) -> str:

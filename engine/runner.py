@@ -57,6 +57,7 @@ from engine.clock import Clock, make_clock
 from engine.graph import Graph
 from engine.membership import Membership
 from engine.messages import Event
+from engine.process_memory import keep_freed_memory
 from engine.recipe import NAME_RE
 
 # (defined in engine.run_summary; the engine and its users import them from here as well)
@@ -291,11 +292,16 @@ class Runner:
             time.monotonic() - t0,
             list(self.events),
             stop_to_end_s=self.stop_to_end_s,
+            shared_memory=self._shared_memory_counts(),
         )
         for obs in self.observers:
             obs.on_finish(self, summary)
         log.info("run %s ended: %s in %.2f s", self.run_id, summary.outcome, summary.wall_s)
         return summary
+
+    def _shared_memory_counts(self) -> dict[str, int]:
+        pool = getattr(self._bus, "shm", None)
+        return {} if pool is None else {"payloads": pool.shared, "fallbacks": pool.fallbacks}
 
     def _start(self) -> None:
         if self._bus is None:
@@ -338,6 +344,7 @@ class Runner:
             # Open3D loaded otherwise pause every thread for tens of milliseconds now and then
             gc.collect()
             gc.freeze()
+            keep_freed_memory()  # large messages' buffers reused, not mapped anew (engine.process_memory)
         self.started = True
         for name in local:
             rt = self.runtimes[name]
