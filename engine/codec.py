@@ -195,8 +195,11 @@ def _read_varint(buf: memoryview, pos: int) -> tuple[int, int]:
             raise CodecError("varint too long")
 
 
-def encode_payload(msg: Message) -> bytes:
-    """Protobuf bytes of *msg* (bulk array appended as its length-delimited field)."""
+def encode_parts(msg: Message) -> tuple[bytes, bytes | memoryview | None]:
+    """*msg*'s protobuf bytes in two parts, ``(head, bulk)``: their concatenation is
+    :func:`encode_payload`'s result; *bulk* is the bulk field's contents, not copied (the message's
+    bytes, or a view of its array), or None when the message has no bulk field to append. A sender
+    that writes the two parts where they go (engine.shm) saves the copy that joining them costs."""
     wire = msg.__dict__.get(WIRE_CACHE)  # a published message carries the protobuf it was rebuilt from
     pb, bulk = wire if wire is not None else msg.to_proto()
     maps = _MAPS.get(type(pb))
@@ -204,11 +207,17 @@ def encode_payload(msg: Message) -> bytes:
         maps = _has_maps(type(pb))
     head = pb.SerializeToString(deterministic=True) if maps else pb.SerializeToString()
     if bulk is None or msg.BULK is None:
-        return head
+        return head, None
     key = _BULK_KEYS.get(msg.BULK)
     if key is None:
         key = _BULK_KEYS[msg.BULK] = _varint((msg.BULK << 3) | 2)
-    return b"".join((head, key, _varint(len(bulk)), bulk))
+    return b"".join((head, key, _varint(len(bulk)))), bulk
+
+
+def encode_payload(msg: Message) -> bytes:
+    """Protobuf bytes of *msg* (bulk array appended as its length-delimited field)."""
+    head, bulk = encode_parts(msg)
+    return head if bulk is None else b"".join((head, bulk))
 
 
 _BULK_KEYS: dict[int, bytes] = {}  # field number -> encoded key of the length-delimited bulk field

@@ -42,16 +42,17 @@ class OutputPort:
         )
         self.publisher = host.bus.remote_publisher(data_key(host.run_id, rt.name, port))
         self.put = self.publisher.put
+        shm = getattr(host.bus, "shm", None)  # large payloads through shared memory (engine.shm)
         self.wire = (
-            WireSender(
-                host.bus.remote_publisher(wire_key(host.run_id, rt.name, port)),
-                f"{rt.name}.{port}",
-                getattr(host.bus, "shm", None),  # large payloads through shared memory (engine.shm)
-            )
+            WireSender(host.bus.remote_publisher(wire_key(host.run_id, rt.name, port)), f"{rt.name}.{port}", shm)
             if self.remote_consumers
             else None
         )
         self.send = self.wire.send if self.wire is not None else None
+        # the encoded message's two parts written straight into a shared-memory buffer, when the
+        # wire is the only taker of its bytes (see _update)
+        self._wrap_parts = shm.wrap_parts if shm is not None and self.wire is not None else None
+        self.wrap_parts = None
         self.external = bool(self.publisher.matching_status.matching)
         self.observed = bool(host.observers)  # observers are fixed before a run starts
         self._update()
@@ -64,3 +65,4 @@ class OutputPort:
     def _update(self) -> None:
         # something outside the process listens, or an observer records: the message must be encoded
         self.needs_bytes = self.remote_consumers or self.external or self.observed
+        self.wrap_parts = None if self.external or self.observed else self._wrap_parts

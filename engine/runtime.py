@@ -57,13 +57,14 @@ from engine.output_port import OutputPort
 from engine.peers import ForgedReply, owners_answer
 from engine.remote_input import RemoteInput
 from engine.service_port import ServicePort
+from engine.shm import SHM_MIN_BYTES as _SHM_MIN_BYTES
 from engine.stage import EVENTS_PORT, RunStoppingError, ServiceError, ServiceTimeoutError, Stage, StageContext
 from engine.stage_host import ServiceCall, StageHost
 
 log = logging.getLogger("vgr.runtime")
 LOCAL_QUEUE_DEPTH = 64  # messages a local producer may run ahead of its consumer
 _EOS = Kind.EOS  # (an Enum attribute lookup costs more than the test)
-_encode_payload = codec.encode_payload
+_encode_parts = codec.encode_parts
 
 
 class _Causal(threading.local):
@@ -177,8 +178,14 @@ class StageRuntime(StageContext):
             msg.seq = seq
             if out.needs_bytes:
                 fmt = out.format
-                payload = _encode_payload(msg)
                 att = fmt.pack(fmt.head, seq, msg.stamp_ns, fmt.name)
+                head, bulk = _encode_parts(msg)
+                if bulk is None:
+                    payload = head
+                elif out.wrap_parts is not None and type(bulk) is bytes and len(bulk) >= _SHM_MIN_BYTES:
+                    payload = out.wrap_parts(head, bulk)  # into shared memory, not joined first (engine.shm)
+                else:
+                    payload = b"".join((head, bulk))
                 for obs in self._observers:
                     obs.on_publish(self.name, port, payload, att, msg)
                 if out.external:

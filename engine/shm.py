@@ -13,6 +13,12 @@ What vgr does (engine.wire.WireSender, for the internal ``_wire`` key only):
 
 * a payload of at least :data:`SHM_MIN_BYTES` is copied once into a buffer of the process's pool
   (:class:`ShmPool`, :data:`POOL_BYTES`, made on the first such payload) and put from there;
+* a message whose bulk field is ``bytes`` (a Blob, an image's pixels) and whose encoded bytes
+  nobody else needs (no recorder, no foreign subscriber on the port's public key) is written into
+  that buffer in its two parts (engine.codec.encode_parts: the protobuf head, then the bulk), not
+  joined into one ``bytes`` first: one copy of the bulk instead of two. A bulk that is an array
+  (point clouds) is joined first: zenoh-python's ``ZShmMut`` takes only ``bytes`` or ``bytearray``,
+  so an array would need its own copy into one anyway;
 * smaller payloads, and batches of small messages (at most engine.wire.BATCH_BYTES, below the
   threshold), go through the socket as before;
 * the pool full (a receiver that holds many buffers) or no shared memory on this host (no
@@ -31,9 +37,12 @@ shared memory wins (2-4x at 1.2 MB). Batches of small messages (at most engine.w
 60 KiB) stay on the socket.
 
 The receiving side (engine.remote_input) reads a shared-memory payload with ``ZBytes.to_bytes()``
-like any other: zenoh-python 1.10's ``ZBytes`` and ``ZShm`` expose no Python buffer protocol, so
-one copy out of the segment is the least a Python reader can do; the codec then decodes the bulk
-array as a numpy view of those bytes (engine.codec.decode_payload), no further copy.
+like any other: zenoh-python 1.10's ``ZBytes`` and ``ZShm`` expose no Python buffer protocol (asked
+for upstream in eclipse-zenoh/zenoh-python issue 730), so one copy out of the segment is the least
+a Python reader can do (65-85 us for 1.2 MB here); the codec then decodes the bulk array as a numpy
+view of those bytes (engine.codec.decode_payload), no further copy. dora-rs hands its Python nodes
+an Arrow view of its shared memory instead, which is why its 1.2 MB latency can stay ahead of vgr's
+(benchmarks/results/engine_overhead.json).
 
 A recipe turns it off with ``zenoh: {shared_memory: false}`` (zenoh's
 ``transport/shared_memory/enabled``): every payload then travels through the socket.
@@ -84,23 +93,43 @@ class ShmPool:
                     self._failed = True
             return self._provider
 
-    def wrap(self, payload: bytes) -> bytes | zenoh.ZBytes:
-        """*payload* in a shared-memory buffer when it is large and the pool has room, else itself."""
+    def wrap(self, payload: bytes | zenoh.ZBytes) -> bytes | zenoh.ZBytes:
+        """*payload* in a shared-memory buffer when it is large and the pool has room, else itself
+        (a payload :meth:`wrap_parts` already put in the pool passes through)."""
         n = len(payload)
-        if n < self.min_bytes:
+        if n < self.min_bytes or type(payload) is not bytes:
             return payload
+        buf = self._alloc(n)
+        if buf is None:
+            return payload
+        buf[0:n] = payload
+        return zenoh.ZBytes(buf)
+
+    def wrap_parts(self, head: bytes, bulk: bytes) -> bytes | zenoh.ZBytes:
+        """``head + bulk`` (engine.codec.encode_parts) written straight into a shared-memory buffer
+        when the pool has room, else joined into bytes: one copy of the bulk either way."""
+        h, n = len(head), len(head) + len(bulk)
+        buf = self._alloc(n) if n >= self.min_bytes else None
+        if buf is None:
+            return b"".join((head, bulk))
+        buf[0:h] = head
+        buf[h:n] = bulk
+        return zenoh.ZBytes(buf)
+
+    def _alloc(self, n: int) -> Any:
+        """A buffer of *n* bytes from the pool (counted in ``shared``), None when there is no pool or
+        no room in it (counted in ``fallbacks``)."""
         provider = self._provider or self._get_provider()
         if provider is None:
             self.fallbacks += 1
-            return payload
+            return None
         try:
             buf = provider.alloc(n, _POLICY)
         except zenoh.ZError:  # out of memory: receivers still hold the pool's buffers
             self.fallbacks += 1
-            return payload
-        buf[0:n] = payload
+            return None
         self.shared += 1
-        return zenoh.ZBytes(buf)
+        return buf
 
     def close(self) -> None:
         with self._lock, contextlib.suppress(Exception):

@@ -6,6 +6,7 @@ also write it as JSON (subprocess tests).
 
 from __future__ import annotations
 
+import hashlib
 import json
 import threading
 from collections import defaultdict
@@ -219,9 +220,57 @@ class BlobSink(Stage):
     inputs: ClassVar = {"in": Blob}
 
 
+def blob_bytes(i: int, size: int) -> bytes:
+    """Payload *i* of t_blob_source: *size* bytes that differ from message to message."""
+    return ((np.arange(size, dtype=np.int64) * 7 + i) % 251).astype(np.uint8).tobytes()
+
+
+class BlobSource(Stage):
+    """Publishes `n` Blobs of `size` bytes (:func:`blob_bytes`) and `n` clouds of `points` points."""
+
+    type_name = "t_blob_source"
+    role = "source"
+    outputs: ClassVar = {"out": Blob, "cloud": PointCloud}
+
+    class Params(StageParams):
+        n: int = 3
+        size: int = 1000
+        points: int = 100
+
+    def run(self) -> None:
+        p = self.params
+        for i in range(p.n):
+            self.ctx.publish("out", Blob(data=blob_bytes(i, p.size)))
+            pts = np.arange(3 * p.points, dtype=float).reshape(-1, 3) + i
+            self.ctx.publish("cloud", PointCloud(points=pts, frame_id="grid"))
+
+
+class DigestSink(Stage):
+    """Writes, per message received, its port, sequence number, size and SHA-256 (JSON list)."""
+
+    type_name = "t_digest_sink"
+    role = "sink"
+    inputs: ClassVar = {"blob": Blob, "cloud": PointCloud}
+
+    class Params(StageParams):
+        output: str = "digests.json"
+
+    def setup(self) -> None:
+        self.rows: list[list] = []
+
+    def on_message(self, port: str, msg: Blob | PointCloud) -> None:  # type: ignore[override]
+        data = bytes(msg.data) if isinstance(msg, Blob) else np.ascontiguousarray(msg.points).tobytes()
+        self.rows.append([port, msg.seq, len(data), hashlib.sha256(data).hexdigest()])
+
+    def finish(self) -> None:
+        Path(self.params.output).write_text(json.dumps(self.rows))
+
+
 @hookimpl
 def vgr_stage_types() -> list[type]:
     return [
+        BlobSource,
+        DigestSink,
         Counter,
         Relay,
         Merge,

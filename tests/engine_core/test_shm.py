@@ -108,3 +108,25 @@ def test_wrapping_keeps_the_bytes_and_only_large_payloads_are_shared(n):
     else:
         assert isinstance(wrapped, zenoh.ZBytes) and wrapped.as_shm() is not None
         assert wrapped.to_bytes() == data
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.binary(max_size=40), st.integers(min_value=0, max_value=2 * SHM_MIN_BYTES))
+def test_the_two_parts_of_a_message_land_in_one_buffer_in_order(head, n):
+    pool = ShmPool(size=4 * SHM_MIN_BYTES)
+    bulk = payload(n % 7, n)
+    wrapped = pool.wrap_parts(head, bulk)
+    if len(head) + n < SHM_MIN_BYTES:
+        assert wrapped == head + bulk and pool.shared == 0
+    else:
+        assert isinstance(wrapped, zenoh.ZBytes) and wrapped.as_shm() is not None
+        assert wrapped.to_bytes() == head + bulk and pool.shared == 1
+    assert pool.wrap(wrapped) is wrapped  # already in the pool (or small): put as it is
+
+
+def test_a_full_pool_joins_the_parts_instead_of_waiting():
+    pool = ShmPool(size=2 * LARGE, min_bytes=SHM_MIN_BYTES)
+    held = [pool.wrap_parts(b"head%d" % k, payload(k, LARGE)) for k in range(4)]
+    assert isinstance(held[0], zenoh.ZBytes)
+    assert held[-1] == b"head3" + payload(3, LARGE)
+    assert pool.fallbacks >= 1 and pool.shared + pool.fallbacks == 4
