@@ -4,8 +4,11 @@ Each recorded message of an output port (``/<stage>/<port>``) is put on its publ
 ``vgr/<run>/<stage>/<port>`` with the envelope a live run gives it (docs/zenoh_layout.md: its recorded
 seq, its source stamp, its type), in log-time order, the gap between two messages being the recorded
 gap divided by ``rate``. The schedule is absolute (message *k* is due at start + its offset / rate),
-so sleeping late once does not delay the rest. After the last message of the last loop each played
-topic gets an end of stream, as a live port does.
+so sleeping late once does not delay the rest. With ``--loop`` the seq numbers go on counting from
+loop to loop (loop *k* adds *k* times the played span of the topic's seqs), so a subscriber that
+drops a seq it has seen loses nothing; the stamps are the recorded ones each time, as ``ros2 bag
+play --loop`` repeats header stamps. After the last message of the last loop each played topic gets
+an end of stream, as a live port does.
 
 It never drives a device. It publishes on the public data keys only: no ``_wire`` key (the one vgr
 stages read from other processes), no ``_control`` (a run's stop), no query at all (so no service, no
@@ -110,19 +113,32 @@ class Player:
             raise PlayError(f"--loop {loops}: play N >= 1 times, or 0 for until Ctrl-C")
         n = 0
         first = self.messages[0].log_time
+        span = self._seq_spans()
+        last: dict[str, int] = {}  # the seq each topic put last
         while (loops == 0 or n < loops) and not self._stop.is_set():
             start = time.monotonic()
             for m in self.messages:
                 due = start + (m.log_time - first) / 1e9 / self.rate
                 if self._stop.wait(max(0.0, due - time.monotonic())):
                     break
-                env = codec.encode_envelope(Envelope(Kind.DATA, m.seq, m.publish_time, m.type_name))
+                seq = last[m.topic] = m.seq + n * span[m.topic]  # a loop goes on counting: no seq twice
+                env = codec.encode_envelope(Envelope(Kind.DATA, seq, m.publish_time, m.type_name))
                 self._pubs[m.topic].put(m.payload, attachment=env)
                 self.published += 1
                 if on_message is not None:
                     on_message(m)
             n += 1
-        last = {m.topic: m.seq for m in self.messages}
         for topic, pub in self._pubs.items():
-            pub.put(b"", attachment=codec.encode_envelope(Envelope(Kind.EOS, last[topic] + 1, 0, "")))
+            end = last.get(topic, max((m.seq for m in self.messages if m.topic == topic), default=0))
+            pub.put(b"", attachment=codec.encode_envelope(Envelope(Kind.EOS, end + 1, 0, "")))
         return self.published
+
+    def _seq_spans(self) -> dict[str, int]:
+        """Per topic, how far the seq numbers of one loop reach (last - first + 1): loop *k* adds *k*
+        times this to the recorded seq, so the numbers keep rising from loop to loop, with no gap."""
+        lo: dict[str, int] = {}
+        hi: dict[str, int] = {}
+        for m in self.messages:
+            lo[m.topic] = min(lo.get(m.topic, m.seq), m.seq)
+            hi[m.topic] = max(hi.get(m.topic, m.seq), m.seq)
+        return {t: hi[t] - lo[t] + 1 for t in lo}
