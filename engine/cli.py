@@ -157,7 +157,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         ready_timeout_s=args.ready_timeout,
         freeze_gc=args.own_process,  # the command's own process (not a caller's, e.g. a test): see Runner
     )
-    cli_recording.add_live_view(args, runner.observers, console)  # before the folder: a taken port is refused first
+    # the live view before the folder: a taken port is refused before anything is made
+    view = cli_recording.add_live_view(args, runner.observers, console)
     # a recording the user named (--record, record.path) does not depend on the run folder: it is
     # resolved, and refused if it exists, before anything is created
     named = bool(args.record or recipe.record.path)
@@ -178,6 +179,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     incomplete = "recording_error" in summary.artifacts
     if incomplete:  # said even when the run was interrupted
         console.print(f"[red]the recording is incomplete[/]: {escape(summary.artifacts['recording_error'])}")
+    if summary.outcome != "interrupted":  # (Ctrl-C ended the run: it ends the view too)
+        cli_recording.end_view(view, args, console, summary.wall_s)
+    elif view is not None:
+        view.close()
     if incomplete and summary.outcome != "interrupted":
         return EXIT_FAILED
     return summary.exit_code

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -59,6 +60,11 @@ def add_view_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--view-host", default="127.0.0.1", help="address the live view binds to (default 127.0.0.1, loopback only)"
     )
+    p.add_argument(
+        "--view-hold",
+        action="store_true",
+        help="keep the live view up after the end, with each topic's last message, until Ctrl-C",
+    )
 
 
 def start_view(args: argparse.Namespace, console: Console) -> LiveView | None:
@@ -74,13 +80,45 @@ def start_view(args: argparse.Namespace, console: Console) -> LiveView | None:
     return view
 
 
-def add_live_view(args: argparse.Namespace, observers: list[Any], console: Console) -> None:
-    """``vgr run --view``: a :class:`~engine.live_view.ViewObserver` among the run's observers."""
+def add_live_view(args: argparse.Namespace, observers: list[Any], console: Console) -> LiveView | None:
+    """``vgr run --view``: a :class:`~engine.live_view.ViewObserver` among the run's observers; the
+    view, which the observer closes at the run's end unless ``--view-hold`` asks :func:`end_view` to."""
     view = start_view(args, console)
     if view is not None:
         from engine.live_view import ViewObserver
 
-        observers.append(ViewObserver(view))
+        observers.append(ViewObserver(view, hold=args.view_hold))
+    return view
+
+
+SHORT_RUN_S = 10.0  # a run this short was over before a viewer could follow it
+
+
+def end_view(view: LiveView | None, args: argparse.Namespace, console: Console, wall_s: float) -> None:
+    """After the run (or replay): with ``--view-hold``, serve each topic's last message until Ctrl-C,
+    then close; without it, say how to see a run that was over in a moment."""
+    if view is None:
+        return
+    if not args.view_hold:
+        view.close()  # (closed already by the run's observer: closing twice is harmless)
+        if wall_s < SHORT_RUN_S:
+            console.print(
+                f"live view: closed with the end, {wall_s:.1f} s after the start; --view-hold keeps each topic's "
+                "last message on view until Ctrl-C (a run on the simulated clock does not wait for the wall clock)",
+                highlight=False,
+            )
+        return
+    console.print(
+        f"live view: the end; {view.topics_with_data} topics keep their last message on {view.url} until Ctrl-C",
+        highlight=False,
+    )
+    try:
+        while True:
+            time.sleep(3600)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        view.close()
 
 
 def add_runs_dir_option(p: argparse.ArgumentParser, folder: str) -> None:
@@ -101,6 +139,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     view = start_view(args, Console(stderr=True))
     if view is not None and Path(args.file).is_file():
         view.advertise_recording(args.file)
+    t0 = time.monotonic()
     run_dir = run_folder.create(args.runs_dir, f"replay-{Path(args.file).stem}")
     try:
         with run_folder.logging_to(run_dir):
@@ -115,10 +154,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
             )
     except BaseException:
         run_folder.remove_if_unused(run_dir)
-        raise
-    finally:
         if view is not None:
             view.close()
+        raise
     run_folder.write_recipe(run_dir, graph.loaded)
     verdicts = (*report.streams, *report.requests)
     recorded = rec.metadata.get("vgr.summary", {}).get("outcome", "")
@@ -162,6 +200,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         out.print(f"{counts[IDENTICAL]} identical, {counts[WITHIN]} within tolerance, {counts[DIFFERENT]} different")
         out.print(f"replay folder: {escape(str(run_dir))}", highlight=False, soft_wrap=True)
         out.print(f"outcome: {report.outcome} (recorded run: {recorded or 'not recorded'})", highlight=False)
+    end_view(view, args, Console(stderr=True), time.monotonic() - t0)
     if args.update:
         changed = bool(args.recipe or args.param)
         path = write_updated(report, rec, args.file, graph.loaded.text if changed else None, graph.loaded.overrides)

@@ -10,8 +10,13 @@ WebSocket*, ``ws://127.0.0.1:8765``; the layout ``docs/foxglove/vgr_layout.json`
 
 The server only sends: it advertises no services, parameters or client publishing, so a viewer
 cannot reach the run. Messages are logged with the run's clock as log time; a client slower than the
-stream loses the oldest messages of its own queue (the SDK's backlog), never the run's. The server
-stops when the run (or the replay) ends.
+stream loses the oldest messages of its own queue (the SDK's backlog), never the run's.
+
+Each channel keeps its last message and sends it again when a client subscribes (as a latched ROS
+topic does), so a viewer that connects late, or to a robot pose published once, sees the current
+state at once rather than at the next message. The server stops when the run (or the replay) ends;
+``--view-hold`` keeps it up after that, with those last messages, until Ctrl-C: a run on the
+simulated clock ends in about a second, before anyone could connect.
 """
 
 from __future__ import annotations
@@ -42,9 +47,12 @@ class LiveView:
         self._foxglove = foxglove
         self._context = foxglove.Context()
         self._channels: dict[str, Any] = {}
+        self._last: dict[str, tuple[bytes, int]] = {}  # topic -> its last message and log time
         self._lock = threading.Lock()
         try:
-            self.server = foxglove.start_server(name=name, host=host, port=port, context=self._context)
+            self.server = foxglove.start_server(
+                name=name, host=host, port=port, context=self._context, server_listener=_latch(self)
+            )
         except Exception as exc:  # port taken, address not on this host
             raise ValueError(f"cannot serve the live view on {host}:{port}: {exc}") from exc
         self.host = host
@@ -91,7 +99,21 @@ class LiveView:
 
     def log(self, topic: str, schema: str, payload: bytes | memoryview, log_time_ns: int) -> None:
         data = payload if type(payload) is bytes else bytes(payload)
-        self.channel(topic, schema).log(data, log_time=log_time_ns)
+        ch = self.channel(topic, schema)
+        self._last[topic] = (data, log_time_ns)
+        ch.log(data, log_time=log_time_ns)
+
+    def resend_last(self, topic: str) -> bool:
+        """Send *topic*'s last message again (to its subscribers); False when it has none yet."""
+        last, ch = self._last.get(topic), self._channels.get(topic)
+        if last is None or ch is None:
+            return False
+        ch.log(last[0], log_time=last[1])
+        return True
+
+    @property
+    def topics_with_data(self) -> int:
+        return len(self._last)
 
     def log_typed(self, topic: str, type_name: str, payload: bytes | memoryview, log_time_ns: int) -> None:
         """:meth:`log` for a message named by its vgr type (the schema is the type's)."""
@@ -104,12 +126,26 @@ class LiveView:
             log.debug("live view stop: %s", exc)
 
 
+def _latch(view: LiveView) -> Any:
+    """The server listener of *view*: a client that subscribes gets the channel's last message (the
+    SDK's other callbacks keep their do-nothing defaults). Made here, not at import: ``vgr`` imports
+    this module for its options, and foxglove only when a view is asked for."""
+    from foxglove.websocket import ChannelView, Client, ServerListener
+
+    class Latch(ServerListener):
+        def on_subscribe(self, client: Client, channel: ChannelView) -> None:
+            view.resend_last(channel.topic)
+
+    return Latch()
+
+
 class ViewObserver(Observer):
     """Run observer feeding a :class:`LiveView`: the process's own outputs as they are published,
     and what arrives from stages of other processes."""
 
-    def __init__(self, view: LiveView) -> None:
+    def __init__(self, view: LiveView, hold: bool = False) -> None:
         self.view = view
+        self.hold = hold  # the view outlives the run (its owner closes it)
         self._runner: Runner | None = None
         self._last_remote: dict[str, int] = {}  # topic -> last seq shown (several local inputs may get one message)
 
@@ -135,4 +171,5 @@ class ViewObserver(Observer):
         self.view.log_typed(topic, env.type_name, payload, self._now())
 
     def on_finish(self, runner: Runner, summary: RunSummary) -> None:
-        self.view.close()
+        if not self.hold:
+            self.view.close()

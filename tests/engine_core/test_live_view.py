@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import base64
 import json
+import signal
 import socket
 import struct
 import subprocess
@@ -109,3 +110,36 @@ def test_a_taken_port_is_refused_before_the_run_makes_its_folder(tmp_path, capsy
         code = main(["run", str(ROOT / "recipes/demo.yaml"), "--view", str(port), "--runs-dir", str(tmp_path)])
     assert code == 2 and "cannot serve the live view on 127.0.0.1" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())
+
+
+def test_view_hold_serves_each_topics_last_message_after_the_run_until_ctrl_c(tmp_path):
+    """A run on the simulated clock is over in about a second; with --view-hold a viewer that
+    connects afterwards still gets the last cloud (re-sent when it subscribes), and Ctrl-C ends the
+    command with the run's own exit code."""
+    port = free_port()
+    argv = vgr("run", str(ROOT / "recipes/demo.yaml"), "--no-progress", "--runs-dir", str(tmp_path))
+    argv += ["--view", str(port), "--view-hold"]
+    proc = subprocess.Popen(argv, env=env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        lines = []
+        while not any("live view: the end" in line for line in lines):
+            line = proc.stdout.readline()
+            assert line, "".join(lines)  # the command ended instead of holding the view
+            lines.append(line)
+        _, cloud, payload = first_cloud(port, proc, "/move/cloud")
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(30) == 0
+    finally:
+        stop(proc)
+    recording = next(tmp_path.glob("*/demo.mcap"))
+    assert payload == load(recording).messages("/move/cloud")[-1].payload  # the run's last cloud
+    assert cloud.frame_id == "world"
+
+
+def test_a_short_run_says_how_to_keep_the_view(tmp_path):
+    port = free_port()
+    argv = vgr("run", str(ROOT / "recipes/demo.yaml"), "--no-progress", "--no-record", "--runs-dir", str(tmp_path))
+    done = subprocess.run([*argv, "--view", str(port)], env=env(), capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stdout + done.stderr
+    said = " ".join((done.stdout + done.stderr).split())
+    assert "closed with the end" in said and "--view-hold keeps each topic's last message on view" in said
