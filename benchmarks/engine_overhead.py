@@ -43,6 +43,11 @@ dora has no in-process row (``dora_in_process`` says why). For payloads of at le
 engine.shm.SHM_MIN_BYTES, ``vgr_noshm`` is vgr with ``zenoh: {shared_memory: false}`` (every byte
 through the unix socket), the A/B of vgr's shared memory (``shm_ab``).
 
+Every process of every row runs with the C allocator settings a vgr run sets for itself
+(engine.process_memory.keep_freed_memory: glibc keeps freed heap memory instead of unmapping it),
+the raw zenoh processes and the dora nodes included, so no row gains or loses by them. Without
+them the 1.2 MB rows were bimodal from process to process (vgr: 480-660 us or 1400-1950 us).
+
 For 64 B and 4 KiB across processes a further row, ``typed_floor`` (benchmarks/wire_floor.py), gives the
 throughput of vgr's codec alone: the same Blobs built, encoded, packed 64 to a zenoh sample, decoded
 and handed to the sink's code in the receiving process, with no engine at all. An engine delivering
@@ -81,6 +86,7 @@ from bench_stages import make_payload, pace  # noqa: E402
 from overhead_ratios import dora_ratios, paired, print_ratios, raw_ratios  # noqa: E402
 from wire_floor import BATCH, floor_subscriber_main, send_batched  # noqa: E402
 
+from engine.process_memory import keep_freed_memory  # noqa: E402
 from engine.shm import SHM_MIN_BYTES  # noqa: E402
 
 BENCH_KEY = "bench/data"  # key of the raw and typed-floor runs
@@ -411,6 +417,7 @@ def main() -> None:
     ap.add_argument("--raw-sub", nargs=3, metavar=("ENDPOINT", "OUT", "TOTAL"), help=argparse.SUPPRESS)
     ap.add_argument("--floor-sub", nargs=3, metavar=("ENDPOINT", "OUT", "TOTAL"), help=argparse.SUPPRESS)
     args = ap.parse_args()
+    keep_freed_memory()  # every row on the allocator settings a vgr run has (see the module docstring)
     if args.raw_sub:
         raw_subscriber_main(args.raw_sub[0], args.raw_sub[1], int(args.raw_sub[2]))
         return
