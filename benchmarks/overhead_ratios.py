@@ -7,6 +7,7 @@ and security change; ``dora_ratios`` vgr / dora-rs; ``print_ratios`` the summary
 
 from __future__ import annotations
 
+import statistics
 from typing import Any
 
 
@@ -23,7 +24,9 @@ def paired(lat_runs: dict[str, list[dict]], tp_runs: dict[str, list[dict]], othe
 
 def dora_ratios(results: dict, runs: dict[str, dict[str, list[float]]]) -> dict[str, dict[str, object]]:
     """Per row with a dora run: vgr / dora of the medians (latency below 1 and throughput above 1:
-    vgr ahead), whether vgr is ahead on both while delivering everything, and the run-by-run ratios."""
+    vgr ahead), whether vgr is ahead on both while delivering everything, and the run-by-run ratios.
+    Ahead means the ratio of the medians *and* the median of the paired runs' ratios are on vgr's
+    side: a row where the paired runs go both ways and the medians tie is level, not ahead."""
     out: dict[str, dict[str, object]] = {}
     for key, pair in runs.items():
         topo, label = key.split("/")
@@ -33,7 +36,11 @@ def dora_ratios(results: dict, runs: dict[str, dict[str, list[float]]]) -> dict[
         out[key] = {
             "latency_ratio_p50": lat,
             "throughput_ratio": tp,
-            "vgr_ahead": lat < 1 and tp > 1 and vgr["delivered_burst"] == 1.0,
+            "vgr_ahead": lat < 1
+            and tp > 1
+            and statistics.median(pair["latency"]) < 1
+            and statistics.median(pair["throughput"]) > 1
+            and vgr["delivered_burst"] == 1.0,
             "dora_delivered_burst": dora["delivered_burst"],
             "latency_ratio_p50_runs": [round(x, 3) for x in pair["latency"]],
             "throughput_ratio_runs": [round(x, 3) for x in pair["throughput"]],
