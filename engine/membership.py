@@ -51,6 +51,9 @@ from engine.run_summary import RunError
 
 # the runner's log: what the membership logs is part of the runner's account of the run
 log = logging.getLogger("vgr.runner")
+# how long the end-of-run check waits for the peer watch to see how a departed process left (its
+# ``done`` comes before its tokens go, on the same subscriber, so this is a wait for a queued callback)
+LEFT_WAIT_S = 2.0
 
 
 class RunControl(Protocol):
@@ -84,6 +87,8 @@ class Membership:
         self._tokens: dict[str, Any] = {}  # declared in this order, undeclared in it by leave()
         self._peer_key = ""
         self.lost_peer: str | None = None  # why a peer process was lost (crashed, lease lost): the run failed
+        self._lost: set[tuple[str, str]] = set()  # (process, zid) already reported lost
+        self._lost_lock = threading.Lock()
 
     def _bus(self) -> Bus:
         assert self.bus is not None, "bus not open"
@@ -223,12 +228,38 @@ class Membership:
         if self._active is None:
             return True
         own = active_key(self.run_id, self.process)
-        return not (self._active.snapshot()[0] - {own})
+        if self._active.snapshot()[0] - {own}:
+            return False
+        return self._others_left_in_order()
+
+    def _others_left_in_order(self) -> bool:
+        """No other process has active stages: True when each is still a member or left in order
+        (its ``done``). A process whose session lost its lease or crashed loses its ``_active`` and
+        ``_peer`` tokens at once, and their two watchers may be told in either order: seen from here,
+        its stages would have "ended". So the ``_peer`` tokens alive now are asked for (a liveliness
+        query), and one gone without ``done`` is lost (an alarm; the run fails) before this process
+        may end as if the data were complete."""
+        if self.peers is None or self.bus is None:
+            return True
+        alive = {key.split("/")[3] for key in self.bus.alive(f"vgr/{self.run_id}/_peer/*/*/*")}
+        for process in self.graph.processes():
+            if process == self.process or process in alive:
+                continue
+            left = self.peers.left_in_order(process, LEFT_WAIT_S)
+            if not left:
+                self._peer_lost(process, self.peers.last_zid(process) or "?")
+                return False
+        return True
 
     def _peer_lost(self, process: str, zid: str) -> None:
-        """A process's token vanished without its ``done`` marker: it crashed or lost its lease."""
+        """A process's token vanished without its ``done`` marker: it crashed or lost its lease.
+        Said once per session of the process (the peer watch and the end-of-run check may both see it)."""
         if self.run.stop_event.is_set() or process == self.process:
             return
+        with self._lost_lock:
+            if (process, zid) in self._lost:
+                return
+            self._lost.add((process, zid))
         if self.graph.recipe.rejoin:
             self.run.run_event(
                 "warning",

@@ -170,6 +170,21 @@ class PeerWatch:
         with self._cv:
             return next((p for p, m in self._members.items() if m.zid == zid and not m.gone), None)
 
+    def left_in_order(self, process: str, wait_s: float) -> bool:
+        """*process*'s token is gone (a liveliness query said so): did it leave with ``done``? Waits
+        up to *wait_s* for this watch to see the removal (its callbacks are queued); False when it
+        left without ``done``, or when the removal is still unseen then (in doubt: lost)."""
+        with self._cv:
+            self._cv.wait_for(lambda: (m := self._members.get(process)) is not None and (m.done or m.gone), wait_s)
+            m = self._members.get(process)
+            return m is not None and m.done
+
+    def last_zid(self, process: str) -> str | None:
+        """The ZenohId last accepted for *process*, gone or not."""
+        with self._cv:
+            m = self._members.get(process)
+            return m.zid if m is not None else None
+
     def epochs(self) -> dict[str, str]:
         with self._cv:
             return {p: m.epoch for p, m in self._members.items()}
