@@ -14,6 +14,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -89,7 +90,7 @@ def test_shared_memory_off_on_one_side_falls_back_to_the_socket(side):
     assert [g["data"] for g in got] == [payload(k, n) for k, n in enumerate(sizes)]
 
 
-def test_a_full_pool_sends_bytes_instead_of_waiting():
+def test_a_full_pool_sends_bytes_after_a_short_wait():
     pool = ShmPool(size=2 * LARGE, min_bytes=SHM_MIN_BYTES)
     held = [pool.wrap(payload(k, LARGE)) for k in range(4)]  # nobody releases them
     assert [type(h) for h in held[:1]] == [zenoh.ZBytes]
@@ -124,9 +125,46 @@ def test_the_two_parts_of_a_message_land_in_one_buffer_in_order(head, n):
     assert pool.wrap(wrapped) is wrapped  # already in the pool (or small): put as it is
 
 
-def test_a_full_pool_joins_the_parts_instead_of_waiting():
+def test_a_full_pool_joins_the_parts_after_a_short_wait_and_the_wire_does_not_try_again():
     pool = ShmPool(size=2 * LARGE, min_bytes=SHM_MIN_BYTES)
     held = [pool.wrap_parts(b"head%d" % k, payload(k, LARGE)) for k in range(4)]
     assert isinstance(held[0], zenoh.ZBytes)
-    assert held[-1] == b"head3" + payload(3, LARGE)
+    assert isinstance(held[-1], bytearray) and held[-1] == b"head3" + payload(3, LARGE)
+    assert pool.wrap(held[-1]) is held[-1]  # (WireSender wraps every payload: no second wait)
     assert pool.fallbacks >= 1 and pool.shared + pool.fallbacks == 4
+
+
+def full_pool(monkeypatch) -> tuple[ShmPool, list]:
+    """A pool of three 1.2 MB payloads' size, filled: the buffers it holds (nobody released them)."""
+    import engine.shm
+
+    monkeypatch.setattr(engine.shm, "POOL_WAIT_S", 0.0)
+    pool = ShmPool(size=3 * LARGE, min_bytes=SHM_MIN_BYTES)
+    held = []
+    while len(held) < 10 and isinstance(wrapped := pool.wrap(payload(len(held), LARGE)), zenoh.ZBytes):
+        held.append(wrapped)
+    assert 1 <= len(held) < 10 and pool.fallbacks == 1
+    return pool, held
+
+
+def test_a_buffer_released_is_used_again_rather_than_sending_bytes(monkeypatch):
+    pool, held = full_pool(monkeypatch)
+    held.pop()  # a receiver is done with one
+    again = pool.wrap(payload(50, LARGE))
+    assert isinstance(again, zenoh.ZBytes) and again.to_bytes() == payload(50, LARGE)
+    assert pool.fallbacks == 1
+
+
+def test_a_full_pool_is_waited_for_while_a_receiver_releases_a_buffer(monkeypatch):
+    import engine.shm
+
+    pool, held = full_pool(monkeypatch)
+    monkeypatch.setattr(engine.shm, "POOL_WAIT_S", 30.0)  # a bound on a broken wait, not a measured time
+    release = threading.Timer(0.05, held.pop)  # the receiver copies one out a little later
+    release.start()
+    try:
+        waited = pool.wrap_parts(b"head", payload(7, LARGE))
+    finally:
+        release.join()
+    assert isinstance(waited, zenoh.ZBytes) and waited.to_bytes() == b"head" + payload(7, LARGE)
+    assert pool.fallbacks == 1  # (the one that found the pool full while filling it)
