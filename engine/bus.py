@@ -59,6 +59,11 @@ def data_key(run: str, stage: str, port: str) -> str:
     return f"vgr/{run}/{stage}/{port}"
 
 
+def topic_of(stage: str, port: str) -> str:
+    """The name of an output stream in recordings, the live view and ``vgr topics``."""
+    return f"/{stage}/{port}"
+
+
 def wire_key(run: str, stage: str, port: str) -> str:
     return f"vgr/{run}/_wire/{stage}/{port}"
 

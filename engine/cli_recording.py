@@ -82,12 +82,12 @@ def start_view(args: argparse.Namespace, console: Console) -> LiveView | None:
 
 def add_live_view(args: argparse.Namespace, observers: list[Any], console: Console) -> LiveView | None:
     """``vgr run --view``: a :class:`~engine.live_view.ViewObserver` among the run's observers; the
-    view, which the observer closes at the run's end unless ``--view-hold`` asks :func:`end_view` to."""
+    view, which :func:`end_view` closes after the run."""
     view = start_view(args, console)
     if view is not None:
         from engine.live_view import ViewObserver
 
-        observers.append(ViewObserver(view, hold=args.view_hold))
+        observers.append(ViewObserver(view))
     return view
 
 
@@ -100,7 +100,7 @@ def end_view(view: LiveView | None, args: argparse.Namespace, console: Console, 
     if view is None:
         return
     if not args.view_hold:
-        view.close()  # (closed already by the run's observer: closing twice is harmless)
+        view.close()
         if wall_s < SHORT_RUN_S:
             console.print(
                 f"live view: closed with the end, {wall_s:.1f} s after the start; --view-hold keeps each topic's "
@@ -136,9 +136,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     speed = None if args.speed in (None, "max") else float(args.speed)
     stages = [s for s in (args.stages or "").split(",") if s] or None
-    view = start_view(args, Console(stderr=True))
-    if view is not None and Path(args.file).is_file():
-        view.advertise_recording(args.file)
+    err = Console(stderr=True)
+    view = start_view(args, err)
+    if view is not None:
+        view.advertise_recording(args.file)  # (a file it cannot read advertises nothing: the replay says why)
     t0 = time.monotonic()
     run_dir = run_folder.create(args.runs_dir, f"replay-{Path(args.file).stem}")
     try:
@@ -200,7 +201,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         out.print(f"{counts[IDENTICAL]} identical, {counts[WITHIN]} within tolerance, {counts[DIFFERENT]} different")
         out.print(f"replay folder: {escape(str(run_dir))}", highlight=False, soft_wrap=True)
         out.print(f"outcome: {report.outcome} (recorded run: {recorded or 'not recorded'})", highlight=False)
-    end_view(view, args, Console(stderr=True), time.monotonic() - t0)
+    end_view(view, args, err, time.monotonic() - t0)
     if args.update:
         changed = bool(args.recipe or args.param)
         path = write_updated(report, rec, args.file, graph.loaded.text if changed else None, graph.loaded.overrides)

@@ -26,7 +26,7 @@ from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
 from engine import __version__
-from engine.bus import data_key
+from engine.bus import data_key, topic_of
 
 if TYPE_CHECKING:
     from engine.bus import Bus
@@ -52,7 +52,7 @@ class TopicInfo:
 
 
 def topic_info(run_id: str, stage: str, port: str, type_name: str, schema: str) -> TopicInfo:
-    return TopicInfo(data_key(run_id, stage, port), f"/{stage}/{port}", stage, port, type_name, schema)
+    return TopicInfo(data_key(run_id, stage, port), topic_of(stage, port), stage, port, type_name, schema)
 
 
 def graph_topics(graph: Graph, run_id: str, process: str) -> list[TopicInfo]:

@@ -27,8 +27,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from engine import codec
+from engine.bus import topic_of
 from engine.discovery import graph_topics
-from engine.runner import Observer, Runner, RunSummary
+from engine.runner import Observer, Runner
 from engine.schemas import descriptor_set
 
 if TYPE_CHECKING:
@@ -143,9 +144,8 @@ class ViewObserver(Observer):
     """Run observer feeding a :class:`LiveView`: the process's own outputs as they are published,
     and what arrives from stages of other processes."""
 
-    def __init__(self, view: LiveView, hold: bool = False) -> None:
-        self.view = view
-        self.hold = hold  # the view outlives the run (its owner closes it)
+    def __init__(self, view: LiveView) -> None:
+        self.view = view  # (its owner closes it: engine.cli_recording.end_view)
         self._runner: Runner | None = None
         self._last_remote: dict[str, int] = {}  # topic -> last seq shown (several local inputs may get one message)
 
@@ -160,16 +160,12 @@ class ViewObserver(Observer):
         return self._runner.clock.now_ns()
 
     def on_publish(self, stage: str, port: str, payload: bytes, envelope: bytes, msg: Message) -> None:
-        self.view.log(f"/{stage}/{port}", msg.SCHEMA, payload, self._now())
+        self.view.log(topic_of(stage, port), msg.SCHEMA, payload, self._now())
 
     def on_receive(self, src_stage: str, src_port: str, payload: bytes, envelope: bytes) -> None:
         env = codec.decode_envelope(envelope)
-        topic = f"/{src_stage}/{src_port}"
+        topic = topic_of(src_stage, src_port)
         if env.seq <= self._last_remote.get(topic, 0):
             return
         self._last_remote[topic] = env.seq
         self.view.log_typed(topic, env.type_name, payload, self._now())
-
-    def on_finish(self, runner: Runner, summary: RunSummary) -> None:
-        if not self.hold:
-            self.view.close()

@@ -57,6 +57,7 @@ def select(rec: Recording, sel: Selection) -> list[RecordedMessage]:
     msgs = data_messages(rec)
     if not msgs:
         raise PlayError(f"{rec.path} holds no data messages")
+    t0 = msgs[0].log_time  # (of every topic: --start and --end count from the recording's first message)
     known = sorted({m.topic for m in msgs})
     if sel.topics is not None:
         wanted = {"/" + t.strip("/") for t in sel.topics}
@@ -64,7 +65,6 @@ def select(rec: Recording, sel: Selection) -> list[RecordedMessage]:
         if unknown:
             raise PlayError(f"no topic {', '.join(unknown)} in {rec.path}; its topics: {', '.join(known)}")
         msgs = [m for m in msgs if m.topic in wanted]
-    t0 = data_messages(rec)[0].log_time
     lo = t0 + round(sel.start_s * 1e9) if sel.start_s is not None else None
     hi = t0 + round(sel.end_s * 1e9) if sel.end_s is not None else None
     msgs = [m for m in msgs if (lo is None or m.log_time >= lo) and (hi is None or m.log_time <= hi)]
@@ -113,8 +113,9 @@ class Player:
             raise PlayError(f"--loop {loops}: play N >= 1 times, or 0 for until Ctrl-C")
         n = 0
         first = self.messages[0].log_time
-        span = self._seq_spans()
-        last: dict[str, int] = {}  # the seq each topic put last
+        seqs = self._seq_ranges()
+        span = {t: hi - lo + 1 for t, (lo, hi) in seqs.items()}
+        last = {t: hi for t, (_, hi) in seqs.items()}  # the seq each topic put last
         while (loops == 0 or n < loops) and not self._stop.is_set():
             start = time.monotonic()
             for m in self.messages:
@@ -122,23 +123,23 @@ class Player:
                 if self._stop.wait(max(0.0, due - time.monotonic())):
                     break
                 seq = last[m.topic] = m.seq + n * span[m.topic]  # a loop goes on counting: no seq twice
-                env = codec.encode_envelope(Envelope(Kind.DATA, seq, m.publish_time, m.type_name))
+                env = codec.encode_envelope(codec.data_envelope(seq, m.publish_time, m.type_name))
                 self._pubs[m.topic].put(m.payload, attachment=env)
                 self.published += 1
                 if on_message is not None:
                     on_message(m)
             n += 1
         for topic, pub in self._pubs.items():
-            end = last.get(topic, max((m.seq for m in self.messages if m.topic == topic), default=0))
-            pub.put(b"", attachment=codec.encode_envelope(Envelope(Kind.EOS, end + 1, 0, "")))
+            pub.put(b"", attachment=codec.encode_envelope(Envelope(Kind.EOS, last.get(topic, 0) + 1, 0, "")))
         return self.published
 
-    def _seq_spans(self) -> dict[str, int]:
-        """Per topic, how far the seq numbers of one loop reach (last - first + 1): loop *k* adds *k*
-        times this to the recorded seq, so the numbers keep rising from loop to loop, with no gap."""
+    def _seq_ranges(self) -> dict[str, tuple[int, int]]:
+        """Per topic, the first and last seq played in one loop: loop *k* adds *k* times their span
+        (last - first + 1) to the recorded seq, so the numbers keep rising from loop to loop, with
+        no gap."""
         lo: dict[str, int] = {}
         hi: dict[str, int] = {}
         for m in self.messages:
             lo[m.topic] = min(lo.get(m.topic, m.seq), m.seq)
             hi[m.topic] = max(hi.get(m.topic, m.seq), m.seq)
-        return {t: hi[t] - lo[t] + 1 for t in lo}
+        return {t: (lo[t], hi[t]) for t in lo}

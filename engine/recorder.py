@@ -47,6 +47,7 @@ from typing import TYPE_CHECKING, Any
 from mcap.writer import CompressionType, Writer
 
 from engine import __version__, codec
+from engine.bus import topic_of
 from engine.codec import Envelope
 from engine.recipe import LoadedRecipe, RecordSettings
 from engine.runner import Observer, Runner, RunSummary
@@ -76,10 +77,6 @@ PACKAGES = (
     "kiss-icp",
 )
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
-
-
-def topic_of(stage: str, port: str) -> str:
-    return f"/{stage}/{port}"
 
 
 def service_topic(stage: str, client: str) -> str:

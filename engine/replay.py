@@ -28,13 +28,13 @@ from pathlib import Path
 from typing import Any
 
 from engine import codec
+from engine.bus import topic_of
 from engine.clock import SimClock
 from engine.diff import DIFFERENT, StreamVerdict, compare_stream
 from engine.graph import Graph, StageNode, build_graph
 from engine.messages import Event, Message, canonical, freeze
 from engine.plugin_manager import Registry, load_registry
 from engine.recipe import load_recipe
-from engine.recorder import topic_of
 from engine.recording import Exchange, RecordedMessage, Recording, load
 from engine.stage import EVENTS_PORT, PLAYBACK_ROLES, ServiceError, ServiceTimeoutError, StageContext
 

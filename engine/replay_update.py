@@ -18,6 +18,7 @@ from engine import codec
 from engine.files import replacing
 from engine.recording import Recording
 from engine.replay import ReplayError, ReplayReport
+from engine.schemas import descriptor_set
 
 
 def write_updated(
@@ -93,11 +94,8 @@ def write_updated(
 
 
 def _new_channel(w: Any, topic: str, type_name: str) -> int:
-    from mcap_protobuf.schema import build_file_descriptor_set
-
     cls = codec.registry.get(type_name)
-    fds = build_file_descriptor_set(type(cls.proto()))
-    sid = w.register_schema(cls.SCHEMA, "protobuf", fds.SerializeToString())
+    sid = w.register_schema(cls.SCHEMA, "protobuf", descriptor_set(cls.SCHEMA))
     stage, port = topic.strip("/").split("/", 1)
     return int(w.register_channel(topic, "protobuf", sid, {"stage": stage, "port": port, "type": type_name}))
 

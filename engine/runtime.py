@@ -57,7 +57,6 @@ from engine.output_port import OutputPort
 from engine.peers import ForgedReply, owners_answer
 from engine.remote_input import RemoteInput
 from engine.service_port import ServicePort
-from engine.shm import SHM_MIN_BYTES as _SHM_MIN_BYTES
 from engine.stage import EVENTS_PORT, RunStoppingError, ServiceError, ServiceTimeoutError, Stage, StageContext
 from engine.stage_host import ServiceCall, StageHost
 
@@ -182,7 +181,7 @@ class StageRuntime(StageContext):
                 head, bulk = _encode_parts(msg)
                 if bulk is None:
                     payload = head
-                elif out.wrap_parts is not None and type(bulk) is bytes and len(bulk) >= _SHM_MIN_BYTES:
+                elif out.wrap_parts is not None:
                     payload = out.wrap_parts(head, bulk)  # into shared memory, not joined first (engine.shm)
                 else:
                     payload = b"".join((head, bulk))

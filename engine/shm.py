@@ -109,13 +109,14 @@ class ShmPool:
         buf[0:n] = payload
         return zenoh.ZBytes(buf)
 
-    def wrap_parts(self, head: bytes, bulk: bytes) -> bytes | bytearray | zenoh.ZBytes:
+    def wrap_parts(self, head: bytes, bulk: bytes | memoryview) -> bytes | bytearray | zenoh.ZBytes:
         """``head + bulk`` (engine.codec.encode_parts) written straight into a shared-memory buffer
-        when the pool has room, else joined: one copy of the bulk either way. A payload the pool had
-        no room for comes back as a ``bytearray``, which :meth:`wrap` passes through (tried once)."""
+        when it is large, *bulk* is ``bytes`` (what ``ZShmMut`` takes) and the pool has room, else
+        joined: one copy of the bulk either way. A payload the pool had no room for comes back as a
+        ``bytearray``, which :meth:`wrap` passes through (tried once)."""
         h, n = len(head), len(head) + len(bulk)
-        if n < self.min_bytes:
-            return b"".join((head, bulk))
+        if n < self.min_bytes or type(bulk) is not bytes:
+            return b"".join((head, bulk))  # (an array's bytes: WireSender's wrap puts them in the pool)
         buf = self._alloc(n)
         if buf is None:
             return bytearray().join((head, bulk))

@@ -123,6 +123,8 @@ def test_the_two_parts_of_a_message_land_in_one_buffer_in_order(head, n):
         assert isinstance(wrapped, zenoh.ZBytes) and wrapped.as_shm() is not None
         assert wrapped.to_bytes() == head + bulk and pool.shared == 1
     assert pool.wrap(wrapped) is wrapped  # already in the pool (or small): put as it is
+    as_view = pool.wrap_parts(head, memoryview(bulk))  # an array's bytes: joined, for the wire to place
+    assert as_view == head + bulk and type(as_view) is bytes
 
 
 def test_a_full_pool_joins_the_parts_after_a_short_wait_and_the_wire_does_not_try_again():
