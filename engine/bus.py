@@ -256,8 +256,11 @@ class Bus:
                 f"cannot open zenoh session ({self.settings.mode}, listen={self.settings.listen}, "
                 f"connect={self.settings.connect}): {exc}"
             ) from exc
+        # this session's ZenohId, as zenoh names it in replies and source infos (it never changes)
+        self.zid = str(self.session.zid())
         self._decls: list[Any] = []
         self._lock = threading.Lock()
+        self._source_lock = threading.Lock()  # (the first source_info declares its entity once)
         self._source_id: Any = None  # an entity of this session, named in source infos
         self._source_sn = 0
         self.closed = False
@@ -396,16 +399,13 @@ class Bus:
     def source_info(self) -> zenoh.SourceInfo:
         """What the engine's own puts and queries carry: this session's id (engine.peers.sender_zid)."""
         if self._source_id is None:
-            pub = self._keep(self.session.declare_publisher(f"vgr/_source/{self.zid}"))
-            self._source_id = pub.id
+            with self._source_lock:
+                if self._source_id is None:
+                    pub = self._keep(self.session.declare_publisher(f"vgr/_source/{self.zid}"))
+                    self._source_id = pub.id
         with self._lock:
             self._source_sn = sn = self._source_sn + 1
         return zenoh.SourceInfo(self._source_id, sn)
-
-    @property
-    def zid(self) -> str:
-        """This session's ZenohId, as zenoh names it in replies and source infos."""
-        return str(self.session.zid())
 
     def put(self, key: str, payload: bytes, attachment: bytes | None = None) -> None:
         self.session.put(

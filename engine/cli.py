@@ -36,6 +36,7 @@ from engine.recording import RecordingError
 from engine.replay import ReplayError
 from engine.runner import RunError, Runner, RunSummary
 from engine.runtime import StageStats
+from engine.sigint import on_sigint
 
 console = Console(stderr=True)
 out = Console(width=None if sys.stdout.isatty() else 160)
@@ -112,23 +113,18 @@ def run_with_progress(runner: Runner, show: bool) -> RunSummary:
     th = threading.Thread(target=live, daemon=True) if show else None
     if th:
         th.start()
-    previous = signal.getsignal(signal.SIGINT)
 
-    def on_sigint(signum: int, frame: Any) -> None:
+    def stop_on_sigint(signum: int, frame: Any) -> None:
         signal.signal(signal.SIGINT, signal.default_int_handler)  # a second Ctrl-C interrupts hard
         runner.stop("interrupted (Ctrl-C)")
 
-    in_main = threading.current_thread() is threading.main_thread()
-    if in_main:
-        signal.signal(signal.SIGINT, on_sigint)
-    try:
-        return runner.run()
-    finally:
-        done.set()
-        if th:
-            th.join(1.0)
-        if in_main:
-            signal.signal(signal.SIGINT, previous)
+    with on_sigint(stop_on_sigint):
+        try:
+            return runner.run()
+        finally:
+            done.set()
+            if th:
+                th.join(1.0)
 
 
 # --------------------------------------------------------------------------- verbs

@@ -8,9 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
-import threading
 from pathlib import Path
 from typing import Any
 
@@ -74,6 +72,7 @@ def cmd_play(args: argparse.Namespace) -> int:
     from engine.play import PROCESS, Player, Selection, select
     from engine.recipe import ZenohSettings
     from engine.recording import load
+    from engine.sigint import on_sigint
 
     rec = load(args.file)
     msgs = select(rec, Selection(args.topics, args.start, args.end))
@@ -84,11 +83,7 @@ def cmd_play(args: argparse.Namespace) -> int:
     listen = [private_socket(run_id, PROCESS) if e == PRIVATE else e for e in (args.listen or [PRIVATE])]
     with Bus(ZenohSettings(listen=listen, connect=list(args.connect or []))) as bus:
         player = Player(bus, run_id, msgs, args.rate)
-        previous = signal.getsignal(signal.SIGINT)
-        in_main = threading.current_thread() is threading.main_thread()
-        if in_main:
-            signal.signal(signal.SIGINT, lambda *_: player.stop())
-        try:
+        with on_sigint(lambda *_: player.stop()):
             topics = sorted({m.topic for m in msgs})
             err.print(
                 f"playing {len(msgs)} messages of {len(topics)} topic(s) as run {run_id} at {args.rate:g}x "
@@ -98,9 +93,6 @@ def cmd_play(args: argparse.Namespace) -> int:
             if args.wait_subscribers and not player.wait_for_subscribers(args.wait_subscribers):
                 err.print(f"not every topic had a subscriber after {args.wait_subscribers:g} s; playing anyway")
             n = player.play(args.loop)
-        finally:
-            if in_main:
-                signal.signal(signal.SIGINT, previous)
     out.print(f"played {n} messages", highlight=False)
     return 130 if player.stopped else EXIT_OK
 
