@@ -155,6 +155,7 @@ class _Model:
         bounds = np.cumsum([0] + [2 * v.n for v in self.views])
         self.rows = [slice(int(a), int(b)) for a, b in pairwise(bounds)]
         self.m = int(bounds[-1])
+        self._last: tuple[F64, F64] | None = None  # the last point whitened() was asked for, its pixels
 
     def unpack(self, p: F64) -> tuple[F64, F64, CameraModel, F64]:
         X = retract(self.X0, p[:6])[0]
@@ -169,13 +170,16 @@ class _Model:
         return np.concatenate([r.ravel() for r in view_residuals(self.setup, M, X, Y, cam, self.views)])
 
     def whitened(self, p: F64, s_px: float, sd6: F64) -> F64:
-        r = self.pixels(p) / s_px
+        px = self.pixels(p)
+        self._last = (p.copy(), px)  # the solver asks for the Jacobian where it last accepted a step
+        r = px / s_px
         return np.r_[r, (p[self.g :].reshape(-1, 6) / sd6).ravel()] if self.robot else r
 
     def jacobian(self, p: F64, s_px: float, sd6: F64, h: float = 1e-7) -> F64:
         """Forward differences: one evaluation per global parameter, six for all views' corrections
         (view ``i``'s corners depend on its own correction only)."""
-        base = self.pixels(p)
+        last = self._last
+        base = last[1] if last is not None and np.array_equal(last[0], p) else self.pixels(p)
         J = np.zeros((self.m + (6 * self.n if self.robot else 0), self.size))
         for j in range(self.g):
             q = p.copy()
@@ -234,7 +238,7 @@ def refine_reprojection(
         estimate = isinstance(robot_noise, str)
         if estimate and robot_noise != ESTIMATE:
             raise ValueError(f"robot_noise must be a RobotNoise, 'estimate' or None, got {robot_noise!r}")
-        noise = ROBOT_START if isinstance(robot_noise, str) else robot_noise
+        noise = ROBOT_START if estimate else robot_noise
         # the robot's errors explain part of the residuals: start the corner noise at the PnP level
         s_px = float(sigma_px) if sigma_px is not None else 0.5 * s_px
         model = _Model(setup, M, views, camera, X0, Y0, n_int, robot=True)
@@ -245,7 +249,7 @@ def refine_reprojection(
             sol = _least_squares(model, p, s_px, sd6)
             p, nfev = sol.x, nfev + int(sol.nfev)
             if not estimate:
-                break
+                break  # (a given noise stays as given)
             # Förstner's variance components: each group's sum of squares over its redundancy
             _, lev = _leverage(np.asarray(sol.jac))
             w2 = sol.fun**2
@@ -260,7 +264,7 @@ def refine_reprojection(
             if all(abs(x - 1.0) < VCE_TOL for x in ratios[1:] + ratios[: 1 if sigma_px is None else 0]):
                 break
     J = np.asarray(sol.jac)
-    Ninv, _ = _leverage(J)
+    Ninv = np.linalg.pinv(J.T @ J)  # (the hat matrix's diagonal is for the variance components only)
     if noise is None:  # whitened with sigma 1: the corner noise from the residuals
         Ninv = s_px**2 * Ninv
     cov = Ninv[: model.g, : model.g]
