@@ -71,7 +71,7 @@ from plugins.solvers.handeye import (
     calibrate_robot_world,
     closed_form,
 )
-from plugins.solvers.handeye.consistency import estimate_unit_scale
+from plugins.solvers.handeye.consistency import estimate_unit_scale, mirrored_message
 from plugins.solvers.handeye.noise import camera_noise_from_covariances
 from plugins.solvers.handeye.problem import Setup, check_setup, frames_of
 
@@ -209,14 +209,10 @@ def calibrate_handeye_images(
         sigma_px = float(rms) / np.sqrt(2.0) if rms else None  # RMS distance -> per coordinate
     poses = [board_pose(v, camera, sigma_px=sigma_px) for v in views]
     B = np.stack([p.T_cam_target for p in poses])
-    unit = estimate_unit_scale(setup, M, B, signed=True)
-    if unit is not None and unit[0] < 0.0 and abs(unit[0]) > 5.0 * unit[1]:
-        return _failed(
-            kind,
-            [*notes, f"the camera moved mirrored to the robot (robot translations = {unit[0]:.3f} x the camera's): "
-             "mirrored images (a camera or driver set to flip the image?) or the wrong set-up"],
-            ["turn off any image flip in the camera or its driver; check --setup"], rejected,
-        )  # fmt: skip
+    mirrored = mirrored_message(estimate_unit_scale(setup, M, B, signed=True))
+    if mirrored is not None:  # (said here with its remedy; the solver would refuse it too)
+        return _failed(kind, [*notes, mirrored], ["turn off any image flip in the camera or its driver; check --setup"],
+                       rejected)  # fmt: skip
     solve = calibrate_robot_world if kind == "robot_world" else calibrate_hand_eye
     ml = solve(M, B, setup=setup, noise=camera_noise(poses), estimate_noise=True)
     scale = ml.metrics.get("unit_scale_robot_per_camera")

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from engine.transforms import inv, retract
+from engine.transforms import T_from_rotvec, inv, retract
 from plugins.solvers.boards.camera import CameraModel
 from plugins.solvers.boards.detect import BoardNotFoundError, Detection, detect_board
 from plugins.solvers.boards.render import render_board, sample_views
@@ -31,23 +31,14 @@ F64 = NDArray[np.float64]
 __all__ = ["SIM_CAMERA", "TRUE_X", "TRUE_Y", "SimulatedHandEye", "simulate_handeye"]
 
 
-def _pose(rotvec_deg: tuple[float, float, float], t: tuple[float, float, float]) -> F64:
-    from scipy.spatial.transform import Rotation
-
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(np.radians(rotvec_deg)).as_matrix()
-    T[:3, 3] = t
-    return T
-
-
 # a 640x480 camera with barrel distortion (a small industrial camera with a wide lens)
 SIM_CAMERA = CameraModel(
     640, 480, np.array([[600.0, 0.0, 318.5], [0.0, 600.5, 241.2], [0.0, 0.0, 1.0]]),
     np.array([-0.2, 0.08, 0.0003, -0.0002, -0.01]), "standard",
 )  # fmt: skip
 # a camera 10 cm off the flange axis, tilted; a board on the table in front of the robot, face up
-TRUE_X = _pose((3.0, -5.0, 90.0), (0.03, -0.10, 0.08))
-TRUE_Y = _pose((0.0, 0.0, 30.0), (0.70, -0.10, 0.02))
+TRUE_X = T_from_rotvec(np.radians((3.0, -5.0, 90.0)), (0.03, -0.10, 0.08))
+TRUE_Y = T_from_rotvec(np.radians((0.0, 0.0, 30.0)), (0.70, -0.10, 0.02))
 
 
 @dataclass(frozen=True, eq=False)

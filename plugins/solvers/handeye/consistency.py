@@ -79,6 +79,17 @@ def check_setup_consistency(
 UNIT_T = 4.0  # correlation t statistic of the screw translations below which the scale is unobservable
 
 
+def mirrored_message(unit: tuple[float, float] | None) -> str | None:
+    """What to say when :func:`estimate_unit_scale` (``signed=True``) shows the camera moving
+    mirrored to the robot (a clearly negative scale), else None."""
+    if unit is None or not (unit[0] < 0.0 and abs(unit[0]) > 5.0 * unit[1]):
+        return None
+    return (
+        f"the camera moved mirrored to the robot (robot translations = {unit[0]:.4g} x camera translations): "
+        "mirrored images (a camera or driver set to flip the image?) or the wrong set-up"
+    )
+
+
 def estimate_unit_scale(
     setup: Setup, T_base_tcp: F64, T_cam_target: F64, *, robust: bool = True, signed: bool = False
 ) -> tuple[float, float] | None:

@@ -31,7 +31,7 @@ from plugins.solvers.calibration_result import CalibrationResult
 from plugins.solvers.handeye.assemble import RESIDUAL_NAMES, AccuracyTargets, CovarianceScale, assemble_result
 from plugins.solvers.handeye.closed_form import CLOSED_FORM_METHODS, closed_form
 from plugins.solvers.handeye.consensus import lmeds_consensus, pose_chain_cost
-from plugins.solvers.handeye.consistency import check_setup_consistency, estimate_unit_scale
+from plugins.solvers.handeye.consistency import check_setup_consistency, estimate_unit_scale, mirrored_message
 from plugins.solvers.handeye.degeneracy import MotionThresholds, analyse_motions
 from plugins.solvers.handeye.ml import Loss, MLOptions, refine_ml
 from plugins.solvers.handeye.noise import DEFAULT_PRIOR, NoiseModel
@@ -86,12 +86,10 @@ def _check_units(setup: Setup, M: F64, B: F64) -> None:
     unit = estimate_unit_scale(setup, M, B, signed=True)
     if unit is None:
         return
+    mirrored = mirrored_message(unit)
+    if mirrored is not None:
+        raise HandEyeInputError(mirrored)
     scale, scale_sd = unit
-    if scale < 0.0 and abs(scale) > 5.0 * scale_sd:
-        raise HandEyeInputError(
-            f"the camera moved mirrored to the robot (robot translations = {scale:.4g} x camera translations): "
-            "mirrored images (a camera or driver set to flip the image?) or the wrong set-up"
-        )
     if not 0.5 <= scale <= 2.0 and abs(scale - 1.0) > 5.0 * scale_sd:
         side = "camera" if scale < 1 else "robot"
         raise HandEyeInputError(
