@@ -68,13 +68,14 @@ class Answer:
     error: str | None = None
 
 
-def owners_answer(answers: list[Answer], owner: str | None, where: str) -> Answer | None:
-    """The one answer of the stage's *owner* session among *answers* (None: no answer at all).
+def owners_answer(answers: list[Answer], owner: str | None, where: str) -> Answer:
+    """The one answer of the stage's *owner* session among *answers* (engine.bus.Bus.request's: never
+    empty, it raises when nothing answered).
 
     Raises ForgedReply when an answer came from another session (it is named) or when more than one
     answered: the caller then gets no result, so nothing moves on it."""
     if not answers:
-        return None
+        raise LookupError(f"{where}: no answer")
     strangers = sorted({a.replier or "unknown" for a in answers if owner is None or a.replier != owner})
     if strangers:
         raise ForgedReply(

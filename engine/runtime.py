@@ -217,7 +217,6 @@ class StageRuntime(StageContext):
             answers = self.host.bus.request(key, payload, att, timeout_s, self.host.calls_token)
             where = f"{self.name} -> {edge.provider}.{edge.service}"
             answer = owners_answer(answers, self.host.service_owner(edge.provider), where)
-            assert answer is not None
             if answer.error is not None:
                 raise RuntimeError(answer.error)
             reply_payload, reply_att = answer.payload, answer.attachment

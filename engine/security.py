@@ -19,7 +19,7 @@ elsewhere (a plant's own PKI).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -79,11 +79,11 @@ def identity(sec: SecuritySettings, process: str, base: Path, certs_dir: str | N
     """Where *process*'s CA, certificate and key are (*certs_dir*: a command-line override)."""
     folder = (base / (certs_dir or sec.certs)).resolve()
     ca = (base / sec.ca).resolve() if sec.ca and not certs_dir else None
+    ident = folder_identity(folder, process, ca)
     own = sec.processes.get(process)
-    if own is not None and not certs_dir:
-        cert, key = (base / own.cert).resolve(), (base / own.key).resolve()
-        return ProcessIdentity(process, ca or folder / "ca.pem", cert, key)
-    return folder_identity(folder, process, ca)
+    if own is not None and not certs_dir:  # the process's own files, the CA as for the others
+        return replace(ident, cert=(base / own.cert).resolve(), key=(base / own.key).resolve())
+    return ident
 
 
 def tls_entries(ident: ProcessIdentity) -> dict[str, Any]:
