@@ -22,9 +22,10 @@ EXIT_OK, EXIT_NOTHING = 0, 1
 
 
 def cmd_topics(args: argparse.Namespace) -> int:
-    from engine.topics import choose_run, echo, hz, local_endpoints, open_client
+    from engine.endpoints import run_sockets
+    from engine.topics import choose_run, echo, hz, open_client
 
-    with open_client(list(args.connect or local_endpoints()), args.certs, args.identity) as bus:
+    with open_client(list(args.connect or run_sockets()), args.certs, args.identity) as bus:
         run = choose_run(bus, args.run_id, args.discovery_timeout)
         if args.action == "list":
             return _print_list(run, args.json)

@@ -9,6 +9,7 @@ IP addresses and ports are checked for range.
 
 from __future__ import annotations
 
+import glob
 import ipaddress
 import os
 import re
@@ -97,7 +98,8 @@ def private_socket(run: str, process: str) -> str:
     return f"unixsock-stream/{run_dir / f'{process}.sock'}"
 
 
-def run_sockets(run: str) -> list[str]:
-    """Endpoints of the sockets run *run*'s processes listen on (those that exist now)."""
-    run_dir = private_socket_dir() / run
-    return sorted(f"unixsock-stream/{p}" for p in run_dir.glob("*.sock")) if run_dir.is_dir() else []
+def run_sockets(run: str | None = None) -> list[str]:
+    """Endpoints of the sockets run *run*'s processes listen on (those that exist now; None: every
+    run of this user on this host). A socket a killed run left behind connects to nothing."""
+    runs = "*" if run is None else glob.escape(run)
+    return sorted(f"unixsock-stream/{p}" for p in private_socket_dir().glob(f"{runs}/*.sock"))

@@ -38,12 +38,6 @@ class NoRunError(ValueError):
     """No run (or no such run, or no such topic) to look at: exit code 2."""
 
 
-def local_endpoints() -> list[str]:
-    """The private unix sockets runs of this user listen on, on this host (engine.endpoints:
-    ``<dir>/<run>/<process>.sock``; a socket a killed run left behind connects to nothing)."""
-    return sorted(f"unixsock-stream/{p}" for p in private_socket_dir().glob("*/*.sock"))
-
-
 def open_client(endpoints: list[str], certs: str | None = None, identity: str | None = None) -> Bus:
     """A session that listens on nothing and connects to *endpoints*; with *certs* (a folder of
     ``ca.pem`` and ``<identity>.pem/.key``), over mutual TLS as *identity*, an observer the secured
