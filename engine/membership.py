@@ -46,7 +46,7 @@ from typing import Any, Protocol
 
 from engine.bus import Bus, LiveSet, active_key, control_key, ready_key, started_key
 from engine.graph import Graph
-from engine.peers import PeerWatch, members_digest, new_epoch, peer_key, sender_zid
+from engine.peers import PeerWatch, members_digest, new_epoch, peer_key, peer_process, sender_zid
 from engine.run_summary import RunError
 
 # the runner's log: what the membership logs is part of the runner's account of the run
@@ -241,7 +241,7 @@ class Membership:
         may end as if the data were complete."""
         if self.peers is None or self.bus is None:
             return True
-        alive = {key.split("/")[3] for key in self.bus.alive(f"vgr/{self.run_id}/_peer/*/*/*")}
+        alive = {peer_process(key) for key in self.bus.alive(peer_key(self.run_id, "*", "*", "*"))}
         for process in self.graph.processes():
             if process == self.process or process in alive:
                 continue

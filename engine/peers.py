@@ -48,6 +48,11 @@ def peer_key(run: str, process: str, zid: str, epoch: str) -> str:
     return f"vgr/{run}/_peer/{process}/{zid}/{epoch}"
 
 
+def peer_process(key: str) -> str:
+    """The process a key under :func:`peer_key` belongs to."""
+    return key.split("/")[3]
+
+
 def members_digest(epochs: dict[str, str]) -> str:
     """A short digest of ``process -> epoch`` for every process of the run (order-free)."""
     text = ";".join(f"{p}={e}" for p, e in sorted(epochs.items()))
