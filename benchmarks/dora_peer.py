@@ -172,7 +172,7 @@ def sink_node(out: str) -> None:
 
 if __name__ == "__main__":
     sys.path[:0] = [str(HERE.parent)]
-    from engine.process_memory import keep_freed_memory
+    from engine.run.process_memory import keep_freed_memory
 
     keep_freed_memory()  # the allocator settings of a vgr run, as every row of the benchmark has them
     role, args = sys.argv[1], sys.argv[2:]

@@ -40,11 +40,11 @@ dora's throughput is the measured messages it received over the time from the fi
 to the last arrival (a rate over its arrivals alone would count the few messages left in its queue
 at the end, which arrive back to back).
 dora has no in-process row (``dora_in_process`` says why). For payloads of at least
-engine.shm.SHM_MIN_BYTES, ``vgr_noshm`` is vgr with ``zenoh: {shared_memory: false}`` (every byte
+engine.transport.shm.SHM_MIN_BYTES, ``vgr_noshm`` is vgr with ``zenoh: {shared_memory: false}`` (every byte
 through the unix socket), the A/B of vgr's shared memory (``shm_ab``).
 
 Every process of every row runs with the C allocator settings a vgr run sets for itself
-(engine.process_memory.keep_freed_memory: glibc keeps freed heap memory instead of unmapping it),
+(engine.run.process_memory.keep_freed_memory: glibc keeps freed heap memory instead of unmapping it),
 the raw zenoh processes and the dora nodes included, so no row gains or loses by them. Without
 them the 1.2 MB rows were bimodal from process to process (vgr: 480-660 us or 1400-1950 us).
 
@@ -86,8 +86,8 @@ from bench_stages import make_payload, pace  # noqa: E402
 from overhead_ratios import dora_ratios, paired, print_ratios, raw_ratios  # noqa: E402
 from wire_floor import BATCH, floor_subscriber_main, send_batched  # noqa: E402
 
-from engine.process_memory import keep_freed_memory  # noqa: E402
-from engine.shm import SHM_MIN_BYTES  # noqa: E402
+from engine.run.process_memory import keep_freed_memory  # noqa: E402
+from engine.transport.shm import SHM_MIN_BYTES  # noqa: E402
 
 BENCH_KEY = "bench/data"  # key of the raw and typed-floor runs
 SIZES = {"64B": 64, "4KiB": 4096, "1.2MB": 1_200_000}
@@ -315,8 +315,8 @@ def recipe(
 def vgr_in_process(size: int, count: int, interval_s: float) -> dict[str, float]:
     from engine.graph import build_graph
     from engine.plugin_manager import load_registry
-    from engine.recipe import load_recipe
-    from engine.runner import Runner
+    from engine.recipe.model import load_recipe
+    from engine.run.runner import Runner
 
     with tempfile.TemporaryDirectory() as tmp:
         text, out, src_out = recipe(tmp, ("main", "main"), size, count, interval_s)
@@ -337,7 +337,7 @@ _CERTS: list[Path] = []  # the development certificates of the secured rows, mad
 
 def bench_certs() -> Path:
     if not _CERTS:
-        from engine.certs import Identity, write_bundle
+        from engine.security.certs import Identity, write_bundle
 
         folder = Path(tempfile.mkdtemp(prefix="vgr-bench-certs-")) / "certs"
         write_bundle(folder, [Identity("pub"), Identity("sub")], ca_name="vgr benchmark CA")
@@ -372,7 +372,16 @@ def vgr_cross_process(
         recipe_file.write_text(text)
         # no recording: the recorder's cost is measured by benchmarks/record_replay.py, and the in-process
         # runs here have none either
-        cmd = [sys.executable, "-m", "engine.cli", "run", str(recipe_file), "--no-progress", "--no-record", "--process"]
+        cmd = [
+            sys.executable,
+            "-m",
+            "engine.cli.main",
+            "run",
+            str(recipe_file),
+            "--no-progress",
+            "--no-record",
+            "--process",
+        ]
         sub = subprocess.Popen([*cmd, "sub"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         pub = subprocess.Popen([*cmd, "pub"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         _, err_pub = pub.communicate(timeout=600)

@@ -1,6 +1,6 @@
 """Benchmark: the model-gap workflow on realistic cells at its defaults, side by side with a STLSQ baseline.
 
-The suite (``plugins/solvers/model_gap/suite.py``): every case is a UR5e with DH errors of 0.1-0.5 mm
+The suite (``plugins/sim/model_gap/suite.py``): every case is a UR5e with DH errors of 0.1-0.5 mm
 and 0.1-1 mrad on every joint, a laser tracker 3.5 m away in an unknown frame and a roughly known
 tool point, 200 poses measured while moving over a 3-hour warm-up, 0.05 mm noise per axis, and under
 that geometry: every non-geometric catalog effect alone at two magnitudes (backlash with both ``dir``
@@ -21,7 +21,7 @@ threshold sweep; the summary gives the threshold best for it *in hindsight* (cho
 the answers known: an advantage vgr's fixed rule does not get).
 
 Before either method sees a case's data its a-priori class is computed from the truth alone
-(``plugins/solvers/model_gap/detectability.py``): ``identifiable`` / ``confounded`` / ``undetectable``.
+(``plugins/sim/model_gap/detectability.py``): ``identifiable`` / ``confounded`` / ``undetectable``.
 
 Run: ``PYTHONPATH=. python benchmarks/gap.py [--quick] [--jobs 2]`` -> benchmarks/results/gap.json
 """
@@ -41,14 +41,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from engine.gap import GapConfig, run_gap
-from engine.gap.sparse import sparse_library, stlsq_named
-from engine.gap.workflow import VERDICTS, collect_candidates
-from plugins.solvers.model_gap import families_from_registry
-from plugins.solvers.model_gap.analyse import build_problem
-from plugins.solvers.model_gap.detectability import CLASSES, classify
-from plugins.solvers.model_gap.simulate import HiddenCase, make_case
-from plugins.solvers.model_gap.suite import suite
+from plugins.model_gap import families_from_registry
+from plugins.model_gap.analyse import build_problem
+from plugins.model_gap.core import GapConfig, run_gap
+from plugins.model_gap.core.sparse import sparse_library, stlsq_named
+from plugins.model_gap.core.workflow import VERDICTS, collect_candidates
+from plugins.sim.model_gap.detectability import CLASSES, classify
+from plugins.sim.model_gap.simulate import HiddenCase, make_case
+from plugins.sim.model_gap.suite import suite
 
 THRESHOLDS = (2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 12.0)
 RIDGE = 0.05

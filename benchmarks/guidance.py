@@ -148,7 +148,7 @@ TIMING_INTRINSICS = {"width": 904, "height": 678}
 def timing_part(repeats: int, seed: int) -> dict[str, Any]:
     """Median compute time of the matcher's looks and of the step arithmetic, captures from a real run."""
     from plugins.actions import guidance_math as gm
-    from plugins.solvers.registration.stage import Matcher
+    from plugins.registration.stages.matcher import Matcher
     from plugins.util.detached import detached_stage
 
     trial = gt.run_trial("eye_in_hand", seed, extra={"camera.intrinsics": TIMING_INTRINSICS}, keep_captures=True)

@@ -3,7 +3,7 @@
 Monte Carlo at a fixed truth: one seeded eye-in-hand cell (``simulate.viewing_scene``: the camera
 sees the target from 0.35-0.7 m, tilts up to 35 degrees, rolls up to 60 degrees), ``--poses`` robot
 poses; ``--trials`` noise draws of the robot and camera poses (decoupled noise, see
-``plugins/solvers/handeye/noise.py``). Scenarios:
+``plugins/calibration/handeye/noise.py``). Scenarios:
 
 * ``camera_only``   - camera 0.1 deg / 0.5 mm per axis, robot exact (the setting of the
   earlier measurement);
@@ -19,7 +19,7 @@ Coverage of vgr's reported uncertainty: a separate vgr-only run of ``--coverage-
 draws at the same truth, with the noise declared and estimated, counts the trials whose truth lies
 inside the 95 % confidence region the result states (``CalibrationResult.confidence_threshold``:
 chi2(6) for a declared noise; for an estimated noise the Kenward-Roger covariance and
-6 F(6, dof) / f_scale, see plugins/solvers/handeye/variance.py),
+6 F(6, dof) / f_scale, see plugins/calibration/handeye/variance.py),
 for T_tcp_cam (6 dof) and jointly with T_base_target (12 dof). 200 trials would leave a binomial
 standard deviation of 1.5 % (93-97 % is +-1.3 sd); 1000 trials give 0.7 %, and every coverage is
 reported with its exact (Clopper-Pearson) 95 % interval.
@@ -55,9 +55,9 @@ sys.path.insert(0, str(ROOT))
 import cv2  # noqa: E402  (the comparator)
 
 from engine.transforms import inv, pose_delta  # noqa: E402
-from plugins.solvers.handeye import NoiseModel, PoseNoise, calibrate_hand_eye, closed_form  # noqa: E402
-from plugins.solvers.handeye import simulate as sim  # noqa: E402
-from plugins.solvers.handeye.crlb import crlb_covariance, rms_bounds  # noqa: E402
+from plugins.calibration.handeye import NoiseModel, PoseNoise, calibrate_hand_eye, closed_form  # noqa: E402
+from plugins.calibration.handeye import simulate as sim  # noqa: E402
+from plugins.calibration.handeye.crlb import crlb_covariance, rms_bounds  # noqa: E402
 
 SCENARIOS = {
     "camera_only": NoiseModel.isotropic(robot_deg=0.0, robot_mm=0.0, camera_deg=0.1, camera_mm=0.5),

@@ -8,7 +8,7 @@ vgr's detections (``detect_images``), the intrinsics calibrated from all images 
 (``board_pose``: PnP + LM refinement).
 
 Methods: ``vgr_pose_ml`` (vgr's ML hand-eye solver on the board poses alone, the camera noise from
-their covariances), ``vgr`` (the whole pipeline of ``plugins/solvers/boards/handeye_images.py``: ML hand-eye
+their covariances), ``vgr`` (the whole pipeline of ``plugins/calibration/boards/handeye_images.py``: ML hand-eye
 solver, then the corners' reprojection refinement over the hand-eye and the board's world pose, the
 robot poses taken as exact), ``vgr_intrinsics`` (the same, refining the intrinsics too),
 ``vgr_robot_noise`` / ``vgr_robot_noise_intrinsics`` (``model_robot_noise=True``: every robot pose
@@ -60,15 +60,15 @@ sys.path.insert(0, str(ROOT))
 
 from benchmarks.bench_results import machine, write_result  # noqa: E402
 from engine.transforms import angle_between, inv, pose_delta  # noqa: E402
-from plugins.solvers.boards.board_pose import BoardPose, board_pose  # noqa: E402
-from plugins.solvers.boards.camera import CameraModel  # noqa: E402
-from plugins.solvers.boards.detect import Detection, detect_images, image_files  # noqa: E402
-from plugins.solvers.boards.handeye_images import calibrate_handeye_images, camera_noise, pair_views  # noqa: E402
-from plugins.solvers.boards.intrinsics import calibrate_intrinsics  # noqa: E402
-from plugins.solvers.boards.reprojection import mean_pose, view_residuals, world_spread  # noqa: E402
-from plugins.solvers.boards.robot_poses import load_robot_poses  # noqa: E402
-from plugins.solvers.boards.spec import parse_board  # noqa: E402
-from plugins.solvers.handeye import calibrate_hand_eye  # noqa: E402
+from plugins.calibration.boards.board_pose import BoardPose, board_pose  # noqa: E402
+from plugins.calibration.boards.detect import Detection, detect_images, image_files  # noqa: E402
+from plugins.calibration.boards.handeye_images import calibrate_handeye_images, camera_noise, pair_views  # noqa: E402
+from plugins.calibration.boards.intrinsics import calibrate_intrinsics  # noqa: E402
+from plugins.calibration.boards.reprojection import mean_pose, view_residuals, world_spread  # noqa: E402
+from plugins.calibration.boards.robot_poses import load_robot_poses  # noqa: E402
+from plugins.calibration.handeye import calibrate_hand_eye  # noqa: E402
+from plugins.camera.board_spec import parse_board  # noqa: E402
+from plugins.camera.pinhole import CameraModel  # noqa: E402
 
 F64 = np.ndarray
 DATA = Path("/work/shared/data")

@@ -1,10 +1,10 @@
 """Hand-eye from images on simulated boards: vgr's error against the Cramér–Rao bound, and the honesty
 of its reported covariance.
 
-Data: :func:`plugins.solvers.boards.handeye_sim.simulate_handeye` (eye in hand, ``SIM_CAMERA``
+Data: :func:`plugins.calibration.boards.handeye_sim.simulate_handeye` (eye in hand, ``SIM_CAMERA``
 640x480 with barrel distortion, ``chessboard:10x7:30mm``, 15 views per trial, the true hand-eye
 ``TRUE_X`` and board pose ``TRUE_Y``; the intrinsics are given exact). Each trial is one seed
-(``SEED0 + k``); the estimate is :func:`plugins.solvers.boards.handeye_images.calibrate_handeye_images`
+(``SEED0 + k``); the estimate is :func:`plugins.calibration.boards.handeye_images.calibrate_handeye_images`
 (no held-out figures). Errors are ``pose_delta(X_est, X_true)`` (mm, rad: translation, rotation
 vector), the perturbation in which the refinement and its covariance are written.
 
@@ -12,7 +12,7 @@ Scenarios:
 
 * ``corner_noise``: the exact projections plus ``N(0, 0.1²)`` px per coordinate, the robot poses
   exact: the model of the pixel refinement. ``crlb``:
-  :func:`plugins.solvers.boards.reprojection.crlb` at the truth (same views, same noise).
+  :func:`plugins.calibration.boards.reprojection.crlb` at the truth (same views, same noise).
 * ``corner_and_robot_noise``: the same, and every robot pose perturbed by ``N(0, 0.2 mm)`` per axis
   and ``N(0, 0.02 deg)`` per rotation axis; its ``crlb`` has the true robot poses as nuisance
   parameters observed through the perturbed ones (the model of ``model_robot_noise=True``).
@@ -49,10 +49,10 @@ sys.path.insert(0, str(ROOT))
 
 from benchmarks.bench_results import machine, write_result  # noqa: E402
 from engine.transforms import pose_delta  # noqa: E402
-from plugins.solvers.boards.handeye_images import calibrate_handeye_images  # noqa: E402
-from plugins.solvers.boards.handeye_sim import SIM_CAMERA, simulate_handeye  # noqa: E402
-from plugins.solvers.boards.reprojection import RobotNoise, crlb  # noqa: E402
-from plugins.solvers.boards.spec import parse_board  # noqa: E402
+from plugins.calibration.boards.handeye_images import calibrate_handeye_images  # noqa: E402
+from plugins.calibration.boards.handeye_sim import SIM_CAMERA, simulate_handeye  # noqa: E402
+from plugins.calibration.boards.reprojection import RobotNoise, crlb  # noqa: E402
+from plugins.camera.board_spec import parse_board  # noqa: E402
 
 BOARD = parse_board("chessboard:10x7:30mm")
 N_VIEWS = 15

@@ -33,8 +33,8 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from shared_data import SHARED  # noqa: E402
 
-from plugins.solvers.handeye import HandEyeInputError, NoiseModel, calibrate_hand_eye, load_pose_pairs  # noqa: E402
-from plugins.solvers.handeye import simulate as sim  # noqa: E402
+from plugins.calibration.handeye import HandEyeInputError, NoiseModel, calibrate_hand_eye, load_pose_pairs  # noqa: E402
+from plugins.calibration.handeye import simulate as sim  # noqa: E402
 
 #: (poses, max tilt deg, max roll deg, camera deg, camera mm)
 CELLS = [

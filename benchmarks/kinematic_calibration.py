@@ -42,7 +42,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from bench_results import machine, write_result
 from kinematic_calibration.kincal_sim import NOISE_M, measure, nominal_model, random_poses, true_robot
 
-from plugins.solvers.kinematic_calibration import (
+from plugins.calibration.kinematics import (
     KinematicCalibrationConfig,
     KinematicSamples,
     calibrate_kinematics,

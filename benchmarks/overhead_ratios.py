@@ -67,7 +67,7 @@ def raw_ratios(results: dict[str, Any], run_ratios: dict[str, dict[str, list[flo
                 "latency_ratio_p50_runs": [round(x, 3) for x in run_ratios[f"{topo}/{label}"]["latency"]],
                 "throughput_ratio_runs": [round(x, 3) for x in run_ratios[f"{topo}/{label}"]["throughput"]],
             }
-            if "vgr_noshm" in r:  # what shared memory changes (engine.shm)
+            if "vgr_noshm" in r:  # what shared memory changes (engine.transport.shm)
                 ratios[f"{topo}/{label}"] |= {
                     "shm_over_noshm_latency_p50": r["vgr"]["p50_us"] / r["vgr_noshm"]["p50_us"],
                     "shm_over_noshm_throughput": r["vgr"]["msg_per_s"] / r["vgr_noshm"]["msg_per_s"],

@@ -42,10 +42,10 @@ sys.path[:0] = [str(HERE.parent)]
 
 from engine.graph import build_graph  # noqa: E402
 from engine.plugin_manager import load_registry  # noqa: E402
-from engine.recipe import LoadedRecipe, load_recipe  # noqa: E402
-from engine.recorder import Recorder  # noqa: E402
-from engine.replay import _ReplayContext, replay  # noqa: E402
-from engine.runner import Runner  # noqa: E402
+from engine.recipe.model import LoadedRecipe, load_recipe  # noqa: E402
+from engine.recording.recorder import Recorder  # noqa: E402
+from engine.recording.replay import _ReplayContext, replay  # noqa: E402
+from engine.run.runner import Runner  # noqa: E402
 
 PIPELINE = """
 name: rec_bench

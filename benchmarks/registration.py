@@ -49,7 +49,7 @@ import registration_peers as peers  # noqa: E402
 import registration_scenes as scenes  # noqa: E402
 
 from engine import transforms as tf  # noqa: E402
-from plugins.solvers.registration import (  # noqa: E402
+from plugins.registration import (  # noqa: E402
     FineParams,
     GlobalParams,
     prepare_cloud,
@@ -274,9 +274,9 @@ def bench_stage_planar_plate(poses: int) -> dict:
     beyond that."""
     import tempfile
 
-    from engine.cli import main as vgr_cli
+    from engine.cli.main import main as vgr_cli
     from engine.messages import PointCloud
-    from plugins.solvers.registration.stage import Matcher
+    from plugins.registration.stages.matcher import Matcher
     from plugins.util.detached import DetachedContext
 
     cam = scenes.camera(640, 480)

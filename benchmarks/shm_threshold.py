@@ -1,9 +1,9 @@
 """Where shared memory starts to pay: one-way latency of a payload between two processes, socket vs shm.
 
-The threshold engine.shm.SHM_MIN_BYTES comes from this. For each payload size, alternated run by
+The threshold engine.transport.shm.SHM_MIN_BYTES comes from this. For each payload size, alternated run by
 run: ``socket`` (both sessions with ``transport/shared_memory/enabled`` false: the bytes cross the
 unix socket) and ``shm`` (both on, the publisher's payload copied into a buffer of
-engine.shm.ShmPool, as engine.wire does). The receiver is a child process connected over a unix
+engine.transport.shm.ShmPool, as engine.transport.wire does). The receiver is a child process connected over a unix
 socket (vgr's default between the processes of one host); latency from ``time.monotonic_ns()``
 stamped into the payload just before it is built (benchmarks/bench_stages.make_payload) to the
 subscriber callback holding the bytes (``payload.to_bytes()``), p50 over ``COUNT`` paced messages
@@ -33,7 +33,7 @@ sys.path[:0] = [str(HERE), str(HERE.parent)]
 from bench_results import machine, write_result  # noqa: E402
 from bench_stages import make_payload, pace  # noqa: E402
 
-from engine.shm import ShmPool, session_entries  # noqa: E402
+from engine.transport.shm import ShmPool, session_entries  # noqa: E402
 
 KEY = "bench/shm"
 SIZES = [16 * 1024, 32 * 1024, 64 * 1024, 128 * 1024, 1_200_000]

@@ -45,14 +45,14 @@ from scipy.stats import chi2  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from engine.transforms import T_from_Rt, inv, log_so3, pose_error  # noqa: E402
-from plugins.solvers.tcp_camera.simulate import simulate_tcp_camera  # noqa: E402
-from plugins.solvers.tcp_camera.solver import calibrate_tcp_camera  # noqa: E402
-from plugins.solvers.tcp_camera.solver import cramer_rao_bound as tcp_crlb  # noqa: E402
-from plugins.solvers.vive_desk.data import TrackerTcpPrior  # noqa: E402
-from plugins.solvers.vive_desk.initial import initial_estimate  # noqa: E402
-from plugins.solvers.vive_desk.realtime import desktop_tcp, desktop_tcp_jacobians  # noqa: E402
-from plugins.solvers.vive_desk.seed_baseline import seed_calibrate  # noqa: E402
-from plugins.solvers.vive_desk.simulate import (  # noqa: E402
+from plugins.calibration.tcp_camera.simulate import simulate_tcp_camera  # noqa: E402
+from plugins.calibration.tcp_camera.solver import calibrate_tcp_camera  # noqa: E402
+from plugins.calibration.tcp_camera.solver import cramer_rao_bound as tcp_crlb  # noqa: E402
+from plugins.calibration.vive_desk.data import TrackerTcpPrior  # noqa: E402
+from plugins.calibration.vive_desk.initial import initial_estimate  # noqa: E402
+from plugins.calibration.vive_desk.realtime import desktop_tcp, desktop_tcp_jacobians  # noqa: E402
+from plugins.calibration.vive_desk.seed_baseline import seed_calibrate  # noqa: E402
+from plugins.calibration.vive_desk.simulate import (  # noqa: E402
     SEED_POINTS_3,
     SEED_POINTS_4,
     SEED_POINTS_5,
@@ -61,7 +61,7 @@ from plugins.solvers.vive_desk.simulate import (  # noqa: E402
     true_T_base_desktop,
     true_T_tracker_tcp,
 )
-from plugins.solvers.vive_desk.solver import calibrate_vive_desk, cramer_rao_bound  # noqa: E402
+from plugins.calibration.vive_desk.solver import calibrate_vive_desk, cramer_rao_bound  # noqa: E402
 
 TRACKER_POS_SIGMA = 0.5e-3
 TRACKER_ROT_SIGMA = float(np.radians(0.1))

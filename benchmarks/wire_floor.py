@@ -2,8 +2,8 @@
 
 Used by benchmarks/engine_overhead.py as a reference row next to raw zenoh and vgr. The sender
 builds each message as a stage does (a ``Blob`` of the same timestamped payload), encodes it with
-vgr's codec (``engine.codec.encode_payload`` and the port envelope) and packs ``BATCH`` of them into
-one zenoh sample in engine.wire's batch format — always, where vgr batches only while a producer
+vgr's codec (``engine.messages.codec.encode_payload`` and the port envelope) and packs ``BATCH`` of them into
+one zenoh sample in engine.transport.wire's batch format — always, where vgr batches only while a producer
 bursts — so zenoh's per-sample costs (the put, the transmit thread's wake-up, the receive channel)
 are spread over many messages. The receiving process decodes every message with the codec
 (``decode_payload``) and hands it to a handler doing what ``bench_sink`` does. No engine: no
@@ -24,9 +24,8 @@ from pathlib import Path
 import zenoh
 from bench_stages import make_payload
 
-from engine import codec
-from engine.messages import Blob
-from engine.wire import BATCH_ENVELOPE, iter_batch, pack_batch
+from engine.messages import Blob, codec
+from engine.transport.wire import BATCH_ENVELOPE, iter_batch, pack_batch
 
 BATCH = 64  # messages per zenoh sample
 

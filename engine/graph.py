@@ -27,9 +27,9 @@ from pydantic import ValidationError
 from engine.errors import Problem, RecipeError, nearest
 from engine.messages import Message
 from engine.plugin_manager import Registry
-from engine.recipe import LoadedRecipe, StageSpec, pydantic_problems
+from engine.recipe.model import LoadedRecipe, StageSpec, pydantic_problems
+from engine.recipe.unit_checks import implausible_lengths
 from engine.stage import Stage, StageParams
-from engine.unit_checks import implausible_lengths
 
 TRUTH_PREFIX = "truth/"  # ports carrying simulation ground truth
 TRUTH_SERVICE = "truth"  # services whose name starts with this give ground truth

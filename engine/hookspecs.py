@@ -29,7 +29,7 @@ class VgrSpecs:
     def vgr_model_effects(self) -> list[Any]:  # type: ignore[empty-body]
         """Return model-effect families for the model-gap workflow's catalog (``vgr gap``).
 
-        Each item is an effect family (:class:`engine.gap.interfaces.EffectFamily`) or a class
+        Each item is an effect family (:class:`plugins.model_gap.core.interfaces.EffectFamily`) or a class
         instantiated without arguments: ``name`` (unique across all plugins: a duplicate is an error),
         ``description``, ``requires`` and ``candidates(problem)`` returning one candidate per place the
         effect can act (``docs/model_gap.md``).

@@ -15,9 +15,8 @@ from typing import Any
 
 import pluggy
 
-from engine import codec
 from engine.hookspecs import PROJECT, VgrSpecs
-from engine.messages import Message
+from engine.messages import Message, codec
 from engine.stage import EVENTS_PORT, Stage
 
 
@@ -91,7 +90,7 @@ def load_registry(extra_modules: Iterable[str] = (), *, entry_points: bool = Tru
             if not (isinstance(name, str) and name and callable(getattr(eff, "candidates", None))):
                 raise PluginError(
                     f"plugin {impl.plugin_name} returned {eff!r} as a model effect: an effect family needs a "
-                    "non-empty `name` and a `candidates(problem)` method (engine.gap.interfaces.EffectFamily)"
+                    "non-empty `name` and a `candidates(problem)` method (see engine.hookspecs, vgr_model_effects)"
                 )
             prev = reg.effect_origin.get(name)
             if prev is not None and reg.effects[name] is not eff:

@@ -31,7 +31,7 @@ import yaml
 from engine.plain_data import plain
 
 if TYPE_CHECKING:
-    from engine.recipe import LoadedRecipe
+    from engine.recipe.model import LoadedRecipe
 
 DEFAULT_PARENT = "runs"
 LOG_NAME = "run.log"

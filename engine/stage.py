@@ -89,7 +89,7 @@ class RunStoppingError(Exception):
 class StageContext:
     """The engine's side of a stage: publish, call services, raise events, read the clock.
 
-    Implemented by the runner (engine.runtime), the replay and a detached context; stages only use
+    Implemented by the runner (engine.run.runtime), the replay and a detached context; stages only use
     this interface.
     """
 

@@ -18,15 +18,15 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
-from plugins.solvers.handeye.io import write_pose_pairs_json  # noqa: E402
-from plugins.solvers.handeye.noise import NoiseModel  # noqa: E402
-from plugins.solvers.handeye.simulate import add_noise, viewing_scene  # noqa: E402
-from plugins.solvers.model_gap.data import write_gap_csv  # noqa: E402
-from plugins.solvers.model_gap.simulate import LEVELS, HiddenCase, HiddenEffect, make_case  # noqa: E402
-from plugins.solvers.tcp_camera.io import save_tcp_csv  # noqa: E402
-from plugins.solvers.tcp_camera.simulate import simulate_tcp_camera  # noqa: E402
-from plugins.solvers.vive_desk.io import save_vive_csv  # noqa: E402
-from plugins.solvers.vive_desk.simulate import simulate_contacts, tilted_fixture_orientations  # noqa: E402
+from plugins.calibration.handeye.io import write_pose_pairs_json  # noqa: E402
+from plugins.calibration.handeye.noise import NoiseModel  # noqa: E402
+from plugins.calibration.handeye.simulate import add_noise, viewing_scene  # noqa: E402
+from plugins.calibration.tcp_camera.io import save_tcp_csv  # noqa: E402
+from plugins.calibration.tcp_camera.simulate import simulate_tcp_camera  # noqa: E402
+from plugins.calibration.vive_desk.io import save_vive_csv  # noqa: E402
+from plugins.calibration.vive_desk.simulate import simulate_contacts, tilted_fixture_orientations  # noqa: E402
+from plugins.model_gap.data import write_gap_csv  # noqa: E402
+from plugins.sim.model_gap.simulate import LEVELS, HiddenCase, HiddenEffect, make_case  # noqa: E402
 
 DESK_POINTS = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0], [0.0, 0.3, 0.0], [0.3, 0.3, 0.0]])  # m, desk frame
 FILES = ("handeye_eye_in_hand.json", "tcp_camera.csv", "vive_desk.csv", "ur5e_campaign.csv")

@@ -8,32 +8,32 @@ from engine.hookspecs import hookimpl
 
 @hookimpl
 def vgr_stage_types() -> list[type]:
-    from plugins.actions.calibration_poses import CalibrationPoses
-    from plugins.actions.capture import CaptureAtPose
-    from plugins.actions.docking import Docking, DualDocking
-    from plugins.actions.guidance import Guidance
-    from plugins.actions.guidance_report import GuidanceReport
-    from plugins.actions.measurement_campaign import MeasurementCampaign
-    from plugins.actions.ur_robot import URRobot
-    from plugins.sensors.file_camera import FileCamera
-    from plugins.sensors.realsense_camera import RealSenseCamera
-    from plugins.sensors.vive_tracker import ViveTracker
+    from plugins.actions.stages.calibration_poses import CalibrationPoses
+    from plugins.actions.stages.capture import CaptureAtPose
+    from plugins.actions.stages.docking import Docking, DualDocking
+    from plugins.actions.stages.guidance import Guidance
+    from plugins.actions.stages.guidance_report import GuidanceReport
+    from plugins.calibration.stages.board_pose import BoardPose
+    from plugins.calibration.stages.hand_eye import HandEyeCalibration
+    from plugins.calibration.stages.kinematic import KinematicCalibrationStage
+    from plugins.calibration.stages.result_file import CalibrationFile
+    from plugins.calibration.stages.target_pose import TargetPose
+    from plugins.calibration.stages.tcp import TcpCalibration
+    from plugins.calibration.stages.vive import ViveDeskCalibration, ViveToDesktop
+    from plugins.devices.stages.file_camera import FileCamera
+    from plugins.devices.stages.realsense_camera import RealSenseCamera
+    from plugins.devices.stages.ur_robot import URRobot
+    from plugins.devices.stages.vive_tracker import ViveTracker
+    from plugins.model_gap.stages.measurement_campaign import MeasurementCampaign
+    from plugins.model_gap.stages.model_gap import ModelGap
+    from plugins.registration.stages.matcher import Matcher
     from plugins.sim.stages.camera import SimCamera
     from plugins.sim.stages.evaluation import DockingEvaluator
     from plugins.sim.stages.point_tracker import SimPointTracker
     from plugins.sim.stages.robot import SimRobot
     from plugins.sim.stages.tracker import SimTracker
-    from plugins.solvers.model_gap.stage import ModelGap
-    from plugins.solvers.registration.stage import Matcher
-    from plugins.solvers.stages.board_pose import BoardPose
-    from plugins.solvers.stages.hand_eye import HandEyeCalibration
-    from plugins.solvers.stages.kinematic import KinematicCalibrationStage
-    from plugins.solvers.stages.result_file import CalibrationFile
-    from plugins.solvers.stages.target_pose import TargetPose
-    from plugins.solvers.stages.tcp import TcpCalibration
-    from plugins.solvers.stages.vive import ViveDeskCalibration, ViveToDesktop
-    from plugins.util.cloud_stages import CloudStats, SyntheticCloud, TransformCloud
-    from plugins.util.trigger import Trigger
+    from plugins.util.stages.clouds import CloudStats, SyntheticCloud, TransformCloud
+    from plugins.util.stages.trigger import Trigger
 
     sim = [SimRobot, SimCamera, SimTracker, DockingEvaluator]
     devices = [URRobot, ViveTracker, RealSenseCamera, FileCamera]
@@ -68,13 +68,13 @@ def vgr_stage_types() -> list[type]:
 @hookimpl
 def vgr_message_types() -> list[type]:
     from plugins.actions.messages import GuidanceResult
-    from plugins.solvers.registration.messages import MatchResult
+    from plugins.registration.messages import MatchResult
 
     return [MatchResult, GuidanceResult]
 
 
 @hookimpl
 def vgr_model_effects() -> list[type]:
-    from plugins.solvers.model_gap.effects import FAMILIES
+    from plugins.model_gap.effects import FAMILIES
 
     return list(FAMILIES)

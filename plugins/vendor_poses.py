@@ -3,7 +3,7 @@
 An adapter or a file reader never guesses a vendor's convention: UR ``[x, y, z, rx, ry, rz]`` (m,
 rotation vector), ABB ``trans`` in mm + ``rot`` quaternion ``(w, x, y, z)``, KUKA ``X Y Z A B C``
 (mm, degrees, ``R = Rz(A) Ry(B) Rx(C)``). The engine knows nothing of robots; these live beside
-the adapters (``plugins/actions/ur_robot.py``) and the readers of robot pose files.
+the adapters (``plugins/devices/stages/ur_robot.py``) and the readers of robot pose files.
 """
 
 from __future__ import annotations

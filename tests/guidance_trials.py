@@ -28,24 +28,23 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from engine import codec
 from engine.graph import build_graph
-from engine.messages import PointCloud
+from engine.messages import PointCloud, codec
 from engine.plugin_manager import load_registry
-from engine.recipe import load_recipe
-from engine.runner import Observer, Runner
-from engine.stage_host import ServiceCall
+from engine.recipe.model import load_recipe
+from engine.run.runner import Observer, Runner
+from engine.run.stage_host import ServiceCall
 from engine.transforms import T_from_Rt, inv
 from plugins.actions import guidance_math as gm
 from plugins.actions.messages import GuidanceResult
 from plugins.params import PoseSpec
+from plugins.registration.template import load_template
 from plugins.robot.effects import effects_from_config
 from plugins.robot.model_file import load_robot_model, transform_entry
 from plugins.robot.with_effects import RobotWithEffects
 from plugins.sim.sensor_effects import PoseOffset
 from plugins.sim.stages.evaluation import assembly_fit
 from plugins.sim.workpieces import assembled_plate_pose
-from plugins.solvers.registration.template import load_template
 
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"
 

@@ -13,7 +13,7 @@ import textwrap
 
 from engine.graph import Graph, build_graph
 from engine.plugin_manager import load_registry
-from engine.recipe import load_recipe
+from engine.recipe.model import load_recipe
 
 
 def graph_from(text: str, overrides: list[str] | None = None, name: str = "test.yaml") -> Graph:

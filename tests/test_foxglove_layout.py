@@ -19,7 +19,7 @@ import pytest
 from shipped_runs import SHIPPED, recipe_id, shipped_run
 
 from engine.messages import PointCloud, PoseStamped, SceneMeshes
-from engine.recording import load
+from engine.recording.reader import load
 
 pytestmark = pytest.mark.timeout(180)
 

@@ -4,10 +4,10 @@ Every message carries its source's timestamp ``stamp_ns`` (integer ns), a per-po
 ``seq`` (set by the publisher) and the ``frame_id`` its geometry is expressed in. Arrays are numpy;
 received arrays may be read-only views of the wire buffer, so stages never modify inputs in place.
 
-Each class names its protobuf ``SCHEMA`` (see engine.schemas); its fields map to the schema's by
+Each class names its protobuf ``SCHEMA`` (see engine.messages.schemas); its fields map to the schema's by
 name and type, ``WIRE`` naming the rest, and ``to_proto`` / ``from_proto`` are generated from that
 (engine.messages.mapping). A class whose payload is one large array names the bytes field that
-holds it in ``BULK``: the codec then moves that array without an extra protobuf copy (engine.codec).
+holds it in ``BULK``: the codec then moves that array without an extra protobuf copy (engine.messages.codec).
 
 Where things are (import them from here, ``engine.messages``):
 

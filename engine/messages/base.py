@@ -14,7 +14,7 @@ from typing import Any, ClassVar, Self
 import numpy as np
 
 from engine.messages.mapping import Bulk, WireMap, codec_of, install, mapped
-from engine.schemas import ProtoMessage, proto_class
+from engine.messages.schemas import ProtoMessage, proto_class
 
 
 @dataclass(kw_only=True, eq=False)

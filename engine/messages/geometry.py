@@ -13,7 +13,7 @@ import numpy as np
 
 from engine.messages.base import Message
 from engine.messages.mapping import Bulk, Wire, WireMap, _bytes_of, get_stamp, set_stamp
-from engine.schemas import ProtoMessage
+from engine.messages.schemas import ProtoMessage
 
 _PACKED_TYPES = {  # foxglove.PackedElementField.NumericType
     np.dtype("uint8"): 1,

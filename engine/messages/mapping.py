@@ -30,7 +30,7 @@ import numpy as np
 from google.protobuf.descriptor import FieldDescriptor
 
 from engine import transforms as tf
-from engine.schemas import _is_repeated, proto_class
+from engine.messages.schemas import _is_repeated, proto_class
 
 Bulk = memoryview | bytes | None
 
@@ -160,7 +160,7 @@ def codec_of(cls: type) -> Codec:
 
 def generate_now(cls: type) -> None:
     """Write *cls*'s generated code now if it uses any, so that a class whose fields do not fit its
-    schema fails where it is registered (engine.codec) rather than on its first message."""
+    schema fails where it is registered (engine.messages.codec) rather than on its first message."""
     if _is_mapped(getattr(cls, "to_proto", None)) or _is_mapped(getattr(cls, "from_proto", None)):
         codec_of(cls)
 

@@ -1,4 +1,4 @@
-"""Message types on vgr's own versioned schemas (vgr.v1, engine.schemas): blobs, tracker poses,
+"""Message types on vgr's own versioned schemas (vgr.v1, engine.messages.schemas): blobs, tracker poses,
 events, calibration results, robot commands and replies, corrections and service requests.
 
 Their fields map to the schemas by name and type (engine.messages.mapping); ``WIRE`` names the rest."""
@@ -13,7 +13,7 @@ import numpy as np
 from engine import transforms as tf
 from engine.messages.base import Message
 from engine.messages.mapping import Bulk, Wire, WireMap
-from engine.schemas import ProtoMessage
+from engine.messages.schemas import ProtoMessage
 
 
 @dataclass(kw_only=True, eq=False)
@@ -64,7 +64,7 @@ class Event(Message, schema="vgr.v1.Event"):
 @dataclass(kw_only=True, eq=False)
 class CalibrationResultMsg(Message, schema="vgr.v1.CalibrationResult"):
     """A calibration result on the wire: verdict, named transforms, metrics, and the complete
-    result as JSON (plugins.solvers.calibration_result.CalibrationResult.to_json())."""
+    result as JSON (plugins.calibration.result.CalibrationResult.to_json())."""
 
     TYPE: ClassVar[str] = "CalibrationResult"
 

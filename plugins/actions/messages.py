@@ -14,13 +14,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from engine.messages import Message
-from engine.schemas import define_proto
+from engine.messages.schemas import define_proto
 
 define_proto(
     "vgr/v1/guidance.proto",
     "vgr.v1",
     """
-message GuidanceResult {             // one run of the guidance loop (plugins/actions/guidance.py)
+message GuidanceResult {             // one run of the guidance loop (plugins/actions/stages/guidance.py)
   google.protobuf.Timestamp timestamp = 1;
   string frame_id = 2;               // frame of the poses: the robot base
   string mode = 3;                   // eye_in_hand | eye_to_hand

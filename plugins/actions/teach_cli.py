@@ -29,7 +29,7 @@ from engine.files import replace_text
 from engine.graph import build_graph
 from engine.messages import Event, Message, Request
 from engine.plugin_manager import PluginError, load_registry
-from engine.recipe import load_recipe
+from engine.recipe.model import load_recipe
 from engine.transforms import as_transform
 from plugins.util.detached import DetachedContext
 from plugins.vendor_poses import T_from_ur

@@ -35,8 +35,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from engine.transforms import T_from_Rt, as_transform, inv
-
-from .chain import ChainOp, KinematicChain
+from plugins.robot.chain import ChainOp, KinematicChain
 
 F64 = NDArray[np.float64]
 Convention = Literal["dh", "mdh", "poe"]

@@ -24,7 +24,7 @@ from scipy.optimize import least_squares
 from engine.transforms import as_transform, hat, log_so3
 
 if TYPE_CHECKING:
-    from .kinematics import RobotModel
+    from plugins.robot.kinematics import RobotModel
 
 F64 = NDArray[np.float64]
 IKStatus = Literal["ok", "unreachable", "out_of_limits"]

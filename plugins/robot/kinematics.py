@@ -25,12 +25,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from engine.transforms import as_transform, inv
-
-from .chain import ChainOp, JacobianFrame, KinematicChain
-from .conventions import CONVENTIONS, DHRow, PoeJoint, build_chain, dh_to_mdh, mdh_to_dh
+from plugins.robot.chain import ChainOp, JacobianFrame, KinematicChain
+from plugins.robot.conventions import CONVENTIONS, DHRow, PoeJoint, build_chain, dh_to_mdh, mdh_to_dh
 
 if TYPE_CHECKING:
-    from .ik import IKResult
+    from plugins.robot.ik import IKResult
 
 F64 = NDArray[np.float64]
 STANDARD_GRAVITY = 9.80665
@@ -449,7 +448,7 @@ class RobotModel:
 
     def ik(self, T_world_tcp: ArrayLike, q_seed: ArrayLike | None = None, **kwargs) -> IKResult:
         """Numerical IK within the joint limits; see :func:`plugins.robot.ik.solve_ik`."""
-        from .ik import solve_ik
+        from plugins.robot.ik import solve_ik
 
         return solve_ik(self, T_world_tcp, q_seed, **kwargs)
 

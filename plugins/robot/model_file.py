@@ -36,9 +36,8 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationEr
 
 from engine.plain_data import read_document
 from engine.transforms import T_from_pose7, T_from_Rt, as_transform, inv
-
-from .conventions import DHRow, PoeJoint, build_chain
-from .kinematics import JointSpec, LinkInertia, RobotModel
+from plugins.robot.conventions import DHRow, PoeJoint, build_chain
+from plugins.robot.kinematics import JointSpec, LinkInertia, RobotModel
 
 ROBOTS_DIR = Path(__file__).parent / "robots"
 

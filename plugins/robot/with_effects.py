@@ -22,9 +22,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
-from .chain import JacobianFrame
-from .effects.base import RobotEffect, SampleContext
-from .kinematics import RobotModel
+from plugins.robot.chain import JacobianFrame
+from plugins.robot.effects.base import RobotEffect, SampleContext
+from plugins.robot.kinematics import RobotModel
 
 F64 = NDArray[np.float64]
 

@@ -1,14 +1,14 @@
 """A calibration board fixed in the simulated cell: its plate for the depth camera, its printed face
 for the camera's intensity image.
 
-The board (any :class:`plugins.solvers.boards.spec.BoardSpec`: chessboard, ChArUco, circle grid) is
+The board (any :class:`plugins.camera.board_spec.BoardSpec`: chessboard, ChArUco, circle grid) is
 a :class:`Workpiece` like the cell's other parts, so the depth camera sees it and its frame goes in
 the frame tree like theirs: a plate ``thickness_m`` thick under the printed face, which is the plane
-z = 0 of the board frame ``target`` (:mod:`plugins.solvers.boards.spec`: origin at the first feature,
+z = 0 of the board frame ``target`` (:mod:`plugins.camera.board_spec`: origin at the first feature,
 +z out of the printed face), as wide as the printed sheet with its white margin.
 
 The intensity image is rendered by the board library's renderer
-(:func:`plugins.solvers.boards.render.render_board`: each pixel the average of supersampled rays
+(:func:`plugins.camera.board_render.render_board`: each pixel the average of supersampled rays
 through the lens model, Gaussian defocus blur, Gaussian grey-level noise from the caller's seeded
 generator) seen through :attr:`BoardImager.camera`, a pinhole with lens distortion: the depth
 camera's intrinsics with the distortion ``D`` of OpenCV's standard model. A real depth camera
@@ -26,12 +26,11 @@ import numpy as np
 import open3d as o3d
 from numpy.typing import ArrayLike, NDArray
 
-from plugins.solvers.boards.camera import CameraModel
-from plugins.solvers.boards.render import board_texture, render_board
-from plugins.solvers.boards.spec import BoardSpec
-
-from .camera import PinholeIntrinsics
-from .workpieces import Workpiece
+from plugins.camera.board_render import board_texture, render_board
+from plugins.camera.board_spec import BoardSpec
+from plugins.camera.pinhole import CameraModel
+from plugins.sim.camera import PinholeIntrinsics
+from plugins.sim.workpieces import Workpiece
 
 __all__ = ["BoardImager", "board_workpiece"]
 

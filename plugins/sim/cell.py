@@ -24,11 +24,10 @@ from typing import Literal
 import numpy as np
 
 from engine.transforms import as_transform, inv
-
-from .camera import DepthCameraModel, DepthCapture, RenderTruth
-from .sensor_effects import SensorEffects
-from .tracker import SimulatedViveTracker, ViveTrackerModel
-from .workpieces import Workpiece
+from plugins.sim.camera import DepthCameraModel, DepthCapture, RenderTruth
+from plugins.sim.sensor_effects import SensorEffects
+from plugins.sim.tracker import SimulatedViveTracker, ViveTrackerModel
+from plugins.sim.workpieces import Workpiece
 
 __all__ = ["CameraMount", "CaptureTruth", "Frame", "PartPlacement", "SimCell", "TrackerMount"]
 

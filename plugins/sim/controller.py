@@ -38,8 +38,7 @@ from plugins.robot.effects.base import SampleContext
 from plugins.robot.ik import solve_ik
 from plugins.robot.kinematics import RobotModel
 from plugins.robot.with_effects import RobotWithEffects
-
-from .motion_profile import Profile, trapezoid
+from plugins.sim.motion_profile import Profile, trapezoid
 
 F64 = NDArray[np.float64]
 MoveKind = Literal["movej", "movel"]

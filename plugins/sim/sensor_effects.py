@@ -31,8 +31,7 @@ from typing import Any
 import numpy as np
 
 from engine.transforms import T_from_rotvec, as_transform, log_so3
-
-from .camera import DepthNoiseModel
+from plugins.sim.camera import DepthNoiseModel
 
 __all__ = ["CameraEffects", "PoseOffset", "SensorEffects", "TrackerEffects"]
 

@@ -34,8 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from engine.transforms import T_from_rotvec, as_transform
-
-from .sensor_effects import TrackerEffects
+from plugins.sim.sensor_effects import TrackerEffects
 
 __all__ = ["SimulatedViveTracker", "TrackerSample", "TrackerTruth", "ViveTrackerModel"]
 

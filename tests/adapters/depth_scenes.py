@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from plugins.sensors.depth_projection import DepthIntrinsics, normalized_rays
+from plugins.camera.depth_projection import DepthIntrinsics, normalized_rays
 
 INTR = DepthIntrinsics(80, 60, 70.0, 71.5, 39.7, 29.3)
 PLANE_NORMAL = np.array([0.2, -0.3, -1.0]) / np.linalg.norm([0.2, -0.3, -1.0])  # facing the camera

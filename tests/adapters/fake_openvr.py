@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from plugins.sensors.openvr_poses import hmd34_from_T
+from plugins.devices.openvr_poses import hmd34_from_T
 
 k_unMaxTrackedDeviceCount = 64
 

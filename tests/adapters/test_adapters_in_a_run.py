@@ -24,9 +24,9 @@ from recipe_helpers import graph_from, stages
 from shared_data import SHARED
 
 from engine import transforms as tf
-from engine.recorder import Recorder
-from engine.replay import replay
-from engine.runner import Runner
+from engine.recording.recorder import Recorder
+from engine.recording.replay import replay
+from engine.run.runner import Runner
 
 pytestmark = pytest.mark.timeout(180)
 

@@ -16,7 +16,10 @@ from recipe_helpers import graph_from
 
 from engine.messages import FrameTransforms
 from engine.plugin_manager import load_registry
-from plugins.actions.ur_robot import URRobot
+from plugins.devices.stages.file_camera import FileCamera
+from plugins.devices.stages.realsense_camera import RealSenseCamera
+from plugins.devices.stages.ur_robot import URRobot
+from plugins.devices.stages.vive_tracker import ViveTracker
 from plugins.interfaces import (
     CAMERA_OUTPUTS,
     CAMERA_SERVICES,
@@ -25,9 +28,6 @@ from plugins.interfaces import (
     TRACKER_OUTPUTS,
     TRACKER_SERVICES,
 )
-from plugins.sensors.file_camera import FileCamera
-from plugins.sensors.realsense_camera import RealSenseCamera
-from plugins.sensors.vive_tracker import ViveTracker
 from plugins.sim.stages.camera import SimCamera
 from plugins.sim.stages.robot import SimRobot
 from plugins.sim.stages.tracker import SimTracker

@@ -8,7 +8,7 @@ from depth_scenes import INTR, plane_depth, plane_residual_m
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from plugins.sensors.depth_projection import DepthIntrinsics, deproject_depth, normalized_rays, valid_points
+from plugins.camera.depth_projection import DepthIntrinsics, deproject_depth, normalized_rays, valid_points
 
 D415_COLOR = (0.1396, -0.4697, 0.0012, 0.0009, 0.4117)  # typical magnitudes of a RealSense colour camera
 

@@ -12,8 +12,8 @@ from depth_scenes import INTR, plane_depth, plane_residual_m
 from shared_data import SHARED
 
 from engine.messages import Request
-from plugins.sensors.file_camera import FileCamera
-from plugins.sensors.frame_files import FrameFileError, load_frame
+from plugins.devices.frame_files import FrameFileError, load_frame
+from plugins.devices.stages.file_camera import FileCamera
 
 PCL = SHARED / "pcl"
 PCL_FILES = {"bun0.pcd": 397, "bun4.pcd": 361, "milk.pcd": 13704, "sac_plane_test.pcd": 3283}  # README counts

@@ -21,9 +21,9 @@ from frame_tree_helpers import ROBOT_FRAMES, record, sound_frame_tree
 from recipe_helpers import stages
 from shared_data import SHARED
 
-from engine import codec
 from engine import transforms as tf
-from engine.recording import load
+from engine.messages import codec
+from engine.recording.reader import load
 
 pytestmark = pytest.mark.timeout(180)
 

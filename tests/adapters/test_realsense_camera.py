@@ -15,8 +15,8 @@ from depth_scenes import INTR, PLANE_POINT, plane_depth, plane_residual_m, write
 from fake_realsense import FakeCamera, Intrinsics, distortion, format, install, stream
 
 from engine.messages import Request
-from plugins.sensors.realsense_camera import RealSenseCamera
-from plugins.sensors.realsense_device import EndOfRecordingError, RealSenseError
+from plugins.devices.realsense_device import EndOfRecordingError, RealSenseError
+from plugins.devices.stages.realsense_camera import RealSenseCamera
 from plugins.util.sdk import MissingSDKError
 
 SCALE = 0.0001  # 0.1 mm per z16 unit (D405-like); most D400 cameras use 1 mm

@@ -17,8 +17,8 @@ from pydantic import ValidationError
 from engine import transforms as tf
 from engine.messages import Request, RobotCommand
 from plugins import vendor_poses
-from plugins.actions.ur_robot import URRobot
-from plugins.actions.ur_rtde_driver import URConnectionError
+from plugins.devices.stages.ur_robot import URRobot
+from plugins.devices.ur_rtde_driver import URConnectionError
 from plugins.util.sdk import MissingSDKError
 
 PARAMS = {"ip": IP, "workspace_min_m": (-0.8, -0.6, 0.05), "workspace_max_m": (0.2, 0.6, 0.8)}

@@ -15,8 +15,8 @@ from hypothesis import strategies as st
 
 from engine import transforms as tf
 from engine.messages import Request
-from plugins.sensors.openvr_poses import T_from_hmd34, hmd34_from_T, reading_from_pose
-from plugins.sensors.vive_tracker import ViveTracker, ViveTrackerError
+from plugins.devices.openvr_poses import T_from_hmd34, hmd34_from_T, reading_from_pose
+from plugins.devices.stages.vive_tracker import ViveTracker, ViveTrackerError
 from plugins.util.sdk import MissingSDKError
 
 T_LH_TRACKER = tf.T_from_rotvec([0.3, -1.2, 0.4], [0.52, 1.31, -2.04])

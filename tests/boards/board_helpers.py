@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from plugins.solvers.boards.camera import CameraModel
-from plugins.solvers.boards.detect import Detection, detect_board
-from plugins.solvers.boards.render import render_board, sample_views
-from plugins.solvers.boards.spec import BoardSpec
+from plugins.calibration.boards.detect import Detection, detect_board
+from plugins.camera.board_render import render_board, sample_views
+from plugins.camera.board_spec import BoardSpec
+from plugins.camera.pinhole import CameraModel
 
 TRUE_K = np.array([[620.0, 0.0, 322.4], [0.0, 621.5, 236.9], [0.0, 0.0, 1.0]])
 TRUE_D = np.array([-0.30, 0.12, 0.0006, -0.0004, -0.025])  # strong barrel, like a wide-angle lens

@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 from board_helpers import CAMERA, rendered_views
 
-from plugins.solvers.boards.detect import (
+from plugins.calibration.boards.detect import (
     BoardNotFoundError,
     detect_board,
     detect_images,
 )
-from plugins.solvers.boards.render import look_at, render_board
-from plugins.solvers.boards.spec import parse_board
+from plugins.camera.board_render import look_at, render_board
+from plugins.camera.board_spec import parse_board
 
 UNAMBIGUOUS = [
     ("chessboard:10x7:30mm", 0.10),

@@ -9,12 +9,12 @@ from board_helpers import CAMERA, detected_views, noisy_detections
 from scipy import stats
 
 from engine.transforms import pose_delta, retract
-from plugins.solvers.boards.board_pose import AmbiguousBoardError, board_pose, pose_jacobian
-from plugins.solvers.boards.camera import CameraModel
-from plugins.solvers.boards.detect import detect_board
-from plugins.solvers.boards.render import look_at, render_board
-from plugins.solvers.boards.spec import parse_board
-from plugins.solvers.handeye.noise import PoseNoise
+from plugins.calibration.boards.board_pose import AmbiguousBoardError, board_pose, pose_jacobian
+from plugins.calibration.boards.detect import detect_board
+from plugins.calibration.handeye.noise import PoseNoise
+from plugins.camera.board_render import look_at, render_board
+from plugins.camera.board_spec import parse_board
+from plugins.camera.pinhole import CameraModel
 
 CHESS = parse_board("chessboard:10x7:30mm")
 FISHEYE = CameraModel(640, 480, CAMERA.K, [0.05, -0.01, 0.002, -0.001], "fisheye")

@@ -10,7 +10,7 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from plugins.solvers.boards.spec import BoardSpec, BoardSpecError, load_board, parse_board
+from plugins.camera.board_spec import BoardSpec, BoardSpecError, load_board, parse_board
 
 
 def test_chessboard_counts_squares_and_its_features_are_the_inner_corners():

@@ -1,5 +1,5 @@
 """The pixel refinement's statistics on simulated hand-eye data with known truth
-(:mod:`plugins.solvers.boards.handeye_sim`): the robot-pose and corner noise estimated from the
+(:mod:`plugins.calibration.boards.handeye_sim`): the robot-pose and corner noise estimated from the
 corners, the reported covariance against the actual error (Mahalanobis²), the Cramér–Rao bound,
 and the outlier test's bad input. The tight figures (hundreds of seeds) are in
 ``benchmarks/handeye_images_crlb.py``; these tests use few seeds and bounds that a wrong
@@ -13,10 +13,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from engine.transforms import pose_delta
-from plugins.solvers.boards.handeye_images import calibrate_handeye_images, moved_views
-from plugins.solvers.boards.handeye_sim import SIM_CAMERA, simulate_handeye
-from plugins.solvers.boards.reprojection import RobotNoise, crlb, refine_reprojection
-from plugins.solvers.boards.spec import parse_board
+from plugins.calibration.boards.handeye_images import calibrate_handeye_images, moved_views
+from plugins.calibration.boards.handeye_sim import SIM_CAMERA, simulate_handeye
+from plugins.calibration.boards.reprojection import RobotNoise, crlb, refine_reprojection
+from plugins.camera.board_spec import parse_board
 
 BOARD = parse_board("chessboard:10x7:30mm")
 ROBOT = RobotNoise(2e-4, float(np.radians(0.02)))

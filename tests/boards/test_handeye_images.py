@@ -14,14 +14,14 @@ import pytest
 from shared_data import SHARED
 
 from engine.transforms import angle_between, pose_delta, retract
-from plugins.solvers.boards.board_pose import AmbiguousBoardError
-from plugins.solvers.boards.detect import detect_board, detect_images
-from plugins.solvers.boards.handeye_images import ImagePoseMismatchError, calibrate_handeye_images, pair_views
-from plugins.solvers.boards.intrinsics import calibrate_intrinsics
-from plugins.solvers.boards.reprojection import view_residuals
-from plugins.solvers.boards.robot_poses import load_robot_poses
-from plugins.solvers.boards.spec import parse_board
-from plugins.solvers.calibrate_cli import main as calibrate_main
+from plugins.calibration.boards.board_pose import AmbiguousBoardError
+from plugins.calibration.boards.detect import detect_board, detect_images
+from plugins.calibration.boards.handeye_images import ImagePoseMismatchError, calibrate_handeye_images, pair_views
+from plugins.calibration.boards.intrinsics import calibrate_intrinsics
+from plugins.calibration.boards.reprojection import view_residuals
+from plugins.calibration.boards.robot_poses import load_robot_poses
+from plugins.calibration.cli import main as calibrate_main
+from plugins.camera.board_spec import parse_board
 
 SYNTH_DIR, KUKA_DIR = SHARED / "rwhe_synthetic1", SHARED / "rwhe_kuka2"
 SYNTH, KUKA = parse_board("chessboard:10x7:200mm"), parse_board("chessboard:25x18:15mm")
@@ -134,7 +134,7 @@ def test_a_pose_solver_that_does_not_converge_is_not_the_end(synth, monkeypatch)
     # the pose solver with the noise estimated can fail to converge on views whose robot poses are
     # exact (it does on some 14-view subsets of this set); then the declared-noise solution and the
     # closed forms start the pixel refinement instead
-    import plugins.solvers.boards.handeye_images as he
+    import plugins.calibration.boards.handeye_images as he
 
     real = he.calibrate_hand_eye
 

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 from board_helpers import CAMERA, TRUE_INTRINSICS, detected_views, noisy_detections
 
-from plugins.solvers.boards.camera import CameraModel
-from plugins.solvers.boards.detect import Detection, Detections
-from plugins.solvers.boards.intrinsics import calibrate_intrinsics
-from plugins.solvers.boards.render import sample_views
-from plugins.solvers.boards.spec import parse_board
+from plugins.calibration.boards.detect import Detection, Detections
+from plugins.calibration.boards.intrinsics import calibrate_intrinsics
+from plugins.camera.board_render import sample_views
+from plugins.camera.board_spec import parse_board
+from plugins.camera.pinhole import CameraModel
 
 CHARUCO = parse_board("charuco:9x6:30mm:22mm:DICT_4X4_50")
 CHESS = parse_board("chessboard:10x7:30mm")

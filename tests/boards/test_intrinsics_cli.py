@@ -8,10 +8,10 @@ import cv2
 import pytest
 from board_helpers import rendered_views
 
-from engine.cli import main
-from plugins.solvers.boards.camera import CameraModel
-from plugins.solvers.boards.spec import parse_board
-from plugins.solvers.calibration_result import CalibrationResult
+from engine.cli.main import main
+from plugins.calibration.result import CalibrationResult
+from plugins.camera.board_spec import parse_board
+from plugins.camera.pinhole import CameraModel
 
 SPEC = "charuco:9x6:30mm:22mm:DICT_4X4_50"
 

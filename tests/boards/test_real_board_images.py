@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from shared_data import SHARED
 
-from plugins.solvers.boards.board_pose import board_pose
-from plugins.solvers.boards.detect import detect_images
-from plugins.solvers.boards.intrinsics import calibrate_intrinsics
-from plugins.solvers.boards.spec import parse_board
+from plugins.calibration.boards.board_pose import board_pose
+from plugins.calibration.boards.detect import detect_images
+from plugins.calibration.boards.intrinsics import calibrate_intrinsics
+from plugins.camera.board_spec import parse_board
 
 KUKA = parse_board("chessboard:25x18:15mm")
 SYNTH = parse_board("chessboard:10x7:200mm")

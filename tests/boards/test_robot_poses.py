@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from engine.transforms import T_from_rotvec, quat_xyzw_from_R, rotvec_from_R
-from plugins.solvers.boards.robot_poses import RobotPoseFileError, load_robot_poses
+from plugins.calibration.boards.robot_poses import RobotPoseFileError, load_robot_poses
 
 POSES = np.stack([T_from_rotvec([0.1 * k, -0.2, 0.3 + 0.05 * k], [0.5 + 0.01 * k, -0.2, 0.8]) for k in range(4)])
 

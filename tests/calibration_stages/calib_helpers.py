@@ -12,13 +12,13 @@ from typing import Any
 import numpy as np
 from shared_data import SHARED
 
-from engine import codec
 from engine.graph import build_graph
+from engine.messages import codec
 from engine.plugin_manager import load_registry
-from engine.recipe import load_recipe
-from engine.recorder import Recorder
-from engine.runner import Observer, Runner, RunSummary
-from plugins.solvers.calibration_result import CalibrationResult
+from engine.recipe.model import load_recipe
+from engine.recording.recorder import Recorder
+from engine.run.runner import Observer, Runner, RunSummary
+from plugins.calibration.result import CalibrationResult
 
 ROOT = Path(__file__).resolve().parents[2]
 RECIPES = ROOT / "recipes"

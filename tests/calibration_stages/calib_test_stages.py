@@ -14,7 +14,7 @@ from pydantic import Field
 from engine.hookspecs import hookimpl
 from engine.messages import PoseStamped
 from engine.stage import Stage, StageParams
-from plugins.solvers.handeye.io import load_pose_pairs
+from plugins.calibration.handeye.io import load_pose_pairs
 
 
 class PosePairs(Stage):

@@ -15,12 +15,12 @@ from hypothesis import strategies as st
 from scipy.stats import chi2
 from test_sim_recipes import assert_replays_identically, decoupled_error, pose, recorded_run, stage_params
 
-from engine.cli import main
+from engine.cli.main import main
 from engine.messages import PoseWithCovarianceStamped
 from engine.transforms import inv
-from plugins.solvers.boards.camera import CameraModel
-from plugins.solvers.boards.detect import detect_board
-from plugins.solvers.boards.spec import parse_board
+from plugins.calibration.boards.detect import detect_board
+from plugins.camera.board_spec import parse_board
+from plugins.camera.pinhole import CameraModel
 
 pytestmark = pytest.mark.timeout(300)
 

@@ -15,15 +15,15 @@ from hypothesis import strategies as st
 from scipy.stats import chi2
 from scipy.stats import f as f_dist
 
-from engine.cli import main
+from engine.cli.main import main
 from engine.transforms import log_so3
-from plugins.solvers.handeye import simulate as he_sim
-from plugins.solvers.handeye.io import load_pose_pairs, write_pose_pairs_json
-from plugins.solvers.kinematic_calibration import write_csv, write_json
-from plugins.solvers.tcp_camera import TcpCameraData, TcpNoiseModel, save_tcp_json
-from plugins.solvers.vive_desk import save_vive_csv, save_vive_json
-from plugins.solvers.vive_desk.realtime import desktop_tcp
-from plugins.solvers.vive_desk.simulate import (
+from plugins.calibration.handeye import simulate as he_sim
+from plugins.calibration.handeye.io import load_pose_pairs, write_pose_pairs_json
+from plugins.calibration.kinematics import write_csv, write_json
+from plugins.calibration.tcp_camera import TcpCameraData, TcpNoiseModel, save_tcp_json
+from plugins.calibration.vive_desk import save_vive_csv, save_vive_json
+from plugins.calibration.vive_desk.realtime import desktop_tcp
+from plugins.calibration.vive_desk.simulate import (
     SEED_POINTS_3,
     SEED_POINTS_4,
     simulate_contacts,
@@ -97,10 +97,10 @@ def test_vive_desk_from_a_file_recovers_the_truth(fmt, tmp_path, capsys):
 
 def test_kinematics_from_a_csv_with_held_out_file(tmp_path, capsys):
     from engine.transforms import T_from_Rt
+    from plugins.calibration.kinematics import KinematicSamples
     from plugins.robot.effects import GeometricErrors
     from plugins.robot.model_file import load_robot_model
     from plugins.robot.with_effects import RobotWithEffects
-    from plugins.solvers.kinematic_calibration import KinematicSamples
 
     nominal = load_robot_model("ur5e")
     reflector = T_from_Rt(np.eye(3), (0.03, -0.02, 0.12))  # off the last joint's axis, as a real SMR mount

@@ -9,14 +9,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from engine.messages import JointState, PoseStamped, TrackerPose
-from plugins.solvers.calibration_inputs import (
+from plugins.calibration.handeye import calibrate_hand_eye, load_pose_pairs
+from plugins.calibration.inputs import (
     CalibrationInputError,
     kinematic_samples,
     pair_by_stamp_or_order,
     vive_desk_data,
 )
-from plugins.solvers.calibration_result import CalibrationResult
-from plugins.solvers.handeye import calibrate_hand_eye, load_pose_pairs
+from plugins.calibration.result import CalibrationResult
 
 S = 1_000_000_000
 

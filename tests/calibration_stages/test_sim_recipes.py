@@ -13,8 +13,8 @@ import yaml
 from calib_helpers import RECIPES, events, mahalanobis2, results, run
 from scipy.stats import chi2
 
-from engine.cli import main
-from engine.replay import replay
+from engine.cli.main import main
+from engine.recording.replay import replay
 from engine.transforms import inv, log_so3
 from plugins.params import PoseSpec
 from plugins.robot.effects import effects_from_config

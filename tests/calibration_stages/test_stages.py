@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from calib_helpers import MOVEIT, MOVEIT_T_BASE_CAM_M, RECIPES, events, results, run
 
-from plugins.solvers.handeye import simulate as he_sim
-from plugins.solvers.handeye.io import write_pose_pairs_json
+from plugins.calibration.handeye import simulate as he_sim
+from plugins.calibration.handeye.io import write_pose_pairs_json
 from plugins.util.detached import DetachedContext
 
 pytestmark = pytest.mark.timeout(300)
@@ -190,8 +190,8 @@ def test_calibration_poses_ids_are_deterministic_and_a_refusal_stops_the_sequenc
 
 def test_a_solve_that_overtakes_its_samples_waits_for_them():
     from engine.messages import PoseStamped, Request
-    from plugins.solvers.handeye.io import load_pose_pairs
-    from plugins.solvers.stages.hand_eye import HandEyeCalibration
+    from plugins.calibration.handeye.io import load_pose_pairs
+    from plugins.calibration.stages.hand_eye import HandEyeCalibration
 
     s = load_pose_pairs(MOVEIT)
     ctx = DetachedContext("calibrate", seed=5)
@@ -231,7 +231,7 @@ class FakeRobotContext(DetachedContext):
 
 def test_a_repeated_trigger_moves_and_measures_nothing():
     from engine.messages import Request
-    from plugins.actions.calibration_poses import CalibrationPoses
+    from plugins.actions.stages.calibration_poses import CalibrationPoses
 
     ctx = FakeRobotContext()
     stage = CalibrationPoses(ctx, CalibrationPoses.Params(joints_deg=((0,) * 6, (10,) * 6), sensors=("point",)))

@@ -17,11 +17,11 @@ from typing import Any
 
 import numpy as np
 
-from engine import codec
 from engine import messages as m
 from engine import transforms as tf
+from engine.messages import codec
 from plugins.actions.messages import GuidanceResult
-from plugins.solvers.registration.messages import MatchResult
+from plugins.registration.messages import MatchResult
 
 GOLDEN = Path(__file__).resolve().with_name("message_wire_golden.json")
 

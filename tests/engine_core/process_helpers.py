@@ -20,7 +20,7 @@ def free_port() -> int:
 
 
 def vgr(*args: str) -> list[str]:
-    return [sys.executable, "-m", "engine.cli", *args]
+    return [sys.executable, "-m", "engine.cli.main", *args]
 
 
 def env() -> dict[str, str]:

@@ -2,7 +2,7 @@
 
 ``python shm_child.py ENDPOINT KEY SHM(0|1) SIZE...``: connects to ENDPOINT, waits until the
 parent's subscriber matches, sends one payload per SIZE (byte i of payload k is ``(i * 7 + k) % 251``)
-through engine.wire.WireSender with the bus's shared-memory pool, prints the pool's counters as
+through engine.transport.wire.WireSender with the bus's shared-memory pool, prints the pool's counters as
 JSON and closes.
 """
 
@@ -14,9 +14,9 @@ import time
 
 import numpy as np
 
-from engine.bus import Bus
-from engine.recipe import ZenohSettings
-from engine.wire import WireSender
+from engine.recipe.model import ZenohSettings
+from engine.transport.bus import Bus
+from engine.transport.wire import WireSender
 
 
 def payload(k: int, size: int) -> bytes:

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from engine.cli import main
+from engine.cli.main import main
 
 
 def test_plugins_lists_every_stage_type_with_ports_and_params(capsys):
@@ -67,7 +67,7 @@ def test_run_refuses_bad_input_with_exit_2(argv, says, capsys):
 
 def test_every_lazily_loaded_verb_is_defined_by_its_module(capsys):
     """VERB_MODULES names each verb's module: loading it must define that verb (not a placeholder)."""
-    from engine.cli import VERB_MODULES, build_parser
+    from engine.cli.main import VERB_MODULES, build_parser
 
     for verb in VERB_MODULES:
         parser = build_parser(verb)
@@ -81,7 +81,7 @@ def test_every_lazily_loaded_verb_is_defined_by_its_module(capsys):
 
 @given(st.lists(st.floats(-1e6, 1e6, allow_nan=False), min_size=1, max_size=6))
 def test_a_long_option_takes_a_negative_number_list_as_its_value(values):
-    from engine.cli import join_negative_values
+    from engine.cli.main import join_negative_values
 
     text = ",".join(repr(v) if v < 0 else repr(-v - 1.0) for v in values)  # starts with "-"
     assert join_negative_values(["teach", "install", "r.yaml", "--pose", text]) == [
@@ -102,13 +102,13 @@ def test_a_long_option_takes_a_negative_number_list_as_its_value(values):
     ],
 )
 def test_other_arguments_are_left_as_they_are(argv):
-    from engine.cli import join_negative_values
+    from engine.cli.main import join_negative_values
 
     assert join_negative_values(argv) == argv
 
 
 def _verbs() -> list[str]:
-    from engine.cli import VERB_MODULES
+    from engine.cli.main import VERB_MODULES
 
     return ["run", "validate", "graph", "plugins", "schemas", *VERB_MODULES]
 

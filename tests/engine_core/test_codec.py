@@ -15,10 +15,10 @@ from foxglove_schemas_protobuf.RawImage_pb2 import RawImage as FoxRawImage
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from engine import codec
 from engine import messages as m
 from engine import transforms as tf
-from engine.codec import CodecError, Envelope, Kind
+from engine.messages import codec
+from engine.messages.codec import CodecError, Envelope, Kind
 
 
 def roundtrip(msg: m.Message) -> m.Message:

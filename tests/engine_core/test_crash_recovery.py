@@ -28,9 +28,9 @@ from pathlib import Path
 
 import pytest
 
-from engine.cli import main
-from engine.recipe import RecordSettings
-from engine.recording import RecordingError, load
+from engine.cli.main import main
+from engine.recipe.model import RecordSettings
+from engine.recording.reader import RecordingError, load
 
 pytestmark = [pytest.mark.subprocess, pytest.mark.timeout(180)]
 ROOT = Path(__file__).resolve().parents[2]
@@ -72,7 +72,7 @@ def test_kill_9_keeps_flushed_chunks_and_recover_restores_them(tmp_path, capsys,
     recipe.write_text(text)
     rec_path = tmp_path / "crash.mcap"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "engine.cli", "run", str(recipe), "--no-progress", "--record", str(rec_path)],
+        [sys.executable, "-m", "engine.cli.main", "run", str(recipe), "--no-progress", "--record", str(rec_path)],
         cwd=tmp_path,
         env={**os.environ, "PYTHONPATH": str(ROOT)},
     )

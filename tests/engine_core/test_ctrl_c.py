@@ -14,9 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from engine import codec
-from engine.messages import Event, RobotCommand, RobotReply
-from engine.recording import load
+from engine.messages import Event, RobotCommand, RobotReply, codec
+from engine.recording.reader import load
 
 pytestmark = [pytest.mark.subprocess, pytest.mark.timeout(180)]
 ROOT = Path(__file__).resolve().parents[2]
@@ -24,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def test_sigint_halts_the_robot_and_vgr_run_exits_130_without_a_traceback(tmp_path):
     record = tmp_path / "campaign.mcap"
-    cmd = [sys.executable, "-m", "engine.cli", "run", str(ROOT / "recipes" / "model_gap_sim.yaml")]
+    cmd = [sys.executable, "-m", "engine.cli.main", "run", str(ROOT / "recipes" / "model_gap_sim.yaml")]
     cmd += ["-p", "clock=wall", "-p", "campaign.speed=0.5", "--no-progress", "--record", str(record)]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
     p = subprocess.Popen(cmd, env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

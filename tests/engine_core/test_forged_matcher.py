@@ -13,10 +13,10 @@ import yaml
 import zenoh
 from process_helpers import ROOT, free_port, run_vgr
 
-from engine import codec
-from engine.recording import load
+from engine.messages import codec
+from engine.recording.reader import load
 from engine.transforms import T_from_rotvec
-from plugins.solvers.registration.messages import MatchResult
+from plugins.registration.messages import MatchResult
 
 pytestmark = [pytest.mark.subprocess, pytest.mark.timeout(300)]
 

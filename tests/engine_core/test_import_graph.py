@@ -1,7 +1,7 @@
 """The engine's modules import each other without a circle, counting imports under TYPE_CHECKING.
 
 The runner owns processes and a run's lifetime; a stage's runtime reaches it only through the
-protocols of engine.stage_host, and the ports reach their runtime the same way. A module that
+protocols of engine.run.stage_host, and the ports reach their runtime the same way. A module that
 imported its owner again (even only for a type annotation) would tie the pieces back into one, so
 this test reads every ``engine/*.py`` with ``ast`` (no import runs) and fails on any cycle.
 """
@@ -23,7 +23,7 @@ def engine_imports(path: Path) -> set[str]:
         if isinstance(node, ast.Import):
             names = [a.name for a in node.names]
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-            # `from engine import codec` imports the module engine.codec
+            # `from engine import codec` imports the module engine.messages.codec
             names = [f"{node.module}.{a.name}" for a in node.names] if node.module == "engine" else [node.module]
         else:
             continue
@@ -54,7 +54,7 @@ def test_the_graph_sees_imports_under_type_checking(tmp_path):
         "from typing import TYPE_CHECKING\n"
         "from engine import codec\n"
         "if TYPE_CHECKING:\n"
-        "    from engine.runner import Runner\n"
+        "    from engine.run.runner import Runner\n"
         "def f():\n"
         "    import engine.graph\n"
     )

@@ -4,7 +4,7 @@ When a process's session loses its zenoh lease (a cut link) or crashes, its ``_a
 its ``_peer`` token go at once, but their two liveliness watchers are told on separate callback
 threads, in either order. Seen from a process whose own stages have settled, the peer's stages
 then look "ended" before the watch of ``_peer`` tokens has noticed anything; without the check in
-engine.membership.Membership.ended_everywhere this process finished with exit 0 and no alarm
+engine.run.membership.Membership.ended_everywhere this process finished with exit 0 and no alarm
 (tests/engine_core/test_security_netns.py saw it once under load). Here the tokens and the
 liveliness query are played by hand, in that order.
 """
@@ -17,8 +17,8 @@ from typing import Any
 
 import zenoh
 
-from engine.bus import LiveSet, active_key
-from engine.membership import Membership
+from engine.run.membership import Membership
+from engine.transport.bus import LiveSet, active_key
 
 RUN = "cut"
 
@@ -48,7 +48,7 @@ class Run:
 
 def membership(alive_now: set[str]) -> tuple[Membership, Run]:
     """The cell's membership of a two-process run, the vision peer accepted and active."""
-    from engine.peers import PeerWatch
+    from engine.transport.peers import PeerWatch
 
     graph = SimpleNamespace(processes=lambda: ["cell", "vision"], recipe=SimpleNamespace(rejoin=False))
     bus = SimpleNamespace(zid="cellzid", alive=lambda key_expr, timeout_s=1.0: set(alive_now))

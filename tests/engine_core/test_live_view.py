@@ -21,7 +21,7 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from process_helpers import ROOT, demo_streaming, env, free_port, vgr
 from websockets.sync.client import connect
 
-from engine.recording import load
+from engine.recording.reader import load
 
 pytestmark = [pytest.mark.subprocess, pytest.mark.timeout(120)]
 DEMO = ROOT / "recordings" / "demo.mcap"
@@ -101,7 +101,7 @@ def test_replay_view_serves_the_recorded_clouds(tmp_path):
 
 
 def test_a_taken_port_is_refused_before_the_run_makes_its_folder(tmp_path, capsys):
-    from engine.cli import main
+    from engine.cli.main import main
 
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))

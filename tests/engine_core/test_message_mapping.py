@@ -10,11 +10,11 @@ from typing import Any, ClassVar
 import numpy as np
 import pytest
 
-from engine import codec
 from engine import messages as m
 from engine import transforms as tf
+from engine.messages import codec
 from engine.messages.mapping import MappingError, wire_source
-from engine.schemas import define_proto
+from engine.messages.schemas import define_proto
 
 define_proto(
     "vgr/test/mapping.proto",

@@ -9,8 +9,7 @@ import json
 import pytest
 from message_wire_samples import GOLDEN, samples, wire_form
 
-from engine import codec
-from engine.messages import BUILTIN_MESSAGE_TYPES
+from engine.messages import BUILTIN_MESSAGE_TYPES, codec
 from plugins.builtin import vgr_message_types
 
 SAMPLES = samples()
@@ -35,7 +34,7 @@ def test_wire_bytes_and_decoded_values_are_unchanged(name):
 
 @pytest.mark.parametrize("name", sorted(SAMPLES))
 def test_the_two_parts_of_an_encoding_join_to_the_payload(name):
-    """engine.codec.encode_parts, written straight into shared memory, gives the golden payload."""
+    """engine.messages.codec.encode_parts, written straight into shared memory, gives the golden payload."""
     head, bulk = codec.encode_parts(SAMPLES[name])
     assert (head if bulk is None else head + bytes(bulk)).hex() == EXPECTED[name]["payload_hex"]
     assert bulk is None or SAMPLES[name].BULK is not None

@@ -18,9 +18,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from process_helpers import ROOT, env, free_port, vgr
 
-from engine.cli import main
-from engine.play import PlayError, Selection, data_messages, select
-from engine.recording import load
+from engine.cli.main import main
+from engine.recording.play import PlayError, Selection, data_messages, select
+from engine.recording.reader import load
 
 pytestmark = [pytest.mark.subprocess, pytest.mark.timeout(120)]
 DEMO = ROOT / "recordings" / "demo.mcap"  # 10 frames at 30 Hz: /source/cloud, /move/cloud, /move/transform, events

@@ -1,4 +1,4 @@
-"""engine.process_memory: a vgr run's process keeps the heap memory of large messages it freed.
+"""engine.run.process_memory: a vgr run's process keeps the heap memory of large messages it freed.
 
 Checked through glibc's own counters (``mallinfo2``: ``hblks`` is the number of blocks the
 allocator took with a fresh ``mmap``) in a fresh interpreter each time, so nothing else this test
@@ -27,7 +27,7 @@ class Info(ctypes.Structure):
 libc.mallinfo2.restype = Info
 took = None
 if sys.argv[1] == "1":
-    from engine.process_memory import keep_freed_memory
+    from engine.run.process_memory import keep_freed_memory
     took = keep_freed_memory()
     assert keep_freed_memory() == took  # once is enough; again changes nothing
 before = libc.mallinfo2()

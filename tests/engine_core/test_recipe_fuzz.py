@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from engine.errors import RecipeError
 from engine.graph import build_graph
 from engine.plugin_manager import load_registry
-from engine.recipe import load_recipe
+from engine.recipe.model import load_recipe
 
 REGISTRY = load_registry(["stage_fixtures"])
 

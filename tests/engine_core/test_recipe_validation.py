@@ -10,7 +10,7 @@ from recipe_helpers import header, stages
 from engine.errors import RecipeError
 from engine.graph import build_graph
 from engine.plugin_manager import load_registry
-from engine.recipe import load_recipe
+from engine.recipe.model import load_recipe
 
 GOOD = """\
 vgr: 1

@@ -12,13 +12,13 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 from recipe_helpers import graph_from
 
-from engine import recorder as recorder_mod
-from engine.cli import main
-from engine.recorder import Recorder
-from engine.recording import inspect, load
-from engine.replay import replay
-from engine.replay_update import write_updated
-from engine.runner import Runner
+from engine.cli.main import main
+from engine.recording import recorder as recorder_mod
+from engine.recording.reader import inspect, load
+from engine.recording.recorder import Recorder
+from engine.recording.replay import replay
+from engine.recording.replay_update import write_updated
+from engine.run.runner import Runner
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -204,8 +204,8 @@ def test_a_recorder_given_an_existing_file_replaces_it_only_when_the_run_ends_we
 def test_record_paths_of_several_processes_and_runs_never_collide(tmp_path, monkeypatch):
     from datetime import datetime as real_datetime
 
-    from engine.recipe import RecordSettings
-    from engine.recorder import resolve_path
+    from engine.recipe.model import RecordSettings
+    from engine.recording.recorder import resolve_path
 
     class Frozen(real_datetime):  # two runs in the same second
         @classmethod

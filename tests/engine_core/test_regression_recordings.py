@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from engine.diff import IDENTICAL
-from engine.replay import replay
+from engine.recording.diff import IDENTICAL
+from engine.recording.replay import replay
 
 RECORDINGS = sorted((Path(__file__).resolve().parents[2] / "recordings").glob("*.mcap"))
 

@@ -2,7 +2,7 @@
 producing process (its liveliness tokens, its publications) so the test controls the exact bytes.
 
 The port's fast path (a DATA envelope of its own type at this schema version), the general path
-(an older schema version), batches of messages (engine.wire), a garbled envelope alone or inside a
+(an older schema version), batches of messages (engine.transport.wire), a garbled envelope alone or inside a
 batch (a warning, nothing else lost) and the end of stream all go through one channel: every
 message arrives once, in order, with its seq."""
 
@@ -18,13 +18,12 @@ import zenoh
 from recipe_helpers import graph_from
 from stage_fixtures import COLLECTED
 
-from engine import codec
-from engine.bus import active_key, ready_key, started_key, wire_key
-from engine.codec import Envelope, Kind
-from engine.messages import Request
-from engine.peers import members_digest, peer_key
-from engine.runner import Runner
-from engine.wire import BATCH_ENVELOPE, pack_batch
+from engine.messages import Request, codec
+from engine.messages.codec import Envelope, Kind
+from engine.run.runner import Runner
+from engine.transport.bus import active_key, ready_key, started_key, wire_key
+from engine.transport.peers import members_digest, peer_key
+from engine.transport.wire import BATCH_ENVELOPE, pack_batch
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -56,7 +55,7 @@ def test_remote_input_delivers_fast_path_general_path_and_end_of_stream_in_order
     conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
     session = zenoh.open(conf)
     try:
-        # process a as engine.peers knows a process: its session and epoch, the members it started with
+        # process a as engine.transport.peers knows a process: its session and epoch, the members it started with
         peer = peer_key(rid, "a", str(session.zid()), "e1")
         started = f"{peer}/started/{members_digest({'a': 'e1', 'b': runner.members.epoch})}"
         tokens = [
@@ -82,7 +81,7 @@ def test_remote_input_delivers_fast_path_general_path_and_end_of_stream_in_order
 
         for seq in range(1, 31):
             put(seq)
-        # a batch (engine.wire) of 31..40 with a garbled record in the middle: only that one is lost
+        # a batch (engine.transport.wire) of 31..40 with a garbled record in the middle: only that one is lost
         batch = [record(seq) for seq in range(31, 36)] + [(b"garbage", b"\x00")] + [record(s) for s in range(36, 41)]
         pub.put(pack_batch(batch), attachment=BATCH_ENVELOPE)
         put(41, version=0)  # an older writer's envelope: the general path

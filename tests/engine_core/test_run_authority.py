@@ -1,4 +1,4 @@
-"""Nobody but the run's own processes is taken at its word (engine.peers): an impostor answering a
+"""Nobody but the run's own processes is taken at its word (engine.transport.peers): an impostor answering a
 stage's service is refused with an alarm and nothing is taken from the request; STOP envelopes and
 ``_control`` messages from a session outside the run are refused with a warning and the run goes on;
 each served request is recorded with its caller; a process started again mid-run is refused unless the
@@ -19,12 +19,11 @@ from process_helpers import free_port
 from recipe_helpers import graph_from
 from stage_fixtures import COLLECTED
 
-from engine import codec
-from engine.bus import STOP_ENVELOPE, control_key, service_key
-from engine.messages import Request
-from engine.recorder import Recorder
-from engine.recording import load
-from engine.runner import Runner, RunSummary
+from engine.messages import Request, codec
+from engine.recording.reader import load
+from engine.recording.recorder import Recorder
+from engine.run.runner import Runner, RunSummary
+from engine.transport.bus import STOP_ENVELOPE, control_key, service_key
 
 pytestmark = pytest.mark.timeout(90)
 PLUGINS = ["builtin", "stage_fixtures"]

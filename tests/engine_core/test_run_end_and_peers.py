@@ -12,7 +12,7 @@ import pytest
 from process_helpers import env, free_port, vgr
 from recipe_helpers import graph_from
 
-from engine.runner import Runner
+from engine.run.runner import Runner
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -51,7 +51,7 @@ def test_a_chain_of_stages_walks_the_graph_a_fixed_number_of_times():
 @pytest.mark.timeout(180)
 def test_a_chain_of_200_idle_stages_in_one_process_delivers_everything_in_order():
     """Each idle stage's handler runs on its producer's thread; nested 200 deep that overflowed the
-    interpreter's stack (RecursionError). Past engine.runtime.MAX_INLINE_DEPTH a message goes to the
+    interpreter's stack (RecursionError). Past engine.run.runtime.MAX_INLINE_DEPTH a message goes to the
     consumer's own thread instead."""
     from stage_fixtures import COLLECTED
 
@@ -87,7 +87,7 @@ def test_a_peer_killed_mid_run_is_an_alarm_naming_it_and_the_run_fails(tmp_path)
         subprocess.Popen(vgr("run", str(recipe), "--process", p, "--no-progress"), **opts)
         for p in ("producer", "consumer")
     )
-    # both processes set up and answering (engine.discovery), messages flowing: a fixed sleep was too
+    # both processes set up and answering (engine.transport.discovery), messages flowing: a fixed sleep was too
     # short on a loaded machine, where starting the two processes took more than 6 s
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:

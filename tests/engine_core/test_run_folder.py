@@ -12,7 +12,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from engine import run_folder
-from engine.cli import main
+from engine.cli.main import main
 
 DOCK = "recipes/eye_in_hand_dock.yaml"
 

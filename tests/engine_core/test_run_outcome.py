@@ -10,9 +10,9 @@ import json
 
 import pytest
 
-from engine.cli import main
+from engine.cli.main import main
 from engine.messages import Event
-from engine.runner import OUTCOME_EXIT_CODES, RunSummary
+from engine.run.runner import OUTCOME_EXIT_CODES, RunSummary
 
 
 def summary(ok: bool = True, stop_reason: str | None = None, levels: tuple[str, ...] = ()) -> RunSummary:

@@ -11,7 +11,7 @@ import pytest
 from recipe_helpers import graph_from, header, stages
 from stage_fixtures import COLLECTED
 
-from engine.runner import Runner
+from engine.run.runner import Runner
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -174,7 +174,7 @@ def test_sim_clock_stamps_are_deterministic():
 
 
 def test_unknown_process_is_refused():
-    from engine.runner import RunError
+    from engine.run.runner import RunError
 
     with pytest.raises(RunError, match="no stage in process 'elsewhere'"):
         Runner(graph_from(CHAIN.format(rid="x", n=1, fail=-1)), process="elsewhere")
@@ -215,7 +215,7 @@ def test_inline_and_threaded_dispatch_give_identical_results():
 def test_overdue_is_measured_from_arrival_and_ignores_what_it_cannot_read():
     import time as _time
 
-    from engine.bus import TIMEOUT_PARAM, overdue_ms
+    from engine.transport.bus import TIMEOUT_PARAM, overdue_ms
 
     class Query:
         def __init__(self, params: dict[str, str]) -> None:

@@ -19,8 +19,8 @@ from pathlib import Path
 import pytest
 from process_helpers import env, free_port, start, vgr
 
-from engine.certs import Identity, common_name, write_bundle
-from engine.endpoints import private_socket_dir
+from engine.security.certs import Identity, common_name, write_bundle
+from engine.transport.endpoints import private_socket_dir
 
 pytestmark = [pytest.mark.subprocess, pytest.mark.timeout(180)]
 
@@ -61,7 +61,7 @@ replies = sum(  # the run's replies, not the forged queryable's own
 )
 s.put(prefix + "/_control", json.dumps({"stop": "intruder", "process": "producer"}))
 tokens = [str(r.ok.key_expr) for r in s.liveliness().get(prefix + "/**", timeout=1.0) if r.ok is not None]
-info = sum(r.ok is not None for r in s.get(prefix + "/_info/*", timeout=1.0))  # engine.discovery
+info = sum(r.ok is not None for r in s.get(prefix + "/_info/*", timeout=1.0))  # engine.transport.discovery
 print(json.dumps({"peers": peers, "samples": len(got), "replies": replies, "tokens": tokens, "info": info}))
 s.close()
 """

@@ -21,8 +21,8 @@ import pytest
 import yaml
 from process_helpers import ROOT, env, run_vgr, vgr
 
-from engine import codec
-from engine.recording import load
+from engine.messages import codec
+from engine.recording.reader import load
 
 pytestmark = [
     pytest.mark.subprocess,

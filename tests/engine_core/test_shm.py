@@ -1,8 +1,8 @@
-"""Large payloads between processes of one host through zenoh's shared memory (engine.shm).
+"""Large payloads between processes of one host through zenoh's shared memory (engine.transport.shm).
 
 Two OS processes over a unix socket, as vgr's default session puts the processes of one host:
-the child (tests/engine_core/shm_child.py) sends through engine.wire.WireSender with its bus's
-pool, this process receives with engine.bus.Bus.subscribe_remote, as engine.remote_input does. A
+the child (tests/engine_core/shm_child.py) sends through engine.transport.wire.WireSender with its bus's
+pool, this process receives with engine.transport.bus.Bus.subscribe_remote, as engine.run.remote_input does. A
 large payload arrives as a shared-memory buffer, a small one (and a large one when either side has
 shared memory off) as bytes over the socket; the data are the same in every case.
 """
@@ -25,9 +25,9 @@ from hypothesis import strategies as st
 from process_helpers import env
 from shm_child import payload
 
-from engine.bus import Bus
-from engine.recipe import ZenohSettings
-from engine.shm import SHM_MIN_BYTES, ShmPool
+from engine.recipe.model import ZenohSettings
+from engine.transport.bus import Bus
+from engine.transport.shm import SHM_MIN_BYTES, ShmPool
 
 pytestmark = [pytest.mark.subprocess, pytest.mark.timeout(120)]
 
@@ -138,9 +138,9 @@ def test_a_full_pool_joins_the_parts_after_a_short_wait_and_the_wire_does_not_tr
 
 def full_pool(monkeypatch) -> tuple[ShmPool, list]:
     """A pool of three 1.2 MB payloads' size, filled: the buffers it holds (nobody released them)."""
-    import engine.shm
+    import engine.transport.shm
 
-    monkeypatch.setattr(engine.shm, "POOL_WAIT_S", 0.0)
+    monkeypatch.setattr(engine.transport.shm, "POOL_WAIT_S", 0.0)
     pool = ShmPool(size=3 * LARGE, min_bytes=SHM_MIN_BYTES)
     held = []
     while len(held) < 10 and isinstance(wrapped := pool.wrap(payload(len(held), LARGE)), zenoh.ZBytes):
@@ -158,10 +158,10 @@ def test_a_buffer_released_is_used_again_rather_than_sending_bytes(monkeypatch):
 
 
 def test_a_full_pool_is_waited_for_while_a_receiver_releases_a_buffer(monkeypatch):
-    import engine.shm
+    import engine.transport.shm
 
     pool, held = full_pool(monkeypatch)
-    monkeypatch.setattr(engine.shm, "POOL_WAIT_S", 30.0)  # a bound on a broken wait, not a measured time
+    monkeypatch.setattr(engine.transport.shm, "POOL_WAIT_S", 30.0)  # a bound on a broken wait, not a measured time
     release = threading.Timer(0.05, held.pop)  # the receiver copies one out a little later
     release.start()
     try:

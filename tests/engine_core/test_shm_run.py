@@ -1,7 +1,7 @@
 """A run split over two processes of one host sends its large messages through shared memory.
 
 The producer publishes Blobs of 1.2 MB (bytes: written straight into a shared-memory buffer,
-engine.shm.ShmPool.wrap_parts) and point clouds of 1.2 MB (an array: encoded, then put from the
+engine.transport.shm.ShmPool.wrap_parts) and point clouds of 1.2 MB (an array: encoded, then put from the
 pool, ShmPool.wrap); the consumer writes the SHA-256 of every message it got. What arrives is what
 was sent, in order, whether the run records (the encoded bytes also go to the recorder) or not,
 and with shared memory off (everything through the socket); the producer's summary counts the

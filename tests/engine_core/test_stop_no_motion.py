@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from recipe_helpers import graph_from
 
-from engine.runner import Observer, Runner
+from engine.run.runner import Observer, Runner
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -208,10 +208,9 @@ class StopMidMove(RunEvents):
 
 
 def test_ctrl_c_mid_move_halts_the_robot_on_its_path_and_no_further_move_is_sent(tmp_path):
-    from engine import codec
-    from engine.messages import Event
-    from engine.recorder import Recorder
-    from engine.recording import load
+    from engine.messages import Event, codec
+    from engine.recording.reader import load
+    from engine.recording.recorder import Recorder
 
     # real (wall-clock) time: the second move lasts ~2 s (60 deg at 0.5 rad/s) and is cut short
     obs = StopMidMove()

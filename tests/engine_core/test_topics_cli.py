@@ -14,12 +14,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from process_helpers import demo_streaming, env, vgr
 
-from engine import codec, discovery
-from engine.bus import Bus
-from engine.cli import main
-from engine.recipe import ZenohSettings
-from engine.schemas import descriptor_set
-from engine.topics import NoRunError, Run, SchemaPool, decode_sample, rates
+from engine.cli.main import main
+from engine.messages import codec
+from engine.messages.schemas import descriptor_set
+from engine.recipe.model import ZenohSettings
+from engine.recording.topics import NoRunError, Run, SchemaPool, decode_sample, rates
+from engine.transport import discovery
+from engine.transport.bus import Bus
 
 pytestmark = [pytest.mark.subprocess, pytest.mark.timeout(120)]
 
@@ -96,7 +97,7 @@ def test_hz_counts_the_messages_of_each_window(live, capsys):
 
 
 def test_several_runs_need_a_run_id_and_an_unknown_one_is_refused(live, capsys):
-    from engine.endpoints import private_socket
+    from engine.transport.endpoints import private_socket
 
     with Bus(ZenohSettings(listen=[private_socket("other", "main")])) as other:  # a second run of this user
         discovery.announce(other, "other", "main", [discovery.topic_info("other", "s", "p", "Event", "vgr.v1.Event")])

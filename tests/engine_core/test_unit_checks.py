@@ -6,8 +6,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from engine.cli import main
-from engine.unit_checks import MAX_CELL_LENGTH_M, implausible_lengths
+from engine.cli.main import main
+from engine.recipe.unit_checks import MAX_CELL_LENGTH_M, implausible_lengths
 
 RECIPE = """vgr: 1
 name: units

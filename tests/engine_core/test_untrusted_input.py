@@ -10,12 +10,12 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from engine.cli import main
-from engine.codec import CodecError, decode_payload
-from engine.endpoints import endpoint_problem
+from engine.cli.main import main
 from engine.messages import PoseStamped
-from engine.recording import RecordingError, load
-from engine.replay import ReplayError, replay
+from engine.messages.codec import CodecError, decode_payload
+from engine.recording.reader import RecordingError, load
+from engine.recording.replay import ReplayError, replay
+from engine.transport.endpoints import endpoint_problem
 
 DEMO = Path("recordings/demo.mcap")
 DOCK = Path("recordings/eye_in_hand_dock.mcap")

@@ -1,4 +1,4 @@
-"""The stage-to-stage transport between processes (engine.wire): batch format, the sender's order,
+"""The stage-to-stage transport between processes (engine.transport.wire): batch format, the sender's order,
 batching and back-pressure, and, end to end, a burst batched on the internal key while a foreign
 subscriber of the public key still gets one message per sample."""
 
@@ -16,10 +16,11 @@ from hypothesis import strategies as st
 from recipe_helpers import graph_from
 from stage_fixtures import COLLECTED
 
-from engine import codec, wire
-from engine.bus import data_key
-from engine.codec import CodecError, Envelope, Kind
-from engine.runner import Runner
+from engine.messages import codec
+from engine.messages.codec import CodecError, Envelope, Kind
+from engine.run.runner import Runner
+from engine.transport import wire
+from engine.transport.bus import data_key
 
 pytestmark = pytest.mark.timeout(90)
 

@@ -56,7 +56,7 @@ def test_a_pose_is_handed_over_with_the_bytes_it_came_from():
     the protobuf it was rebuilt from, so its recorded bytes decode to exactly what was handed over."""
     from scipy.spatial.transform import Rotation
 
-    from engine import codec
+    from engine.messages import codec
 
     rng = np.random.default_rng(1)
     for _ in range(50):

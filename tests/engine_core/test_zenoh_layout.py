@@ -21,8 +21,8 @@ TOPICS = ("/move/cloud", "/move/transform")
 
 
 def test_foreign_subscriber_decodes_a_run_with_the_published_schemas_alone(tmp_path):
-    from engine import codec
-    from engine.recording import load
+    from engine.messages import codec
+    from engine.recording.reader import load
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     clean = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}  # vgr is not on its path

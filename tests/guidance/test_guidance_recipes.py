@@ -11,14 +11,14 @@ from pathlib import Path
 
 import pytest
 
-from engine.diff import DIFFERENT
 from engine.graph import build_graph
 from engine.plugin_manager import load_registry
-from engine.recipe import load_recipe
-from engine.recorder import Recorder
-from engine.recording import load
-from engine.replay import replay
-from engine.runner import Runner, RunSummary
+from engine.recipe.model import load_recipe
+from engine.recording.diff import DIFFERENT
+from engine.recording.reader import load
+from engine.recording.recorder import Recorder
+from engine.recording.replay import replay
+from engine.run.runner import Runner, RunSummary
 
 RECIPES = Path(__file__).resolve().parents[2] / "recipes"
 SMALL = ["camera.intrinsics.width=320", "camera.intrinsics.height=240"]

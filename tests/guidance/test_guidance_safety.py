@@ -22,10 +22,10 @@ from engine.clock import SimClock
 from engine.messages import Correction, Event, Message, PointCloud, Request, RobotCommand, RobotReply, freeze
 from engine.stage import ServiceTimeoutError, Stage, StageContext, stage_rng
 from engine.transforms import T_from_Rt
-from plugins.actions.docking import Docking
-from plugins.actions.guidance import Guidance
 from plugins.actions.messages import GuidanceResult
-from plugins.solvers.registration.messages import MatchResult
+from plugins.actions.stages.docking import Docking
+from plugins.actions.stages.guidance import Guidance
+from plugins.registration.messages import MatchResult
 
 PHOTO = T_from_Rt(np.diag([1.0, -1.0, -1.0]), (0.4, 0.1, 0.4))
 X = T_from_Rt(np.eye(3), (0.0, 0.06, 0.03))  # T_tcp_cam
@@ -275,7 +275,7 @@ def test_docking_refuses_nan_and_robot_refusal_is_an_alarm() -> None:
 
 
 def _calibration_file(tmp_path, verdict: str, name: str = "T_tcp_cam") -> str:
-    from plugins.solvers.calibration_result import CalibrationResult
+    from plugins.calibration.result import CalibrationResult
 
     result = CalibrationResult(kind="handeye", verdict=verdict, method="ml", estimate={name: X})
     path = tmp_path / "result.json"

@@ -15,13 +15,13 @@ import numpy as np
 import pytest
 import yaml
 
-from engine.diff import DIFFERENT
 from engine.graph import build_graph
 from engine.plugin_manager import load_registry
-from engine.recipe import load_recipe
-from engine.recorder import Recorder
-from engine.replay import replay
-from engine.runner import Runner
+from engine.recipe.model import load_recipe
+from engine.recording.diff import DIFFERENT
+from engine.recording.recorder import Recorder
+from engine.recording.replay import replay
+from engine.run.runner import Runner
 from engine.transforms import T_from_rotvec, pose_error
 from plugins.params import PoseSpec
 from plugins.robot.effects import effects_from_config

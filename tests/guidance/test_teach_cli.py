@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from engine.cli import main
-from engine.recipe import load_recipe
+from engine.cli.main import main
+from engine.recipe.model import load_recipe
 from plugins.actions.teach_cli import pose_text
 from plugins.robot.model_file import load_robot_model
 from plugins.vendor_poses import T_from_ur

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from plugins.solvers.handeye import AccuracyTargets, calibrate_hand_eye, load_pose_pairs
-from plugins.solvers.handeye.report import format_report
+from plugins.calibration.handeye import AccuracyTargets, calibrate_hand_eye, load_pose_pairs
+from plugins.calibration.handeye.report import format_report
 
 DATA = Path(__file__).parent / "data"
 FILE = DATA / "ar_tag_pairs.yml"

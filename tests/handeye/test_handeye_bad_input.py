@@ -7,8 +7,8 @@ from hypothesis import strategies as st
 from scipy import stats
 
 from engine.transforms import pose_delta
-from plugins.solvers.handeye import HandEyeInputError, NoiseModel, calibrate_hand_eye
-from plugins.solvers.handeye import simulate as sim
+from plugins.calibration.handeye import HandEyeInputError, NoiseModel, calibrate_hand_eye
+from plugins.calibration.handeye import simulate as sim
 
 NOISE = NoiseModel.isotropic(0.02, 0.1, 0.1, 0.5)
 SCENE = sim.add_noise(sim.viewing_scene(np.random.default_rng(40), 12, "eye_in_hand"), NOISE, np.random.default_rng(41))

@@ -6,11 +6,11 @@ from pathlib import Path
 import numpy as np
 from shared_data import SHARED
 
-from plugins.solvers.calibrate_cli import main as calibrate
-from plugins.solvers.handeye import NoiseModel
-from plugins.solvers.handeye import simulate as sim
-from plugins.solvers.handeye.cli import main
-from plugins.solvers.handeye.io import write_pose_pairs_json, write_pose_pairs_yaml
+from plugins.calibration.cli import main as calibrate
+from plugins.calibration.handeye import NoiseModel
+from plugins.calibration.handeye import simulate as sim
+from plugins.calibration.handeye.cli import main
+from plugins.calibration.handeye.io import write_pose_pairs_json, write_pose_pairs_yaml
 
 DATA = str(SHARED / "moveit_calibration" / "pose_samples.json")
 AR_TAG = str(Path(__file__).parent / "data" / "ar_tag_pairs.yml")

@@ -5,10 +5,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from engine import transforms as tf
-from plugins.solvers.handeye import simulate as sim
-from plugins.solvers.handeye.closed_form import CLOSED_FORM_METHODS, closed_form
-from plugins.solvers.handeye.noise import NoiseModel
-from plugins.solvers.handeye.problem import model_camera_poses
+from plugins.calibration.handeye import simulate as sim
+from plugins.calibration.handeye.closed_form import CLOSED_FORM_METHODS, closed_form
+from plugins.calibration.handeye.noise import NoiseModel
+from plugins.calibration.handeye.problem import model_camera_poses
 
 EXACT_M, EXACT_RAD = 1e-9, 1e-9
 

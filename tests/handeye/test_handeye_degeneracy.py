@@ -5,9 +5,9 @@ import pytest
 
 from engine import transforms as tf
 from engine.transforms import inv
-from plugins.solvers.handeye import NoiseModel, analyse_motions, calibrate_hand_eye
-from plugins.solvers.handeye import simulate as sim
-from plugins.solvers.handeye.problem import model_camera_poses
+from plugins.calibration.handeye import NoiseModel, analyse_motions, calibrate_hand_eye
+from plugins.calibration.handeye import simulate as sim
+from plugins.calibration.handeye.problem import model_camera_poses
 
 NOISE = NoiseModel.isotropic(0.02, 0.1, 0.1, 0.5)
 

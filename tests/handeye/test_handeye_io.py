@@ -11,9 +11,9 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from shared_data import SHARED
 
-from plugins.solvers.handeye import HandEyeInputError
-from plugins.solvers.handeye import simulate as sim
-from plugins.solvers.handeye.io import VGR_FORMAT, load_pose_pairs, write_pose_pairs_json, write_pose_pairs_yaml
+from plugins.calibration.handeye import HandEyeInputError
+from plugins.calibration.handeye import simulate as sim
+from plugins.calibration.handeye.io import VGR_FORMAT, load_pose_pairs, write_pose_pairs_json, write_pose_pairs_yaml
 
 MOVEIT = SHARED / "moveit_calibration" / "pose_samples.json"
 SCENE = sim.viewing_scene(np.random.default_rng(50), 6, "eye_in_hand")

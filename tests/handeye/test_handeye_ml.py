@@ -6,9 +6,9 @@ from scipy import stats
 
 from engine import transforms as tf
 from engine.transforms import pose_delta, retract
-from plugins.solvers.handeye import NoiseModel, calibrate_hand_eye, calibrate_robot_world
-from plugins.solvers.handeye import simulate as sim
-from plugins.solvers.handeye.crlb import crlb_covariance, rms_bounds
+from plugins.calibration.handeye import NoiseModel, calibrate_hand_eye, calibrate_robot_world
+from plugins.calibration.handeye import simulate as sim
+from plugins.calibration.handeye.crlb import crlb_covariance, rms_bounds
 
 NOISE = NoiseModel.isotropic(robot_deg=0.02, robot_mm=0.1, camera_deg=0.1, camera_mm=0.5)
 
@@ -138,7 +138,7 @@ def test_robot_world_solves_both_unknowns_jointly():
 
 
 def test_result_round_trips_through_json():
-    from plugins.solvers.calibration_result import CalibrationResult
+    from plugins.calibration.result import CalibrationResult
 
     rng = np.random.default_rng(27)
     meas = sim.add_noise(sim.viewing_scene(rng, 12, "eye_in_hand"), NOISE, rng)

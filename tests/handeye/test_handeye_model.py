@@ -9,9 +9,9 @@ from engine import transforms as tf
 from engine.transforms import (
     retract,
 )
-from plugins.solvers.handeye.ml_model import EivModel
-from plugins.solvers.handeye.noise import NoiseModel
-from plugins.solvers.handeye.problem import model_camera_poses
+from plugins.calibration.handeye.ml_model import EivModel
+from plugins.calibration.handeye.noise import NoiseModel
+from plugins.calibration.handeye.problem import model_camera_poses
 
 finite = st.floats(-1.0, 1.0, allow_nan=False)
 vec6 = st.lists(finite, min_size=6, max_size=6).map(np.array)

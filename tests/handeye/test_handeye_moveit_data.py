@@ -12,11 +12,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 from shared_data import SHARED
 
-from plugins.solvers.calibrate_cli import main as calibrate
-from plugins.solvers.calibration_result import CalibrationResult
-from plugins.solvers.handeye import CLOSED_FORM_METHODS, calibrate_hand_eye, closed_form
-from plugins.solvers.handeye.io import load_pose_pairs
-from plugins.solvers.handeye.report import format_report
+from plugins.calibration.cli import main as calibrate
+from plugins.calibration.handeye import CLOSED_FORM_METHODS, calibrate_hand_eye, closed_form
+from plugins.calibration.handeye.io import load_pose_pairs
+from plugins.calibration.handeye.report import format_report
+from plugins.calibration.result import CalibrationResult
 
 DATA = SHARED / "moveit_calibration" / "pose_samples.json"
 T_REF = np.array([0.659, -0.249, 0.830])

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from plugins.solvers.handeye import NoiseModel, PoseNoise, calibrate_hand_eye
-from plugins.solvers.handeye import simulate as sim
+from plugins.calibration.handeye import NoiseModel, PoseNoise, calibrate_hand_eye
+from plugins.calibration.handeye import simulate as sim
 
 DECLARED = NoiseModel(robot=PoseNoise(0.001, 0.001), camera=PoseNoise(0.002, 0.005))
 

@@ -6,14 +6,14 @@ import pytest
 from scipy import stats
 
 from engine.transforms import pose_delta
-from plugins.solvers.handeye import NoiseModel, calibrate_hand_eye, calibrate_robot_world
-from plugins.solvers.handeye import simulate as sim
-from plugins.solvers.handeye.assemble import AccuracyTargets
-from plugins.solvers.handeye.ml_model import EivModel
-from plugins.solvers.handeye.noise import PoseNoise
-from plugins.solvers.handeye.setup_choice import compare_setups, sample_log_likelihood
-from plugins.solvers.handeye.solver import _Run, _solve
-from plugins.solvers.handeye.validation import validate_samples
+from plugins.calibration.handeye import NoiseModel, calibrate_hand_eye, calibrate_robot_world
+from plugins.calibration.handeye import simulate as sim
+from plugins.calibration.handeye.assemble import AccuracyTargets
+from plugins.calibration.handeye.ml_model import EivModel
+from plugins.calibration.handeye.noise import PoseNoise
+from plugins.calibration.handeye.setup_choice import compare_setups, sample_log_likelihood
+from plugins.calibration.handeye.solver import _Run, _solve
+from plugins.calibration.handeye.validation import validate_samples
 
 NOISE = NoiseModel.isotropic(0.01, 0.1, 0.1, 0.5)
 OTHER = {"eye_in_hand": "eye_to_hand", "eye_to_hand": "eye_in_hand"}

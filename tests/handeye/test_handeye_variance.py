@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from plugins.solvers.calibration_result import CalibrationResult
-from plugins.solvers.handeye import NoiseModel, calibrate_hand_eye
-from plugins.solvers.handeye import simulate as sim
-from plugins.solvers.handeye.ml_model import EivModel
-from plugins.solvers.handeye.variance import group_rows, helmert_matrix, kenward_roger, kenward_roger_dof
+from plugins.calibration.handeye import NoiseModel, calibrate_hand_eye
+from plugins.calibration.handeye import simulate as sim
+from plugins.calibration.handeye.ml_model import EivModel
+from plugins.calibration.handeye.variance import group_rows, helmert_matrix, kenward_roger, kenward_roger_dof
+from plugins.calibration.result import CalibrationResult
 
 NOISE = NoiseModel.isotropic(robot_deg=0.02, robot_mm=0.1, camera_deg=0.1, camera_mm=0.5)
 

@@ -1,14 +1,14 @@
 """The unit-scale check on poses that orbit the target (a camera kept looking at a board): their
 screw translations are noise, which must not read as mixed units, while a real unit error on the
-same poses still does (plugins.solvers.handeye.consistency.estimate_unit_scale)."""
+same poses still does (plugins.calibration.handeye.consistency.estimate_unit_scale)."""
 
 import numpy as np
 import pytest
 
 from engine.transforms import T_from_rotvec, inv
-from plugins.solvers.boards.render import look_at
-from plugins.solvers.handeye import HandEyeInputError, calibrate_hand_eye
-from plugins.solvers.handeye.consistency import estimate_unit_scale
+from plugins.calibration.handeye import HandEyeInputError, calibrate_hand_eye
+from plugins.calibration.handeye.consistency import estimate_unit_scale
+from plugins.camera.board_render import look_at
 
 X = T_from_rotvec([0.01, -0.02, 0.015], [0.004, 0.062, 0.037])  # T_tcp_cam
 Y = T_from_rotvec([0.0, 0.0, 0.17], [-0.57, -0.15, 0.0])  # T_base_target

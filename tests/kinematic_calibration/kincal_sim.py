@@ -6,10 +6,10 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from engine.transforms import T_from_Rt, exp_se3
+from plugins.calibration.kinematics import KinematicSamples
 from plugins.robot.effects import GeometricErrors
 from plugins.robot.model_file import load_robot_model
 from plugins.robot.with_effects import RobotWithEffects
-from plugins.solvers.kinematic_calibration import KinematicSamples
 
 NOISE_M = 5e-5  # 0.05 mm per axis, the laser-tracker-like noise
 T_MEAS_WORLD = exp_se3([1.5, 0.3, 0.2, 0.1, -0.05, 2.0])  # tracker frame far from the robot

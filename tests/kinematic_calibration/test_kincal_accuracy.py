@@ -16,13 +16,13 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from plugins.robot.model_file import robot_model_from_dict
-from plugins.solvers.kinematic_calibration import (
+from plugins.calibration.kinematics import (
     KinematicCalibrationConfig,
     calibrate_kinematics,
     expected_holdout_rms,
     format_table,
 )
+from plugins.robot.model_file import robot_model_from_dict
 
 from .kincal_sim import NOISE_M, measure, nominal_model, random_poses, true_robot
 

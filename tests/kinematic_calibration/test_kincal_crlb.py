@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from plugins.solvers.kinematic_calibration import (
+from plugins.calibration.kinematics import (
     KinematicCalibrationConfig,
     KinematicSamples,
     calibrate_kinematics,

@@ -9,9 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from plugins.robot.effects import GeometricErrors, JointCompliance
-from plugins.robot.with_effects import RobotWithEffects
-from plugins.solvers.kinematic_calibration import (
+from plugins.calibration.kinematics import (
     KinematicSamples,
     calibrate_kinematics,
     read_csv,
@@ -20,6 +18,8 @@ from plugins.solvers.kinematic_calibration import (
     write_csv,
     write_json,
 )
+from plugins.robot.effects import GeometricErrors, JointCompliance
+from plugins.robot.with_effects import RobotWithEffects
 
 from .kincal_sim import measure, nominal_model, random_poses, true_robot
 

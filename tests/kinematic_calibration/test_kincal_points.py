@@ -15,8 +15,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from engine.cli import main
-from plugins.solvers.kinematic_calibration import (
+from engine.cli.main import main
+from plugins.calibration.kinematics import (
     KinematicCalibrationConfig,
     KinematicSamples,
     calibrate_kinematics,

@@ -15,8 +15,8 @@ from typing import ClassVar
 import numpy as np
 
 from engine.hookspecs import hookimpl
+from plugins.model_gap.effects import RobotCandidate
 from plugins.robot.effects.base import ParamSpec, RobotEffect, check_joints, joint_matrix
-from plugins.solvers.model_gap.effects import RobotCandidate
 
 NAME = "encoder_second_harmonic"
 
@@ -47,7 +47,7 @@ class SecondHarmonic(RobotEffect):
 
 
 class SecondHarmonicFamily:
-    """The effect family the hook returns (protocol ``engine.gap.interfaces.EffectFamily``)."""
+    """The effect family the hook returns (protocol ``plugins.model_gap.core.interfaces.EffectFamily``)."""
 
     name = NAME
     description = "twice-per-revolution joint error a sin(2q) + b cos(2q) (strain-wave gear)"

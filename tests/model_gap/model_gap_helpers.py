@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from functools import cache
 
-from engine.gap import GapConfig, GapResult, SelectionConfig
-from plugins.solvers.model_gap import analyse_gap, builtin_families
-from plugins.solvers.model_gap.simulate import LEVELS, HiddenCase, HiddenEffect, SimulatedCampaign, make_case
+from plugins.model_gap import analyse_gap, builtin_families
+from plugins.model_gap.core import GapConfig, GapResult, SelectionConfig
+from plugins.sim.model_gap.simulate import LEVELS, HiddenCase, HiddenEffect, SimulatedCampaign, make_case
 
 N_SAMPLES = 160  # smaller than the benchmark's 200: the tests must stay quick on 2 cores
 FOLDS = 4

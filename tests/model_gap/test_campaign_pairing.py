@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from engine.messages import Message, Request, RobotReply, TrackerPose
-from plugins.actions.measurement_campaign import MeasurementCampaign
+from plugins.model_gap.stages.measurement_campaign import MeasurementCampaign
 from plugins.util.detached import DetachedContext
 
 MS = 1_000_000

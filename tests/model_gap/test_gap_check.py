@@ -15,15 +15,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from model_gap_helpers import FOLDS, case, families
 
-from engine.cli import main
-from engine.gap import GapConfig, SelectionConfig
+from engine.cli.main import main
+from plugins.calibration.kinematics import KinematicCalibrationConfig, calibrate_kinematics
+from plugins.model_gap import analyse_gap, write_gap_csv
+from plugins.model_gap.check import check_model
+from plugins.model_gap.core import GapConfig, SelectionConfig
+from plugins.model_gap.stored_model import load_stored_model
 from plugins.robot.effects import effects_from_config
 from plugins.robot.with_effects import RobotWithEffects
-from plugins.solvers.kinematic_calibration import KinematicCalibrationConfig, calibrate_kinematics
-from plugins.solvers.model_gap import analyse_gap, write_gap_csv
-from plugins.solvers.model_gap.check import check_model
-from plugins.solvers.model_gap.simulate import make_case
-from plugins.solvers.model_gap.stored_model import load_stored_model
+from plugins.sim.model_gap.simulate import make_case
 
 pytestmark = pytest.mark.timeout(300)
 

@@ -9,9 +9,9 @@ import pytest
 import yaml
 from model_gap_helpers import N_SAMPLES, case
 
-from engine.cli import main
-from plugins.solvers.model_gap import write_gap_csv
-from plugins.solvers.model_gap.simulate import make_case
+from engine.cli.main import main
+from plugins.model_gap import write_gap_csv
+from plugins.sim.model_gap.simulate import make_case
 
 pytestmark = pytest.mark.timeout(300)
 

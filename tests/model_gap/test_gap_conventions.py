@@ -22,11 +22,11 @@ from hypothesis import given
 from hypothesis import strategies as st
 from model_gap_helpers import N_SAMPLES, case, families, run
 
-from engine.cli import main
-from engine.gap.report import report_dict
+from engine.cli.main import main
+from plugins.model_gap import write_gap_csv
+from plugins.model_gap.core.report import report_dict
 from plugins.robot.effects import Backlash, TemperatureExpansion
-from plugins.solvers.model_gap import write_gap_csv
-from plugins.solvers.model_gap.simulate import LEVELS, HiddenCase, HiddenEffect, make_case
+from plugins.sim.model_gap.simulate import LEVELS, HiddenCase, HiddenEffect, make_case
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -96,7 +96,7 @@ def test_one_link_growing_with_the_logged_temperature_is_named_at_its_joint():
 def test_a_temperature_law_needs_a_varying_temperature_and_the_base_height_is_not_a_link():
     camp = make_case(case([], seed=9))
     thermal = next(f for f in families() if f.name == "thermal_drift")
-    from plugins.solvers.model_gap import KinematicGapProblem, ProblemConfig
+    from plugins.model_gap import KinematicGapProblem, ProblemConfig
 
     problem = KinematicGapProblem(camp.model, camp.data, ProblemConfig(("frame", "tool"), noise_m=5e-5))
     where = {c.where for c in thermal.candidates(problem)}

@@ -12,9 +12,9 @@ from __future__ import annotations
 import pytest
 from model_gap_helpers import case, families, run
 
-from engine.gap import GapConfig, SelectionConfig
-from plugins.solvers.model_gap import analyse_gap
-from plugins.solvers.model_gap.simulate import make_case
+from plugins.model_gap import analyse_gap
+from plugins.model_gap.core import GapConfig, SelectionConfig
+from plugins.sim.model_gap.simulate import make_case
 
 pytestmark = pytest.mark.timeout(300)
 

@@ -1,6 +1,6 @@
 """The benchmark's a-priori classes (identifiable / confounded / undetectable) come from the truth alone.
 
-:mod:`plugins.solvers.model_gap.detectability` classifies a hidden-effect case from the simulated
+:mod:`plugins.sim.model_gap.detectability` classifies a hidden-effect case from the simulated
 truth (noise-free displacements, true frames) before any method sees the data: a strong single
 effect is identifiable, two effects built to cancel are undetectable, an effect with the same
 signature as another catalog effect is confounded -- whatever the noise draw, and the measured data
@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 from model_gap_helpers import N_SAMPLES
 
-from engine.gap.selection import _basis, _perp
-from plugins.solvers.model_gap.detectability import classify, uniform_scale_column
-from plugins.solvers.model_gap.effects import RobotScaleFamily
-from plugins.solvers.model_gap.problem import KinematicGapProblem, ProblemConfig
-from plugins.solvers.model_gap.simulate import LEVELS, TOOL_TRUE, HiddenCase, HiddenEffect, make_case
+from plugins.model_gap.core.selection import _basis, _perp
+from plugins.model_gap.effects import RobotScaleFamily
+from plugins.model_gap.problem import KinematicGapProblem, ProblemConfig
+from plugins.sim.model_gap.detectability import classify, uniform_scale_column
+from plugins.sim.model_gap.simulate import LEVELS, TOOL_TRUE, HiddenCase, HiddenEffect, make_case
 
 pytestmark = pytest.mark.timeout(300)
 

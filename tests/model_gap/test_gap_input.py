@@ -15,10 +15,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from model_gap_helpers import case, families
 
-from engine.cli import main
-from engine.gap import GapConfig, GapInputError, SelectionConfig
-from plugins.solvers.model_gap import GapDataError, analyse_gap, read_gap_csv, write_gap_csv
-from plugins.solvers.model_gap.simulate import make_case
+from engine.cli.main import main
+from plugins.model_gap import GapDataError, analyse_gap, read_gap_csv, write_gap_csv
+from plugins.model_gap.core import GapConfig, GapInputError, SelectionConfig
+from plugins.sim.model_gap.simulate import make_case
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -169,7 +169,7 @@ def _messages(data, frame_id: str):
 
 def test_recorded_streams_give_the_range_so_depth_effects_are_testable():
     """pair_streams (the MCAP reader and the stage) derives |p| in the instrument's frame."""
-    from plugins.solvers.model_gap import pair_streams
+    from plugins.model_gap import pair_streams
 
     camp = make_case(case([("depth_scale", "camera")], seed=8))
     paired = pair_streams(*_messages(camp.data, "lighthouse"))
@@ -194,7 +194,7 @@ def test_recorded_streams_give_the_range_so_depth_effects_are_testable():
 
 
 def test_payload_option_fills_a_csv_without_the_column_and_never_replaces_one(tmp_path):
-    from plugins.solvers.model_gap.data import load_gap_data
+    from plugins.model_gap.data import load_gap_data
 
     header, rows = _rows()
     k = header.index("payload_kg")
@@ -208,7 +208,7 @@ def test_payload_option_fills_a_csv_without_the_column_and_never_replaces_one(tm
 
 @pytest.mark.parametrize("bad", [-1.0, float("nan"), float("inf")])
 def test_a_payload_that_is_not_a_mass_is_refused(tmp_path, bad):
-    from plugins.solvers.model_gap.data import load_gap_data
+    from plugins.model_gap.data import load_gap_data
 
     header, rows = _rows()
     k = header.index("payload_kg")

@@ -1,6 +1,6 @@
 """The workflow names the hidden effect and its place, names nothing in pure noise, closes the gap.
 
-Hidden-effect datasets from the simulated cell (:mod:`plugins.solvers.model_gap.simulate`): the
+Hidden-effect datasets from the simulated cell (:mod:`plugins.sim.model_gap.simulate`): the
 effect is known only to the test. UR5e, 160 samples, 0.05 mm noise per axis; "high" hides an effect
 whose uncalibratable part has a 3-D RMS of 0.15 mm (the noise alone: 0.087 mm), "low" 0.05 mm.
 """
@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from model_gap_helpers import case, families, run
 
-from engine.gap import GapConfig, SelectionConfig
-from plugins.solvers.model_gap import analyse_gap
-from plugins.solvers.model_gap.simulate import BOTH_SCENARIOS, KNOWN_FRAME_EFFECTS, make_case
+from plugins.model_gap import analyse_gap
+from plugins.model_gap.core import GapConfig, SelectionConfig
+from plugins.sim.model_gap.simulate import BOTH_SCENARIOS, KNOWN_FRAME_EFFECTS, make_case
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -125,7 +125,7 @@ def test_an_effect_outside_the_catalog_is_unexplained_not_misnamed(seed):
 
 @pytest.mark.parametrize("effects", [[("backlash", "joint3")], []], ids=["backlash@joint3", "noise-only"])
 def test_the_other_shipped_robot_abb_irb120(effects):
-    from plugins.solvers.model_gap.simulate import LEVELS, HiddenEffect, simulate_campaign
+    from plugins.sim.model_gap.simulate import LEVELS, HiddenEffect, simulate_campaign
 
     hidden = tuple(HiddenEffect(n, w, LEVELS["high"]) for n, w in effects)
     camp = simulate_campaign(hidden, n_samples=160, seed=2, robot="abb_irb120")
@@ -138,9 +138,9 @@ def test_the_other_shipped_robot_abb_irb120(effects):
 
 def _benchmark_run(effects, level: str, seed: int, scenario: str = "tracker"):
     """One case exactly as benchmarks/gap.py runs it (200 samples, 5 folds)."""
-    from engine.gap import run_gap
-    from plugins.solvers.model_gap import KinematicGapProblem, ProblemConfig
-    from plugins.solvers.model_gap.simulate import LEVELS, HiddenCase, HiddenEffect
+    from plugins.model_gap import KinematicGapProblem, ProblemConfig
+    from plugins.model_gap.core import run_gap
+    from plugins.sim.model_gap.simulate import LEVELS, HiddenCase, HiddenEffect
 
     hidden = tuple(HiddenEffect(n, w, LEVELS[level]) for n, w in effects)
     c = HiddenCase("x", "pair", level, scenario, hidden, seed)
@@ -195,7 +195,7 @@ def test_the_backward_check_removes_a_stand_in_named_first():
     assert removed == ["depth_scale@camera"]
     assert sorted(res.named) == [("depth_bias", "camera"), ("tool_offset", "tool")], res.reason
     assert res.verdict == "explained"
-    from engine.gap.report import report_dict
+    from plugins.model_gap.core.report import report_dict
 
     rep = report_dict(res)
     assert [e["effect"] for e in rep["effects_removed"]] == ["depth_scale@camera"]
@@ -207,7 +207,7 @@ def test_an_approximate_tie_resolves_once_a_later_effect_is_in():
     the range bias still in the residuals the drift ties with link_length@joint4 and joint 4's own growth
     (round 1: a tie term, evaluated as the drift); once depth_bias is named the drift is decisive over
     the other two given it, so the tie is resolved and the drift named: the exact hidden pair, verdict ``explained``."""
-    from engine.gap.report import report_dict
+    from plugins.model_gap.core.report import report_dict
 
     res = _benchmark_run([("thermal_drift", "robot"), ("depth_bias", "camera")], "low", 1943253138)
     first = res.iterations[0]

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 from model_gap_helpers import FOLDS, case, families
 
-from engine.gap import GapConfig, SelectionConfig
-from engine.gap.report import report_dict
-from plugins.solvers.model_gap import analyse_gap
-from plugins.solvers.model_gap.cli import EXIT_CODES
-from plugins.solvers.model_gap.simulate import make_case
+from plugins.model_gap import analyse_gap
+from plugins.model_gap.cli import EXIT_CODES
+from plugins.model_gap.core import GapConfig, SelectionConfig
+from plugins.model_gap.core.report import report_dict
+from plugins.sim.model_gap.simulate import make_case
 
 pytestmark = pytest.mark.timeout(300)
 

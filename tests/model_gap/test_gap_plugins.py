@@ -10,13 +10,13 @@ import pytest
 from gap_toy_effect import NAME, SecondHarmonic, SecondHarmonicFamily
 from model_gap_helpers import case
 
-from engine.cli import main
-from engine.gap import GapConfig, SelectionConfig
+from engine.cli.main import main
 from engine.plugin_manager import PluginError, load_registry
 from engine.transforms import inv
+from plugins.model_gap import analyse_gap, families_from_registry, write_gap_csv
+from plugins.model_gap.core import GapConfig, SelectionConfig
 from plugins.robot.with_effects import RobotWithEffects
-from plugins.solvers.model_gap import analyse_gap, families_from_registry, write_gap_csv
-from plugins.solvers.model_gap.simulate import T_WORLD_SENSOR, make_case
+from plugins.sim.model_gap.simulate import T_WORLD_SENSOR, make_case
 
 pytestmark = pytest.mark.timeout(300)
 

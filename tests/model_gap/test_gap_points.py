@@ -10,10 +10,10 @@ import pytest
 import yaml
 from model_gap_helpers import FOLDS, families
 
-from engine.cli import main
-from engine.gap import GapConfig, SelectionConfig
-from plugins.solvers.model_gap import analyse_gap, read_gap_csv, write_gap_csv
-from plugins.solvers.model_gap.simulate import LEVELS, REFLECTORS, HiddenCase, HiddenEffect, make_case
+from engine.cli.main import main
+from plugins.model_gap import analyse_gap, read_gap_csv, write_gap_csv
+from plugins.model_gap.core import GapConfig, SelectionConfig
+from plugins.sim.model_gap.simulate import LEVELS, REFLECTORS, HiddenCase, HiddenEffect, make_case
 
 pytestmark = pytest.mark.timeout(300)
 

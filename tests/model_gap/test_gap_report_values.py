@@ -10,7 +10,7 @@ import pytest
 import yaml
 from model_gap_helpers import case, run
 
-from engine.gap.plots import effect_series
+from plugins.model_gap.core.plots import effect_series
 
 pytestmark = pytest.mark.timeout(300)
 

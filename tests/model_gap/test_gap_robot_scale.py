@@ -18,15 +18,15 @@ import yaml
 from model_gap_helpers import case, families, run
 from rich.console import Console
 
-from engine.gap import GapConfig, SelectionConfig
-from engine.gap.report import render, report_dict
+from plugins.model_gap import analyse_gap
+from plugins.model_gap.core import GapConfig, SelectionConfig
+from plugins.model_gap.core.report import render, report_dict
+from plugins.model_gap.effects import RobotScaleFamily, uniform_scale_offsets
+from plugins.model_gap.problem import KinematicGapProblem, ProblemConfig
+from plugins.model_gap.stored_model import load_gap_model
 from plugins.robot.model_file import load_robot_model
 from plugins.robot.with_effects import RobotWithEffects
-from plugins.solvers.model_gap import analyse_gap
-from plugins.solvers.model_gap.effects import RobotScaleFamily, uniform_scale_offsets
-from plugins.solvers.model_gap.problem import KinematicGapProblem, ProblemConfig
-from plugins.solvers.model_gap.simulate import make_case
-from plugins.solvers.model_gap.stored_model import load_gap_model
+from plugins.sim.model_gap.simulate import make_case
 
 pytestmark = pytest.mark.timeout(300)
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from recipe_helpers import graph_from
 
-from engine.runner import Observer, Runner
+from engine.run.runner import Observer, Runner
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -67,7 +67,7 @@ def test_too_few_poses_fail_with_a_reason_not_an_exception():
 
 def test_vgr_gap_reads_the_recording_of_the_recipe(tmp_path, capsys):
     """`vgr run` records the campaign; `vgr gap` on the MCAP picks the campaign's joints + readings."""
-    from engine.cli import main
+    from engine.cli.main import main
 
     rec = tmp_path / "run.mcap"
     assert main(["run", str(RECIPE), "--record", str(rec), "-p", "campaign.n_poses=60"]) == 0

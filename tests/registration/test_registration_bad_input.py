@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from engine import transforms as tf
-from plugins.solvers.registration import (
+from plugins.registration import (
     FeatureFrameParams,
     FineParams,
     GlobalParams,
@@ -175,7 +175,7 @@ def test_cloud_with_the_part_missing_fails(plate_scene):
 def test_a_non_finite_uncertainty_never_yields_an_ok_match(monkeypatch):
     """A NaN sigma passes every 'sigma > limit' comparison: the match must fail instead of being ok
     with an unknown uncertainty (guidance acts on 'ok' alone)."""
-    from plugins.solvers.registration import fine
+    from plugins.registration import fine
 
     real = fine.pose_uncertainty
 

@@ -10,12 +10,12 @@ import registration_scenes as scenes
 from scipy.spatial.transform import Rotation
 
 from engine import transforms as tf
-from plugins.solvers.registration import (
+from plugins.registration import (
     FeatureFrameParams,
     fit_feature_frame,
     register_feature_frame,
 )
-from plugins.solvers.registration.circles import fit_circle
+from plugins.registration.circles import fit_circle
 
 
 def test_circle_fit_recovers_centre_and_radius():

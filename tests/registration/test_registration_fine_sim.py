@@ -11,7 +11,7 @@ import pytest
 import registration_scenes as scenes
 
 from engine import transforms as tf
-from plugins.solvers.registration import FineParams, prepare_cloud, register_fine
+from plugins.registration import FineParams, prepare_cloud, register_fine
 
 PART = "feature_part"
 

@@ -14,7 +14,7 @@ import pytest
 import registration_peers as peers
 import registration_scenes as scenes
 
-from plugins.solvers.registration import FineParams, GlobalParams, prepare_cloud, register_global
+from plugins.registration import FineParams, GlobalParams, prepare_cloud, register_global
 
 #: vgr's settings for planar parts against a CAD-model template: point-to-plane for the coarse and
 #: the fine ICP (the model's walls give the plate's contour points an in-plane constraint that

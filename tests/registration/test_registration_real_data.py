@@ -33,7 +33,7 @@ from scipy.spatial.transform import Rotation
 from shared_data import SHARED
 
 from engine import transforms as tf
-from plugins.solvers.registration import (
+from plugins.registration import (
     BACKENDS,
     FineParams,
     FpfhParams,

@@ -20,9 +20,9 @@ import numpy as np
 import pytest
 import registration_scenes as scenes
 
-from engine.cli import main as vgr
+from engine.cli.main import main as vgr
 from engine.messages import PointCloud
-from plugins.solvers.registration.stage import Matcher
+from plugins.registration.stages.matcher import Matcher
 from plugins.util.detached import DetachedContext
 
 PART = "planar_plate"

@@ -12,7 +12,7 @@ import pytest
 import registration_scenes as scenes
 
 from engine import transforms as tf
-from plugins.solvers.registration import (
+from plugins.registration import (
     FeatureFrameParams,
     InvalidInputError,
     PreprocessParams,
@@ -23,7 +23,7 @@ from plugins.solvers.registration import (
     register_fine,
     save_template,
 )
-from plugins.solvers.registration.template import SCHEMA_VERSION
+from plugins.registration.template import SCHEMA_VERSION
 
 T_PHOTO = tf.T_from_rotvec([0.1, -0.2, 0.3], [0.4, 0.1, 0.6])
 
@@ -159,7 +159,7 @@ def test_version_1_templates_still_load_and_match(tmp_path, captures):
 def test_remaking_a_template_that_fails_midway_keeps_the_old_one(tmp_path, captures, monkeypatch):
     """Re-making a template recipes use: if writing the new one fails after its points are written
     (disk full, kill), the old template still loads and nothing half-written is left."""
-    from plugins.solvers.registration import template as template_mod
+    from plugins.registration import template as template_mod
 
     tmpl, _ = captures
     path = save_template(make_template(tmpl.points, T_PHOTO, name="in_use"), tmp_path)
@@ -180,8 +180,8 @@ def test_remaking_a_template_that_fails_midway_keeps_the_old_one(tmp_path, captu
 
 
 def test_template_from_a_recording_names_the_point_cloud_topics_that_hold_messages(tmp_path):
-    from plugins.solvers.registration.cli import _from_recording
-    from plugins.solvers.registration.validation import InvalidInputError
+    from plugins.registration.cli import _from_recording
+    from plugins.registration.validation import InvalidInputError
 
     rec = "recordings/sim_capture.mcap"
     with pytest.raises(InvalidInputError) as e:

@@ -9,7 +9,7 @@ import pytest
 import registration_scenes as scenes
 
 from engine import transforms as tf
-from plugins.solvers.registration import (
+from plugins.registration import (
     FineParams,
     GlobalParams,
     PreprocessParams,

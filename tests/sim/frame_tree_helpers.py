@@ -15,13 +15,12 @@ from pathlib import Path
 
 from recipe_helpers import graph_from
 
-from engine import codec
 from engine.graph import Graph
-from engine.messages import FrameTransforms, Message, SceneMeshes, Transform
+from engine.messages import FrameTransforms, Message, SceneMeshes, Transform, codec
 from engine.plugin_manager import load_registry
-from engine.recorder import Recorder
-from engine.recording import load
-from engine.runner import Runner, RunSummary
+from engine.recording.reader import load
+from engine.recording.recorder import Recorder
+from engine.run.runner import Runner, RunSummary
 
 ROOT = "world"
 ROBOT_FRAMES = {"base": "world", "tcp": "base"}  # child -> parent: what a robot stage (simulated or UR) publishes

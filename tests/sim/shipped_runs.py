@@ -20,7 +20,7 @@ from frame_tree_helpers import record_graph
 
 from engine.graph import Graph, build_graph
 from engine.plugin_manager import load_registry
-from engine.recipe import load_recipe
+from engine.recipe.model import load_recipe
 
 RECIPES = Path(__file__).resolve().parents[2] / "recipes"
 SHIPPED = sorted(RECIPES.rglob("*.yaml"))

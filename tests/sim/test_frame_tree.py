@@ -17,8 +17,8 @@ import pytest
 from frame_tree_helpers import ROBOT_FRAMES, record, sound_frame_tree
 from recipe_helpers import header, stages
 
-from engine import codec
-from engine.recording import load
+from engine.messages import codec
+from engine.recording.reader import load
 
 pytestmark = pytest.mark.timeout(180)
 

@@ -20,10 +20,9 @@ import pytest
 from frame_tree_helpers import frame_tree
 from shipped_runs import SHIPPED, recipe_id, shipped_run
 
-from engine import codec
-from engine.messages import PointCloud
-from engine.recording import load
-from plugins.solvers.stages.base import CalibrationStage
+from engine.messages import PointCloud, codec
+from engine.recording.reader import load
+from plugins.calibration.stages.base import CalibrationStage
 
 pytestmark = pytest.mark.timeout(180)
 

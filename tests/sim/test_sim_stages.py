@@ -7,7 +7,7 @@ import pytest
 from recipe_helpers import graph_from, header, stages
 
 from engine.errors import RecipeError
-from engine.runner import Observer, Runner
+from engine.run.runner import Observer, Runner
 from engine.transforms import inv, transform_points
 from plugins.sim.workpieces import make_workpiece
 

@@ -6,7 +6,7 @@ from hypothesis import strategies as st
 from scipy.stats import chi2
 
 from engine.transforms import exp_so3
-from plugins.solvers.pose_lsq import (
+from plugins.calibration.pose_lsq import (
     analyse_identifiability,
     as_rotation_stack,
     chi2_consistency,

@@ -12,8 +12,8 @@ from scipy.stats import chi2
 from shared_data import SHARED
 
 from engine.transforms import T_from_Rt, inv, log_so3, pose_error
-from plugins.solvers.pose_lsq.stats import Identifiability, analyse_identifiability
-from plugins.solvers.tcp_camera import (
+from plugins.calibration.pose_lsq.stats import Identifiability, analyse_identifiability
+from plugins.calibration.tcp_camera import (
     TcpCameraData,
     TcpNoiseModel,
     calibrate_tcp_camera,
@@ -22,8 +22,8 @@ from plugins.solvers.tcp_camera import (
     save_tcp_csv,
     save_tcp_json,
 )
-from plugins.solvers.tcp_camera.simulate import TRUE_P_FLANGE_TCP, simulate_tcp_camera, true_T_base_cam
-from plugins.solvers.tcp_camera.solver import PARAM_NAMES, _null_space_issue, _Problem, cramer_rao_bound
+from plugins.calibration.tcp_camera.simulate import TRUE_P_FLANGE_TCP, simulate_tcp_camera, true_T_base_cam
+from plugins.calibration.tcp_camera.solver import PARAM_NAMES, _null_space_issue, _Problem, cramer_rao_bound
 
 MOVEIT = SHARED / "moveit_calibration" / "pose_samples.json"
 

@@ -8,17 +8,17 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from engine.transforms import T_from_Rt, inv
-from plugins.solvers.vive_desk import calibrate_vive_desk
-from plugins.solvers.vive_desk.realtime import desktop_tcp, desktop_tcp_jacobians
-from plugins.solvers.vive_desk.seed_baseline import seed_calibrate
-from plugins.solvers.vive_desk.simulate import (
+from plugins.calibration.vive_desk import calibrate_vive_desk
+from plugins.calibration.vive_desk.realtime import desktop_tcp, desktop_tcp_jacobians
+from plugins.calibration.vive_desk.seed_baseline import seed_calibrate
+from plugins.calibration.vive_desk.simulate import (
     SEED_POINTS_3,
     SEED_POINTS_4,
     SEED_POINTS_5,
     simulate_contacts,
     tilted_fixture_orientations,
 )
-from plugins.solvers.vive_desk.solver import cramer_rao_bound
+from plugins.calibration.vive_desk.solver import cramer_rao_bound
 
 
 def pairwise_to_sigma(deg):

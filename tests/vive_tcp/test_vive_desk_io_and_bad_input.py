@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from engine.transforms import T_from_rotvec, pose_error
-from plugins.solvers.vive_desk import (
+from plugins.calibration.vive_desk import (
     ViveDeskData,
     calibrate_vive_desk,
     load_vive_csv,
@@ -17,8 +17,8 @@ from plugins.solvers.vive_desk import (
     save_vive_csv,
     save_vive_json,
 )
-from plugins.solvers.vive_desk.io import vive_to_json_dict
-from plugins.solvers.vive_desk.simulate import SEED_POINTS_4, simulate_contacts, tilted_fixture_orientations
+from plugins.calibration.vive_desk.io import vive_to_json_dict
+from plugins.calibration.vive_desk.simulate import SEED_POINTS_4, simulate_contacts, tilted_fixture_orientations
 
 
 def multi_sim(seed=1, known=None):

@@ -8,9 +8,9 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from engine.transforms import T_from_rotvec, T_from_Rt, exp_so3, inv, log_so3
-from plugins.solvers.vive_desk import DesktopTcpConverter, ViveNoiseModel, desktop_tcp
-from plugins.solvers.vive_desk.realtime import desktop_tcp_jacobians
-from plugins.solvers.vive_desk.simulate import true_T_base_desktop, true_T_tracker_tcp
+from plugins.calibration.vive_desk import DesktopTcpConverter, ViveNoiseModel, desktop_tcp
+from plugins.calibration.vive_desk.realtime import desktop_tcp_jacobians
+from plugins.calibration.vive_desk.simulate import true_T_base_desktop, true_T_tracker_tcp
 
 small = st.floats(-2.5, 2.5, allow_nan=False)
 

@@ -7,25 +7,25 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from engine.transforms import T_from_Rt, inv, log_so3, pose_error
-from plugins.solvers.calibration_result import CalibrationResult
-from plugins.solvers.vive_desk import (
+from plugins.calibration.result import CalibrationResult
+from plugins.calibration.vive_desk import (
     DesktopTcpConverter,
     TrackerTcpPrior,
     ViveDeskData,
     ViveNoiseModel,
     calibrate_vive_desk,
 )
-from plugins.solvers.vive_desk.initial import initial_estimate, seed_step1_T_base_desktop
-from plugins.solvers.vive_desk.model import DeskProblem
-from plugins.solvers.vive_desk.realtime import desktop_tcp
-from plugins.solvers.vive_desk.seed_baseline import seed_calibrate
-from plugins.solvers.vive_desk.simulate import (
+from plugins.calibration.vive_desk.initial import initial_estimate, seed_step1_T_base_desktop
+from plugins.calibration.vive_desk.model import DeskProblem
+from plugins.calibration.vive_desk.realtime import desktop_tcp
+from plugins.calibration.vive_desk.seed_baseline import seed_calibrate
+from plugins.calibration.vive_desk.simulate import (
     SEED_POINTS_3,
     SEED_POINTS_4,
     simulate_contacts,
     tilted_fixture_orientations,
 )
-from plugins.solvers.vive_desk.solver import cramer_rao_bound
+from plugins.calibration.vive_desk.solver import cramer_rao_bound
 
 GOOD_SCATTER = np.radians(0.2)  # per axis: ~0.5 deg RMS pairwise, a good fixture (seed 001)
 

@@ -14,10 +14,10 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from .base import CONTEXT_FIELDS, ParamSpec, RobotEffect, SampleContext
-from .geometric import BaseFrameError, GeometricErrors, JointOffset, LinkLength, ToolOffsetError
-from .joint_effects import Backlash, EncoderEccentricity, JointCompliance
-from .thermal import TemperatureExpansion, ThermalDrift
+from plugins.robot.effects.base import CONTEXT_FIELDS, ParamSpec, RobotEffect, SampleContext
+from plugins.robot.effects.geometric import BaseFrameError, GeometricErrors, JointOffset, LinkLength, ToolOffsetError
+from plugins.robot.effects.joint_effects import Backlash, EncoderEccentricity, JointCompliance
+from plugins.robot.effects.thermal import TemperatureExpansion, ThermalDrift
 
 CATALOG: dict[str, type[RobotEffect]] = {
     cls.catalog_name: cls

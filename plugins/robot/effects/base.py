@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 if TYPE_CHECKING:
-    from ..kinematics import RobotModel
+    from plugins.robot.kinematics import RobotModel
 
 F64 = NDArray[np.float64]
 CONTEXT_FIELDS = ("t_s", "direction", "temp_c", "payload_kg")

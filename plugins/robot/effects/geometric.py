@@ -14,7 +14,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from .base import F64, ParamSpec, RobotEffect, SampleContext, check_joints, check_joints_exist
+from plugins.robot.effects.base import F64, ParamSpec, RobotEffect, SampleContext, check_joints, check_joints_exist
 
 _ANGLE_SUFFIXES = ("theta", "alpha", "beta", "rx", "ry", "rz")
 FRAME_COMPONENTS = ("tx", "ty", "tz", "rx", "ry", "rz")

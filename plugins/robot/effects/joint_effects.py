@@ -19,7 +19,15 @@ from typing import ClassVar
 
 import numpy as np
 
-from .base import F64, ParamSpec, RobotEffect, SampleContext, check_joints, check_joints_exist, joint_matrix
+from plugins.robot.effects.base import (
+    F64,
+    ParamSpec,
+    RobotEffect,
+    SampleContext,
+    check_joints,
+    check_joints_exist,
+    joint_matrix,
+)
 
 
 @dataclass(frozen=True)

@@ -29,7 +29,7 @@ from typing import ClassVar, Self
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .base import ParamSpec
+from plugins.robot.effects.base import ParamSpec
 
 F64 = NDArray[np.float64]
 

@@ -20,8 +20,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from .base import F64, ParamSpec, RobotEffect, SampleContext
-from .geometric import _index, unit_of
+from plugins.robot.effects.base import F64, ParamSpec, RobotEffect, SampleContext
+from plugins.robot.effects.geometric import _index, unit_of
 
 ALUMINIUM_EXPANSION_PER_K = 23e-6
 STEEL_EXPANSION_PER_K = 12e-6

@@ -40,15 +40,15 @@ from engine.messages import (
     Transform,
 )
 from engine.stage import ServiceSpec, Stage, StageParams
+from plugins.camera.board_spec import parse_board
+from plugins.devices.camera_output import thinned
 from plugins.interfaces import CAMERA_OUTPUTS, CAMERA_SERVICES
 from plugins.params import PoseSpec
-from plugins.sensors.camera_output import thinned
 from plugins.sim.board import BoardImager, board_workpiece
 from plugins.sim.camera import DepthCameraModel, DepthNoiseModel, PinholeIntrinsics, default_intrinsics
 from plugins.sim.cell import CameraMount, PartPlacement, SimCell
 from plugins.sim.sensor_effects import SensorEffects
 from plugins.sim.workpieces import make_workpiece
-from plugins.solvers.boards.spec import parse_board
 
 NOISE_PRESETS = ("noiseless", "industrial_structured_light", "realsense_d415", "kinect_v1")
 TRUTH_PREFIX = "truth/"

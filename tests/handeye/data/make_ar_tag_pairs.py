@@ -24,9 +24,9 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from engine.transforms import retract  # noqa: E402
-from plugins.solvers.handeye import NoiseModel, PoseNoise  # noqa: E402
-from plugins.solvers.handeye import simulate as sim  # noqa: E402
-from plugins.solvers.handeye.io import write_pose_pairs_yaml  # noqa: E402
+from plugins.calibration.handeye import NoiseModel, PoseNoise  # noqa: E402
+from plugins.calibration.handeye import simulate as sim  # noqa: E402
+from plugins.calibration.handeye.io import write_pose_pairs_yaml  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 FILE = HERE / "ar_tag_pairs.yml"

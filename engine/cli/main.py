@@ -1,0 +1,452 @@
+"""The ``vgr`` command line: run, validate, graph, plugins, schemas (and the verbs of later modules).
+
+Exit codes: 0 success; 1 the run failed (a stage failed or was stopped); 2 invalid recipe or usage;
+3 refused (a stage raised an alarm); 130 interrupted by Ctrl-C.
+
+Ctrl-C during ``vgr run``: the SIGINT handler only calls ``Runner.stop`` (the runner halts the
+devices, cuts the waiting calls short and gives the stages 2 s, see engine.run.runner), the summary says
+``run interrupted`` and the command exits 130 without a traceback; a second Ctrl-C interrupts hard.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import re
+import signal
+import sys
+import threading
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.live import Live
+from rich.markup import escape
+from rich.table import Table
+
+from engine import run_folder
+from engine.cli import recording as cli_recording
+from engine.errors import RecipeError
+from engine.graph import Graph, build_graph
+from engine.plugin_manager import PluginError, Registry, load_registry
+from engine.recipe.model import load_recipe
+from engine.recording.reader import RecordingError
+from engine.recording.replay import ReplayError
+from engine.run.runner import RunError, Runner, RunSummary
+from engine.run.runtime import StageStats
+from engine.run.sigint import on_sigint
+from engine.transport.bus import BusError
+
+console = Console(stderr=True)
+out = Console(width=None if sys.stdout.isatty() else 160)
+
+EXIT_OK, EXIT_FAILED, EXIT_INVALID, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+
+def _load_graph(args: argparse.Namespace) -> tuple[Graph, Registry]:
+    loaded = load_recipe(args.recipe, args.param or [])
+    registry = load_registry(loaded.recipe.plugins)
+    return build_graph(loaded, registry), registry
+
+
+def _stats_table(stats: Sequence[StageStats], title: str) -> Table:
+    t = Table(title=title, title_justify="left")
+    for col in ("stage", "type", "process", "state", "in", "out", "errors", "busy ms"):
+        t.add_column(col, justify="right" if col in ("in", "out", "errors", "busy ms") else "left")
+    for s in stats:
+        style = {"failed": "red", "stopped": "yellow", "finished": "green"}.get(s.state, "")
+        t.add_row(
+            s.name,
+            s.type_name,
+            s.process,
+            f"[{style}]{s.state}[/]" if style else s.state,
+            str(s.messages_in + s.requests_served),
+            str(s.messages_out),
+            str(s.errors),
+            f"{s.busy_s * 1e3:.1f}",
+        )
+    return t
+
+
+def print_summary(summary: RunSummary) -> None:
+    out.print(_stats_table(summary.stages, f"run {summary.run_id} ({summary.process}) in {summary.wall_s:.2f} s"))
+    folder = summary.artifacts.get("run folder")  # files stages name are relative to it
+    for ev in summary.events:
+        if ev.level == "result":  # a stage's report for people: its text, then the files it wrote
+            out.print(f"[bold green]{ev.stage}[/]: {escape(ev.message)}", soft_wrap=True, highlight=False)
+            for label, path in (ev.details.get("files") or {}).items():
+                where = Path(folder, path) if folder and not Path(path).is_absolute() else Path(path)
+                out.print(f"  {label}: {escape(str(where))}", highlight=False, soft_wrap=True)
+            continue
+        colour = "yellow" if ev.level == "warning" else "red"
+        out.print(f"[{colour}]{ev.level}[/] {ev.stage}: {escape(f'[{ev.code}] {ev.message}')}", soft_wrap=True)
+        if ev.traceback and ev.level in ("error", "alarm"):
+            out.print(ev.traceback, markup=False, highlight=False)
+    for name, path in summary.artifacts.items():
+        out.print(f"{name}: {escape(path)}", highlight=False, soft_wrap=True)
+    if summary.outcome == "refused":
+        alarms = [ev for ev in summary.events if ev.level == "alarm"]
+        out.print(f"[red]run finished, refused[/]: {len(alarms)} alarm(s), first: {escape(alarms[0].stage)}")
+    elif summary.ok:
+        out.print("[green]run finished[/]")
+    elif summary.outcome == "interrupted":  # Ctrl-C or a stop request: the devices were halted first
+        ended = "" if summary.stop_to_end_s is None else f"; the stages ended {summary.stop_to_end_s:.2f} s after it"
+        out.print(f"[yellow]run interrupted[/]: {escape(summary.stop_reason or '')}{ended}", soft_wrap=True)
+    else:
+        out.print(f"[red]run failed[/]: {escape(summary.stop_reason or 'a stage failed')}", soft_wrap=True)
+
+
+def run_with_progress(runner: Runner, show: bool) -> RunSummary:
+    """Run in this thread (signals arrive here); a live table appears if the run lasts > 1 s."""
+    done = threading.Event()
+
+    def live() -> None:
+        if done.wait(1.0):
+            return
+        with Live(
+            _stats_table(runner.snapshot(), "running"), console=console, refresh_per_second=4, transient=True
+        ) as lv:
+            while not done.wait(0.25):
+                lv.update(_stats_table(runner.snapshot(), f"running {runner.run_id}"))
+
+    th = threading.Thread(target=live, daemon=True) if show else None
+    if th:
+        th.start()
+
+    def stop_on_sigint(signum: int, frame: Any) -> None:
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # a second Ctrl-C interrupts hard
+        runner.stop("interrupted (Ctrl-C)")
+
+    with on_sigint(stop_on_sigint):
+        try:
+            return runner.run()
+        finally:
+            done.set()
+            if th:
+                th.join(1.0)
+
+
+# --------------------------------------------------------------------------- verbs
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    graph, registry = _load_graph(args)
+    recipe = graph.recipe
+    from engine.recipe.model import ProcessSettings
+
+    if args.listen or args.connect:
+        over = recipe.processes.get(args.process) or ProcessSettings()
+        recipe.processes[args.process] = ProcessSettings(
+            listen=args.listen or over.listen, connect=args.connect or over.connect
+        )
+    from engine.cli.recording import recording_path
+    from engine.recording.recorder import Recorder
+
+    if _security_refused(graph, args.certs):  # nothing is started with certificates that cannot work
+        return EXIT_INVALID
+    runner = Runner(  # refuses a bad run id or process before anything is created
+        graph,
+        certs_dir=args.certs,
+        process=args.process,
+        run_id=args.run_id,
+        ready_timeout_s=args.ready_timeout,
+        freeze_gc=args.own_process,  # the command's own process (not a caller's, e.g. a test): see Runner
+    )
+    # the live view before the folder: a taken port is refused before anything is made
+    view = cli_recording.add_live_view(args, runner.observers, console)
+    # a recording the user named (--record, record.path) does not depend on the run folder: it is
+    # resolved, and refused if it exists, before anything is created
+    named = bool(args.record or recipe.record.path)
+    path = recording_path(args, graph, None) if named else None
+    run_dir = runner.run_dir = run_folder.create(args.runs_dir, run_folder.run_name(runner.run_id, args.process))
+    run_folder.write_recipe(run_dir, graph.loaded)
+    if not named:
+        path = recording_path(args, graph, run_dir)
+    if path is not None:
+        runner.observers.append(Recorder(path, recipe.record, graph.loaded, registry.plugins))
+    with run_folder.logging_to(run_dir):
+        summary = run_with_progress(runner, show=not args.no_progress and console.is_terminal)
+    summary.artifacts["run folder"] = str(run_dir)
+    if args.json:
+        out.print_json(json.dumps(_summary_dict(summary)))
+    else:
+        print_summary(summary)
+    incomplete = "recording_error" in summary.artifacts
+    if incomplete:  # said even when the run was interrupted
+        console.print(f"[red]the recording is incomplete[/]: {escape(summary.artifacts['recording_error'])}")
+    if summary.outcome != "interrupted":  # (Ctrl-C ended the run: it ends the view too)
+        cli_recording.end_view(view, args, console, summary.wall_s)
+    elif view is not None:
+        view.close()
+    if incomplete and summary.outcome != "interrupted":
+        return EXIT_FAILED
+    return summary.exit_code
+
+
+def _summary_dict(s: RunSummary) -> dict[str, Any]:
+    return {
+        "run_id": s.run_id,
+        "recipe": s.recipe,
+        "process": s.process,
+        "ok": s.outcome == "ok",
+        "outcome": s.outcome,
+        "exit_code": s.exit_code,
+        "stop_reason": s.stop_reason,
+        "wall_s": s.wall_s,
+        "artifacts": s.artifacts,
+        "shared_memory": s.shared_memory,
+        "stages": [{**vars(st), "messages_in": st.messages_in, "messages_out": st.messages_out} for st in s.stages],
+        "events": [{"level": e.level, "stage": e.stage, "code": e.code, "message": e.message} for e in s.events],
+    }
+
+
+def _security_refused(graph: Graph, certs_dir: str | None) -> bool:
+    """Print what keeps the recipe's ``security:`` block from working (engine.transport.session_config);
+    True when there is anything."""
+    from engine.run.runner import recipe_dir
+    from engine.transport.session_config import security_problems
+
+    problems = security_problems(graph, base=recipe_dir(graph), certs_dir=certs_dir)
+    for p in problems:
+        out.print(f"[red]security[/]: {p}")
+    return bool(problems)
+
+
+def cmd_validate(args: argparse.Namespace) -> int:
+    graph, _ = _load_graph(args)
+    if _security_refused(graph, args.certs):
+        return EXIT_INVALID
+    out.print(
+        f"[green]ok[/]: {graph.loaded.file}: recipe {graph.recipe.name!r}, {len(graph.nodes)} stages, "
+        f"{len(graph.edges)} data edges, {len(graph.service_edges)} service edges, "
+        f"processes: {', '.join(graph.processes())}"
+    )
+    return EXIT_OK
+
+
+def cmd_graph(args: argparse.Namespace) -> int:
+    graph, _ = _load_graph(args)
+    print(graph.to_dot() if args.format == "dot" else graph.to_mermaid())
+    return EXIT_OK
+
+
+def cmd_plugins(args: argparse.Namespace) -> int:
+    registry = load_registry(args.plugin or [])
+    described = [registry.stages[n].describe() | {"plugin": registry.stage_origin[n]} for n in sorted(registry.stages)]
+    if args.json:
+        print(json.dumps(described, indent=2, default=str))
+        return EXIT_OK
+    out.print(f"plugins: {', '.join(registry.plugins)}")
+    for d in described:
+        t = Table(
+            title=f"{d['type']}  [dim]({d['role']}, plugin {d['plugin']})[/]",
+            title_justify="left",
+            caption=d["summary"],
+            caption_justify="left",
+            show_header=True,
+        )
+        for col in ("kind", "name", "type / default"):
+            t.add_column(col)
+        for kind, key in (("input", "inputs"), ("output", "outputs"), ("service", "services"), ("uses", "uses")):
+            for k, v in d[key].items():
+                t.add_row(kind, k, v)
+        for k, v in d["params"].items():
+            dflt = "required" if v["required"] else f"= {v['default']!r}"
+            t.add_row(
+                "param",
+                k,
+                f"{v['type']} {dflt}" + (f"  [dim]{v['description']}[/]" if v["description"] else ""),
+            )
+        out.print(t)
+    return EXIT_OK
+
+
+def cmd_schemas(args: argparse.Namespace) -> int:
+    from engine.messages.codec import registry
+    from engine.messages.schemas import proto_text
+
+    load_registry()
+    if args.descriptor_set:
+        return _write_descriptor_set(
+            Path(args.descriptor_set), sorted({registry.get(n).SCHEMA for n in registry.names()})
+        )
+    for name in registry.names():
+        cls = registry.get(name)
+        print(f"// {name}: {(cls.__doc__ or '').strip().splitlines()[0]}")
+        print(proto_text(cls.SCHEMA))
+        print()
+    return EXIT_OK
+
+
+def _write_descriptor_set(path: Path, schemas: list[str]) -> int:
+    """Every schema in one ``FileDescriptorSet`` (``protoc --descriptor_set_out`` format), to a new file."""
+    from google.protobuf import descriptor_pb2
+
+    from engine.messages.schemas import descriptor_set
+
+    merged = descriptor_pb2.FileDescriptorSet()
+    seen: set[str] = set()
+    for name in schemas:
+        for fd in descriptor_pb2.FileDescriptorSet.FromString(descriptor_set(name)).file:
+            if fd.name not in seen:  # dependencies first, as each set lists them
+                seen.add(fd.name)
+                merged.file.append(fd)
+    with path.open("xb") as f:  # a new file: never replaces one
+        f.write(merged.SerializeToString())
+    out.print(f"{len(schemas)} schemas in {len(merged.file)} files: {escape(str(path))}", highlight=False)
+    return EXIT_OK
+
+
+# --------------------------------------------------------------------------- parser
+
+# Verbs other modules add: verb -> (module with ``add_verbs(subparsers)``, one-line help). A module is
+# imported only when one of its verbs runs, so `vgr --help` and `vgr run` do not pay for the heavy
+# libraries of every capability (and a Ctrl-C right after start lands in a running engine). Add a
+# line per verb.
+VERB_MODULES: dict[str, tuple[str, str]] = {
+    "replay": ("engine.cli.recording", "re-run a recording's solver/action stages and diff their outputs"),
+    "inspect": ("engine.cli.recording", "topics, counts, rates, time span, recipe and versions of a recording"),
+    "recover": ("engine.cli.recording", "rebuild the index of a recording cut short (e.g. kill -9)"),
+    "topics": ("engine.cli.topics", "list, echo or time the topics of a running run (like ros2 topic)"),
+    "play": ("engine.cli.topics", "put a recording's topics back on zenoh at their recorded pace (like ros2 bag play)"),
+    "template": ("plugins.registration.cli", "make or show a matcher template"),
+    "calibrate": (
+        "plugins.calibration.cli",
+        "hand-eye, robot-world, Vive desk, TCP, kinematic or camera-intrinsics calibration",
+    ),
+    "teach": ("plugins.actions.teach_cli", "store the robot's current pose as the recipe's photo or install pose"),
+    "certs": ("engine.cli.security", "development certificates for a recipe's security: block"),
+    "gap": (
+        "plugins.model_gap.cli",
+        "compare a robot model with measurements, name the missing effect, add it",
+    ),
+}
+
+
+def _add_recipe_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("recipe", help="recipe YAML file")
+    p.add_argument(
+        "-p",
+        "--param",
+        action="append",
+        metavar="KEY=VALUE",
+        help="override: stage.param=value, vars.name=value, seed=N (repeatable)",
+    )
+
+
+def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
+    """The parser; *verb* (the one being run) has its module imported and its full options."""
+    parser = argparse.ArgumentParser(prog="vgr", description="3D-vision-guided robot correction")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv for debug)")
+    sub = parser.add_subparsers(dest="verb", required=True)
+
+    p = sub.add_parser("run", help="run a recipe")
+    _add_recipe_args(p)
+    p.add_argument("--process", default="main", help="which of the recipe's processes to run here (default main)")
+    p.add_argument("--run-id", help="run id shared by all processes of the run (default: recipe run_id or name)")
+    p.add_argument(
+        "--listen", action="append", metavar="ENDPOINT", help="zenoh listen endpoint, e.g. tcp/127.0.0.1:7447"
+    )
+    p.add_argument("--connect", action="append", metavar="ENDPOINT", help="zenoh endpoint to connect to")
+    p.add_argument("--certs", metavar="DIR", help="certificate folder of the recipe's security: block (overrides it)")
+    p.add_argument("--ready-timeout", type=float, default=15.0, help="seconds to wait for the other processes")
+    p.add_argument("--no-progress", action="store_true", help="no live progress table")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    cli_recording.add_run_options(p)
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("validate", help="check a recipe (types, wiring, parameters, cycles) without running it")
+    _add_recipe_args(p)
+    p.add_argument("--certs", metavar="DIR", help="certificate folder of the recipe's security: block (overrides it)")
+    p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("graph", help="print a recipe's DAG (Mermaid or Graphviz dot)")
+    _add_recipe_args(p)
+    p.add_argument("--format", choices=["mermaid", "dot"], default="mermaid")
+    p.set_defaults(func=cmd_graph)
+
+    p = sub.add_parser("plugins", help="list every stage type with its ports and parameters")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--plugin", action="append", metavar="MODULE", help="also load this plugin module")
+    p.set_defaults(func=cmd_plugins)
+
+    p = sub.add_parser("schemas", help="print the protobuf schema of every message type")
+    p.add_argument(
+        "--descriptor-set", metavar="FILE", help="write every schema as one FileDescriptorSet to this new file"
+    )
+    p.set_defaults(func=cmd_schemas)
+
+    import importlib
+
+    if verb in VERB_MODULES:
+        importlib.import_module(VERB_MODULES[verb][0]).add_verbs(sub)
+    for name, (_, text) in VERB_MODULES.items():
+        if name not in sub.choices:  # a placeholder: listed in --help, its module loads when it runs
+            sub.add_parser(name, help=text, add_help=False)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """The ``vgr`` command; *argv* None means this process is the command's own (sys.argv)."""
+    try:
+        return _main(list(sys.argv[1:] if argv is None else argv), own_process=argv is None)
+    except KeyboardInterrupt:  # before the run started (imports, parsing): nothing to stop yet
+        console.print("[yellow]interrupted (Ctrl-C) before the run started[/]")
+        return EXIT_INTERRUPTED
+
+
+# a value such as -470,-80,0 or -0.5 or -1e-3 (argparse takes "-470,..." for an option otherwise)
+_NEGATIVE_VALUE = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(,\s*-?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)*$")
+
+
+def join_negative_values(argv: Sequence[str]) -> list[str]:
+    """``--pose -470,-80,0`` -> ``--pose=-470,-80,0``: a long option followed by a negative number or
+    list of numbers takes it as its value, as a user writing it means."""
+    out: list[str] = []
+    for a in argv:
+        if out and _NEGATIVE_VALUE.match(a) and out[-1].startswith("--") and "=" not in out[-1]:
+            out[-1] = f"{out[-1]}={a}"
+        else:
+            out.append(a)
+    return out
+
+
+def _main(argv: list[str], own_process: bool = False) -> int:
+    argv = join_negative_values(argv)
+    verb = next((a for a in argv if not a.startswith("-")), None)
+    parser = build_parser(verb)
+    args = parser.parse_args(argv)
+    args.own_process = own_process
+    level = logging.WARNING - 10 * min(args.verbose, 2)
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    for handler in logging.getLogger().handlers:  # the console shows *level*, whatever a run's log file takes
+        if type(handler) is logging.StreamHandler:
+            handler.setLevel(level)
+    try:
+        return int(args.func(args) or 0)
+    except RecipeError as exc:
+        console.print(f"[red]invalid recipe[/] ({len(exc.problems)} problem{'s' * (len(exc.problems) > 1)}):")
+        for p in exc.problems:
+            console.print(f"  {p}", markup=False, highlight=False, soft_wrap=True)
+        return EXIT_INVALID
+    except (
+        PluginError,
+        RunError,
+        BusError,
+        FileNotFoundError,
+        FileExistsError,
+        ValueError,
+        RecordingError,
+        ReplayError,
+    ) as exc:
+        console.print(f"[red]error[/]: {escape(str(exc))}", highlight=False, soft_wrap=True)
+        return EXIT_INVALID
+    except KeyboardInterrupt:
+        console.print("[yellow]interrupted (Ctrl-C)[/]")
+        return EXIT_INTERRUPTED
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,68 @@
+"""One output port of a stage at run time: where its messages go, its sequence counter and its lock.
+
+Consumers in this process are offer functions of their input queues (``local``, see
+engine.run.runtime.StageRuntime._offerer). Consumers in other vgr processes get the port's messages
+through ``wire`` (engine.transport.wire.WireSender, on the internal key ``vgr/<run>/_wire/<stage>/<port>``;
+large payloads from the bus's shared-memory pool, engine.transport.shm);
+the public key ``vgr/<run>/<stage>/<port>`` is put to, one message per sample, only while a foreign
+subscriber (a robot controller, a viewer) listens there — zenoh's matching status says when. The
+publish path itself is the stage runtime's (engine.run.runtime.StageRuntime.publish); the port sees that
+runtime only as its :class:`~engine.run.stage_host.PortOwner`.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import TYPE_CHECKING, Any
+
+from engine.messages import codec
+from engine.transport.bus import data_key, wire_key
+from engine.transport.wire import WireSender
+
+if TYPE_CHECKING:
+    from engine.run.stage_host import PortOwner
+
+
+class OutputPort:
+    """Output *port* of stage runtime *rt*: its zenoh publishers, local consumers, sequence counter
+    and lock (seq order == delivery order == wire order)."""
+
+    def __init__(self, rt: PortOwner, port: str) -> None:
+        self.port = port
+        self.type = rt.node.cls.all_outputs()[port]
+        self.format = codec.DataFormat(self.type.TYPE)  # envelope of this port's messages, packed in one call
+        self.lock = threading.Lock()
+        self.seq = 0
+        self.closed = False
+        self.local: list[Any] = []  # offer functions of the consumers' inputs in this process
+        host = rt.host
+        graph = host.graph
+        self.remote_consumers = any(
+            graph.nodes[e.dst].spec.process != rt.node.spec.process for e in graph.consumers_of(rt.name, port)
+        )
+        self.publisher = host.bus.remote_publisher(data_key(host.run_id, rt.name, port))
+        self.put = self.publisher.put
+        shm = getattr(host.bus, "shm", None)  # large payloads through shared memory (engine.transport.shm)
+        self.wire = (
+            WireSender(host.bus.remote_publisher(wire_key(host.run_id, rt.name, port)), f"{rt.name}.{port}", shm)
+            if self.remote_consumers
+            else None
+        )
+        self.send = self.wire.send if self.wire is not None else None
+        # the encoded message's two parts written straight into a shared-memory buffer, when the
+        # wire is the only taker of its bytes (see _update)
+        self._wrap_parts = shm.wrap_parts if shm is not None and self.wire is not None else None
+        self.wrap_parts = None
+        self.external = bool(self.publisher.matching_status.matching)
+        self.observed = bool(host.observers)  # observers are fixed before a run starts
+        self._update()
+        self._listener = self.publisher.declare_matching_listener(self._on_matching)
+
+    def _on_matching(self, status: Any) -> None:
+        self.external = bool(status.matching)
+        self._update()
+
+    def _update(self) -> None:
+        # something outside the process listens, or an observer records: the message must be encoded
+        self.needs_bytes = self.remote_consumers or self.external or self.observed
+        self.wrap_parts = None if self.external or self.observed else self._wrap_parts

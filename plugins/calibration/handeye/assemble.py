@@ -1,0 +1,290 @@
+"""Turning an ML fit into a CalibrationResult: covariance scaling, metrics, residual table, verdict.
+
+Covariance scaling (``covariance_scale``): with a declared noise model the covariance is the
+inverse Fisher information (``a_priori``); ``auto`` keeps it when the global chi-square test of the
+residuals accepts the declared noise (two-sided, 1 %) and otherwise scales it by the variance factor
+``chi2 / dof`` (and says so); ``a_posteriori`` always scales. With the noise estimated from the
+data the covariance is always scaled by the (near 1) variance factor.
+
+Confidence regions: a scaled covariance is an estimate, so the region of k parameters is
+``d^T C^-1 d <= k F(k, nu; level) / lambda`` (``CalibrationResult.confidence_threshold``) with
+``metrics["covariance_dof"]`` = ``nu`` and ``metrics["covariance_f_scale"]`` = ``lambda`` for X
+(6 parameters; ``_xy`` for X and Y, 12). With the noise estimated these are Kenward-Roger's, and
+the covariance itself is the Kenward-Roger adjusted one (``variance``;
+``metrics["covariance_kr_inflation"]`` says by how much it widened X's); for a declared noise
+scaled by the variance factor, ``nu = dof`` and ``lambda = 1`` (exact). Absent when the covariance
+is known (chi-square).
+
+Parameters of the covariance: decoupled perturbations (:mod:`engine.transforms`) of X then Y, i.e. translation in
+the parent frame (m) and rotation about parent-frame axes (rad).
+
+Verdict rules (on top of the input and motion checks): ``failed`` when the ML did not converge,
+more than ``max_outlier_fraction`` of the samples are outliers, the residuals exceed the declared
+noise by more than ``sqrt(max_variance_factor)``, or the estimated noise of the robot or of the
+camera exceeds its limit (``max_robot_noise_*``, ``max_camera_noise_*``: the noise a real sensor of
+that kind can have; beyond it the data do not fit one rigid transform); ``warning`` for outliers, a
+declared noise that does not fit, a camera length scale off 1, or an uncertainty of X above
+``max_std_*`` (seed 000: hand-eye error below 0.5 mm). Samples are named by the caller's ids
+(``labels``; they also go into ``estimate["sample_labels"]``, one per residual row).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import stats
+
+from engine.transforms import pose_delta
+from plugins.calibration.handeye.consistency import estimate_unit_scale
+from plugins.calibration.handeye.ml import Loss, MLFit
+from plugins.calibration.handeye.problem import Setup, chain_poses
+from plugins.calibration.result import CalibrationResult
+
+F64 = NDArray[np.float64]
+CovarianceScale = Literal["auto", "a_priori", "a_posteriori"]
+
+__all__ = ["RESIDUAL_NAMES", "AccuracyTargets", "CovarianceScale", "assemble_result"]
+
+RESIDUAL_NAMES: list[str] = [
+    "sample_index",
+    *(f"chain_{c}" for c in ("tx", "ty", "tz", "rx", "ry", "rz")),
+    *(f"robot_{c}" for c in ("tx", "ty", "tz", "rx", "ry", "rz")),
+    *(f"camera_{c}" for c in ("tx", "ty", "tz", "rx", "ry", "rz")),
+    "mahalanobis2",
+    "weight",
+]
+
+
+@dataclass(frozen=True)
+class AccuracyTargets:
+    """Limits of the verdict: when the estimate's own uncertainty (1 sigma, RMS over axes) earns a
+    ``warning`` (seed 000 asks for a hand-eye calibration error below 0.5 mm), and when a result is
+    ``failed``.
+
+    The noise limits are the largest pose noise (1 sigma per axis, as estimated from the residuals)
+    a sensor of that kind can plausibly have; an estimate beyond one means the data do not fit one
+    rigid transform (wrong frames, time sync, a target that moved). Camera: marker and AR-tag poses
+    on real cameras scatter by a degree or more in rotation and by millimetres in depth (MoveIt's
+    and camodocal's real data need 0.05 deg / 2.7 mm and 1.1 deg / 2.0 mm), so the default allows
+    5 deg / 20 mm. Robot: an arm's reported pose repeats to hundredths of a degree and of a
+    millimetre; 1 deg / 10 mm is already far outside any working arm.
+    """
+
+    max_std_trans_m: float = 0.5e-3
+    max_std_rot_rad: float = float(np.deg2rad(0.05))
+    max_outlier_fraction: float = 1.0 / 3.0
+    max_variance_factor: float = 25.0  # residuals 5x the declared noise -> failed
+    max_camera_noise_rot_rad: float = float(np.deg2rad(5.0))  # estimated noise above these -> failed
+    max_camera_noise_trans_m: float = 0.02
+    max_robot_noise_rot_rad: float = float(np.deg2rad(1.0))
+    max_robot_noise_trans_m: float = 0.01
+
+    def noise_limits_text(self) -> str:
+        """The noise limits for people: ``robot 1 deg / 10 mm, camera 5 deg / 20 mm``."""
+        return (
+            f"robot {np.rad2deg(self.max_robot_noise_rot_rad):.3g} deg / {self.max_robot_noise_trans_m * 1e3:.3g} mm, "
+            f"camera {np.rad2deg(self.max_camera_noise_rot_rad):.3g} deg / {self.max_camera_noise_trans_m * 1e3:.3g} mm"
+        )
+
+
+def _spread(d: F64) -> tuple[float, float, float, float]:
+    t = np.linalg.norm(d[:, :3], axis=1)
+    r = np.linalg.norm(d[:, 3:], axis=1)
+    return (float(np.sqrt(np.mean(t**2))), float(t.max()), float(np.sqrt(np.mean(r**2))), float(r.max()))
+
+
+def _param_names(x_name: str, y_name: str) -> list[str]:
+    comps = ("tx", "ty", "tz", "rx", "ry", "rz")
+    return [f"{x_name}.{c}" for c in comps] + [f"{y_name}.{c}" for c in comps]
+
+
+def _check_noise_limits(
+    fit: MLFit, accuracy: AccuracyTargets, verdict: str, reasons: list[str], advice: list[str]
+) -> str:
+    """``failed`` (with the reason) when the estimated robot or camera noise exceeds its limit."""
+    over = []
+    for who, pose_noise, max_rot, max_trans in (
+        ("robot", fit.noise.robot, accuracy.max_robot_noise_rot_rad, accuracy.max_robot_noise_trans_m),
+        ("camera", fit.noise.camera, accuracy.max_camera_noise_rot_rad, accuracy.max_camera_noise_trans_m),
+    ):
+        rot, trans = float(np.max(pose_noise.rot_sigma)), float(np.max(pose_noise.trans_sigma))
+        if rot > max_rot or trans > max_trans:
+            over.append(
+                f"{who} {np.rad2deg(rot):.2f} deg / {trans * 1e3:.1f} mm (limit {np.rad2deg(max_rot):.3g} deg / "
+                f"{max_trans * 1e3:.3g} mm)"
+            )
+    if not over:
+        return verdict
+    reasons.append(
+        f"the data need a pose noise of {' and '.join(over)} per axis to fit one rigid hand-eye transform: "
+        "wrong frames, time sync or a target that moved"
+    )
+    advice.append(
+        "if the sensor really is that noisy (small markers far away), raise its noise limit "
+        "(AccuracyTargets.max_*_noise_*; vgr calibrate: --max-camera-noise / --max-robot-noise DEG MM)"
+    )
+    return "failed"
+
+
+def assemble_result(
+    kind: str,
+    setup: Setup,
+    x_name: str,
+    y_name: str,
+    index: NDArray[np.int64],
+    labels: list[str],
+    M: F64,
+    B: F64,
+    fit: MLFit,
+    init_method: str,
+    loss: Loss,
+    noise_estimated: bool,
+    covariance_scale: CovarianceScale,
+    accuracy: AccuracyTargets,
+    verdict: str,
+    reasons: list[str],
+    advice: list[str],
+    metrics: dict[str, float],
+) -> CalibrationResult:
+    n = M.shape[0]
+    inl = ~fit.outliers
+    reasons = reasons + fit.notes
+    # ---- covariance scaling
+    vf = fit.chi2 / fit.dof if fit.dof > 0 else float("nan")
+    cov_factor = 1.0
+    if fit.dof <= 0:
+        reasons.append("no redundancy (dof <= 0): the covariance cannot be checked against the residuals")
+        verdict = "warning"
+    elif noise_estimated or covariance_scale == "a_posteriori":
+        cov_factor = vf
+    elif covariance_scale == "auto":
+        lo, hi = stats.chi2.ppf([0.005, 0.995], fit.dof) / fit.dof
+        if not lo <= vf <= hi:
+            cov_factor = vf
+            verdict = "warning"
+            reasons.append(
+                f"declared noise does not fit the residuals: variance factor {vf:.3g} (residuals "
+                f"{np.sqrt(vf):.2f}x the declared sigmas, accepted range {lo:.2f}-{hi:.2f}); "
+                "covariance scaled by it"
+            )
+            advice.append("state the robot and camera noise that matches the data, or pass noise=None to estimate it")
+    cov = fit.covariance * cov_factor
+    # degrees of freedom of the covariance (confidence regions use F(k, dof) instead of chi2(k))
+    cov_dof: dict[str, float] = {}
+    if noise_estimated and fit.dof > 0 and np.isfinite(fit.dof_x):
+        cov_dof = {
+            "covariance_dof": fit.dof_x,
+            "covariance_f_scale": fit.f_scale_x,
+            "covariance_dof_xy": fit.dof_xy,
+            "covariance_f_scale_xy": fit.f_scale_xy,
+            "covariance_kr_inflation": fit.kr_inflation_x,
+        }
+    elif cov_factor != 1.0 or (covariance_scale == "a_posteriori" and fit.dof > 0):
+        cov_dof = {"covariance_dof": float(fit.dof), "covariance_dof_xy": float(fit.dof)}
+
+    # ---- pose-chain spread (each sample's own estimate of Y against the fit)
+    d_chain = pose_delta(chain_poses(setup, M, fit.X, B), np.broadcast_to(fit.Y, M.shape))
+    t_rms, t_max, r_rms, r_max = _spread(d_chain[inl])
+    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    metrics.update(
+        {
+            "n_samples": float(n),
+            "n_inliers": float(np.count_nonzero(inl)),
+            "n_outliers": float(np.count_nonzero(fit.outliers)),
+            "chain_spread_trans_rms_m": t_rms,
+            "chain_spread_trans_max_m": t_max,
+            "chain_spread_rot_rms_rad": r_rms,
+            "chain_spread_rot_max_rad": r_max,
+            "camera_residual_trans_rms_m": float(np.sqrt(np.mean(np.sum(fit.e_camera[inl, :3] ** 2, axis=1)))),
+            "camera_residual_rot_rms_rad": float(np.sqrt(np.mean(np.sum(fit.e_camera[inl, 3:] ** 2, axis=1)))),
+            "robot_residual_trans_rms_m": float(np.sqrt(np.mean(np.sum(fit.e_robot[inl, :3] ** 2, axis=1)))),
+            "robot_residual_rot_rms_rad": float(np.sqrt(np.mean(np.sum(fit.e_robot[inl, 3:] ** 2, axis=1)))),
+            "chi2": fit.chi2,
+            "dof": float(fit.dof),
+            "variance_factor": vf,
+            "covariance_factor": cov_factor,
+            **cov_dof,
+            "std_x_trans_m": float(np.sqrt(np.sum(std[0:3] ** 2))),
+            "std_x_rot_rad": float(np.sqrt(np.sum(std[3:6] ** 2))),
+            "std_y_trans_m": float(np.sqrt(np.sum(std[6:9] ** 2))),
+            "std_y_rot_rad": float(np.sqrt(np.sum(std[9:12] ** 2))),
+            "noise_robot_trans_m": float(np.mean(fit.noise.robot.trans_sigma)),
+            "noise_robot_rot_rad": float(np.mean(fit.noise.robot.rot_sigma)),
+            "noise_camera_trans_m": float(np.mean(fit.noise.camera.trans_sigma)),
+            "noise_camera_rot_rad": float(np.mean(fit.noise.camera.rot_sigma)),
+            "noise_estimated": float(noise_estimated),
+            "noise_groups_estimated": float(fit.noise_groups_estimated),
+            "threshold_scale": fit.threshold_scale,
+            "nfev": float(fit.nfev),
+            "noise_limit_robot_rot_rad": accuracy.max_robot_noise_rot_rad,
+            "noise_limit_robot_trans_m": accuracy.max_robot_noise_trans_m,
+            "noise_limit_camera_rot_rad": accuracy.max_camera_noise_rot_rad,
+            "noise_limit_camera_trans_m": accuracy.max_camera_noise_trans_m,
+        }
+    )
+
+    # ---- camera length scale on the inliers (wrong target size or intrinsics scale the camera)
+    unit = estimate_unit_scale(setup, M[inl], B[inl], robust=False) if np.count_nonzero(inl) >= 3 else None
+    if unit is not None:
+        scale, scale_sd = unit
+        metrics["unit_scale_robot_per_camera"] = scale
+        metrics["unit_scale_std"] = scale_sd
+        if abs(scale - 1.0) > max(5.0 * scale_sd, 0.005):
+            verdict = "warning" if verdict == "ok" else verdict
+            reasons.append(
+                f"camera translations look scaled by {1.0 / scale:.4f} relative to the robot's "
+                f"(+-{scale_sd / scale**2:.4f}): check the calibration-target size and the camera intrinsics"
+            )
+
+    # ---- verdict
+    if not fit.converged:
+        verdict = "failed"
+        reasons.append("the maximum-likelihood refinement did not converge")
+    n_out = int(np.count_nonzero(fit.outliers))
+    if n_out:
+        out_ids = [labels[k] for k in np.flatnonzero(fit.outliers)]
+        idx = ", ".join(out_ids[:12]) + (f" ... ({n_out} in all)" if n_out > 12 else "")
+        fate = "kept in the estimate (loss='linear')" if loss == "linear" else "left out of the estimate"
+        reasons.append(f"{n_out} outlier sample(s) {fate}: {idx}")
+        advice.append("inspect the outlier samples (detection, robot/camera time sync, target slipped)")
+        verdict = "warning" if verdict == "ok" else verdict
+        if n_out > accuracy.max_outlier_fraction * n:
+            verdict = "failed"
+            reasons.append(f"too many outliers ({n_out} of {n}): the data are not consistent with one calibration")
+    if not noise_estimated and np.isfinite(vf) and vf > accuracy.max_variance_factor:
+        verdict = "failed"
+        reasons.append(f"residuals are {np.sqrt(vf):.1f}x the declared noise: the model does not fit the data")
+    if noise_estimated:
+        verdict = _check_noise_limits(fit, accuracy, verdict, reasons, advice)
+    if metrics["std_x_trans_m"] > accuracy.max_std_trans_m or metrics["std_x_rot_rad"] > accuracy.max_std_rot_rad:
+        verdict = "warning" if verdict == "ok" else verdict
+        reasons.append(
+            f"{x_name} uncertainty {metrics['std_x_trans_m'] * 1e3:.3f} mm / "
+            f"{np.rad2deg(metrics['std_x_rot_rad']):.4f} deg (1 sigma) exceeds the target "
+            f"{accuracy.max_std_trans_m * 1e3:.2f} mm / {np.rad2deg(accuracy.max_std_rot_rad):.3f} deg"
+        )
+        advice.append("add poses with larger rotations about different axes, or reduce the measurement noise")
+    if not (np.all(np.isfinite(fit.X)) and np.all(np.isfinite(fit.Y)) and np.all(np.isfinite(cov))):
+        verdict = "failed"
+        reasons.append("non-finite estimate")
+
+    residuals = np.column_stack([index.astype(float), d_chain, fit.e_robot, fit.e_camera, fit.s2, fit.weights])
+    return CalibrationResult(
+        kind=kind,
+        verdict=verdict,  # type: ignore[arg-type]
+        estimate={x_name: fit.X, y_name: fit.Y, "setup": setup, "sample_labels": list(labels)},
+        param_names=_param_names(x_name, y_name),
+        covariance=cov,
+        residuals=residuals,
+        residual_names=list(RESIDUAL_NAMES),
+        outliers=fit.outliers.copy(),
+        reasons=reasons,
+        advice=advice,
+        metrics=metrics,
+        method=f"{init_method} + ML (errors-in-variables, {loss} loss"
+        + (", noise estimated)" if noise_estimated else ")"),
+        iterations=fit.nfev,
+    )

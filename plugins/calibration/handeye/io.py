@@ -1,0 +1,323 @@
+"""Loading hand-eye samples (robot pose + camera observation pairs) from JSON, CSV and OpenCV YAML files.
+
+Formats (details and examples in docs/handeye.md):
+
+* JSON, MoveIt calibration style: a list of ``[T_base_tcp, T_cam_target]`` pairs of 4x4 nested
+  lists (MoveIt's ``eef_wrt_world`` and ``obj_wrt_sensor``). Sample ids: the list index, from 0.
+* JSON, vgr style: ``{"format": "vgr.handeye.samples/1", "length_unit": "m", "setup": ...,
+  "samples": [{"id": ..., "T_base_tcp": POSE, "T_cam_target": POSE}, ...]}`` where POSE is a 4x4
+  nested list, ``{"position": [x, y, z], "quat_xyzw": [x, y, z, w]}`` or
+  ``{"position": [...], "rotvec": [rx, ry, rz]}`` (rad). Sample ids: ``id`` (else the index).
+* CSV with a header: ``base_tcp_x, base_tcp_y, base_tcp_z`` and either
+  ``base_tcp_qx, base_tcp_qy, base_tcp_qz, base_tcp_qw`` or ``base_tcp_rx, base_tcp_ry, base_tcp_rz``
+  (rotation vector, rad); the same with the prefix ``cam_target_``; optional ``id``. Lines starting
+  with ``#`` are comments. Sample ids: the ``id`` column, else ``line N`` (the line in the file).
+* OpenCV FileStorage YAML in camodocal's ``TransformPairsInput.yml`` layout (the ROS wrapper
+  handeye_calib_camodocal writes and reads it): ``%YAML:1.0``, ``frameCount: N`` and, per sample
+  ``i``, ``T1_i`` (robot base -> end effector, ``T_base_tcp``) and ``T2_i`` (camera -> marker,
+  ``T_cam_target``), each a 4x4 ``!!opencv-matrix`` in metres (row-major ``data``). Read with
+  OpenCV's own parser (``cv2.FileStorage``). Sample ids: ``i``.
+
+``length_unit`` is ``"m"`` or ``"mm"``; translations are converted to metres. Quaternions must be
+unit within 1e-3 (else the columns are probably mixed up); rotation vectors longer than 2 pi are
+degrees, not radians (error).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from engine.transforms import T_from_pose7, T_from_rotvec
+from plugins.calibration.handeye.validation import HandEyeInputError
+
+F64 = NDArray[np.float64]
+VGR_FORMAT = "vgr.handeye.samples/1"
+_UNITS = {"m": 1.0, "mm": 1e-3}
+
+__all__ = [
+    "VGR_FORMAT",
+    "PoseSamples",
+    "load_pose_pairs",
+    "load_pose_pairs_csv",
+    "load_pose_pairs_json",
+    "load_pose_pairs_yaml",
+    "write_pose_pairs_json",
+    "write_pose_pairs_yaml",
+]
+
+
+@dataclass
+class PoseSamples:
+    """Loaded samples in metres: robot poses T_base_tcp and camera observations T_cam_target, with
+    the id the file gives each sample (``ids``, what reports name samples by) and its set-up, if any."""
+
+    T_base_tcp: F64
+    T_cam_target: F64
+    ids: list[str] = field(default_factory=list)
+    setup: str | None = None
+    source: str = ""
+
+
+def _scale(unit: str | None) -> float:
+    if unit is None:
+        return 1.0
+    if unit not in _UNITS:
+        raise HandEyeInputError(f"length_unit must be one of {list(_UNITS)}, got {unit!r}")
+    return _UNITS[unit]
+
+
+def _pose(position: Any, quat: Any = None, rotvec: Any = None, *, where: str) -> F64:
+    p = np.asarray(position, dtype=float).reshape(3)
+    if quat is not None:
+        q = np.asarray(quat, dtype=float).reshape(4)
+        norm = float(np.linalg.norm(q))
+        if not np.isfinite(norm) or abs(norm - 1.0) > 1e-3:
+            raise HandEyeInputError(
+                f"{where}: quaternion {q} has norm {norm:.6g}, not 1 (column order x, y, z, w mixed up?)"
+            )
+        return T_from_pose7(p, q)
+    r = np.asarray(rotvec, dtype=float).reshape(3)
+    if np.linalg.norm(r) > 2.0 * np.pi + 1e-9:
+        raise HandEyeInputError(f"{where}: rotation vector {r} is longer than 2 pi: degrees instead of radians?")
+    return T_from_rotvec(r, p)
+
+
+def _pose_from_json(obj: Any, where: str) -> F64:
+    if isinstance(obj, dict):
+        if "position" not in obj:
+            raise HandEyeInputError(f"{where}: pose object needs 'position' and 'quat_xyzw' or 'rotvec'")
+        if "quat_xyzw" in obj:
+            return _pose(obj["position"], quat=obj["quat_xyzw"], where=where)
+        if "rotvec" in obj:
+            return _pose(obj["position"], rotvec=obj["rotvec"], where=where)
+        raise HandEyeInputError(f"{where}: pose object needs 'quat_xyzw' or 'rotvec'")
+    A = np.asarray(obj, dtype=float)
+    if A.shape != (4, 4):
+        raise HandEyeInputError(f"{where}: expected a 4x4 matrix, got shape {A.shape}")
+    return A
+
+
+def _in_metres(
+    path: Path, M: list[F64], B: list[F64], ids: list[str], setup: str | None, length_unit: str | None
+) -> PoseSamples:
+    """The loaded poses as samples, translations converted from *length_unit* to metres."""
+    if not M:
+        raise HandEyeInputError(f"{path}: no samples")
+    s = _scale(length_unit)
+    Ma, Ba = np.array(M), np.array(B)
+    Ma[:, :3, 3] *= s
+    Ba[:, :3, 3] *= s
+    return PoseSamples(Ma, Ba, ids, setup, str(path))
+
+
+def load_pose_pairs_json(path: str | Path, *, length_unit: str | None = None) -> PoseSamples:
+    """Load the MoveIt list-of-pairs JSON or the vgr samples JSON (see module docstring)."""
+    path = Path(path)
+    data = json.loads(path.read_text())
+    setup = None
+    ids: list[str] = []
+    if isinstance(data, dict):
+        if data.get("format") != VGR_FORMAT:
+            raise HandEyeInputError(f"{path}: unknown JSON format {data.get('format')!r}; expected {VGR_FORMAT!r}")
+        file_unit = data.get("length_unit", "m")
+        if length_unit is not None and length_unit != file_unit:
+            raise HandEyeInputError(f"{path}: file says length_unit={file_unit!r} but {length_unit!r} was asked")
+        length_unit = file_unit
+        setup = data.get("setup")
+        samples = data.get("samples", [])
+        M = [_pose_from_json(s["T_base_tcp"], f"{path} sample {k} T_base_tcp") for k, s in enumerate(samples)]
+        B = [_pose_from_json(s["T_cam_target"], f"{path} sample {k} T_cam_target") for k, s in enumerate(samples)]
+        ids = [str(s.get("id", k)) for k, s in enumerate(samples)]
+    elif isinstance(data, list):
+        M, B = [], []
+        for k, pair in enumerate(data):
+            if not isinstance(pair, list) or len(pair) != 2:
+                raise HandEyeInputError(f"{path}: entry {k} is not a [T_base_tcp, T_cam_target] pair")
+            M.append(_pose_from_json(pair[0], f"{path} entry {k} T_base_tcp"))
+            B.append(_pose_from_json(pair[1], f"{path} entry {k} T_cam_target"))
+        ids = [str(k) for k in range(len(M))]
+    else:
+        raise HandEyeInputError(f"{path}: JSON must be a list of pose pairs or a {VGR_FORMAT} object")
+    return _in_metres(path, M, B, ids, setup, length_unit)
+
+
+def _csv_pose(row: dict[str, str], prefix: str, where: str) -> F64:
+    def get(name: str) -> float:
+        try:
+            return float(row[prefix + name])
+        except ValueError as exc:
+            raise HandEyeInputError(f"{where}: column {prefix + name} is not a number ({exc})") from exc
+
+    pos = [get("x"), get("y"), get("z")]
+    if prefix + "qw" in row:
+        return _pose(pos, quat=[get("qx"), get("qy"), get("qz"), get("qw")], where=where)
+    return _pose(pos, rotvec=[get("rx"), get("ry"), get("rz")], where=where)
+
+
+def load_pose_pairs_csv(path: str | Path, *, length_unit: str = "m") -> PoseSamples:
+    """Load the CSV format of the module docstring."""
+    path = Path(path)
+    with path.open(newline="") as fh:
+        numbered = [(k + 1, ln) for k, ln in enumerate(fh) if ln.strip() and not ln.lstrip().startswith("#")]
+    line_of = [k for k, _ in numbered[1:]]  # file line of each data row (the first kept line is the header)
+    reader = csv.DictReader([ln for _, ln in numbered], skipinitialspace=True)
+    cols = set(reader.fieldnames or [])
+    for prefix in ("base_tcp_", "cam_target_"):
+        pos = {prefix + c for c in ("x", "y", "z")}
+        quat = {prefix + c for c in ("qx", "qy", "qz", "qw")}
+        rvec = {prefix + c for c in ("rx", "ry", "rz")}
+        if not pos <= cols or not (quat <= cols or rvec <= cols):
+            raise HandEyeInputError(
+                f"{path}: missing columns for {prefix}*: need {sorted(pos)} and either {sorted(quat)} or {sorted(rvec)}"
+            )
+    M, B, ids = [], [], []
+    for k, row in enumerate(reader):
+        line = f"line {line_of[k]}" if k < len(line_of) else f"row {k + 1}"
+        where = f"{path} {line}"
+        M.append(_csv_pose(row, "base_tcp_", where))
+        B.append(_csv_pose(row, "cam_target_", where))
+        ids.append((row.get("id") or "").strip() or line)
+    return _in_metres(path, M, B, ids, None, length_unit)
+
+
+_PAIR_KEY = re.compile(r"^T([12])_(.+)$")
+YAML_SUFFIXES = (".yml", ".yaml")
+
+
+def _file_storage_root(path: Path) -> Any:
+    """The root node of an OpenCV FileStorage YAML file, with errors a user can act on."""
+    head = path.read_bytes()[:64]
+    if not head.lstrip().startswith(b"%YAML"):
+        raise HandEyeInputError(
+            f"{path}: not an OpenCV FileStorage YAML file (it must start with %YAML:1.0, as camodocal's "
+            "TransformPairsInput.yml does)"
+        )
+    import cv2  # heavy: only when a YAML file is read
+
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError) as exc:  # the parser reports malformed YAML as either
+        cause = exc.__cause__ or exc
+        detail = str(cause).strip().splitlines()[-1] if str(cause).strip() else type(cause).__name__
+        raise HandEyeInputError(f"{path}: OpenCV cannot parse this YAML ({detail})") from None
+    if not fs.isOpened():
+        raise HandEyeInputError(f"{path}: OpenCV cannot open this YAML file")
+    return fs
+
+
+def _yaml_matrix(fs: Any, key: str, path: Path) -> F64:
+    import cv2
+
+    node = fs.getNode(key)
+    try:
+        mat = node.mat() if node.isMap() else None
+    except cv2.error as exc:
+        raise HandEyeInputError(f"{path}: {key} is a malformed opencv-matrix ({str(exc).strip()[-120:]})") from None
+    if mat is None:
+        raise HandEyeInputError(f"{path}: {key} is not an opencv-matrix (a 4x4 !!opencv-matrix is expected)")
+    A = np.asarray(mat, dtype=float)
+    if A.shape != (4, 4):
+        raise HandEyeInputError(f"{path}: {key} is {A.shape[0]}x{A.shape[1] if A.ndim > 1 else 1}, not 4x4")
+    return A
+
+
+def load_pose_pairs_yaml(path: str | Path, *, length_unit: str | None = None) -> PoseSamples:
+    """Load OpenCV FileStorage YAML pose pairs in camodocal's ``TransformPairsInput.yml`` layout.
+
+    ``T1_i`` is the robot pose ``T_base_tcp`` and ``T2_i`` the camera's marker pose ``T_cam_target``
+    of sample ``i`` (its id); ``frameCount``, when present, must equal the number of pairs. Samples
+    are ordered by ``i`` when every id is an integer, else as in the file.
+    """
+    path = Path(path)
+    fs = _file_storage_root(path)
+    try:
+        root = fs.root()
+        keys: list[str] = list(root.keys()) if root.isMap() else []
+        pairs: dict[str, dict[str, str]] = {}
+        for key in keys:
+            m = _PAIR_KEY.match(key)
+            if m:
+                pairs.setdefault(m.group(2), {})[m.group(1)] = key
+        if not pairs:
+            raise HandEyeInputError(
+                f"{path}: no T1_<i> / T2_<i> matrices (camodocal's TransformPairsInput.yml layout: T1_i the robot "
+                f"pose base -> end effector, T2_i the camera -> marker pose); keys found: {keys[:8] or 'none'}"
+            )
+        for i, got in pairs.items():
+            if set(got) != {"1", "2"}:
+                have, miss = ("T1", "T2") if "1" in got else ("T2", "T1")
+                raise HandEyeInputError(f"{path}: {have}_{i} has no {miss}_{i}: every sample needs both poses")
+        if "frameCount" in keys:
+            node = fs.getNode("frameCount")
+            count = node.real() if node.isInt() or node.isReal() else None
+            if count is None or count != len(pairs):
+                said = "is not a number" if count is None else f"says {count:g}"
+                raise HandEyeInputError(f"{path}: frameCount {said} but the file holds {len(pairs)} T1_/T2_ pairs")
+        ids = list(pairs)
+        if all(re.fullmatch(r"\d+", i) for i in ids):
+            ids.sort(key=int)
+        M = [_yaml_matrix(fs, pairs[i]["1"], path) for i in ids]
+        B = [_yaml_matrix(fs, pairs[i]["2"], path) for i in ids]
+    finally:
+        fs.release()
+    return _in_metres(path, M, B, ids, None, length_unit or "m")
+
+
+def write_pose_pairs_yaml(path: str | Path, T_base_tcp: F64, T_cam_target: F64) -> None:
+    """Write samples (metres) in camodocal's ``TransformPairsInput.yml`` layout (OpenCV FileStorage)."""
+    import cv2
+
+    n = len(T_base_tcp)
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    try:
+        fs.write("frameCount", n)
+        for k in range(n):
+            fs.write(f"T1_{k}", np.asarray(T_base_tcp[k], dtype=float))
+            fs.write(f"T2_{k}", np.asarray(T_cam_target[k], dtype=float))
+    finally:
+        fs.release()
+
+
+def load_pose_pairs(path: str | Path, *, length_unit: str | None = None) -> PoseSamples:
+    """Load samples from ``.json``, ``.csv`` or OpenCV ``.yml`` / ``.yaml`` (by suffix)."""
+    suffix = Path(path).suffix.lower()
+    if suffix == ".json":
+        return load_pose_pairs_json(path, length_unit=length_unit)
+    if suffix == ".csv":
+        return load_pose_pairs_csv(path, length_unit=length_unit or "m")
+    if suffix in YAML_SUFFIXES:
+        return load_pose_pairs_yaml(path, length_unit=length_unit)
+    raise HandEyeInputError(f"{path}: unsupported file type {suffix!r} (use .json, .csv or .yml)")
+
+
+def write_pose_pairs_json(
+    path: str | Path,
+    T_base_tcp: F64,
+    T_cam_target: F64,
+    *,
+    ids: list[str] | None = None,
+    setup: str | None = None,
+) -> None:
+    """Write samples (metres) in the vgr JSON format, poses as 4x4 nested lists."""
+    n = len(T_base_tcp)
+    ids = ids or [str(k) for k in range(n)]
+    doc: dict[str, Any] = {"format": VGR_FORMAT, "length_unit": "m"}
+    if setup is not None:
+        doc["setup"] = setup
+    doc["samples"] = [
+        {
+            "id": ids[k],
+            "T_base_tcp": np.asarray(T_base_tcp[k]).tolist(),
+            "T_cam_target": np.asarray(T_cam_target[k]).tolist(),
+        }
+        for k in range(n)
+    ]
+    Path(path).write_text(json.dumps(doc, indent=1))

@@ -1,0 +1,302 @@
+"""Maximum-likelihood refinement of hand-eye unknowns on SE(3), robust to outliers.
+
+Runs :class:`ml_model.EivModel` through ``scipy.optimize.least_squares`` in four phases:
+
+1. **Robust fit** - iteratively reweighted least squares on the per-sample Mahalanobis norm
+   ``s_i`` (its square is chi-square with 6 degrees of freedom): Huber weight ``min(1, c / s_i)`` or
+   Cauchy weight ``1 / (1 + s_i^2 / c^2)``, with ``c^2`` the ``robust_quantile`` of chi-square(6)
+   times a robust variance factor (median of ``s_i^2`` over the chi-square median; never below 1
+   when the noise is declared, so a correct noise model is not tightened by chance). Samples beyond
+   the outlier threshold get weight 0 (Huber's bounded pull of gross outliers would bias the fit).
+2. **Outliers** - samples with ``s_i^2`` above the ``outlier_quantile`` of chi-square(6) (same
+   scaling) are flagged and left out of the final estimate.
+3. **Noise estimation** (``estimate_noise=True``) - variance-component estimation (Förstner /
+   Helmert): each of the groups robot-translation, robot-rotation, camera-translation,
+   camera-rotation gets the factor ``sum of squared whitened residuals / redundancy`` until the
+   factors are within 1 % of 1 or the update moves the estimated translations by less than 1 % of
+   their sigma. Groups whose redundancy is below 1 are not estimable and keep their prior. Robot
+   and camera translation noise are hardly separable (both add isotropically to the pose chain);
+   then only their sum is determined, which is also all the estimate depends on.
+4. **Final ML fit** on the inliers with the final noise; the covariance of (X, Y) is the inverse
+   Fisher information at the optimum (Gauss-Newton, nuisance robot poses eliminated exactly by the
+   Schur complement). It is *unscaled* here; ``solver`` decides on the a-posteriori scaling. With
+   the noise estimated, the covariance rests on estimated variance components: it is the
+   Kenward-Roger adjusted one (``variance``), and the F distribution's degrees of freedom and scale
+   for X and for (X, Y) say how wide a confidence region must be (``F`` instead of chi-square).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import stats
+from scipy.optimize import least_squares
+
+from plugins.calibration.handeye.ml_model import EivModel, EivState
+from plugins.calibration.handeye.noise import NoiseModel
+from plugins.calibration.handeye.problem import Setup
+from plugins.calibration.handeye.variance import kenward_roger
+
+F64 = NDArray[np.float64]
+Loss = Literal["huber", "cauchy", "linear"]
+DOF_PER_SAMPLE = 6
+CHI2_MEDIAN = float(stats.chi2.median(DOF_PER_SAMPLE))
+
+__all__ = ["DOF_PER_SAMPLE", "Loss", "MLFit", "MLOptions", "refine_ml"]
+
+
+@dataclass(frozen=True)
+class MLOptions:
+    """Options of :func:`refine_ml`."""
+
+    loss: Loss = "huber"
+    robust_quantile: float = 0.99
+    outlier_quantile: float = 0.999
+    estimate_noise: bool = False
+    max_robust_iterations: int = 15
+    max_noise_iterations: int = 30
+    dense_max_params: int = 200
+    max_nfev: int = 200
+
+
+@dataclass
+class MLFit:
+    """Result of :func:`refine_ml` (SI units; covariance unscaled, in decoupled perturbations)."""
+
+    X: F64
+    Y: F64
+    M: F64  # (n, 4, 4) ML estimate of the true robot poses
+    e_robot: F64  # (n, 6) measured (-) estimated robot pose
+    e_camera: F64  # (n, 6) measured (-) model camera pose
+    s2: F64  # (n,) per-sample whitened cost, ~ chi-square(6) for inliers
+    weights: F64  # (n,) final robust weights of phase 1
+    outliers: NDArray[np.bool_]
+    covariance: F64  # (12, 12) for (X, Y), unscaled
+    noise: NoiseModel  # noise model of the final fit (estimated when asked)
+    chi2: float  # sum of s2 over inliers
+    dof: int  # 6 * n_inliers - 12
+    threshold_scale: float  # variance factor used for the robust / outlier thresholds
+    nfev: int
+    converged: bool
+    noise_groups_estimated: int = 0  # variance components with redundancy >= 1 (0: noise not estimated)
+    # estimated noise (``variance``, Kenward-Roger): F(k, dof) denominator degrees of freedom and scale
+    # lambda of the confidence regions of X (6) and of (X, Y) (12), and the factor by which the
+    # adjustment widened X's covariance (mean over its 6 whitened directions); inf / 1 when declared
+    dof_x: float = float("inf")
+    dof_xy: float = float("inf")
+    f_scale_x: float = 1.0
+    f_scale_xy: float = 1.0
+    kr_inflation_x: float = 1.0
+    notes: list[str] = field(default_factory=list)
+
+
+def _robust_weights(s2: F64, loss: Loss, c2: float) -> F64:
+    if loss == "linear":
+        return np.ones_like(s2)
+    if loss == "huber":
+        s = np.sqrt(np.maximum(s2, 1e-300))
+        return np.minimum(1.0, np.sqrt(c2) / s)
+    if loss == "cauchy":
+        return 1.0 / (1.0 + s2 / c2)
+    raise ValueError(f"unknown loss {loss!r}; use 'huber', 'cauchy' or 'linear'")
+
+
+def _solve(model: EivModel, weights: F64, opts: MLOptions) -> tuple[EivModel, int, bool]:
+    """One weighted least-squares solve; returns the model recentred at the optimum."""
+    sqrt_w = np.sqrt(weights)
+    dense = model.n_params <= opts.dense_max_params
+    x0 = np.zeros(model.n_params)
+    kw = dict(xtol=1e-10, ftol=1e-12, gtol=1e-12, max_nfev=opts.max_nfev, x_scale="jac")
+    if dense:
+        res = least_squares(
+            lambda x: model.residual_vector(x, sqrt_w),
+            x0,
+            jac=lambda x: model.jacobian_matrix(x, sqrt_w, as_sparse=False),
+            method="lm",
+            **kw,
+        )
+    else:
+        res = least_squares(
+            lambda x: model.residual_vector(x, sqrt_w),
+            x0,
+            jac=lambda x: model.jacobian_matrix(x, sqrt_w, as_sparse=True),
+            method="trf",
+            tr_solver="lsmr",
+            **kw,
+        )
+    return model.recentred(res.x), int(res.nfev), bool(res.status > 0)
+
+
+def _per_sample_cost(model: EivModel, st: EivState) -> F64:
+    return np.sum(model.whitened(st) ** 2, axis=1)
+
+
+def _redundancy_groups(model: EivModel, st: EivState, weights: F64) -> tuple[F64, F64]:
+    """Per group (robot t, robot r, camera t, camera r): sum of weighted squared residuals, redundancy."""
+    use = weights > 0
+    h = model.hat_diagonal(st, weights)[use]
+    e2 = (model.whitened(st)[use] ** 2) * weights[use][:, None]
+    n_groups = 4 if model.robot_free else 2
+    groups = [slice(3 * g, 3 * g + 3) for g in range(n_groups)]
+    omega = np.array([e2[:, g].sum() for g in groups])
+    redund = np.array([(1.0 - h[:, g]).sum() for g in groups])
+    return omega, redund
+
+
+SIGMA_FLOOR = 1e-9  # m or rad: below this a noise component is numerically zero
+
+
+def _vce_step(model: EivModel, st: EivState, weights: F64, noise: NoiseModel) -> tuple[NoiseModel, F64, F64]:
+    omega, redund = _redundancy_groups(model, st, weights)
+    factor = np.where(redund >= 1.0, omega / np.maximum(redund, 1e-12), 1.0)
+    factor = np.clip(factor, 1e-4, 1e4)
+    sig = [noise.robot.trans_sigma, noise.robot.rot_sigma] if model.robot_free else []
+    sig += [noise.camera.trans_sigma, noise.camera.rot_sigma]
+    current = np.array([min(g) for g in sig])
+    # a component already at the floor cannot shrink further: report it as converged
+    factor = np.maximum(factor, (SIGMA_FLOOR / current) ** 2)
+    factor = np.where(current * np.sqrt(factor) <= SIGMA_FLOOR * 1.0001, 1.0, factor)
+    f = np.sqrt(factor)
+    if model.robot_free:
+        robot = noise.robot.scaled(rot_factor=f[1], trans_factor=f[0])
+        camera = noise.camera.scaled(rot_factor=f[3], trans_factor=f[2])
+    else:
+        robot, camera = noise.robot, noise.camera.scaled(rot_factor=f[1], trans_factor=f[0])
+    return NoiseModel(robot, camera), factor, redund
+
+
+def refine_ml(
+    setup: Setup,
+    T_base_tcp: F64,
+    T_cam_target: F64,
+    X0: F64,
+    Y0: F64,
+    noise: NoiseModel,
+    *,
+    options: MLOptions | None = None,
+    initial_weights: F64 | None = None,
+) -> MLFit:
+    """ML estimate of X, Y (and the true robot poses) from validated samples; see module docstring."""
+    opts = options or MLOptions()
+    n = T_base_tcp.shape[0]
+    notes: list[str] = []
+    estimable = 0
+    estimated_groups = np.zeros(4, dtype=bool)
+    model = EivModel(setup, T_base_tcp, T_cam_target, noise, X0, Y0)
+    weights = np.ones(n)
+    if initial_weights is not None and opts.loss != "linear":
+        weights = np.asarray(initial_weights, dtype=float).copy()
+    nfev_total, converged = 0, True
+    noise_declared = not opts.estimate_noise
+
+    def threshold_scale(s2: F64, mask: NDArray[np.bool_]) -> float:
+        if not np.any(mask):
+            return 1.0
+        vf = float(np.median(s2[mask]) / CHI2_MEDIAN)
+        return max(1.0, vf) if noise_declared else max(vf, 1e-12)
+
+    # ---- phase 1: robust IRLS
+    scale = 1.0
+    last_solved_w = weights
+    for _ in range(opts.max_robust_iterations):
+        last_solved_w = weights
+        model, nfev, ok = _solve(model, weights, opts)
+        nfev_total += nfev
+        converged &= ok
+        s2 = _per_sample_cost(model, model.state(np.zeros(model.n_params)))
+        scale = threshold_scale(s2, weights > 0.5)
+        new_w = _robust_weights(s2, opts.loss, float(stats.chi2.ppf(opts.robust_quantile, DOF_PER_SAMPLE)) * scale)
+        if opts.loss != "linear":  # beyond the outlier threshold a sample no longer pulls at all
+            new_w[s2 > float(stats.chi2.ppf(opts.outlier_quantile, DOF_PER_SAMPLE)) * scale] = 0.0
+        done = np.max(np.abs(new_w - weights)) < 1e-3
+        weights = new_w
+        if done or opts.loss == "linear":
+            break
+
+    # ---- phase 2: outliers
+    st = model.state(np.zeros(model.n_params))
+    s2 = _per_sample_cost(model, st)
+    out_thr = float(stats.chi2.ppf(opts.outlier_quantile, DOF_PER_SAMPLE)) * scale
+    outliers = s2 > out_thr
+    if opts.loss == "linear":
+        inlier_w = np.ones(n)
+    else:
+        inlier_w = (~outliers).astype(float)
+    if np.count_nonzero(inlier_w) < 3:
+        notes.append("fewer than 3 inliers: the robust fit could not separate outliers; all samples used")
+        inlier_w = np.ones(n)
+        outliers = np.zeros(n, dtype=bool)
+
+    # ---- phase 3: noise estimation (variance components) on the inliers
+    if opts.estimate_noise:
+        current = noise
+        previous: F64 | None = None
+        for _ in range(opts.max_noise_iterations):
+            model, nfev, ok = _solve(model, inlier_w, opts)
+            nfev_total += nfev
+            st = model.state(np.zeros(model.n_params), jacobian=True)
+            xy = np.concatenate([st.X[:3, 3], st.Y[:3, 3]])
+            # stop when the noise update no longer moves the estimate (1 % of its sigma)
+            if previous is not None:
+                cov = np.linalg.pinv(model.information_xy(st, inlier_w))
+                sd_t = np.sqrt(np.clip(np.diag(cov)[[0, 1, 2, 6, 7, 8]], 1e-300, None))
+                if np.max(np.abs(xy - previous) / sd_t) < 0.01:
+                    break
+            previous = xy
+            current, factor, redund = _vce_step(model, st, inlier_w, current)
+            model = model.with_noise(current)
+            if np.all(np.abs(factor - 1.0) < 0.01):
+                break
+        estimated_groups = redund >= 1.0
+        estimable = int(np.count_nonzero(estimated_groups))
+        noise = current
+
+    # ---- phase 4: final ML fit on inliers and covariance (phase 1 already is it when nothing changed)
+    if opts.estimate_noise or not np.array_equal(inlier_w, last_solved_w):
+        model, nfev, ok = _solve(model, inlier_w, opts)
+        nfev_total += nfev
+        converged &= ok
+    st = model.state(np.zeros(model.n_params), jacobian=True)
+    s2 = _per_sample_cost(model, st)
+    info = model.information_xy(st, inlier_w)
+    try:
+        cov = np.linalg.inv(info)
+    except np.linalg.LinAlgError:
+        cov = np.linalg.pinv(info)
+        notes.append("information matrix singular: covariance from the pseudo-inverse")
+    n_in = int(np.count_nonzero(inlier_w))
+    dof_x = dof_xy = float("inf")
+    f_scale_x = f_scale_xy = kr_inflation_x = 1.0
+    if opts.estimate_noise:  # the covariance rests on estimated variances: Kenward-Roger (``variance``)
+        kr = kenward_roger(model, st, inlier_w, estimated_groups, [slice(0, 6), slice(0, 12)])
+        kr_inflation_x = float(np.trace(np.linalg.solve(cov[:6, :6], kr.covariance[:6, :6]))) / 6.0
+        cov = kr.covariance
+        dof_x, dof_xy = kr.dof
+        f_scale_x, f_scale_xy = kr.f_scale
+    return MLFit(
+        X=st.X,
+        Y=st.Y,
+        M=st.M.copy(),
+        e_robot=st.e_robot,
+        e_camera=st.e_camera,
+        s2=s2,
+        weights=weights,
+        outliers=outliers,
+        covariance=0.5 * (cov + cov.T),
+        noise=noise,
+        chi2=float(np.sum(s2[inlier_w > 0])),
+        dof=DOF_PER_SAMPLE * n_in - 12,
+        threshold_scale=scale,
+        nfev=nfev_total,
+        converged=converged,
+        noise_groups_estimated=estimable,
+        dof_x=dof_x,
+        dof_xy=dof_xy,
+        f_scale_x=f_scale_x,
+        f_scale_xy=f_scale_xy,
+        kr_inflation_x=kr_inflation_x,
+        notes=notes,
+    )

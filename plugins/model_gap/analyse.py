@@ -1,0 +1,143 @@
+"""One call from a model and data to a model-gap result (what ``vgr gap`` and the stage run)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rich.console import Console
+
+from plugins.model_gap.core import GapConfig, GapInputError, GapResult, run_gap
+from plugins.model_gap.core.files import write_report
+from plugins.model_gap.core.noise import estimate_noise_scale
+from plugins.model_gap.core.report import render
+from plugins.model_gap.core.workflow import collect_candidates, samples_needed
+from plugins.model_gap.data import GapData, load_gap_data
+from plugins.model_gap.problem import DEFAULT_CALIBRATION, KinematicGapProblem, ProblemConfig
+from plugins.model_gap.stored_model import load_stored_model
+from plugins.robot.kinematics import RobotModel
+
+
+def families_from_registry(extra_modules: tuple[str, ...] = ()) -> list[Any]:
+    """The effect families every loaded plugin contributes through ``vgr_model_effects``."""
+    from engine.plugin_manager import load_registry
+
+    registry = load_registry(extra_modules)
+    return [f() if isinstance(f, type) else f for _, f in sorted(registry.effects.items())]
+
+
+PROVISIONAL_NOISE_M = 1e-3  # whitening scale while the noise is still to be estimated (the fit does not use it)
+
+
+def estimate_noise(problem: KinematicGapProblem, families: list[Any]) -> float:
+    """Per-axis noise sigma (m) estimated from the data (:func:`plugins.model_gap.core.noise.estimate_noise_scale`)."""
+    scale, _ = estimate_noise_scale(problem.linearise(), collect_candidates(problem, families), problem)
+    if not scale > 0:
+        raise GapInputError("the data fit the model exactly: cannot estimate the noise, give --noise-mm")
+    return float(np.median(problem.sigma)) * scale
+
+
+def build_problem(
+    robot: RobotModel,
+    data: GapData,
+    *,
+    noise_mm: float | None = None,
+    calibrate: tuple[str, ...] | None = None,
+    config: GapConfig | None = None,
+    families: list[Any] | None = None,
+    tool_points: dict[str, list[float]] | None = None,
+) -> KinematicGapProblem:
+    """The kinematic gap problem with its baseline calibration and noise.
+
+    ``calibrate`` None is the default, the full calibration the data identify
+    (:data:`~.problem.DEFAULT_CALIBRATION`: measurement frame, tool, joint geometry; parameters the data
+    cannot identify stay at their values and the report says which). When the data cannot carry the
+    joint geometry at all -- fewer samples than the workflow needs with it, or a joint calibration
+    that fails -- the frame and the tool are calibrated alone and the report says why. Explicit levels
+    are taken as given. The noise is ``noise_mm`` (per axis), else the data's ``sigma_mm`` column,
+    else estimated (:func:`estimate_noise`). ``tool_points``: several measured points' offsets a stored
+    model knows (the start of their fit, or the points themselves when the tool is not calibrated).
+    """
+    cfg = config or GapConfig()
+    fams = families if families is not None else families_from_registry()
+    estimated = noise_mm is None and data.sigma_m is None
+    noise_m = PROVISIONAL_NOISE_M if estimated else (None if noise_mm is None else float(noise_mm) / 1e3)
+
+    def make(levels: tuple[str, ...], requested: str) -> KinematicGapProblem:
+        source = "estimated" if estimated else "given"
+        cfg = ProblemConfig(levels, noise_m=noise_m, noise_source=source, requested=requested, tool_points=tool_points)
+        return KinematicGapProblem(robot, data, cfg)
+
+    if calibrate is not None:
+        problem = make(tuple(calibrate), ",".join(calibrate) or "none")
+    else:
+        problem = make(DEFAULT_CALIBRATION, "default")
+        need = samples_needed(len(problem.base_names), collect_candidates(problem, fams), 3, cfg)
+        why = problem.joint_calibration_failed
+        if why is None and data.n_samples < need:
+            why = (
+                f"{data.n_samples} samples are too few for it ({len(problem.base_names)} calibration parameters "
+                f"need {need} with {cfg.selection.cv_folds}-fold cross-validation)"
+            )
+        if why is not None:
+            problem = make(("frame", "tool"), "default")
+            problem.calibration_notes.insert(
+                0,
+                "the joint geometry was not calibrated, only the measurement frame and the tool: "
+                + why
+                + "; joint zero and length errors are then tested as effects",
+            )
+    if estimated:
+        problem.set_noise(estimate_noise(problem, fams), "estimated")
+    return problem
+
+
+def analyse_gap(
+    model: str | Path | RobotModel,
+    data: str | Path | GapData,
+    *,
+    noise_mm: float | None = None,
+    calibrate: tuple[str, ...] | None = None,
+    report_dir: str | Path | None = None,
+    config: GapConfig | None = None,
+    families: list[Any] | None = None,
+    console: Console | None = None,
+    data_options: dict[str, Any] | None = None,
+) -> GapResult:
+    """Run the model-gap workflow; write ``report_dir`` (JSON, figures, model files) if given.
+
+    ``calibrate`` None: the default baseline, the full calibration the data identify
+    (:func:`build_problem`). ``noise_mm`` (per-axis 1-sigma): when neither it nor a ``sigma_mm`` data
+    column is given, the noise is estimated from the data (:func:`estimate_noise`) and the report says so.
+    """
+    if isinstance(model, RobotModel):
+        robot, initial, points = model, [], None
+    else:  # a robot, or a model vgr wrote (augmented: its effects are applied first; calibrated)
+        stored = load_stored_model(model)
+        robot, initial, points = stored.robot, stored.effects, stored.tool_points
+    gap_data = data if isinstance(data, GapData) else load_gap_data(data, **(data_options or {}))
+    fams = families if families is not None else families_from_registry()
+    problem = build_problem(
+        robot, gap_data, noise_mm=noise_mm, calibrate=calibrate, config=config, families=fams, tool_points=points
+    )
+    if initial:
+        by_label = {(c.name, c.where): c for c in collect_candidates(problem, fams) if not c.unavailable}
+        for e in initial:
+            cand = by_label.get((e.get("name"), e.get("where")))
+            if cand is None:
+                raise GapInputError(
+                    f"the model's effect {e.get('name')}@{e.get('where')} cannot be applied to these data"
+                )
+            stored = e.get("values")  # the fitted vector; older files: the params are that vector
+            vec = [float(x) for x in stored] if stored else [float(e["params"][p]) for p in cand.param_names]
+            values = np.array(vec)
+            problem.add_effect(cand, values, tied_with=tuple(e.get("tied_with") or ()))  # a tie term stays one
+    result = run_gap(problem, fams, config, model_dir=report_dir)
+    if report_dir is not None:
+        out = Path(report_dir)
+        result.files["augmented_model"] = str(problem.save_model(out / "augmented_model.yaml"))
+        write_report(result, problem.features(), out)
+    if console is not None:
+        render(result, console)
+    return result

@@ -1,0 +1,1 @@
+"""The registration stage: ``matcher`` (template to scene, with its quality test)."""

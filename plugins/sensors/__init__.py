@@ -1,1 +1,0 @@
-"""Sensors: real device adapters (RealSense, Vive tracker) and file-based cameras."""

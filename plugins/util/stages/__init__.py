@@ -1,0 +1,1 @@
+"""Small generic stages: synthetic, transformed and summarised clouds, and a trigger."""
