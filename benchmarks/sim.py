@@ -33,7 +33,7 @@ import open3d as o3d
 
 from engine.transforms import T_from_rotvec, inv
 from plugins.sim.camera import DepthCameraModel, DepthNoiseModel, default_intrinsics, look_at
-from plugins.sim.workpieces import assembled_plate_pose, make_workpiece
+from plugins.util.workpieces import assembled_plate_pose, make_workpiece
 
 SEED = 0
 REPEATS = 40

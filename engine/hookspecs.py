@@ -7,13 +7,21 @@ named in a recipe's ``plugins:`` list. vgr's own stages (plugins.builtin) load t
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 import pluggy
 
 PROJECT = "vgr"
 hookspec = pluggy.HookspecMarker(PROJECT)
 hookimpl = pluggy.HookimplMarker(PROJECT)
+
+
+class CliVerb(NamedTuple):
+    """A verb a plugin adds to the ``vgr`` command (hook ``vgr_cli_verbs``)."""
+
+    name: str  # the verb: ``vgr <name> ...``
+    help: str  # one line for ``vgr --help``
+    module: str  # imported only when the verb runs; its ``add_verbs(subparsers)`` adds the full parser
 
 
 class VgrSpecs:
@@ -33,4 +41,12 @@ class VgrSpecs:
         instantiated without arguments: ``name`` (unique across all plugins: a duplicate is an error),
         ``description``, ``requires`` and ``candidates(problem)`` returning one candidate per place the
         effect can act (``docs/model_gap.md``).
+        """
+
+    @hookspec
+    def vgr_cli_verbs(self) -> list[CliVerb]:  # type: ignore[empty-body]
+        """Return the verbs this plugin adds to ``vgr`` (:class:`CliVerb`). A verb's module is imported
+        only when that verb runs, so ``vgr --help`` and ``vgr run`` do not pay for every capability's
+        libraries; its ``add_verbs(subparsers)`` adds the parser, whose ``func`` returns an exit code of
+        engine.exit_codes. A verb name that another plugin or the engine already has is an error.
         """

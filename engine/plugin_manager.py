@@ -1,4 +1,5 @@
-"""Discovering plugins and holding the registry of stage types, message types and model effects.
+"""Discovering plugins and holding the registry of stage types, message types and model effects,
+and the verbs plugins add to the ``vgr`` command (:func:`plugin_verbs`).
 
 ``load_registry()`` builds a pluggy PluginManager, loads every entry point of group ``vgr``
 (including vgr's own ``plugins.builtin``) plus any extra modules a recipe names, and collects what
@@ -15,7 +16,7 @@ from typing import Any
 
 import pluggy
 
-from engine.hookspecs import PROJECT, VgrSpecs
+from engine.hookspecs import PROJECT, CliVerb, VgrSpecs
 from engine.messages import Message, codec
 from engine.stage import EVENTS_PORT, Stage
 
@@ -51,8 +52,8 @@ def _check_stage(cls: Any, origin: str) -> None:
                 raise PluginError(f"stage {cls.type_name}: {kind} port {port!r} type {mtype!r} is not a Message")
 
 
-def load_registry(extra_modules: Iterable[str] = (), *, entry_points: bool = True) -> Registry:
-    """Load plugins (entry points of group ``vgr`` + *extra_modules*) and build the registry."""
+def _plugin_manager(extra_modules: Iterable[str], entry_points: bool) -> pluggy.PluginManager:
+    """A PluginManager with the entry points of group ``vgr`` (vgr's own included) and *extra_modules*."""
     pm = pluggy.PluginManager(PROJECT)
     pm.add_hookspecs(VgrSpecs)
     if entry_points:
@@ -68,6 +69,29 @@ def load_registry(extra_modules: Iterable[str] = (), *, entry_points: bool = Tru
         raise PluginError(
             "vgr's built-in plugins are not registered: install vgr (`make install` or `pip install -e .`)"
         )
+    return pm
+
+
+def plugin_verbs(taken: Iterable[str] = (), extra_modules: Iterable[str] = ()) -> dict[str, CliVerb]:
+    """The verbs the installed plugins add to ``vgr``, by name; *taken* are the engine's own verbs.
+    Imports only the plugins' entry-point modules, not the verbs' modules."""
+    pm = _plugin_manager(extra_modules, entry_points=True)
+    owner = dict.fromkeys(taken, "the engine")
+    verbs: dict[str, CliVerb] = {}
+    for impl in pm.hook.vgr_cli_verbs.get_hookimpls():
+        for verb in impl.function() or []:
+            if not isinstance(verb, CliVerb):
+                raise PluginError(f"plugin {impl.plugin_name} returned {verb!r} as a verb: expected a CliVerb")
+            if verb.name in owner:
+                raise PluginError(f"verb {verb.name!r} is provided twice: by {owner[verb.name]} and {impl.plugin_name}")
+            owner[verb.name] = f"plugin {impl.plugin_name}"
+            verbs[verb.name] = verb
+    return verbs
+
+
+def load_registry(extra_modules: Iterable[str] = (), *, entry_points: bool = True) -> Registry:
+    """Load plugins (entry points of group ``vgr`` + *extra_modules*) and build the registry."""
+    pm = _plugin_manager(extra_modules, entry_points)
     reg = Registry(plugins=sorted(name for name, _ in pm.list_name_plugin() if name))
     for impl in pm.hook.vgr_message_types.get_hookimpls():
         for mtype in impl.function() or []:

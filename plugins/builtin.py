@@ -3,7 +3,7 @@ exactly as a third-party package would (pyproject: ``[project.entry-points.vgr] 
 
 from __future__ import annotations
 
-from engine.hookspecs import hookimpl
+from engine.hookspecs import CliVerb, hookimpl
 
 
 @hookimpl
@@ -78,3 +78,21 @@ def vgr_model_effects() -> list[type]:
     from plugins.model_gap.effects import FAMILIES
 
     return list(FAMILIES)
+
+
+@hookimpl
+def vgr_cli_verbs() -> list[CliVerb]:
+    return [
+        CliVerb("template", "make or show a matcher template", "plugins.registration.cli"),
+        CliVerb(
+            "calibrate",
+            "hand-eye, robot-world, Vive desk, TCP, kinematic or camera-intrinsics calibration",
+            "plugins.calibration.cli",
+        ),
+        CliVerb(
+            "teach", "store the robot's current pose as the recipe's photo or install pose", "plugins.actions.teach_cli"
+        ),
+        CliVerb(
+            "gap", "compare a robot model with measurements, name the missing effect, add it", "plugins.model_gap.cli"
+        ),
+    ]

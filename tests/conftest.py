@@ -19,3 +19,11 @@ _TESTS = Path(__file__).resolve().parent
 for _d in sorted(p for p in _TESTS.iterdir() if p.is_dir() and not p.name.startswith((".", "__"))):
     if str(_d) not in sys.path:
         sys.path.append(str(_d))
+
+# Tests never assert wall-clock times, and hypothesis's per-example deadline is one: on a loaded
+# 2-core CI machine an example that imports a module or starts a solver the first time can take
+# longer than 200 ms and fail as "flaky" for no fault of the code.
+from hypothesis import settings  # noqa: E402
+
+settings.register_profile("vgr", deadline=None)
+settings.load_profile("vgr")

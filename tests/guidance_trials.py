@@ -44,7 +44,7 @@ from plugins.robot.model_file import load_robot_model, transform_entry
 from plugins.robot.with_effects import RobotWithEffects
 from plugins.sim.sensor_effects import PoseOffset
 from plugins.sim.stages.evaluation import assembly_fit
-from plugins.sim.workpieces import assembled_plate_pose
+from plugins.util.workpieces import assembled_plate_pose
 
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"
 

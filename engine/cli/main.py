@@ -1,7 +1,7 @@
 """The ``vgr`` command line: run, validate, graph, plugins, schemas (and the verbs of later modules).
 
-Exit codes: 0 success; 1 the run failed (a stage failed or was stopped); 2 invalid recipe or usage;
-3 refused (a stage raised an alarm); 130 interrupted by Ctrl-C.
+Exit codes: one table for every verb, engine.exit_codes (0 ok, 1 refused / not ok, 2 invalid,
+3 needs a human look, 4 failed, 130 interrupted).
 
 Ctrl-C during ``vgr run``: the SIGINT handler only calls ``Runner.stop`` (the runner halts the
 devices, cuts the waiting calls short and gives the stages 2 s, see engine.run.runner), the summary says
@@ -17,7 +17,7 @@ import re
 import signal
 import sys
 import threading
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -29,8 +29,9 @@ from rich.table import Table
 from engine import run_folder
 from engine.cli import recording as cli_recording
 from engine.errors import RecipeError
+from engine.exit_codes import ExitCode
 from engine.graph import Graph, build_graph
-from engine.plugin_manager import PluginError, Registry, load_registry
+from engine.plugin_manager import PluginError, Registry, load_registry, plugin_verbs
 from engine.recipe.model import load_recipe
 from engine.recording.reader import RecordingError
 from engine.recording.replay import ReplayError
@@ -41,8 +42,6 @@ from engine.transport.bus import BusError
 
 console = Console(stderr=True)
 out = Console(width=None if sys.stdout.isatty() else 160)
-
-EXIT_OK, EXIT_FAILED, EXIT_INVALID, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 
 def _load_graph(args: argparse.Namespace) -> tuple[Graph, Registry]:
@@ -145,7 +144,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from engine.recording.recorder import Recorder
 
     if _security_refused(graph, args.certs):  # nothing is started with certificates that cannot work
-        return EXIT_INVALID
+        return ExitCode.INVALID
     runner = Runner(  # refuses a bad run id or process before anything is created
         graph,
         certs_dir=args.certs,
@@ -181,7 +180,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     elif view is not None:
         view.close()
     if incomplete and summary.outcome != "interrupted":
-        return EXIT_FAILED
+        return ExitCode.FAILED
     return summary.exit_code
 
 
@@ -217,19 +216,19 @@ def _security_refused(graph: Graph, certs_dir: str | None) -> bool:
 def cmd_validate(args: argparse.Namespace) -> int:
     graph, _ = _load_graph(args)
     if _security_refused(graph, args.certs):
-        return EXIT_INVALID
+        return ExitCode.INVALID
     out.print(
         f"[green]ok[/]: {graph.loaded.file}: recipe {graph.recipe.name!r}, {len(graph.nodes)} stages, "
         f"{len(graph.edges)} data edges, {len(graph.service_edges)} service edges, "
         f"processes: {', '.join(graph.processes())}"
     )
-    return EXIT_OK
+    return ExitCode.OK
 
 
 def cmd_graph(args: argparse.Namespace) -> int:
     graph, _ = _load_graph(args)
     print(graph.to_dot() if args.format == "dot" else graph.to_mermaid())
-    return EXIT_OK
+    return ExitCode.OK
 
 
 def cmd_plugins(args: argparse.Namespace) -> int:
@@ -237,7 +236,7 @@ def cmd_plugins(args: argparse.Namespace) -> int:
     described = [registry.stages[n].describe() | {"plugin": registry.stage_origin[n]} for n in sorted(registry.stages)]
     if args.json:
         print(json.dumps(described, indent=2, default=str))
-        return EXIT_OK
+        return ExitCode.OK
     out.print(f"plugins: {', '.join(registry.plugins)}")
     for d in described:
         t = Table(
@@ -260,7 +259,7 @@ def cmd_plugins(args: argparse.Namespace) -> int:
                 f"{v['type']} {dflt}" + (f"  [dim]{v['description']}[/]" if v["description"] else ""),
             )
         out.print(t)
-    return EXIT_OK
+    return ExitCode.OK
 
 
 def cmd_schemas(args: argparse.Namespace) -> int:
@@ -277,7 +276,7 @@ def cmd_schemas(args: argparse.Namespace) -> int:
         print(f"// {name}: {(cls.__doc__ or '').strip().splitlines()[0]}")
         print(proto_text(cls.SCHEMA))
         print()
-    return EXIT_OK
+    return ExitCode.OK
 
 
 def _write_descriptor_set(path: Path, schemas: list[str]) -> int:
@@ -296,33 +295,35 @@ def _write_descriptor_set(path: Path, schemas: list[str]) -> int:
     with path.open("xb") as f:  # a new file: never replaces one
         f.write(merged.SerializeToString())
     out.print(f"{len(schemas)} schemas in {len(merged.file)} files: {escape(str(path))}", highlight=False)
-    return EXIT_OK
+    return ExitCode.OK
 
 
 # --------------------------------------------------------------------------- parser
 
-# Verbs other modules add: verb -> (module with ``add_verbs(subparsers)``, one-line help). A module is
-# imported only when one of its verbs runs, so `vgr --help` and `vgr run` do not pay for the heavy
-# libraries of every capability (and a Ctrl-C right after start lands in a running engine). Add a
-# line per verb.
+# The engine's verbs in other modules: verb -> (module with ``add_verbs(subparsers)``, one-line help).
+# A module is imported only when one of its verbs runs, so `vgr --help` and `vgr run` do not pay for
+# the libraries of every capability (and a Ctrl-C right after start lands in a running engine).
+# Plugins add theirs through the hook ``vgr_cli_verbs`` (engine.hookspecs), in the same lazy way.
 VERB_MODULES: dict[str, tuple[str, str]] = {
     "replay": ("engine.cli.recording", "re-run a recording's solver/action stages and diff their outputs"),
     "inspect": ("engine.cli.recording", "topics, counts, rates, time span, recipe and versions of a recording"),
     "recover": ("engine.cli.recording", "rebuild the index of a recording cut short (e.g. kill -9)"),
     "topics": ("engine.cli.topics", "list, echo or time the topics of a running run (like ros2 topic)"),
     "play": ("engine.cli.topics", "put a recording's topics back on zenoh at their recorded pace (like ros2 bag play)"),
-    "template": ("plugins.registration.cli", "make or show a matcher template"),
-    "calibrate": (
-        "plugins.calibration.cli",
-        "hand-eye, robot-world, Vive desk, TCP, kinematic or camera-intrinsics calibration",
-    ),
-    "teach": ("plugins.actions.teach_cli", "store the robot's current pose as the recipe's photo or install pose"),
     "certs": ("engine.cli.security", "development certificates for a recipe's security: block"),
-    "gap": (
-        "plugins.model_gap.cli",
-        "compare a robot model with measurements, name the missing effect, add it",
-    ),
 }
+
+
+OWN_VERBS = ("run", "validate", "graph", "plugins", "schemas")  # defined in this module
+
+
+def verb_modules(taken: Iterable[str] = OWN_VERBS) -> dict[str, tuple[str, str]]:
+    """Every verb defined in a module of its own, the engine's and the plugins': verb -> (module, help).
+    *taken* are the verbs defined here, which no plugin may take."""
+    modules = dict(VERB_MODULES)
+    for v in plugin_verbs(taken=[*taken, *VERB_MODULES]).values():
+        modules[v.name] = (v.module, v.help)
+    return modules
 
 
 def _add_recipe_args(p: argparse.ArgumentParser) -> None:
@@ -380,9 +381,10 @@ def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
 
     import importlib
 
-    if verb in VERB_MODULES:
-        importlib.import_module(VERB_MODULES[verb][0]).add_verbs(sub)
-    for name, (_, text) in VERB_MODULES.items():
+    modules = verb_modules(taken=sub.choices)
+    if verb in modules:
+        importlib.import_module(modules[verb][0]).add_verbs(sub)
+    for name, (_, text) in modules.items():
         if name not in sub.choices:  # a placeholder: listed in --help, its module loads when it runs
             sub.add_parser(name, help=text, add_help=False)
     return parser
@@ -394,7 +396,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _main(list(sys.argv[1:] if argv is None else argv), own_process=argv is None)
     except KeyboardInterrupt:  # before the run started (imports, parsing): nothing to stop yet
         console.print("[yellow]interrupted (Ctrl-C) before the run started[/]")
-        return EXIT_INTERRUPTED
+        return ExitCode.INTERRUPTED
 
 
 # a value such as -470,-80,0 or -0.5 or -1e-3 (argparse takes "-470,..." for an option otherwise)
@@ -416,7 +418,11 @@ def join_negative_values(argv: Sequence[str]) -> list[str]:
 def _main(argv: list[str], own_process: bool = False) -> int:
     argv = join_negative_values(argv)
     verb = next((a for a in argv if not a.startswith("-")), None)
-    parser = build_parser(verb)
+    try:
+        parser = build_parser(verb)
+    except PluginError as exc:  # a plugin's verbs are broken: say which, as for its stages
+        console.print(f"[red]error[/]: {escape(str(exc))}", highlight=False, soft_wrap=True)
+        return ExitCode.INVALID
     args = parser.parse_args(argv)
     args.own_process = own_process
     level = logging.WARNING - 10 * min(args.verbose, 2)
@@ -430,7 +436,7 @@ def _main(argv: list[str], own_process: bool = False) -> int:
         console.print(f"[red]invalid recipe[/] ({len(exc.problems)} problem{'s' * (len(exc.problems) > 1)}):")
         for p in exc.problems:
             console.print(f"  {p}", markup=False, highlight=False, soft_wrap=True)
-        return EXIT_INVALID
+        return ExitCode.INVALID
     except (
         PluginError,
         RunError,
@@ -442,10 +448,10 @@ def _main(argv: list[str], own_process: bool = False) -> int:
         ReplayError,
     ) as exc:
         console.print(f"[red]error[/]: {escape(str(exc))}", highlight=False, soft_wrap=True)
-        return EXIT_INVALID
+        return ExitCode.INVALID
     except KeyboardInterrupt:
         console.print("[yellow]interrupted (Ctrl-C)[/]")
-        return EXIT_INTERRUPTED
+        return ExitCode.INTERRUPTED
 
 
 if __name__ == "__main__":

@@ -16,13 +16,13 @@ from rich.markup import escape
 from rich.table import Table
 
 from engine import run_folder
+from engine.exit_codes import ExitCode
 from engine.graph import Graph
 
 if TYPE_CHECKING:
     from engine.recording.live_view import LiveView
 
 out = Console(width=None if sys.stdout.isatty() else 160)
-EXIT_OK, EXIT_INVALID = 0, 2
 
 
 def recording_path(args: argparse.Namespace, graph: Graph, run_dir: Path | None) -> Path | None:
@@ -129,10 +129,10 @@ def add_runs_dir_option(p: argparse.ArgumentParser, folder: str) -> None:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
+    from engine.exit_codes import OUTCOME_EXIT_CODES
     from engine.recording.diff import DIFFERENT, IDENTICAL, WITHIN
     from engine.recording.replay import replay
     from engine.recording.replay_update import write_updated
-    from engine.run.runner import OUTCOME_EXIT_CODES
 
     speed = None if args.speed in (None, "max") else float(args.speed)
     stages = [s for s in (args.stages or "").split(",") if s] or None
@@ -206,7 +206,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         changed = bool(args.recipe or args.param)
         path = write_updated(report, rec, args.file, graph.loaded.text if changed else None, graph.loaded.overrides)
         out.print(f"[yellow]golden recording rewritten[/]: {path}")
-        return EXIT_OK
+        return ExitCode.OK
     return OUTCOME_EXIT_CODES[report.outcome]
 
 
@@ -220,7 +220,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     info = inspect(load(args.file))
     if args.json:
         print(json.dumps(info, indent=2))
-        return EXIT_OK
+        return ExitCode.OK
     run = info["run"]
     out.print(
         f"[bold]{info['path']}[/] ({info['size_bytes'] / 1e6:.2f} MB): recipe [bold]{info['recipe']}[/], "
@@ -253,7 +253,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
         v.add_row(k, val)
     out.print(v)
     out.print(f"deliveries recorded: {info['deliveries']}; attachments: {', '.join(info['attachments']) or 'none'}")
-    return EXIT_OK
+    return ExitCode.OK
 
 
 def cmd_recover(args: argparse.Namespace) -> int:
@@ -266,7 +266,7 @@ def cmd_recover(args: argparse.Namespace) -> int:
         f"recovered {r.messages} records from {r.source} ({state}); last log time {last}\nwritten {r.output}",
         highlight=False,
     )
-    return EXIT_OK
+    return ExitCode.OK
 
 
 def add_verbs(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]

@@ -8,12 +8,12 @@ from pathlib import Path
 
 from rich.console import Console
 
+from engine.exit_codes import ExitCode
+from engine.recipe.endpoint_syntax import HOST_PORT
 from engine.recipe.model import load_recipe
 from engine.security.certs import Identity, write_bundle
-from engine.transport.endpoints import HOST_PORT
 
 out = Console(highlight=False)
-EXIT_OK, EXIT_BAD_INPUT = 0, 2
 
 
 def _hosts(endpoints: list[str]) -> list[str]:
@@ -44,13 +44,13 @@ def cmd_certs_make(args: argparse.Namespace) -> int:
         )
     except FileExistsError as exc:
         out.print(f"[red]refused[/]: {exc}")
-        return EXIT_BAD_INPUT
+        return ExitCode.INVALID
     names = ", ".join(i.name for i in identities)
     out.print(f"wrote {len(written)} files to {args.out}: CA, {len(identities)} identities ({names})")
     out.print(f"keep {Path(args.out) / 'ca.key'} off the cell: it can make new identities")
     if recipe.security is None:
         out.print("the recipe has no security: block yet; add one naming this folder (docs/security.md)")
-    return EXIT_OK
+    return ExitCode.OK
 
 
 def add_verbs(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]

@@ -17,9 +17,10 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from engine.exit_codes import ExitCode
+
 out = Console(width=None if sys.stdout.isatty() else 160)
 err = Console(stderr=True)
-EXIT_OK, EXIT_NOTHING = 0, 1
 
 
 def cmd_topics(args: argparse.Namespace) -> int:
@@ -37,8 +38,8 @@ def cmd_topics(args: argparse.Namespace) -> int:
                 n += 1
             if n == 0:
                 err.print(f"no message on {', '.join(args.topic)} within {args.timeout:g} s", highlight=False)
-                return EXIT_NOTHING
-            return EXIT_OK
+                return ExitCode.NOT_OK
+            return ExitCode.OK
         for window in hz(bus, run, args.topic, args.window, args.windows):
             for r in window:
                 if args.json:
@@ -51,13 +52,13 @@ def cmd_topics(args: argparse.Namespace) -> int:
                         f"min {r.gap_min_ms:.1f}, max {r.gap_max_ms:.1f}, std {r.gap_std_ms:.1f}",
                         highlight=False,
                     )
-        return EXIT_OK
+        return ExitCode.OK
 
 
 def _print_list(run: Any, as_json: bool) -> int:
     if as_json:
         print(json.dumps({"run_id": run.run_id, "topics": run.topics}, indent=2))
-        return EXIT_OK
+        return ExitCode.OK
     sources = sorted({str(d.get("source", "run")) for d in run.docs})
     t = Table(title=f"run {run.run_id} ({', '.join(sources)})", title_justify="left")
     for col in ("topic", "type", "schema", "stage", "process", "key"):
@@ -65,16 +66,17 @@ def _print_list(run: Any, as_json: bool) -> int:
     for tp in run.topics:
         t.add_row(*(escape(str(tp[c])) for c in ("topic", "type", "schema", "stage", "process", "key")))
     out.print(t)
-    return EXIT_OK
+    return ExitCode.OK
 
 
 def cmd_play(args: argparse.Namespace) -> int:
+    from engine.recipe.endpoint_syntax import PRIVATE
     from engine.recipe.model import ZenohSettings
     from engine.recording.play import PROCESS, Player, Selection, select
     from engine.recording.reader import load
     from engine.run.sigint import on_sigint
     from engine.transport.bus import Bus
-    from engine.transport.endpoints import PRIVATE, private_socket, run_sockets
+    from engine.transport.endpoints import private_socket, run_sockets
 
     rec = load(args.file)
     msgs = select(rec, Selection(args.topics, args.start, args.end))
@@ -96,7 +98,7 @@ def cmd_play(args: argparse.Namespace) -> int:
                 err.print(f"not every topic had a subscriber after {args.wait_subscribers:g} s; playing anyway")
             n = player.play(args.loop)
     out.print(f"played {n} messages", highlight=False)
-    return 130 if player.stopped else EXIT_OK
+    return ExitCode.INTERRUPTED if player.stopped else ExitCode.OK
 
 
 def _add_connect_option(p: argparse.ArgumentParser, default: str) -> None:

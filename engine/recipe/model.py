@@ -30,9 +30,9 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from engine.errors import Problem, RecipeError, nearest
+from engine.recipe.endpoint_syntax import check_endpoints
 from engine.recipe.yaml_source import Locations, load_with_locations, locate
 from engine.security.tls import SecuritySettings
-from engine.transport.endpoints import check_endpoints
 
 NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_-]{0,63}$")
 _VAR_RE = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)\}")

@@ -22,7 +22,7 @@ from mcap.writer import CompressionType, Writer
 from engine import __version__
 from engine.files import replacing
 from engine.messages.schemas import proto_class
-from engine.recording.recorder import TOPIC_DELIVERIES, TOPIC_FINISH, TOPIC_SERVED
+from engine.recording.format import TOPIC_DELIVERIES, TOPIC_FINISH, TOPIC_SERVED
 
 
 class RecordingError(RuntimeError):

@@ -51,6 +51,7 @@ from engine.messages import codec
 from engine.messages.codec import Envelope
 from engine.messages.schemas import descriptor_set, proto_class
 from engine.recipe.model import LoadedRecipe, RecordSettings
+from engine.recording.format import TOPIC_DELIVERIES, TOPIC_FINISH, TOPIC_RUN, TOPIC_SERVED, service_topic
 from engine.run.runner import Observer, Runner, RunSummary
 from engine.transport.bus import topic_of
 
@@ -60,10 +61,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("vgr.recorder")
 
-TOPIC_DELIVERIES = "/_vgr/deliveries"
-TOPIC_FINISH = "/_vgr/finish"
-TOPIC_RUN = "/_vgr/run"
-TOPIC_SERVED = "/_vgr/served"
 PACKAGES = (
     "numpy",
     "scipy",
@@ -78,10 +75,6 @@ PACKAGES = (
     "kiss-icp",
 )
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
-
-
-def service_topic(stage: str, client: str) -> str:
-    return f"/{stage}/_svc/{client}"
 
 
 def default_path(recipe: str, process: str, directory: str | Path = "runs") -> Path:

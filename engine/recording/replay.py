@@ -71,12 +71,13 @@ class ReplayReport:
 
     @property
     def outcome(self) -> str:
-        """The replay's outcome, named as a run's (engine.run.summary.RunSummary.outcome): ``failed`` when
-        a stage failed or an output differs from the recording, ``refused`` when the replayed run
-        raised an alarm (its job was refused, as it may have been when recorded), else ``ok``."""
-        if self.failures or not self.ok:
+        """The replay's outcome (its exit code by engine.exit_codes): ``failed`` when a stage failed,
+        ``different`` when an output differs from the recording, else ``ok``: every output came back,
+        alarms included (a refused job replays as refused, and that is a pass: :attr:`alarms` and the
+        report's ``recorded_outcome`` say so)."""
+        if self.failures:
             return "failed"
-        return "refused" if self.alarms else "ok"
+        return "ok" if self.ok else "different"
 
 
 def _find_recipe_dir(recipe_file: str, recording: Path) -> Path | None:

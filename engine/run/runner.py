@@ -61,13 +61,13 @@ from engine.run.runtime import StageRuntime, StageStats
 from engine.run.stage_host import MessageObserver
 
 # (defined in engine.run.summary; the engine and its users import them from here as well)
-from engine.run.summary import OUTCOME_EXIT_CODES, RunError, RunSummary
+from engine.run.summary import RunError, RunSummary
 from engine.stage import Stage
 from engine.transport import discovery
 from engine.transport.bus import Bus, CancelToken
 from engine.transport.session_config import plan_session
 
-__all__ = ["OUTCOME_EXIT_CODES", "Observer", "RunError", "RunSummary", "Runner", "recipe_dir"]
+__all__ = ["Observer", "RunError", "RunSummary", "Runner", "recipe_dir"]
 
 log = logging.getLogger("vgr.runner")
 

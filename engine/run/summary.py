@@ -11,16 +11,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from engine.exit_codes import OUTCOME_EXIT_CODES
 from engine.messages import Event
 from engine.run.runtime import StageStats
 
 
 class RunError(RuntimeError):
     """The run could not start (bus, stage construction, start-up barrier)."""
-
-
-# exit codes of `vgr run` by outcome; 2 (invalid recipe) is decided before a run exists
-OUTCOME_EXIT_CODES = {"ok": 0, "failed": 1, "refused": 3, "interrupted": 130}
 
 
 @dataclass
@@ -54,5 +51,5 @@ class RunSummary:
 
     @property
     def exit_code(self) -> int:
-        """The exit code of ``vgr run`` for :attr:`outcome` (README, *Command line*)."""
+        """The exit code of ``vgr run`` for :attr:`outcome` (engine.exit_codes)."""
         return OUTCOME_EXIT_CODES[self.outcome]

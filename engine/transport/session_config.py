@@ -23,10 +23,11 @@ from pathlib import Path
 from typing import Any
 
 from engine.graph import Graph
+from engine.recipe.endpoint_syntax import PRIVATE
 from engine.recipe.model import ZenohSettings
 from engine.security.tls import SECURE_PROTOCOLS, identity, identity_problems, insecure_endpoints, tls_entries
 from engine.transport.acl import acl_for
-from engine.transport.endpoints import PRIVATE, private_socket
+from engine.transport.endpoints import private_socket
 
 
 class SessionConfigError(ValueError):

@@ -25,6 +25,7 @@ import yaml
 from rich.console import Console
 
 from engine.errors import RecipeError
+from engine.exit_codes import ExitCode
 from engine.files import replace_text
 from engine.graph import build_graph
 from engine.messages import Event, Message, Request
@@ -35,7 +36,6 @@ from plugins.util.detached import DetachedContext
 from plugins.vendor_poses import T_from_ur
 
 out = Console()
-EXIT_OK, EXIT_FAILED, EXIT_INVALID = 0, 1, 2
 WHAT = {"photo": ("photo_pose", "guidance"), "install": ("install_pose", ("docking", "dual_docking"))}
 
 
@@ -199,7 +199,7 @@ def cmd_teach(args: argparse.Namespace) -> int:
         replace_text(recipe, new_text)  # atomic: a crash never leaves half a recipe
     except (TeachError, RecipeError, PluginError, ValueError, OSError, yaml.YAMLError) as exc:
         out.print(f"[red]cannot teach[/]: {exc}", highlight=False, soft_wrap=True)
-        return EXIT_INVALID
+        return ExitCode.INVALID
     out.print(f"taught {args.what} pose written to {recipe} at {where}", highlight=False)
     out.print(f"  was: {old}", highlight=False, soft_wrap=True)
     out.print(f"  now: {pose_text(T)}", highlight=False, soft_wrap=True)
@@ -209,7 +209,7 @@ def cmd_teach(args: argparse.Namespace) -> int:
             "(run the teach recipe, then `vgr template make`)",
             highlight=False,
         )
-    return EXIT_OK
+    return ExitCode.OK
 
 
 def add_verbs(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]

@@ -14,9 +14,10 @@ Output: the report in mm / degrees (estimate with 1-sigma, residuals, verdict, r
 stdout; ``--json OUT`` writes the CalibrationResult (never over the data file; an existing OUT, which
 a ``calibration_file`` stage may be loading, is not replaced by an unusable result: that one goes to
 OUT's name + ``.unusable``), ``--report DIR`` writes result.json, report.txt, summary.md (and for
-kinematics convergence.png and before_after.txt); files are replaced atomically. Exit code 0: usable result
-(verdict ok / warning); 1: degenerate or failed (do not use it); 2: bad input (missing or malformed
-file, NaN, mixed units, too few samples, unpaired samples).
+kinematics convergence.png and before_after.txt); files are replaced atomically. Exit code (engine.exit_codes)
+0: usable result (verdict ok); 3: usable, verdict warning (read the reasons); 1: degenerate or failed
+(do not use it); 2: bad input (missing or malformed file, NaN, mixed units, too few samples, unpaired
+samples).
 """
 
 from __future__ import annotations
@@ -25,11 +26,12 @@ import argparse
 import json
 import sys
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from engine.exit_codes import ExitCode
 from engine.files import replace_text
 from engine.messages import JointState, PoseStamped, TrackerPose
 from engine.recording.reader import Recording, RecordingError
@@ -43,10 +45,8 @@ from plugins.calibration.inputs import (
     tcp_camera_data,
     vive_desk_data,
 )
-from plugins.calibration.report import format_result, kinematic_table, write_kinematic_files, write_report_dir
-from plugins.calibration.result import CalibrationResult
+from plugins.calibration.report import Outcome, format_result, kinematic_table, write_kinematic_files, write_report_dir
 
-EXIT_USABLE, EXIT_UNUSABLE, EXIT_BAD_INPUT = 0, 1, 2
 FILE_SUFFIXES = (".json", ".csv", ".mcap")
 
 #: default topics: the stage and port names of recipes/calibrate_*_sim.yaml
@@ -58,18 +58,6 @@ DEFAULT_TOPICS = {
     "point": "/poses/point",
     "joints": "/poses/joint_state",
 }
-
-
-@dataclass
-class Outcome:
-    """What a calibration produced for the CLI: the result, notes about the input, extra report text,
-    extra Markdown sections and a writer of extra report files."""
-
-    result: CalibrationResult
-    notes: list[str] = field(default_factory=list)
-    extra_text: str = ""
-    sections: dict[str, str] = field(default_factory=dict)
-    write_files: Callable[[Path], None] | None = None
 
 
 def _suffix(path: Path, extra: tuple[str, ...] = ()) -> str:
@@ -394,8 +382,8 @@ paired by stamp (nearest within --max-skew-s) or by order (--pair order).
 intrinsics: IMAGES... (files or folders of png / jpg / bmp) and --board SPEC instead of DATA.
 handeye / robot-world: DATA, or --images DIR --poses FILE --board SPEC [--intrinsics FILE] instead, or
 a recording's board images: RUN.mcap --board SPEC (--image-topic, --camera-info-topic, --robot-topic).
-Exit codes: 0 usable result (verdict ok / warning), 1 degenerate or failed (do not use it),
-2 bad input (missing or malformed file, NaN, mixed units, too few samples, unpaired samples)."""
+Exit codes: 0 usable result (verdict ok), 3 usable with a warning, 1 degenerate or failed (do not
+use it), 2 bad input (missing or malformed file, NaN, mixed units, too few samples, unpaired samples)."""
 
 BAD_INPUT = (ValueError, KeyError, OSError, RecordingError, json.JSONDecodeError)
 
@@ -406,15 +394,15 @@ def run_kind(args: argparse.Namespace) -> int:
     data = getattr(args, "data", None)
     if args.json and data is not None and Path(args.json).resolve() == Path(data).resolve():
         print(f"bad input: --json {args.json} is the data file itself: choose another output", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return ExitCode.INVALID
     try:
         outcome = runner(args)
     except KeyError as exc:  # a field missing in a JSON file
         print(f"bad input: {data}: missing field {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return ExitCode.INVALID
     except BAD_INPUT as exc:
         print(f"bad input: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return ExitCode.INVALID
     result = outcome.result
     text = format_result(result, per_sample=not args.no_samples)
     if outcome.extra_text:
@@ -433,7 +421,9 @@ def run_kind(args: argparse.Namespace) -> int:
         if outcome.write_files is not None:
             outcome.write_files(d)
         print(f"report: {d}")
-    return EXIT_USABLE if result.usable else EXIT_UNUSABLE
+    if not result.usable:
+        return ExitCode.NOT_OK
+    return ExitCode.REVIEW if result.verdict == "warning" else ExitCode.OK
 
 
 def _add_kinds(parser: argparse.ArgumentParser) -> None:

@@ -12,7 +12,8 @@ before/after table); callers add their own files (e.g. the kinematic convergence
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -27,6 +28,18 @@ if TYPE_CHECKING:
 
 _MM, _DEG = 1e3, float(np.degrees(1.0))
 HAND_EYE_KINDS = ("hand_eye", "robot_world")
+
+
+@dataclass
+class Outcome:
+    """What a calibration produced for the CLI: the result, notes about the input, extra report text,
+    extra Markdown sections and a writer of extra report files."""
+
+    result: CalibrationResult
+    notes: list[str] = field(default_factory=list)
+    extra_text: str = ""
+    sections: dict[str, str] = field(default_factory=dict)
+    write_files: Callable[[Path], None] | None = None
 
 
 def _metric_text(name: str, value: float) -> tuple[str, str]:

@@ -20,7 +20,7 @@ _EXPORTS = {
     "load_gap_model": "stored_model",
     "GapData": "data",
     "GapDataError": "data",
-    "load_gap_data": "data",
+    "load_gap_data": "inputs",
     "pair_streams": "recordings",
     "read_gap_csv": "data",
     "read_gap_mcap": "recordings",

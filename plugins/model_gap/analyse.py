@@ -13,7 +13,8 @@ from plugins.model_gap.core.files import write_report
 from plugins.model_gap.core.noise import estimate_noise_scale
 from plugins.model_gap.core.report import render
 from plugins.model_gap.core.workflow import collect_candidates, samples_needed
-from plugins.model_gap.data import GapData, load_gap_data
+from plugins.model_gap.data import GapData
+from plugins.model_gap.inputs import load_gap_data
 from plugins.model_gap.problem import DEFAULT_CALIBRATION, KinematicGapProblem, ProblemConfig
 from plugins.model_gap.stored_model import load_stored_model
 from plugins.robot.kinematics import RobotModel

@@ -24,7 +24,8 @@ from rich.console import Console
 from plugins.model_gap.core.check import ModelCheck, check_residuals, render_check, write_check_json
 from plugins.model_gap.core.interfaces import GapInputError, Linearisation
 from plugins.model_gap.core.workflow import collect_candidates
-from plugins.model_gap.data import GapData, load_gap_data
+from plugins.model_gap.data import GapData
+from plugins.model_gap.inputs import load_gap_data
 from plugins.model_gap.problem import KinematicGapProblem, ProblemConfig
 from plugins.model_gap.stored_model import StoredModel, load_stored_model
 

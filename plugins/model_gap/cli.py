@@ -23,12 +23,14 @@ from typing import Any
 
 from rich.console import Console
 
-EXIT_OK, EXIT_UNEXPLAINED, EXIT_TIED = 0, 1, 3
+from engine.exit_codes import ExitCode
+
+#: the exit code of each workflow verdict (engine.exit_codes)
 EXIT_CODES = {
-    "no_gap": EXIT_OK,
-    "explained": EXIT_OK,
-    "explained_up_to_tie": EXIT_TIED,
-    "unexplained": EXIT_UNEXPLAINED,
+    "no_gap": ExitCode.OK,
+    "explained": ExitCode.OK,
+    "explained_up_to_tie": ExitCode.REVIEW,
+    "unexplained": ExitCode.NOT_OK,
 }
 
 
@@ -146,7 +148,7 @@ def _print_json(report: dict[str, Any]) -> None:
     print(json.dumps(plain(report, nan_as_none=True), indent=2))
 
 
-CHECK_EXIT_CODES = {"ok": EXIT_OK, "gap": EXIT_UNEXPLAINED}
+CHECK_EXIT_CODES = {"ok": ExitCode.OK, "gap": ExitCode.NOT_OK}
 
 
 def cmd_check(args: argparse.Namespace) -> int:

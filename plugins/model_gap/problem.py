@@ -50,6 +50,7 @@ from plugins.calibration.kinematics.points import first_point, fit_point_offsets
 from plugins.model_gap.columns import CandidateColumns
 from plugins.model_gap.core.interfaces import Candidate, Feature, FittedEffect, GapInputError, Linearisation
 from plugins.model_gap.data import GapData
+from plugins.model_gap.features import features
 from plugins.robot.effects.measurement import apply_range_distortion, range_distortion_jacobian
 from plugins.robot.kinematics import RobotModel
 from plugins.robot.with_effects import RobotWithEffects
@@ -411,9 +412,10 @@ class KinematicGapProblem(CandidateColumns):
 
     def features(self) -> list[Feature]:
         """The per-sample features the residuals are binned along (:func:`.features.features`)."""
-        from plugins.model_gap.features import features
-
-        return features(self)
+        speed = None
+        if self.qd is not None:
+            speed = np.linalg.norm(np.einsum("nij,nj->ni", self.joint_position_jacobian(), self.qd), axis=1)
+        return features(self.data, self.q, self.nominal, self.gravity_torque(), speed)
 
     def describe(self) -> dict[str, Any]:
         """The problem as the report gives it (:func:`.stored_model.describe`)."""

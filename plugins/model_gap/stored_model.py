@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 import yaml
@@ -22,8 +22,28 @@ from engine.plain_data import plain, read_document
 from plugins.robot.kinematics import RobotModel
 from plugins.robot.model_file import load_robot_model, model_to_dict, robot_model_from_dict
 
-if TYPE_CHECKING:
-    from plugins.model_gap.problem import KinematicGapProblem
+
+class KinematicGapProblem(Protocol):
+    """What the writers below read of a plugins.model_gap.problem.KinematicGapProblem, named here so
+    that this module does not import the problem that calls it (the problem's describe,
+    gap_model_dict and save_model methods are these functions)."""
+
+    kind: str
+    model: RobotModel
+    nominal: RobotModel
+    data: Any
+    cfg: Any
+    sigma: np.ndarray
+    base_names: list[str]
+    calibration_notes: list[str]
+    accepted: list[tuple[Any, np.ndarray]]
+    tied_with: dict[str, Any]
+    points: Any
+    axis_names: tuple[str, ...]
+    n_samples: int
+
+    def fitted_effects(self) -> list[Any]: ...
+
 
 GAP_MODEL_FORMAT = 1
 

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 from rich.console import Console
 
+from engine.exit_codes import ExitCode
 from engine.messages import codec
 from engine.transforms import as_transform
 from plugins.registration.feature_frame import FeatureFrameParams
@@ -110,10 +111,10 @@ def cmd_make(args: argparse.Namespace) -> int:
         path = save_template(tpl, args.output)
     except (InvalidInputError, ValueError, OSError) as exc:
         out.print(f"[red]error[/]: {exc}", highlight=False)
-        return 2
+        return ExitCode.INVALID
     n = 0 if tpl.points is None else len(tpl.points)
     out.print(f"template {tpl.name!r} ({tpl.kind}, {n} points) written to {path}", highlight=False)
-    return 0
+    return ExitCode.OK
 
 
 def cmd_show(args: argparse.Namespace) -> int:
@@ -121,7 +122,7 @@ def cmd_show(args: argparse.Namespace) -> int:
         tpl = load_template(args.path)
     except InvalidInputError as exc:
         out.print(f"[red]error[/]: {exc}", highlight=False)
-        return 2
+        return ExitCode.INVALID
     info = {
         "name": tpl.name,
         "kind": tpl.kind,
@@ -135,7 +136,7 @@ def cmd_show(args: argparse.Namespace) -> int:
     if tpl.points is not None:
         info["extent_mm"] = (np.ptp(tpl.points, axis=0) * 1e3).round(2).tolist()
     print(json.dumps(info, indent=2, default=str))
-    return 0
+    return ExitCode.OK
 
 
 def add_verbs(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]

@@ -15,19 +15,44 @@ A failure says why (``status``):
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Literal
+from typing import Any, Literal, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
 from engine.transforms import as_transform, hat, log_so3
-
-if TYPE_CHECKING:
-    from plugins.robot.kinematics import RobotModel
+from plugins.robot.chain import JacobianFrame, KinematicChain
 
 F64 = NDArray[np.float64]
 IKStatus = Literal["ok", "unreachable", "out_of_limits"]
+
+
+class ArmModel(Protocol):
+    """What the solver uses of a plugins.robot.kinematics.RobotModel (whose ``ik`` method calls
+    :func:`solve_ik`), named here so that this module does not import the model that imports it."""
+
+    chain: KinematicChain
+    home: F64
+    lower: F64
+    upper: F64
+
+    @property
+    def dof(self) -> int: ...
+
+    def check_joints(self, q: ArrayLike, *, name: str = "q") -> tuple[F64, bool]: ...
+
+    def check_values(self, values: ArrayLike | None, n: int) -> F64 | None: ...
+
+    def within_limits(self, q: ArrayLike, margin: float = 0.0) -> Any: ...
+
+    def limit_violations(self, q: ArrayLike) -> list[str]: ...
+
+    def fk(
+        self, q: ArrayLike, values: ArrayLike | None = None, *, frame: Literal["world", "base"] = "world"
+    ) -> F64: ...
+
+    def fk_and_jacobian(self, q: ArrayLike, values: Any = None, *, frame: JacobianFrame = "base") -> Any: ...
 
 
 @dataclass(frozen=True)
@@ -54,7 +79,7 @@ def so3_left_jacobian_inv(phi: F64) -> F64:
 
 
 class _Problem:
-    def __init__(self, model: RobotModel, T_target: F64, values, position_only: bool, weight: float):
+    def __init__(self, model: ArmModel, T_target: F64, values, position_only: bool, weight: float):
         self.model = model
         self.p_t = T_target[:3, 3]
         self.R_t = T_target[:3, :3]
@@ -113,7 +138,7 @@ def _wrap_into_limits(q: F64, lower: F64, upper: F64, seed: F64) -> F64:
     return out
 
 
-def _reach_bound(model: RobotModel, values: F64 | None) -> tuple[F64, float]:
+def _reach_bound(model: ArmModel, values: F64 | None) -> tuple[F64, float]:
     """(base origin in the world, upper bound of the TCP's distance from it)."""
     v = None if values is None else values.reshape(-1)
     ev = model.chain.evaluate(np.zeros((1, model.dof)), v, record_groups=True)
@@ -121,7 +146,7 @@ def _reach_bound(model: RobotModel, values: F64 | None) -> tuple[F64, float]:
 
 
 def solve_ik(
-    model: RobotModel,
+    model: ArmModel,
     T_world_tcp: ArrayLike,
     q_seed: ArrayLike | None = None,
     *,

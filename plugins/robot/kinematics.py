@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Literal
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -27,9 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 from engine.transforms import as_transform, inv
 from plugins.robot.chain import ChainOp, JacobianFrame, KinematicChain
 from plugins.robot.conventions import CONVENTIONS, DHRow, PoeJoint, build_chain, dh_to_mdh, mdh_to_dh
-
-if TYPE_CHECKING:
-    from plugins.robot.ik import IKResult
+from plugins.robot.ik import IKResult, solve_ik
 
 F64 = NDArray[np.float64]
 STANDARD_GRAVITY = 9.80665
@@ -448,8 +446,6 @@ class RobotModel:
 
     def ik(self, T_world_tcp: ArrayLike, q_seed: ArrayLike | None = None, **kwargs) -> IKResult:
         """Numerical IK within the joint limits; see :func:`plugins.robot.ik.solve_ik`."""
-        from plugins.robot.ik import solve_ik
-
         return solve_ik(self, T_world_tcp, q_seed, **kwargs)
 
 

@@ -30,7 +30,7 @@ from plugins.camera.board_render import board_texture, render_board
 from plugins.camera.board_spec import BoardSpec
 from plugins.camera.pinhole import CameraModel
 from plugins.sim.camera import PinholeIntrinsics
-from plugins.sim.workpieces import Workpiece
+from plugins.util.workpieces import Workpiece
 
 __all__ = ["BoardImager", "board_workpiece"]
 

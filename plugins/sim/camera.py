@@ -52,7 +52,7 @@ import open3d as o3d
 
 from engine.transforms import as_transform, inv
 from plugins.camera.depth_projection import check_pinhole, pinhole_K
-from plugins.sim.workpieces import Workpiece
+from plugins.util.workpieces import Workpiece
 
 # Open3D prints allocator statistics at exit at its default verbosity; vgr's output stays clean.
 o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)

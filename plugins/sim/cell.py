@@ -27,7 +27,7 @@ from engine.transforms import as_transform, inv
 from plugins.sim.camera import DepthCameraModel, DepthCapture, RenderTruth
 from plugins.sim.sensor_effects import SensorEffects
 from plugins.sim.tracker import SimulatedViveTracker, ViveTrackerModel
-from plugins.sim.workpieces import Workpiece
+from plugins.util.workpieces import Workpiece
 
 __all__ = ["CameraMount", "CaptureTruth", "Frame", "PartPlacement", "SimCell", "TrackerMount"]
 

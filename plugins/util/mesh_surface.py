@@ -1,6 +1,6 @@
 """Points drawn uniformly over a triangle mesh's surface, with the caller's random generator.
 
-Used by the simulated parts (plugins/sim/workpieces.py) and by the matcher stage that registers a
+Used by the simulated parts (plugins/util/workpieces.py) and by the matcher stage that registers a
 capture against a part's CAD mesh (plugins/calibration/stages/target_pose.py). Open3D's samplers use a
 global seed instead, so a run could not be replayed from its recipe's seed.
 """

@@ -251,7 +251,7 @@ def test_handeye_recipe_with_the_part_not_where_expected_fails_and_publishes_no_
 def test_target_pose_reads_the_model_from_a_mesh_file(tmp_path):
     import open3d as o3d
 
-    from plugins.sim.workpieces import make_workpiece
+    from plugins.util.workpieces import make_workpiece
 
     mesh = tmp_path / "part.ply"
     o3d.io.write_triangle_mesh(str(mesh), make_workpiece("feature_part").mesh)

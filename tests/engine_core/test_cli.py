@@ -66,13 +66,16 @@ def test_run_refuses_bad_input_with_exit_2(argv, says, capsys):
 
 
 def test_every_lazily_loaded_verb_is_defined_by_its_module(capsys):
-    """VERB_MODULES names each verb's module: loading it must define that verb (not a placeholder)."""
-    from engine.cli.main import VERB_MODULES, build_parser
+    """verb_modules() names each verb's module (the engine's and the plugins' through the hook
+    vgr_cli_verbs): loading it must define that verb (not a placeholder)."""
+    from engine.cli.main import build_parser, verb_modules
 
-    for verb in VERB_MODULES:
+    modules = verb_modules()
+    assert {"replay", "calibrate", "gap", "template", "teach"} <= set(modules)
+    for verb, (module, _) in modules.items():
         parser = build_parser(verb)
         sub = next(a for a in parser._actions if a.dest == "verb")
-        assert sub.choices[verb].add_help, f"{verb}: {VERB_MODULES[verb][0]} does not define it"
+        assert sub.choices[verb].add_help, f"{verb}: {module} does not define it"
         with pytest.raises(SystemExit) as e:
             parser.parse_args([verb, "--help"])
         assert e.value.code == 0
@@ -108,9 +111,9 @@ def test_other_arguments_are_left_as_they_are(argv):
 
 
 def _verbs() -> list[str]:
-    from engine.cli.main import VERB_MODULES
+    from engine.cli.main import OWN_VERBS, verb_modules
 
-    return ["run", "validate", "graph", "plugins", "schemas", *VERB_MODULES]
+    return [*OWN_VERBS, *verb_modules()]
 
 
 @pytest.mark.parametrize("verb", _verbs())
@@ -122,3 +125,42 @@ def test_help_texts_are_plain_text_without_markup(verb, capsys):
     assert text.startswith("usage: vgr"), text[:200]
     for markup in ("``", ":mod:", ":func:", ":class:", ":meth:"):
         assert markup not in text, f"vgr {verb} --help shows {markup!r}:\n{text}"
+
+
+def test_a_plugin_adds_a_verb_through_the_hook_and_may_not_take_an_engine_verb(monkeypatch, tmp_path, capsys):
+    """A third-party verb arrives through vgr_cli_verbs, its module imported only when it runs; a
+    plugin claiming `replay` is refused with exit 2, naming the plugin."""
+    import sys
+
+    from engine import plugin_manager
+    from engine.hookspecs import CliVerb, hookimpl
+
+    (tmp_path / "hello_verb.py").write_text(
+        "def add_verbs(sub):\n"
+        "    p = sub.add_parser('hello', help='say hello')\n"
+        "    p.set_defaults(func=lambda args: print('hello from a plugin') or 3)\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+
+    class Plugin:
+        def __init__(self):
+            self.verbs = [CliVerb("hello", "say hello", "hello_verb")]
+
+        @hookimpl
+        def vgr_cli_verbs(self):
+            return self.verbs
+
+    made = plugin_manager._plugin_manager
+
+    def with_plugin(extra, entry_points):
+        pm = made(extra, entry_points)
+        pm.register(plugin, name="hello-plugin")
+        return pm
+
+    plugin = Plugin()
+    monkeypatch.setattr(plugin_manager, "_plugin_manager", with_plugin)
+    assert main(["hello"]) == 3 and "hello from a plugin" in capsys.readouterr().out
+    assert "hello_verb" in sys.modules
+    plugin.verbs = [CliVerb("replay", "mine", "hello_verb")]
+    assert main(["replay", "x.mcap"]) == 2
+    assert "verb 'replay' is provided twice" in capsys.readouterr().err

@@ -91,7 +91,7 @@ def test_a_forged_reply_is_refused_with_an_alarm_and_the_caller_gets_no_result()
     refused = [r for r in rows if r["command"] == "error"]
     assert len(alarms) == len(refused) >= 4 and str(s.zid()) in alarms[-1].message
     assert all(r["args"]["served_by"] == "echo" for r in rows if r["command"] != "error")
-    assert summary.outcome == "refused" and summary.exit_code == 3
+    assert summary.outcome == "refused" and summary.exit_code == 1
 
 
 TWO = """
@@ -156,7 +156,7 @@ def test_a_process_started_again_mid_run_is_refused_unless_the_recipe_allows_rej
     if not rejoin:
         tc.join(30)
         c = rc["summary"]
-        assert not c.ok and c.exit_code == 1
+        assert not c.ok and c.exit_code == 4
         assert [e.code for e in c.events if e.level == "alarm"] == ["rejoin_refused"]
     for t in (ta, tb, tc):
         t.join(40)

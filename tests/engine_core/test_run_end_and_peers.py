@@ -104,5 +104,5 @@ def test_a_peer_killed_mid_run_is_an_alarm_naming_it_and_the_run_fails(tmp_path)
     producer.kill()  # SIGKILL: no done marker
     producer.wait(10)
     out, _ = consumer.communicate(timeout=60)
-    assert consumer.returncode == 1, out
+    assert consumer.returncode == 4, out  # failed
     assert "peer_lost" in out and "'producer'" in out

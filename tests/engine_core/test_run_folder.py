@@ -66,23 +66,24 @@ def test_replay_exit_code_tells_the_replayed_outcome(tmp_path, capsys):
     rec = tmp_path / "dock.mcap"
     assert main(["run", DOCK, "--record", str(rec), "--runs-dir", str(tmp_path), "--no-progress"]) == 0
     capsys.readouterr()
-    # the same recording replayed with guidance limited to 1 mm per step: the dock is refused (3),
-    # and its outputs differ from the recorded ones (1 wins: the replay did not reproduce the run)
+    # the same recording replayed with guidance limited to 1 mm per step: the dock is refused, so
+    # its outputs differ from the recorded ones: the replay did not reproduce the run
     argv = ["replay", str(rec), "--runs-dir", str(tmp_path), "--json", "-p", "guidance.max_step_mm=1"]
     code = main(argv)
     out = json.loads(capsys.readouterr().out)
-    assert (code, out["outcome"]) == (1, "failed")
+    assert (code, out["outcome"], out["exit_code"]) == (1, "different", 1)
     assert any("correction_limit" in a for a in out["alarms"])
 
 
-def test_a_refused_recording_replays_with_exit_code_3(tmp_path, capsys):
+def test_a_refused_recording_replays_refused_and_that_is_a_pass(tmp_path, capsys):
     rec = tmp_path / "refused.mcap"
     argv = ["run", DOCK, "-p", "guidance.max_step_mm=1", "--record", str(rec), "--runs-dir", str(tmp_path)]
-    assert main([*argv, "--no-progress"]) == 3
+    assert main([*argv, "--no-progress"]) == 1
     capsys.readouterr()
-    assert main(["replay", str(rec), "--runs-dir", str(tmp_path), "--json"]) == 3
+    assert main(["replay", str(rec), "--runs-dir", str(tmp_path), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert (out["outcome"], out["recorded_outcome"]) == ("refused", "refused")
+    assert (out["outcome"], out["exit_code"], out["recorded_outcome"]) == ("ok", 0, "refused")
+    assert any("correction_limit" in a for a in out["alarms"])  # the refusal came back with the outputs
 
 
 def test_a_replay_that_cannot_start_leaves_no_folder(tmp_path, capsys):
@@ -113,7 +114,7 @@ def test_a_run_with_a_report_dir_that_holds_files_fails_and_keeps_them(tmp_path,
     mine.mkdir()
     (mine / "job1.json").write_text("an earlier run's report")
     argv = ["run", DOCK, "-p", f"report.report_dir={mine}", "--runs-dir", str(tmp_path / "runs"), "--no-progress"]
-    assert main(argv) == 1
+    assert main(argv) == 4  # failed
     assert "exists and holds files" in capsys.readouterr().out
     assert (mine / "job1.json").read_text() == "an earlier run's report"
 

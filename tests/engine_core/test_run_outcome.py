@@ -1,7 +1,7 @@
 """`vgr run` tells a cell controller what the job came to: its exit code and --json `outcome`.
 
-A refused dock must not look like a success to a PLC: an alarm (a stage refused its motion) exits 3,
-a failed stage 1, an interrupted run 130, and only a clean run 0 (README, *Command line*).
+A refused dock must not look like a success to a PLC: an alarm (a stage refused its motion) exits 1,
+a failed stage 4, an interrupted run 130, and only a clean run 0 (engine/exit_codes.py, README *Exit codes*).
 """
 
 from __future__ import annotations
@@ -11,8 +11,9 @@ import json
 import pytest
 
 from engine.cli.main import main
+from engine.exit_codes import OUTCOME_EXIT_CODES
 from engine.messages import Event
-from engine.run.runner import OUTCOME_EXIT_CODES, RunSummary
+from engine.run.runner import RunSummary
 
 
 def summary(ok: bool = True, stop_reason: str | None = None, levels: tuple[str, ...] = ()) -> RunSummary:
@@ -25,8 +26,8 @@ def summary(ok: bool = True, stop_reason: str | None = None, levels: tuple[str, 
     [
         ({}, "ok", 0),
         ({"levels": ("info", "result", "warning")}, "ok", 0),  # a warning is not a refusal
-        ({"levels": ("warning", "alarm")}, "refused", 3),
-        ({"ok": False, "stop_reason": "stage 'x' failed", "levels": ("alarm", "error")}, "failed", 1),
+        ({"levels": ("warning", "alarm")}, "refused", 1),
+        ({"ok": False, "stop_reason": "stage 'x' failed", "levels": ("alarm", "error")}, "failed", 4),
         ({"ok": False, "stop_reason": "interrupted (Ctrl-C)", "levels": ("alarm",)}, "interrupted", 130),
     ],
 )
@@ -36,18 +37,18 @@ def test_outcome_and_exit_code_of_a_summary(kw, outcome, code):
     assert OUTCOME_EXIT_CODES[outcome] == code
 
 
-def test_a_refused_dock_exits_3_and_says_refused_in_json(capsys):
+def test_a_refused_dock_exits_1_and_says_refused_in_json(capsys):
     # guidance may move at most 1 mm per step: the first correction (~20 mm) is refused, nothing docks
     argv = ["run", "recipes/eye_in_hand_dock.yaml", "-p", "guidance.max_step_mm=1", "--no-progress", "--json"]
-    assert main(argv) == 3
+    assert main(argv) == 1
     out = json.loads(capsys.readouterr().out)
-    assert (out["outcome"], out["exit_code"], out["ok"]) == ("refused", 3, False)
+    assert (out["outcome"], out["exit_code"], out["ok"]) == ("refused", 1, False)
     alarms = {(e["stage"], e["code"]) for e in out["events"] if e["level"] == "alarm"}
     assert alarms == {("guidance", "correction_limit"), ("docking", "guidance_not_usable")}, alarms
 
 
 def test_a_refused_run_says_so_in_its_last_line(capsys):
-    assert main(["run", "recipes/eye_in_hand_dock.yaml", "-p", "guidance.max_step_mm=1", "--no-progress"]) == 3
+    assert main(["run", "recipes/eye_in_hand_dock.yaml", "-p", "guidance.max_step_mm=1", "--no-progress"]) == 1
     last = capsys.readouterr().out.strip().splitlines()[-1]
     assert last.startswith("run finished, refused") and "alarm" in last
 

@@ -13,9 +13,9 @@ from hypothesis import strategies as st
 from engine.cli.main import main
 from engine.messages import PoseStamped
 from engine.messages.codec import CodecError, decode_payload
+from engine.recipe.endpoint_syntax import endpoint_problem
 from engine.recording.reader import RecordingError, load
 from engine.recording.replay import ReplayError, replay
-from engine.transport.endpoints import endpoint_problem
 
 DEMO = Path("recordings/demo.mcap")
 DOCK = Path("recordings/eye_in_hand_dock.mcap")

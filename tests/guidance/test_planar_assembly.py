@@ -27,7 +27,7 @@ from plugins.params import PoseSpec
 from plugins.robot.effects import effects_from_config
 from plugins.robot.model_file import load_robot_model
 from plugins.robot.with_effects import RobotWithEffects
-from plugins.sim.workpieces import assembled_plate_pose
+from plugins.util.workpieces import assembled_plate_pose
 
 RECIPES = Path(__file__).resolve().parents[2] / "recipes"
 pytestmark = pytest.mark.timeout(600)

@@ -22,6 +22,7 @@ from plugins.calibration.kinematics import (
     expected_holdout_rms,
     format_table,
 )
+from plugins.calibration.kinematics.report import plot_convergence
 from plugins.robot.model_file import robot_model_from_dict
 
 from .kincal_sim import NOISE_M, measure, nominal_model, random_poses, true_robot
@@ -57,8 +58,8 @@ def test_ur5e_converges_to_the_noise_floor(ur5e_data, conv, tmp_path):
         cal,
         holdout=hold,
         config=KinematicCalibrationConfig(parameterisation=conv),
-        plot_path=tmp_path / "c.png",
     )
+    plot_convergence(out, tmp_path / "c.png")
     res = out.result
     assert res.verdict == "ok", res.reasons
     assert res.iterations <= 10

@@ -194,7 +194,7 @@ def test_recorded_streams_give_the_range_so_depth_effects_are_testable():
 
 
 def test_payload_option_fills_a_csv_without_the_column_and_never_replaces_one(tmp_path):
-    from plugins.model_gap.data import load_gap_data
+    from plugins.model_gap.inputs import load_gap_data
 
     header, rows = _rows()
     k = header.index("payload_kg")
@@ -208,7 +208,7 @@ def test_payload_option_fills_a_csv_without_the_column_and_never_replaces_one(tm
 
 @pytest.mark.parametrize("bad", [-1.0, float("nan"), float("inf")])
 def test_a_payload_that_is_not_a_mass_is_refused(tmp_path, bad):
-    from plugins.model_gap.data import load_gap_data
+    from plugins.model_gap.inputs import load_gap_data
 
     header, rows = _rows()
     k = header.index("payload_kg")

@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation
 
 from engine import transforms as tf
 from plugins.sim.camera import DepthCameraModel, DepthNoiseModel, PinholeIntrinsics
-from plugins.sim.workpieces import Workpiece, make_workpiece
+from plugins.util.workpieces import Workpiece, make_workpiece
 
 #: Working distance (m) of the camera to the part's top face.
 DISTANCE_M = 0.5

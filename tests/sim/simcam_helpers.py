@@ -16,7 +16,7 @@ import open3d as o3d
 
 from engine.transforms import inv, log_se3
 from plugins.sim.camera import DepthCapture, RenderTruth
-from plugins.sim.workpieces import Workpiece
+from plugins.util.workpieces import Workpiece
 
 
 def fit_part_pose(

@@ -18,7 +18,7 @@ from plugins.sim.camera import (
     default_intrinsics,
     look_at,
 )
-from plugins.sim.workpieces import make_workpiece
+from plugins.util.workpieces import make_workpiece
 
 MM = 1e-3
 SMALL = PinholeIntrinsics(160, 120, 138.6, 138.6, 79.5, 59.5)  # 60 deg HFOV, quick to render

@@ -10,7 +10,7 @@ from plugins.sim.camera import DepthCameraModel, DepthNoiseModel, PinholeIntrins
 from plugins.sim.cell import CameraMount, PartPlacement, SimCell, TrackerMount
 from plugins.sim.sensor_effects import CameraEffects, PoseOffset, SensorEffects, TrackerEffects
 from plugins.sim.tracker import ViveTrackerModel
-from plugins.sim.workpieces import assembled_plate_pose, make_workpiece
+from plugins.util.workpieces import assembled_plate_pose, make_workpiece
 
 INTRINSICS = PinholeIntrinsics(160, 120, 138.6, 138.6, 79.5, 59.5)
 T_WORLD_BASE = T_from_rotvec([0.0, 0.0, 0.1], [0.2, 0.0, 0.0])

@@ -16,7 +16,7 @@ from engine.transforms import T_from_rotvec, inv, pose_error
 from plugins.sim.camera import DepthCameraModel, DepthNoiseModel, PinholeIntrinsics, look_at
 from plugins.sim.cell import CameraMount, PartPlacement, SimCell
 from plugins.sim.sensor_effects import CameraEffects, PoseOffset, SensorEffects, TrackerEffects
-from plugins.sim.workpieces import make_workpiece
+from plugins.util.workpieces import make_workpiece
 
 MM = 1e-3
 INTRINSICS = PinholeIntrinsics(320, 240, 277.1, 277.1, 159.5, 119.5)

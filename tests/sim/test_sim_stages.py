@@ -9,7 +9,7 @@ from recipe_helpers import graph_from, header, stages
 from engine.errors import RecipeError
 from engine.run.runner import Observer, Runner
 from engine.transforms import inv, transform_points
-from plugins.sim.workpieces import make_workpiece
+from plugins.util.workpieces import make_workpiece
 
 pytestmark = pytest.mark.timeout(120)
 

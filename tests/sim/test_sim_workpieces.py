@@ -6,7 +6,7 @@ import pytest
 from simcam_helpers import on_surface_distance, surface_scene
 
 from engine.transforms import T_from_rotvec, transform_points
-from plugins.sim.workpieces import (
+from plugins.util.workpieces import (
     Workpiece,
     assembled_plate_pose,
     list_workpieces,

@@ -26,7 +26,7 @@ from plugins.calibration.boards.recording import DEFAULT_IMAGE_TOPICS
 
 if TYPE_CHECKING:
     from plugins.calibration.boards.detect import Detection, Rejection
-    from plugins.calibration.cli import Outcome
+    from plugins.calibration.report import Outcome
     from plugins.camera.pinhole import CameraModel
 
 BOARD_HELP = (
@@ -52,8 +52,8 @@ def run_intrinsics(args: argparse.Namespace) -> Outcome:
     """Detect, calibrate, and package the result for :func:`plugins.calibration.cli.run_kind`."""
     from plugins.calibration.boards.detect import detect_images, image_files
     from plugins.calibration.boards.intrinsics import calibrate_intrinsics, plot_coverage
-    from plugins.calibration.cli import Outcome
     from plugins.calibration.inputs import CalibrationInputError
+    from plugins.calibration.report import Outcome
     from plugins.camera.board_spec import parse_board
 
     board = parse_board(args.board)
@@ -164,8 +164,8 @@ def _run_folder(args: argparse.Namespace, kind: str) -> Outcome:
     from plugins.calibration.boards.handeye_images import pair_views
     from plugins.calibration.boards.intrinsics import calibrate_intrinsics
     from plugins.calibration.boards.robot_poses import load_robot_poses
-    from plugins.calibration.cli import Outcome
     from plugins.calibration.inputs import CalibrationInputError
+    from plugins.calibration.report import Outcome
     from plugins.camera.board_spec import parse_board
     from plugins.camera.pinhole import CameraModel
 
@@ -206,7 +206,7 @@ def _outcome(
 ) -> Outcome:
     """The images pipeline on paired views, and its report."""
     from plugins.calibration.boards.handeye_images import calibrate_handeye_images
-    from plugins.calibration.cli import Outcome
+    from plugins.calibration.report import Outcome
 
     out = calibrate_handeye_images(
         views,

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import sys
 
+from engine.exit_codes import ExitCode
+
 __all__ = ["main"]
 
 _KINDS = {"hand_eye": "handeye", "robot_world": "robot-world"}
@@ -24,7 +26,7 @@ def main(argv: list[str] | None = None) -> int:
         i = args.index("--kind")
         if i + 1 >= len(args) or args[i + 1] not in _KINDS:
             print(f"bad input: --kind must be one of {list(_KINDS)}", file=sys.stderr)
-            return 2
+            return ExitCode.INVALID
         kind = _KINDS[args[i + 1]]
         del args[i : i + 2]
     return calibrate_main([kind, *args])

@@ -26,7 +26,6 @@ measurement frame as ``estimate["T_meas_base"]``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -233,7 +232,6 @@ def calibrate_kinematics(
     *,
     holdout: KinematicSamples | None = None,
     config: KinematicCalibrationConfig | None = None,
-    plot_path: str | Path | None = None,
 ) -> KinematicCalibration:
     """Calibrate ``model``'s geometry, measurement frame and tool from ``samples``.
 
@@ -438,9 +436,4 @@ def calibrate_kinematics(
         method=f"levenberg-marquardt, {conv} parameters, {'pose' if samples.full_pose else 'position'} data",
         iterations=lm.iterations,
     )
-    out = KinematicCalibration(result, calibrated, initial, ident, structural, lm, table, points)
-    if plot_path is not None:
-        from plugins.calibration.kinematics.report import plot_convergence
-
-        plot_convergence(out, plot_path)
-    return out
+    return KinematicCalibration(result, calibrated, initial, ident, structural, lm, table, points)

@@ -81,8 +81,8 @@ class TargetPose(Stage):
             mesh = read_mesh(p.mesh_path)
             return sample_surface(mesh.vertices, mesh.triangles, p.model_points, rng)
         if p.model:
-            # a simulated-cell part by name: the one place a stage asks the simulator for geometry
-            from plugins.sim.workpieces import make_workpiece
+            # a demo part by name (the parts the simulated cell shows)
+            from plugins.util.workpieces import make_workpiece
 
             return make_workpiece(p.model).sample_points(p.model_points, rng)
         raise ValueError("target_pose needs `model` or `mesh_path`")

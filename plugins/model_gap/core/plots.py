@@ -24,9 +24,10 @@ from scipy import stats
 
 from plugins.model_gap.core.check import ModelCheck
 from plugins.model_gap.core.interfaces import Feature
+from plugins.model_gap.core.iteration import Iteration
 from plugins.model_gap.core.localise import FeatureGap
 from plugins.model_gap.core.report import display
-from plugins.model_gap.core.workflow import GapResult, Iteration
+from plugins.model_gap.core.workflow import GapResult
 
 
 def _plt():

@@ -54,10 +54,11 @@ from rich.table import Table
 
 from engine.plain_data import plain
 from plugins.model_gap.core.interfaces import FittedEffect
+from plugins.model_gap.core.iteration import Comparison
 from plugins.model_gap.core.localise import FeatureGap
 from plugins.model_gap.core.selection import CandidateScore
 from plugins.model_gap.core.structure import StructureTest
-from plugins.model_gap.core.workflow import Comparison, GapResult
+from plugins.model_gap.core.workflow import GapResult
 
 REPORT_FORMAT = "vgr.gap_report/1"
 

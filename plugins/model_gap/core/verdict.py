@@ -33,9 +33,9 @@ from scipy import stats
 from plugins.model_gap.core.interfaces import FittedEffect, tie_label
 
 if TYPE_CHECKING:
+    from plugins.model_gap.core.iteration import Iteration
     from plugins.model_gap.core.selection import CandidateScore
     from plugins.model_gap.core.structure import StructureTest
-    from plugins.model_gap.core.workflow import Iteration
 
 
 @dataclass

@@ -48,7 +48,7 @@ from plugins.sim.board import BoardImager, board_workpiece
 from plugins.sim.camera import DepthCameraModel, DepthNoiseModel, PinholeIntrinsics, default_intrinsics
 from plugins.sim.cell import CameraMount, PartPlacement, SimCell
 from plugins.sim.sensor_effects import SensorEffects
-from plugins.sim.workpieces import make_workpiece
+from plugins.util.workpieces import make_workpiece
 
 NOISE_PRESETS = ("noiseless", "industrial_structured_light", "realsense_d415", "kinect_v1")
 TRUTH_PREFIX = "truth/"

@@ -33,7 +33,7 @@ from engine.stage import Stage, StageParams
 from engine.transforms import inv, pose_error, transform_points
 from plugins.params import PoseSpec
 from plugins.sim.stages.camera import TRUTH_PREFIX
-from plugins.sim.workpieces import make_workpiece
+from plugins.util.workpieces import make_workpiece
 
 
 class DockingEvaluator(Stage):

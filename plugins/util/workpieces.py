@@ -1,6 +1,7 @@
-"""Simulated workpieces: watertight triangle meshes generated in code, with their named features.
+"""Workpieces generated in code: watertight triangle meshes with their named features.
 
-This module owns the geometry of the parts the simulated cell shows to its sensors. Every part is built
+This module owns the geometry of the demo parts: the simulated cell shows them to its sensors, and
+the ``target_pose`` stage takes one by name as its model (a real cell gives a mesh file instead). Every part is built
 by constructive solid geometry with `manifold3d <https://github.com/elalish/manifold>`_ (robust booleans
 whose output is guaranteed manifold, i.e. watertight with consistent outward orientation) in
 millimetres, scaled to metres, and handed out as an ``open3d.geometry.TriangleMesh``.  No mesh file is
