@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import graphlib
 import itertools
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
@@ -190,13 +190,33 @@ def _wired_to(
 
 
 def build_graph(loaded: LoadedRecipe, registry: Registry) -> Graph:
-    """Validate *loaded* against the plugin *registry* and return its Graph (or raise RecipeError)."""
-    recipe = loaded.recipe
-    problems: list[Problem] = []
-    nodes: dict[str, StageNode] = {}
-    classes: dict[str, type[Stage]] = {}  # stages whose type is known (their wiring is checked too)
+    """Validate *loaded* against the plugin *registry* and return its Graph (or raise RecipeError).
 
-    for name, spec in recipe.stages.items():
+    Every problem is collected before raising, in recipe order: per stage its type and parameters,
+    then per stage its inputs and its service clients, then cycles."""
+    problems: list[Problem] = []
+    nodes, classes = _stage_nodes(loaded, registry, problems)
+    edges: list[Edge] = []
+    service_edges: list[ServiceEdge] = []
+    for name, cls in classes.items():
+        edges += _input_edges(loaded, name, cls, classes, problems)
+        service_edges += _service_edges(loaded, name, cls, classes, problems)
+    order: list[str] = []
+    if not problems:
+        order = _check_cycles(loaded, nodes, edges, service_edges, problems)
+    if problems:
+        raise RecipeError(problems)
+    return Graph(loaded, nodes, edges, service_edges, order)
+
+
+def _stage_nodes(
+    loaded: LoadedRecipe, registry: Registry, problems: list[Problem]
+) -> tuple[dict[str, StageNode], dict[str, type[Stage]]]:
+    """The stages whose type is known and whose parameters validate (nodes), and every stage whose
+    type is known (classes: their wiring is checked too, so one run of ``vgr validate`` says all)."""
+    nodes: dict[str, StageNode] = {}
+    classes: dict[str, type[Stage]] = {}
+    for name, spec in loaded.recipe.stages.items():
         cls = registry.stages.get(spec.type)
         if cls is None:
             problems.append(
@@ -222,64 +242,80 @@ def build_graph(loaded: LoadedRecipe, registry: Registry) -> Graph:
             problems.extend(units)
             continue
         nodes[name] = StageNode(name, spec, cls, params)
+    return nodes, classes
 
-    edges: list[Edge] = []
-    service_edges: list[ServiceEdge] = []
-    for name, cls in classes.items():
-        spec = recipe.stages[name]
-        for port in spec.inputs:
-            if port not in cls.inputs:
-                problems.append(
-                    loaded.problem(
-                        ("stages", name, "inputs", port),
-                        f"stage type {cls.type_name!r} has no input port {port!r}"
-                        f" (inputs: {', '.join(cls.inputs) or 'none'})",
-                        nearest(port, cls.inputs),
-                    )
+
+def _undeclared(
+    loaded: LoadedRecipe, name: str, section: str, named: Iterable[str], declared: Mapping[str, Any], what: str
+) -> list[Problem]:
+    """A problem for each name the recipe wires under ``stages.<name>.<section>`` that the stage's
+    type does not declare (*what*: how the message names it)."""
+    return [
+        loaded.problem(("stages", name, section, key), what.format(key=key), nearest(key, declared))
+        for key in named
+        if key not in declared
+    ]
+
+
+def _input_edges(
+    loaded: LoadedRecipe, name: str, cls: type[Stage], classes: dict[str, type[Stage]], problems: list[Problem]
+) -> list[Edge]:
+    """The data edges into stage *name*, each checked: declared, wired, of a matching type, not a loop."""
+    spec = loaded.recipe.stages[name]
+    inputs = ", ".join(cls.inputs) or "none"
+    problems += _undeclared(
+        loaded,
+        name,
+        "inputs",
+        spec.inputs,
+        cls.inputs,
+        f"stage type {cls.type_name!r} has no input port {{key!r}} (inputs: {inputs})",
+    )
+    edges = []
+    for port, in_type in cls.inputs.items():
+        path = ("stages", name, "inputs", port)
+        ref = spec.inputs.get(port)
+        if ref is None:
+            problems.append(
+                loaded.problem(
+                    ("stages", name, "inputs"),
+                    f"input port {port!r} ({in_type.TYPE}) is not wired; add `{port}: <stage>.<port>`",
                 )
-        for port, in_type in cls.inputs.items():
-            path = ("stages", name, "inputs", port)
-            ref = spec.inputs.get(port)
-            if ref is None:
-                problems.append(
-                    loaded.problem(
-                        ("stages", name, "inputs"),
-                        f"input port {port!r} ({in_type.TYPE}) is not wired; add `{port}: <stage>.<port>`",
-                    )
+            )
+            continue
+        wired = _wired_to(loaded, path, ref, _INPUT, cls, classes, problems)
+        if wired is None:
+            continue
+        src, src_port, out_type = wired
+        if not issubclass(out_type, in_type):
+            problems.append(
+                loaded.problem(
+                    path,
+                    f"type mismatch: {src}.{src_port} produces {out_type.TYPE}, input {port!r} needs {in_type.TYPE}",
                 )
-                continue
-            wired = _wired_to(loaded, path, ref, _INPUT, cls, classes, problems)
-            if wired is None:
-                continue
-            src, src_port, out_type = wired
-            if not issubclass(out_type, in_type):
-                problems.append(
-                    loaded.problem(
-                        path,
-                        f"type mismatch: {src}.{src_port} produces {out_type.TYPE}, "
-                        f"input {port!r} needs {in_type.TYPE}",
-                    )
-                )
-                continue
-            if src == name:
-                problems.append(loaded.problem(path, "a stage cannot consume its own output"))
-                continue
+            )
+        elif src == name:
+            problems.append(loaded.problem(path, "a stage cannot consume its own output"))
+        else:
             edges.append(Edge(src, src_port, name, port, out_type))
-        for client in spec.uses:
-            if client not in cls.uses:
-                problems.append(
-                    loaded.problem(
-                        ("stages", name, "uses", client),
-                        f"stage type {cls.type_name!r} uses no service called {client!r}",
-                        nearest(client, cls.uses),
-                    )
-                )
-        for client, need in cls.uses.items():
-            path = ("stages", name, "uses", client)
-            ref = spec.uses.get(client)
-            if ref is None and need.optional:
-                continue
-            if ref is None:
+    return edges
+
+
+def _service_edges(
+    loaded: LoadedRecipe, name: str, cls: type[Stage], classes: dict[str, type[Stage]], problems: list[Problem]
+) -> list[ServiceEdge]:
+    """The service calls stage *name* makes, each checked: declared, wired unless optional, of a
+    matching request and reply type, not to itself (it would deadlock)."""
+    spec = loaded.recipe.stages[name]
+    problems += _undeclared(
+        loaded, name, "uses", spec.uses, cls.uses, f"stage type {cls.type_name!r} uses no service called {{key!r}}"
+    )
+    edges = []
+    for client, need in cls.uses.items():
+        path = ("stages", name, "uses", client)
+        ref = spec.uses.get(client)
+        if ref is None:
+            if not need.optional:
                 problems.append(
                     loaded.problem(
                         ("stages", name, "uses"),
@@ -287,32 +323,24 @@ def build_graph(loaded: LoadedRecipe, registry: Registry) -> Graph:
                         " is not wired; add `" + client + ": <stage>.<service>`",
                     )
                 )
-                continue
-            wired = _wired_to(loaded, path, ref, _CLIENT, cls, classes, problems)
-            if wired is None:
-                continue
-            prov, svc, have = wired
-            if not (issubclass(need.request, have.request) and issubclass(have.reply, need.reply)):
-                problems.append(
-                    loaded.problem(
-                        path,
-                        f"service type mismatch: {prov}.{svc} takes {have.request.TYPE} "
-                        f"-> {have.reply.TYPE}, client expects {need.request.TYPE} -> "
-                        f"{need.reply.TYPE}",
-                    )
+            continue
+        wired = _wired_to(loaded, path, ref, _CLIENT, cls, classes, problems)
+        if wired is None:
+            continue
+        prov, svc, have = wired
+        if not (issubclass(need.request, have.request) and issubclass(have.reply, need.reply)):
+            problems.append(
+                loaded.problem(
+                    path,
+                    f"service type mismatch: {prov}.{svc} takes {have.request.TYPE} -> {have.reply.TYPE}, "
+                    f"client expects {need.request.TYPE} -> {need.reply.TYPE}",
                 )
-                continue
-            if prov == name:
-                problems.append(loaded.problem(path, "a stage cannot call its own service (it would deadlock)"))
-                continue
-            service_edges.append(ServiceEdge(name, client, prov, svc))
-
-    order: list[str] = []
-    if not problems:
-        order = _check_cycles(loaded, nodes, edges, service_edges, problems)
-    if problems:
-        raise RecipeError(problems)
-    return Graph(loaded, nodes, edges, service_edges, order)
+            )
+        elif prov == name:
+            problems.append(loaded.problem(path, "a stage cannot call its own service (it would deadlock)"))
+        else:
+            edges.append(ServiceEdge(name, client, prov, svc))
+    return edges
 
 
 def _check_cycles(

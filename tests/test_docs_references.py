@@ -42,3 +42,72 @@ def test_every_cited_file_exists(path):
         if not any(ROOT.glob(ref))
     ]
     assert not missing, "cited but not in the repository:\n" + "\n".join(missing)
+
+
+# a folder in the repository, written with its trailing slash (plugins/calibration/)
+CITED_DIR = re.compile(
+    r"(?<![\w/.-])((?:docs|engine|plugins|recipes|tests|benchmarks|recordings|examples)/(?:[\w-]+/)*)(?![\w.-])"
+)
+# a Markdown link [text](target), target not a URL
+MD_LINK = re.compile(r"\[[^\]]*\]\((?!https?:|mailto:)([^)\s]+)\)")
+
+
+def heading_anchors(markdown: str) -> set[str]:
+    """The anchors GitHub gives a page's headings: lower case, punctuation but '-' and '_' dropped,
+    spaces to '-' (a repeated heading gets '-1', '-2', ...)."""
+    seen: dict[str, int] = {}
+    out = set()
+    for line in markdown.splitlines():
+        m = re.match(r"^#{1,6}\s+(.*?)\s*#*\s*$", line)
+        if not m:
+            continue
+        slug = re.sub(r"[^\w\- ]", "", m.group(1).strip().lower()).replace(" ", "-")
+        n = seen.get(slug, 0)
+        seen[slug] = n + 1
+        out.add(slug if n == 0 else f"{slug}-{n}")
+    return out
+
+
+def test_the_folder_and_link_patterns_find_what_they_should():
+    assert CITED_DIR.findall("see plugins/calibration/ and (docs/), not xplugins/a/ or docs/a.md") == [
+        "plugins/calibration/",
+        "docs/",
+    ]
+    assert MD_LINK.findall("[a](docs/x.md#y) [b](https://e.org) [c](z.md)") == ["docs/x.md#y", "z.md"]
+
+
+def test_heading_anchors_follow_github():
+    text = "# Watching a run live in Foxglove\n## Exit codes: one table\n## Exit codes: one table\n"
+    assert heading_anchors(text) == {
+        "watching-a-run-live-in-foxglove",
+        "exit-codes-one-table",
+        "exit-codes-one-table-1",
+    }
+
+
+@pytest.mark.parametrize("path", _texts(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_cited_folder_exists(path):
+    text = path.read_text(encoding="utf-8")
+    missing = [
+        f"{path.relative_to(ROOT)}:{i}: {m.group(1)}"
+        for i, line in enumerate(text.splitlines(), 1)
+        for m in CITED_DIR.finditer(line)
+        if not (ROOT / m.group(1)).is_dir()
+    ]
+    assert not missing, "folders cited but not in the repository:\n" + "\n".join(missing)
+
+
+@pytest.mark.parametrize(
+    "path", [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))], ids=lambda p: str(p.relative_to(ROOT))
+)
+def test_every_markdown_link_reaches_its_file_and_heading(path):
+    broken = []
+    for i, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+        for m in MD_LINK.finditer(line):
+            target, _, anchor = m.group(1).partition("#")
+            dest = (path.parent / target).resolve() if target else path
+            if not dest.exists():
+                broken.append(f"{path.relative_to(ROOT)}:{i}: {m.group(1)} (no such file)")
+            elif anchor and dest.suffix == ".md" and anchor not in heading_anchors(dest.read_text(encoding="utf-8")):
+                broken.append(f"{path.relative_to(ROOT)}:{i}: {m.group(1)} (no such heading)")
+    assert not broken, "broken links:\n" + "\n".join(broken)

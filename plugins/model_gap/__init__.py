@@ -2,8 +2,9 @@
 
 The statistics and the loop live in :mod:`plugins.model_gap.core` (no robot knowledge); this package supplies
 the robot-kinematics problem (:mod:`.problem`), the effect families registered through the
-``vgr_model_effects`` hook (:mod:`.effects`), data readers (:mod:`.data`), the hidden-effect
-simulator of the tests and benchmark (:mod:`.simulate`) and the front ends.
+``vgr_model_effects`` hook (:mod:`.effects`), data readers (:mod:`.data`, :mod:`.recordings`,
+:mod:`.inputs`) and the front ends (``vgr gap``, the stages in ``stages/``). The hidden-effect
+simulator of the tests and benchmark is plugins.sim.model_gap.
 
 The names below are imported lazily: ``vgr`` imports :mod:`.cli` to build its parser on every start,
 and that must not pull in scipy.stats and the kinematics (seconds on a loaded machine).

@@ -1,1 +1,2 @@
-"""Generic stages (synthetic sources, rigid transforms, statistics sinks) and small helpers any plugin may use."""
+"""Generic stages (``stages/``: synthetic sources, rigid transforms, statistics sinks, a trigger),
+small helpers any plugin may use, and the demo parts generated in code (workpieces.py)."""

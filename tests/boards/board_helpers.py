@@ -36,11 +36,12 @@ def detected_views(board: BoardSpec, n: int, seed: int, **kw) -> tuple[list[Dete
 
 
 def noisy_detections(
-    board: BoardSpec, camera: CameraModel, n: int, seed: int, sigma_px: float
+    board: BoardSpec, camera: CameraModel, n: int, seed: int, sigma_px: float, **view_kw
 ) -> tuple[list[Detection], list[np.ndarray]]:
-    """Exact projections of the board's points plus N(0, sigma_px²) per coordinate."""
+    """Exact projections of the board's points plus N(0, sigma_px²) per coordinate; *view_kw* go to
+    sample_views (distance_m, max_tilt_deg, ...)."""
     rng = np.random.default_rng(seed)
-    poses = sample_views(board, camera, n, rng)
+    poses = sample_views(board, camera, n, rng, **view_kw)
     dets = []
     for k, T in enumerate(poses):
         uv = camera.project(T, board.object_points) + rng.normal(0.0, sigma_px, (board.n_features, 2))

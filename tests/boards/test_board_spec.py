@@ -111,21 +111,24 @@ def test_bad_specs_say_what_to_write(spec, message):
         assert "write" in str(exc.value) or "use" in str(exc.value)
 
 
-def test_bad_board_files(tmp_path):
+def test_a_missing_board_file_is_a_board_spec_error(tmp_path):
     with pytest.raises(BoardSpecError, match="no such file"):
         parse_board(str(tmp_path / "missing.yaml"))
+
+
+@pytest.mark.parametrize(
+    ("text", "says"),
+    [
+        ("type: chessboard\ncols: 9\nrows: 6\nsquare: 20\n", "unknown field"),
+        ("type: chessboard\ncols: 9.5\nrows: 6\nsquare_mm: 20\n", "whole number"),
+        ("[1, 2", "cannot read"),
+        ("type: chessboard\ncols: 9\nrows: 6\n", "square_mm"),
+    ],
+)
+def test_bad_board_files(tmp_path, text, says):
     f = tmp_path / "b.yaml"
-    f.write_text("type: chessboard\ncols: 9\nrows: 6\nsquare: 20\n")
-    with pytest.raises(BoardSpecError, match="unknown field"):
-        load_board(f)
-    f.write_text("type: chessboard\ncols: 9.5\nrows: 6\nsquare_mm: 20\n")
-    with pytest.raises(BoardSpecError, match="whole number"):
-        load_board(f)
-    f.write_text("[1, 2")
-    with pytest.raises(BoardSpecError, match="cannot read"):
-        load_board(f)
-    f.write_text("type: chessboard\ncols: 9\nrows: 6\n")
-    with pytest.raises(BoardSpecError, match="square_mm"):
+    f.write_text(text)
+    with pytest.raises(BoardSpecError, match=says):
         load_board(f)
 
 

@@ -9,7 +9,6 @@ from board_helpers import CAMERA, TRUE_INTRINSICS, detected_views, noisy_detecti
 
 from plugins.calibration.boards.detect import Detection, Detections
 from plugins.calibration.boards.intrinsics import calibrate_intrinsics
-from plugins.camera.board_render import sample_views
 from plugins.camera.board_spec import parse_board
 from plugins.camera.pinhole import CameraModel
 
@@ -70,14 +69,7 @@ def test_a_lens_the_standard_model_cannot_follow_gets_the_rational_model():
     the standard model leaves 0.41 px, the rational one the noise (0.05 px per coordinate)."""
     K = np.array([[300.0, 0.0, 322.0], [0.0, 300.0, 238.0], [0.0, 0.0, 1.0]])
     lens = CameraModel(640, 480, K, [0, 0, 0, 0, 0, 1.5, 0, 0], "rational")
-    rng = np.random.default_rng(4)
-    poses = sample_views(CHESS, lens, 15, rng, distance_m=(0.15, 0.3))
-    dets = [
-        Detection(f"v{k}", lens.size, np.arange(CHESS.n_features),
-                  lens.project(T, CHESS.object_points) + rng.normal(0, 0.05, (CHESS.n_features, 2)),
-                  CHESS.object_points, "simulated")
-        for k, T in enumerate(poses)
-    ]  # fmt: skip
+    dets, _ = noisy_detections(CHESS, lens, 15, 4, 0.05, distance_m=(0.15, 0.3))
     cal = calibrate_intrinsics(Detections(CHESS, dets))
     assert cal.camera.model == "rational", cal.model_choice
     assert cal.candidates["standard"]["rms_px"] > 4 * cal.candidates["rational"]["rms_px"]
@@ -111,14 +103,7 @@ def test_too_few_views_fail_with_the_count():
 
 
 def test_frontal_views_in_the_middle_get_advice():
-    rng = np.random.default_rng(3)
-    poses = sample_views(CHESS, CAMERA, 8, rng, max_tilt_deg=8.0, distance_m=(0.6, 0.7))
-    dets = [
-        Detection(f"v{k}", CAMERA.size, np.arange(CHESS.n_features),
-                  CAMERA.project(T, CHESS.object_points) + rng.normal(0, 0.1, (CHESS.n_features, 2)),
-                  CHESS.object_points, "simulated")
-        for k, T in enumerate(poses)
-    ]  # fmt: skip
+    dets, _ = noisy_detections(CHESS, CAMERA, 8, 3, 0.1, max_tilt_deg=8.0, distance_m=(0.6, 0.7))
     cal = calibrate_intrinsics(Detections(CHESS, dets))
     text = " ".join(cal.advice)
     assert "tilt the board more" in text and "cover the whole image" in text and "15-25 views" in text

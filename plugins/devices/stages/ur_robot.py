@@ -9,7 +9,7 @@ safety mode NORMAL/REDUCED, no protective or emergency stop, arm RUNNING, contro
 and the target (:mod:`plugins.devices.ur_motion_checks`: finite rigid pose, inside the workspace box,
 within the step limits, speeds within the maxima); a failed check refuses the command with the
 reason and the SDK's move functions are not called. Each ``command_id`` is executed at most once
-(:mod:`plugins.actions.command_journal`); a repeat returns the first reply with ``duplicate=True``.
+(:mod:`plugins.devices.command_journal`); a repeat returns the first reply with ``duplicate=True``.
 
 Moves are blocking; the engine never runs two handlers of a stage at once, so a ``stop`` command
 cannot interrupt a move in progress (it decelerates the joints when idle and is harmless). Use the
@@ -33,7 +33,7 @@ from pydantic import Field, model_validator
 from engine import transforms as tf
 from engine.messages import FrameTransforms, JointState, PoseStamped, RobotCommand, RobotReply, Transform
 from engine.stage import Stage, StageParams
-from plugins.actions.command_journal import CommandJournal
+from plugins.devices.command_journal import CommandJournal
 from plugins.devices.ur_motion_checks import (
     MotionLimits,
     Workspace,
