@@ -7,6 +7,7 @@ a failed stage 4, an interrupted run 130, and only a clean run 0 (engine/exit_co
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 
@@ -57,3 +58,38 @@ def test_a_clean_run_exits_0_with_outcome_ok(capsys):
     assert main(["run", "recipes/demo.yaml", "-p", "source.frames=3", "--no-progress", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert (out["outcome"], out["exit_code"], out["ok"]) == ("ok", 0, True)
+
+
+def test_the_readme_table_is_the_exit_code_table():
+    from pathlib import Path
+
+    from engine.exit_codes import ExitCode
+
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text(encoding="utf-8")
+    section = readme[readme.index("### Exit codes") :]
+    section = section[: section.index("\n\n", section.index("| code |"))]
+    assert {int(c) for c in re.findall(r"^\| (\d+) \|", section, re.M)} == {int(c) for c in ExitCode}
+
+
+def test_only_engine_exit_codes_defines_exit_codes():
+    """No module but engine/exit_codes.py binds an EXIT_* name to a number or returns a bare
+    number from a verb: one table, one meaning per number (README, *Exit codes*)."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    found = []
+    for path in [*root.glob("engine/**/*.py"), *root.glob("plugins/**/*.py")]:
+        if path.name == "exit_codes.py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            targets = node.targets if isinstance(node, ast.Assign) else []
+            names = [n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name)]
+            numbers = [n for n in ast.walk(node.value) if isinstance(n, ast.Constant)] if targets else []
+            if any(n.startswith("EXIT_") for n in names) and any(isinstance(c.value, int) for c in numbers):
+                found.append(f"{path.relative_to(root)}:{node.lineno}")
+            if ("cli" in path.parts or path.name.endswith("cli.py")) and (
+                isinstance(node, ast.Return) and isinstance(node.value, ast.Constant) and type(node.value.value) is int
+            ):
+                found.append(f"{path.relative_to(root)}:{node.lineno}: return {node.value.value}")
+    assert not found, found
