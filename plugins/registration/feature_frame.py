@@ -21,13 +21,13 @@ from __future__ import annotations
 import itertools
 import time
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 
 from engine import transforms as tf
 from plugins.registration.circles import Circle, find_holes, find_pins
-from plugins.registration.plane import plane_basis, segment_main_plane
+from plugins.registration.plane import PlaneFit, plane_basis, segment_main_plane
 from plugins.registration.preprocess import PreprocessParams, prepare_cloud
 from plugins.registration.result import RegistrationResult, failed
 from plugins.registration.validation import InvalidInputError
@@ -126,33 +126,36 @@ class AmbiguousOrderError(InvalidInputError):
     """Both orderings of the feature pair explain the data equally well."""
 
 
+class _Features(NamedTuple):
+    """The main plane of a cloud (normal ``n`` oriented towards the camera, inlier points
+    ``plane_pts``, RMS radius about the normal) and the circular features found on it, with their
+    centres on the plane (camera frame)."""
+
+    plane: PlaneFit
+    n: np.ndarray
+    plane_pts: np.ndarray
+    plane_radius: float
+    circles: list[Circle]
+    centers3: np.ndarray
+
+
 def _frame(c1: np.ndarray, c2: np.ndarray, n: np.ndarray) -> np.ndarray:
     x = (c2 - c1) - ((c2 - c1) @ n) * n
     x /= np.linalg.norm(x)
     return tf.T_from_Rt(np.column_stack([x, np.cross(n, x), n]), c1)
 
 
-def fit_feature_frame(
-    cloud: Any,
-    params: FeatureFrameParams | None = None,
-    *,
-    reference: FeatureFrame | None = None,
-    name: str = "cloud",
-) -> FeatureFrame:
-    """Fit the workpiece frame of *cloud* (see module docstring); raises InvalidInputError with a reason
-    (AmbiguousOrderError when the feature order cannot be decided against *reference*)."""
-    params = params or FeatureFrameParams()
-    prep = prepare_cloud(cloud, params.preprocess, name=name)
-    pts = prep.points
-    spacing = prep.spacing()
-    dist = params.plane_distance_m or max(2.0 * spacing, 0.3e-3)
-    plane = segment_main_plane(pts, distance_m=dist, iterations=params.plane_iterations, seed=params.seed)
-    n = plane.normal
-    if prep.viewpoint is not None and (np.asarray(prep.viewpoint) - plane.centroid) @ n < 0:
-        n = -n
-    B = plane_basis(n)
-    o = plane.centroid
-    plane_pts = pts[plane.inliers]
+def _find_circles(
+    pts: np.ndarray,
+    plane_pts: np.ndarray,
+    o: np.ndarray,
+    n: np.ndarray,
+    B: np.ndarray,
+    spacing: float,
+    params: FeatureFrameParams,
+) -> list[Circle]:
+    """Holes in the plane points, or pins standing on the plane (origin *o*, normal *n*, basis *B*),
+    within the accepted radii; raises InvalidInputError when fewer than two are found."""
     if params.radius_m is not None:
         r_lo, r_hi = params.radius_m - params.radius_tolerance_m, params.radius_m + params.radius_tolerance_m
     else:
@@ -176,42 +179,75 @@ def fit_feature_frame(
             f"found {len(circles)} circular {params.feature_kind}(s) with radius "
             f"{r_lo * 1e3:.3g}-{r_hi * 1e3:.3g} mm on the main plane; need 2"
         )
+    return circles
+
+
+def _detect_features(cloud: Any, params: FeatureFrameParams, name: str) -> _Features:
+    """Prepare *cloud*, segment its main plane (normal towards ``viewpoint``) and find the circular
+    features on it; raises InvalidInputError with a reason."""
+    prep = prepare_cloud(cloud, params.preprocess, name=name)
+    pts = prep.points
+    spacing = prep.spacing()
+    dist = params.plane_distance_m or max(2.0 * spacing, 0.3e-3)
+    plane = segment_main_plane(pts, distance_m=dist, iterations=params.plane_iterations, seed=params.seed)
+    n = plane.normal
+    if prep.viewpoint is not None and (np.asarray(prep.viewpoint) - plane.centroid) @ n < 0:
+        n = -n
+    B = plane_basis(n)
+    o = plane.centroid
+    plane_pts = pts[plane.inliers]
+    circles = _find_circles(pts, plane_pts, o, n, B, spacing, params)
     centers3 = np.array([o + B @ c.center_uv for c in circles])
     rel = plane_pts - o
     plane_radius = float(np.sqrt(np.mean(np.sum((rel - np.outer(rel @ n, n)) ** 2, axis=1))))
+    return _Features(plane, n, plane_pts, plane_radius, circles, centers3)
 
-    def build(i: int, j: int) -> FeatureFrame:
-        T = _frame(centers3[i], centers3[j], n)
-        cen = tf.transform_points(tf.inv(T), plane_pts.mean(axis=0)[None, :])[0]
-        return FeatureFrame(
-            T_cam_frame=T,
-            centers=centers3[[i, j]],
-            radii=np.array([circles[i].radius_m, circles[j].radius_m]),
-            circle_rms_m=np.array([circles[i].rms_m, circles[j].rms_m]),
-            n_rim=np.array([circles[i].n_rim, circles[j].n_rim]),
-            plane_rms_m=plane.rms_m,
-            n_plane=int(plane.inliers.size),
-            plane_radius_m=plane_radius,
-            plane_centroid_in_frame=cen,
-            kind=params.feature_kind,
-            n_candidates=len(circles),
-        )
 
-    if reference is None:
-        order = sorted(range(len(circles)), key=lambda k: (round(circles[k].radius_m / 1e-4), circles[k].center_uv[0]))
-        if len(circles) > 2:  # the farthest-apart pair is the most precise X axis
-            pairs = itertools.combinations(range(len(circles)), 2)
-            i, j = max(pairs, key=lambda p: np.linalg.norm(centers3[p[0]] - centers3[p[1]]))
-            order = sorted((i, j), key=lambda k: order.index(k))
-        return build(order[0], order[1])
+def _candidate(f: _Features, i: int, j: int, kind: str) -> FeatureFrame:
+    """The frame with feature *i* as feature 1 and feature *j* as feature 2."""
+    T = _frame(f.centers3[i], f.centers3[j], f.n)
+    cen = tf.transform_points(tf.inv(T), f.plane_pts.mean(axis=0)[None, :])[0]
+    circles = f.circles
+    return FeatureFrame(
+        T_cam_frame=T,
+        centers=f.centers3[[i, j]],
+        radii=np.array([circles[i].radius_m, circles[j].radius_m]),
+        circle_rms_m=np.array([circles[i].rms_m, circles[j].rms_m]),
+        n_rim=np.array([circles[i].n_rim, circles[j].n_rim]),
+        plane_rms_m=f.plane.rms_m,
+        n_plane=int(f.plane.inliers.size),
+        plane_radius_m=f.plane_radius,
+        plane_centroid_in_frame=cen,
+        kind=kind,
+        n_candidates=len(circles),
+    )
 
-    def cost(ff: FeatureFrame) -> tuple[float, float]:
-        geom = abs(ff.spacing_m - reference.spacing_m) + float(np.max(np.abs(ff.radii - reference.radii)))
-        cue = float(np.linalg.norm(ff.plane_centroid_in_frame[:2] - reference.plane_centroid_in_frame[:2]))
-        return geom, cue
 
-    options = [build(i, j) for i, j in itertools.permutations(range(len(circles)), 2)]
-    costs = [cost(f) for f in options]
+def _frame_without_reference(f: _Features, kind: str) -> FeatureFrame:
+    """Template making: features ordered by radius, then by their coordinate along the plane's first
+    basis vector; of more than two, the farthest-apart pair (kept in that order)."""
+    circles, centers3 = f.circles, f.centers3
+    order = sorted(range(len(circles)), key=lambda k: (round(circles[k].radius_m / 1e-4), circles[k].center_uv[0]))
+    if len(circles) > 2:  # the farthest-apart pair is the most precise X axis
+        pairs = itertools.combinations(range(len(circles)), 2)
+        i, j = max(pairs, key=lambda p: np.linalg.norm(centers3[p[0]] - centers3[p[1]]))
+        order = sorted((i, j), key=lambda k: order.index(k))
+    return _candidate(f, order[0], order[1], kind)
+
+
+def _reference_cost(ff: FeatureFrame, reference: FeatureFrame) -> tuple[float, float]:
+    """(geometry mismatch: spacing + worst radius, plane-centroid cue) of a candidate against *reference*."""
+    geom = abs(ff.spacing_m - reference.spacing_m) + float(np.max(np.abs(ff.radii - reference.radii)))
+    cue = float(np.linalg.norm(ff.plane_centroid_in_frame[:2] - reference.plane_centroid_in_frame[:2]))
+    return geom, cue
+
+
+def _frame_against_reference(f: _Features, reference: FeatureFrame, params: FeatureFrameParams) -> FeatureFrame:
+    """The ordered pair that best matches *reference*: among the pairs that match its geometry, the
+    best plane-centroid cue; AmbiguousOrderError when the same pair swapped is within
+    ``order_margin_m`` of it."""
+    options = [_candidate(f, i, j, params.feature_kind) for i, j in itertools.permutations(range(len(f.circles)), 2)]
+    costs = [_reference_cost(o, reference) for o in options]
     best_geom = min(c[0] for c in costs)
     # among pairs that match the template's geometry, order by the plane-centroid cue
     viable = sorted(
@@ -231,6 +267,22 @@ def fit_feature_frame(
                 )
             break
     return best
+
+
+def fit_feature_frame(
+    cloud: Any,
+    params: FeatureFrameParams | None = None,
+    *,
+    reference: FeatureFrame | None = None,
+    name: str = "cloud",
+) -> FeatureFrame:
+    """Fit the workpiece frame of *cloud* (see module docstring); raises InvalidInputError with a reason
+    (AmbiguousOrderError when the feature order cannot be decided against *reference*)."""
+    params = params or FeatureFrameParams()
+    features = _detect_features(cloud, params, name)
+    if reference is None:
+        return _frame_without_reference(features, params.feature_kind)
+    return _frame_against_reference(features, reference, params)
 
 
 def register_feature_frame(

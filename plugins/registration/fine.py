@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -29,8 +29,8 @@ from plugins.registration.edges import (
 from plugins.registration.fine_backends import BACKENDS, IcpSettings, run_backend
 from plugins.registration.preprocess import PreparedCloud, PreprocessParams, prepare_cloud
 from plugins.registration.result import RegistrationResult, failed
-from plugins.registration.scoring import score_alignment
-from plugins.registration.uncertainty import pose_uncertainty
+from plugins.registration.scoring import AlignmentScore, score_alignment
+from plugins.registration.uncertainty import PoseUncertainty, pose_uncertainty
 from plugins.registration.validation import InvalidInputError, as_initial_transform
 
 
@@ -107,74 +107,70 @@ class FineParams:
         )
 
 
-def evaluate(
+class _EdgeTerm(NamedTuple):
+    """The contour's part in an evaluation: edge rows ``(p, q, m)`` for the Hessian (None without
+    edges), their residual-variance floor, and whether the contour match refutes the pose."""
+
+    rows: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    floor: float = 0.0
+    refutes: bool = False
+
+
+def _overlap_reasons(sc: AlignmentScore, inlier_d: float, params: FineParams) -> list[str]:
+    """Why the overlap is too small for a match (too few inliers, or too low a fitness); [] if enough."""
+    if sc.n_inliers < max(params.min_inliers, 7):
+        return [
+            f"only {sc.n_inliers} current points lie within {inlier_d * 1e3:.3g} mm of the template "
+            f"(need {params.min_inliers}): wrong part, part missing or initial guess too far"
+        ]
+    if sc.fitness < params.min_fitness:
+        return [
+            f"only {sc.fitness:.0%} of the current points lie within {inlier_d * 1e3:.3g} mm of the "
+            f"template (need {params.min_fitness:.0%}): wrong part, part missing or initial guess too far"
+        ]
+    return []
+
+
+def _refuse(res: RegistrationResult, reasons: list[str], T_match: np.ndarray, failure: str) -> RegistrationResult:
+    """Mark *res* ``failed`` for *reasons*, keeping *T_match* as the candidate; ``failure`` says why."""
+    res.verdict = "failed"
+    res.reasons = reasons
+    res.details["T_candidate"] = T_match
+    res.details["failure"] = failure
+    return res
+
+
+def _contour_check(
+    res: RegistrationResult, reasons: list[str], edges: tuple[EdgeSet, EdgeSet], T_match: np.ndarray, ep: EdgeParams
+) -> _EdgeTerm:
+    """Match the current contour onto the template's at *T_match*: records the edge fitness, adds a
+    reason when too little of it matches, and returns the edge rows for the Hessian."""
+    spacing = max(edges[0].spacing, edges[1].spacing)
+    pairs = edge_pairs(edges[0], edges[1], T_match, ep.inlier_factor * spacing, ep.min_cos)
+    res.details["edge_fitness"] = pairs.fitness
+    res.details["edge_points"] = len(edges[0])
+    contour_refutes = bool(pairs.fitness < ep.min_fitness)
+    if contour_refutes:
+        reasons.append(
+            f"only {pairs.fitness:.0%} of the current contour ({len(edges[0])} edge points) lies within "
+            f"{ep.inlier_factor * spacing * 1e3:.2g} mm of the template's (need {ep.min_fitness:.0%}): "
+            "wrong pose (e.g. turned in the plane) or wrong part"
+        )
+    edge_floor = spacing**2 / 6.0  # each capture's contour is sampled to +-spacing / 2
+    return _EdgeTerm((pairs.p, pairs.q, pairs.m), edge_floor, contour_refutes)
+
+
+def _match_uncertainty(
     current: PreparedCloud,
     template: PreparedCloud,
     T_match: np.ndarray,
+    sc: AlignmentScore,
     params: FineParams,
-    *,
-    method: str,
-    iterations: int = 0,
-    converged: bool = True,
-    edges: tuple[EdgeSet, EdgeSet] | None = None,
-) -> RegistrationResult:
-    """Score *T_match*, compute its uncertainty and decide the verdict (shared by every matcher).
-
-    ``edges`` (current, template edge sets): check the contour match and add the edge rows to the
-    Hessian. ``details["min_stiffness_ratio"]`` is set whenever the uncertainty could be computed
-    (also for a result that did not converge); ``details["failure"]`` says why a result failed
-    (``overlap``, ``edges``: the pose is refuted; ``convergence``)."""
-    _, inlier_d, trunc = params.distances(template)
-    sc = score_alignment(
-        current.points,
-        template,
-        T_match,
-        inlier_distance_m=inlier_d,
-        truncation_m=trunc,
-        num_threads=params.num_threads,
-    )
-    res = RegistrationResult(
-        verdict="ok",
-        method=method,
-        fitness=sc.fitness,
-        inlier_rmse=sc.inlier_rmse,
-        score=sc.score,
-        iterations=iterations,
-        converged=converged,
-    )
-    reasons: list[str] = []
-    if sc.n_inliers < max(params.min_inliers, 7):
-        reasons.append(
-            f"only {sc.n_inliers} current points lie within {inlier_d * 1e3:.3g} mm of the template "
-            f"(need {params.min_inliers}): wrong part, part missing or initial guess too far"
-        )
-    elif sc.fitness < params.min_fitness:
-        reasons.append(
-            f"only {sc.fitness:.0%} of the current points lie within {inlier_d * 1e3:.3g} mm of the "
-            f"template (need {params.min_fitness:.0%}): wrong part, part missing or initial guess too far"
-        )
-    if reasons:  # too little overlap: no uncertainty
-        res.verdict = "failed"
-        res.reasons = reasons
-        res.details["T_candidate"] = T_match
-        res.details["failure"] = "overlap"
-        return res
-    edge_rows, edge_floor, contour_refutes = None, 0.0, False
-    if edges is not None:
-        ep = params.edges
-        spacing = max(edges[0].spacing, edges[1].spacing)
-        pairs = edge_pairs(edges[0], edges[1], T_match, ep.inlier_factor * spacing, ep.min_cos)
-        res.details["edge_fitness"] = pairs.fitness
-        res.details["edge_points"] = len(edges[0])
-        if pairs.fitness < ep.min_fitness:
-            contour_refutes = True
-            reasons.append(
-                f"only {pairs.fitness:.0%} of the current contour ({len(edges[0])} edge points) lies within "
-                f"{ep.inlier_factor * spacing * 1e3:.2g} mm of the template's (need {ep.min_fitness:.0%}): "
-                "wrong pose (e.g. turned in the plane) or wrong part"
-            )
-        edge_rows = (pairs.p, pairs.q, pairs.m)
-        edge_floor = spacing**2 / 6.0  # each capture's contour is sampled to +-spacing / 2
+    edges: tuple[EdgeSet, EdgeSet] | None,
+    edge_term: _EdgeTerm,
+) -> PoseUncertainty:
+    """Pose uncertainty from the inlier pairs of *sc* (without the surface rows at the template's
+    contour when the edge rows are used) plus the edge rows."""
     src, tgt = sc.inlier_source, sc.inlier_target
     if edges is not None:  # at the contour the edge rows replace the surface rows (edges.away_from_edges)
         keep = away_from_edges(template, edges[1])[tgt]
@@ -182,30 +178,42 @@ def evaluate(
     p = tf.transform_points(T_match, current.points[src])
     q = template.points[tgt]
     n = template.normals()[tgt]
-    unc = pose_uncertainty(
+    return pose_uncertainty(
         p,
         q,
         n,
         weak_ratio=params.weak_ratio,
-        edges=edge_rows,
-        edge_variance_floor=edge_floor,
+        edges=edge_term.rows,
+        edge_variance_floor=edge_term.floor,
         cluster_size_m=params.sigma_cluster_factor * template.resolution() if params.sigma_cluster_factor else None,
         scale=params.sigma_scale,
     )
-    res.details["min_stiffness_ratio"] = float(np.min(unc.eigen_ratios))
-    if not converged:
-        ran = (
-            f"{params.edges.max_iterations} Gauss-Newton steps with edges"
-            if edges is not None
-            else f"{params.max_iterations} iterations and {params.recheck_iterations} more"
-        )
-        reasons.append(f"{method} did not converge: still moving after {ran}")
-    if reasons:
-        res.verdict = "failed"
-        res.reasons = reasons
-        res.details["T_candidate"] = T_match
-        res.details["failure"] = "edges" if contour_refutes else "convergence"
-        return res
+
+
+def _sigma_excess(unc: PoseUncertainty, params: FineParams) -> str | None:
+    """The reason when a per-axis one-sigma exceeds ``max_sigma_*``; None within the limits."""
+    over_t = unc.sigma_translation_m > params.max_sigma_translation_m
+    over_r = unc.sigma_rotation_rad > params.max_sigma_rotation_rad
+    if not (np.any(over_t) or np.any(over_r)):
+        return None
+    axes = [f"{a} {s * 1e3:.3g} mm" for a, s, o in zip("xyz", unc.sigma_translation_m, over_t, strict=True) if o]
+    axes += [
+        f"r{a} {np.degrees(s):.3g} deg" for a, s, o in zip("xyz", unc.sigma_rotation_rad, over_r, strict=True) if o
+    ]
+    return (
+        "pose not determined by the geometry: 1-sigma "
+        + ", ".join(axes)
+        + f" exceeds the limits ({params.max_sigma_translation_m * 1e3:.3g} mm, "
+        f"{np.degrees(params.max_sigma_rotation_rad):.3g} deg)"
+    )
+
+
+def _uncertainty_verdict(
+    res: RegistrationResult, unc: PoseUncertainty, T_match: np.ndarray, params: FineParams
+) -> RegistrationResult:
+    """Attach the uncertainty to *res* (its reasons become the weak directions) and decide the verdict
+    from it: ``ambiguous`` for a degenerate direction or a sigma over the limits, ``failed`` for a
+    non-finite uncertainty, else ``ok`` with *T_match*."""
     res.details["stationarity_chi2"] = unc.stationarity_chi2
     res.hessian = unc.hessian
     res.covariance = unc.covariance
@@ -236,25 +244,67 @@ def evaluate(
         res.details["failure"] = "uncertainty"
         res.details["T_candidate"] = T_match
         return res
-    over_t = unc.sigma_translation_m > params.max_sigma_translation_m
-    over_r = unc.sigma_rotation_rad > params.max_sigma_rotation_rad
-    if np.any(over_t) or np.any(over_r):
-        axes = [f"{a} {s * 1e3:.3g} mm" for a, s, o in zip("xyz", unc.sigma_translation_m, over_t, strict=True) if o]
-        axes += [
-            f"r{a} {np.degrees(s):.3g} deg" for a, s, o in zip("xyz", unc.sigma_rotation_rad, over_r, strict=True) if o
-        ]
+    excess = _sigma_excess(unc, params)
+    if excess is not None:
         res.verdict = "ambiguous"
-        res.reasons.insert(
-            0,
-            "pose not determined by the geometry: 1-sigma "
-            + ", ".join(axes)
-            + f" exceeds the limits ({params.max_sigma_translation_m * 1e3:.3g} mm, "
-            f"{np.degrees(params.max_sigma_rotation_rad):.3g} deg)",
-        )
+        res.reasons.insert(0, excess)
         res.details["T_candidate"] = T_match
         return res
     res.T_match = T_match
     return res
+
+
+def evaluate(
+    current: PreparedCloud,
+    template: PreparedCloud,
+    T_match: np.ndarray,
+    params: FineParams,
+    *,
+    method: str,
+    iterations: int = 0,
+    converged: bool = True,
+    edges: tuple[EdgeSet, EdgeSet] | None = None,
+) -> RegistrationResult:
+    """Score *T_match*, compute its uncertainty and decide the verdict (shared by every matcher).
+
+    ``edges`` (current, template edge sets): check the contour match and add the edge rows to the
+    Hessian. ``details["min_stiffness_ratio"]`` is set whenever the uncertainty could be computed
+    (also for a result that did not converge); ``details["failure"]`` says why a result failed
+    (``overlap``, ``edges``: the pose is refuted; ``convergence``; ``uncertainty``)."""
+    _, inlier_d, trunc = params.distances(template)
+    sc = score_alignment(
+        current.points,
+        template,
+        T_match,
+        inlier_distance_m=inlier_d,
+        truncation_m=trunc,
+        num_threads=params.num_threads,
+    )
+    res = RegistrationResult(
+        verdict="ok",
+        method=method,
+        fitness=sc.fitness,
+        inlier_rmse=sc.inlier_rmse,
+        score=sc.score,
+        iterations=iterations,
+        converged=converged,
+    )
+    reasons = _overlap_reasons(sc, inlier_d, params)
+    if reasons:  # too little overlap: no uncertainty
+        return _refuse(res, reasons, T_match, "overlap")
+    edge_term = _EdgeTerm() if edges is None else _contour_check(res, reasons, edges, T_match, params.edges)
+    unc = _match_uncertainty(current, template, T_match, sc, params, edges, edge_term)
+    res.details["min_stiffness_ratio"] = float(np.min(unc.eigen_ratios))
+    if not converged:
+        ran = (
+            f"{params.edges.max_iterations} Gauss-Newton steps with edges"
+            if edges is not None
+            else f"{params.max_iterations} iterations and {params.recheck_iterations} more"
+        )
+        reasons.append(f"{method} did not converge: still moving after {ran}")
+    if reasons:
+        return _refuse(res, reasons, T_match, "edges" if edge_term.refutes else "convergence")
+    return _uncertainty_verdict(res, unc, T_match, params)
 
 
 def _recheck(

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple, overload
 
 import numpy as np
 
@@ -64,6 +64,30 @@ class GlobalParams:
     seed: int = 0
 
 
+#: (score, pose, label) of a coarse candidate; (fine result, pose, label) of a fine one.
+_Coarse = tuple[float, np.ndarray, str]
+_Fine = tuple[RegistrationResult, np.ndarray, str]
+
+
+class _Clouds(NamedTuple):
+    """Both inputs at the fine voxel (``tmpl``, ``cur``) and at the coarse voxel (``tmpl_c``, ``cur_c``)."""
+
+    tmpl: PreparedCloud
+    cur: PreparedCloud
+    tmpl_c: PreparedCloud
+    cur_c: PreparedCloud
+    coarse_voxel: float
+
+
+class _Gap(NamedTuple):
+    """Ambiguity test inputs: relative score gap to the best distinct rival, whether that rival is a
+    fit at all (fitness), and how many distinct poses lie within the gap (for the message)."""
+
+    score_gap: float
+    runner_ok: bool
+    n_close: int
+
+
 def _same_pose(Ta: np.ndarray, Tb: np.ndarray, center: np.ndarray, params: GlobalParams) -> bool:
     dt = np.linalg.norm(tf.transform_points(Ta, center) - tf.transform_points(Tb, center))
     return bool(
@@ -74,6 +98,15 @@ def _same_pose(Ta: np.ndarray, Tb: np.ndarray, center: np.ndarray, params: Globa
 def _refuted(r: RegistrationResult) -> bool:
     """The refinement's own evaluation says this is not the part's pose (overlap or contour)."""
     return r.details.get("failure") in ("overlap", "edges")
+
+
+@overload
+def _estimate(r: RegistrationResult, default: np.ndarray) -> np.ndarray: ...
+@overload
+def _estimate(r: RegistrationResult, default: None = None) -> np.ndarray | None: ...
+def _estimate(r: RegistrationResult, default: np.ndarray | None = None) -> np.ndarray | None:
+    """The pose a refinement arrived at: its ``T_match``, else its ``T_candidate``, else *default*."""
+    return r.T_match if r.T_match is not None else r.details.get("T_candidate", default)
 
 
 def _coarse_fine_params(fine: FineParams, coarse: PreparedCloud, backend: str) -> FineParams:
@@ -95,30 +128,26 @@ def _coarse_fine_params(fine: FineParams, coarse: PreparedCloud, backend: str) -
     )
 
 
-def register_global(current: Any, template: Any, params: GlobalParams | None = None) -> RegistrationResult:
-    """Register CURRENT onto TEMPLATE from any initial pose; ``p_template = T_match @ p_current``.
+def _prepare(current: Any, template: Any, params: GlobalParams) -> _Clouds:
+    """Validate and prepare both inputs at the fine voxel, then at the coarse voxel (default 2x the
+    fine voxel, at least the template's spacing); raises InvalidInputError."""
+    fine_pp = params.fine.preprocess
+    tmpl = prepare_cloud(template, fine_pp, name="template")
+    cur = prepare_cloud(current, fine_pp, name="current")
+    coarse_voxel = params.coarse_voxel_m or max(2.0 * fine_pp.voxel_size_m, tmpl.spacing())
+    coarse_pp = fine_pp.coarser(coarse_voxel)
+    tmpl_c = prepare_cloud(tmpl, coarse_pp, name="template")
+    cur_c = prepare_cloud(cur, coarse_pp, name="current")
+    return _Clouds(tmpl, cur, tmpl_c, cur_c, coarse_voxel)
 
-    Never raises on bad input; see the module docstring for the pipeline and the verdict rules.
-    """
-    params = params or GlobalParams()
-    method = f"global:{params.method}"
-    t0 = time.perf_counter()
-    timings: dict[str, float] = {}
-    notes: dict[str, Any] = {}
-    try:
-        fine_pp = params.fine.preprocess
-        tmpl = prepare_cloud(template, fine_pp, name="template")
-        cur = prepare_cloud(current, fine_pp, name="current")
-        coarse_voxel = params.coarse_voxel_m or max(2.0 * fine_pp.voxel_size_m, tmpl.spacing())
-        coarse_pp = fine_pp.coarser(coarse_voxel)
-        tmpl_c = prepare_cloud(tmpl, coarse_pp, name="template")
-        cur_c = prepare_cloud(cur, coarse_pp, name="current")
-    except InvalidInputError as exc:
-        return failed(method, str(exc))
-    timings["preprocess"] = time.perf_counter() - t0
 
-    coarse_params = _coarse_fine_params(params.fine, tmpl_c, params.coarse_backend)
-    trunc_c = coarse_params.truncation_m or 3.0 * tmpl_c.resolution()
+def _generate_hypotheses(
+    clouds: _Clouds, params: GlobalParams, trunc_c: float, notes: dict[str, Any], timings: dict[str, float]
+) -> tuple[list[tuple[np.ndarray, str]], str | None]:
+    """Coarse hypotheses of the generators ``params.method`` asks for, on the coarse clouds: planar
+    correction (skipped with a note in ``auto`` mode when it does not apply), then FPFH + RANSAC.
+    Returns (candidates, None), or ([], why the stage fails); records notes and timings."""
+    cur_c, tmpl_c = clouds.cur_c, clouds.tmpl_c
     candidates: list[tuple[np.ndarray, str]] = []
     t1 = time.perf_counter()
     try:
@@ -136,7 +165,7 @@ def register_global(current: Any, template: Any, params: GlobalParams | None = N
                 notes["planar"] = diag
             except InvalidInputError as exc:
                 if params.method == "planar":
-                    return failed(method, f"planar correction not applicable: {exc}")
+                    return [], f"planar correction not applicable: {exc}"
                 notes["planar_skipped"] = str(exc)
         timings["planar"] = time.perf_counter() - t1
         t2 = time.perf_counter()
@@ -146,12 +175,20 @@ def register_global(current: Any, template: Any, params: GlobalParams | None = N
             )
         timings["fpfh_ransac"] = time.perf_counter() - t2
     except Exception as exc:  # an Open3D error must not escape the stage
-        return failed(method, f"hypothesis generation raised {type(exc).__name__}: {exc}")
-    if not candidates:
-        return failed(method, "no coarse hypothesis (no main plane and no FPFH/RANSAC consensus)", **notes)
+        return [], f"hypothesis generation raised {type(exc).__name__}: {exc}"
+    return candidates, None
 
-    # rank coarse candidates by the coarse score, refine the best ones on the coarse clouds
-    t3 = time.perf_counter()
+
+def _coarse_icp(
+    candidates: list[tuple[np.ndarray, str]],
+    clouds: _Clouds,
+    coarse_params: FineParams,
+    trunc_c: float,
+    params: GlobalParams,
+) -> list[_Coarse]:
+    """Rank the candidates by the coarse score, refine the best ``max_refined`` on the coarse clouds
+    and merge those that arrive at the same pose; the distinct survivors, best coarse score first."""
+    cur_c, tmpl_c = clouds.cur_c, clouds.tmpl_c
     scored = []
     for T, label in candidates:
         s = score_alignment(
@@ -164,29 +201,29 @@ def register_global(current: Any, template: Any, params: GlobalParams | None = N
         )
         scored.append((s.score, T, label))
     scored.sort(key=lambda x: x[0])
-    refined_c: list[tuple[float, np.ndarray, str]] = []
+    refined_c: list[_Coarse] = []
     center_c = cur_c.centroid
     for _, T, label in scored[: params.max_refined]:
         r = refine(cur_c, tmpl_c, T, coarse_params)
-        T_r = r.T_match if r.T_match is not None else r.details.get("T_candidate", T)
+        T_r = _estimate(r, T)
         if r.verdict == "failed" and "T_candidate" not in r.details:
             continue
         if any(_same_pose(T_r, T_o, center_c, params) for _, T_o, _ in refined_c):
             continue
         refined_c.append((r.score, T_r, label))
     refined_c.sort(key=lambda x: x[0])
-    timings["coarse_icp"] = time.perf_counter() - t3
+    return refined_c
 
-    if not refined_c:
-        return failed(method, "every hypothesis failed to refine", **notes)
 
-    # fine ICP on the best; then on runners-up whose coarse score is within twice the ambiguity gap,
-    # until one stays distinct from the best, so that an ambiguity is decided on fine scores
-    t4 = time.perf_counter()
+def _fine_icp(refined_c: list[_Coarse], clouds: _Clouds, params: GlobalParams) -> tuple[list[_Fine], list[_Coarse]]:
+    """Fine ICP (ranked at the fine voxel, no polish) on the best coarse pose; then on runners-up
+    whose coarse score is within twice the ambiguity gap, until one stays distinct from the best, so
+    that an ambiguity is decided on fine scores. Returns (distinct fine results, unrefined ones)."""
+    cur, tmpl = clouds.cur, clouds.tmpl
     rank = replace(params.fine, polish_voxel_m=None)  # candidates are ranked at the fine voxel
     s_best_c = refined_c[0][0]
-    finals: list[tuple[RegistrationResult, np.ndarray, str]] = []
-    unrefined: list[tuple[float, np.ndarray, str]] = []
+    finals: list[_Fine] = []
+    unrefined: list[_Coarse] = []
     for k, (sc, T, label) in enumerate(refined_c):
         close = sc > 0 and (sc - s_best_c) / sc < 2.0 * params.ambiguity_gap
         # while every pose refined so far is refuted by its own evaluation (its contour does not
@@ -196,10 +233,95 @@ def register_global(current: Any, template: Any, params: GlobalParams | None = N
             unrefined.append((sc, T, label))
             continue
         r = refine(cur, tmpl, T, rank)
-        T_r = r.T_match if r.T_match is not None else r.details.get("T_candidate")
+        T_r = _estimate(r)
         if T_r is None or any(_same_pose(T_r, T_o, cur.centroid, params) for _, T_o, _ in finals):
             continue
         finals.append((r, T_r, label))
+    return finals, unrefined
+
+
+def _polish_best(
+    finals: list[_Fine], clouds: _Clouds, params: GlobalParams, timings: dict[str, float]
+) -> tuple[RegistrationResult, np.ndarray]:
+    """(result, pose) of the winner: its fine result (evaluated by refine, with its edge stage where
+    the geometry needs it), or the polish (``FineParams.polish_voxel_m``) run on it alone."""
+    best_r, best_T, _ = finals[0]
+    result = best_r
+    if params.fine.polish_voxel_m is not None:  # the polish, on the winner only
+        t5 = time.perf_counter()
+        result = refine(clouds.cur, clouds.tmpl, best_T, params.fine)
+        timings["polish"] = time.perf_counter() - t5
+        best_T = _estimate(result, best_T)
+    return result, best_T
+
+
+def _hypotheses(finals: list[_Fine], unrefined: list[_Coarse]) -> list[Hypothesis]:
+    """Every distinct candidate for the result: the fine ones in rank order, then the unrefined ones."""
+    hyps = [Hypothesis(T, r.score, r.fitness, r.inlier_rmse, f"{label} (fine)") for r, T, label in finals]
+    hyps += [Hypothesis(T, sc, float("nan"), float("nan"), f"{label} (coarse)") for sc, T, label in unrefined]
+    return hyps
+
+
+def _score_gap(finals: list[_Fine], unrefined: list[_Coarse], s_best_c: float, params: GlobalParams) -> _Gap:
+    """Relative score gap between the best and its best distinct, unrefuted rival (fine scores), or,
+    without such a rival, the coarse gap to the next unrefined pose (1.0 when there is none)."""
+    rivals = [r for r, _, _ in finals[1:] if not _refuted(r)]  # refuted poses compete with nothing
+    if rivals:
+        s1, s2 = finals[0][0].score, rivals[0].score
+        score_gap = float((s2 - s1) / s2) if s2 > 0 else 0.0
+        runner_ok = rivals[0].fitness >= params.fine.min_fitness
+        n_close = 1 + sum(1 for r in rivals if r.score > 0 and (r.score - s1) / r.score < params.ambiguity_gap)
+    else:  # runners-up merged into the best or refuted: the gap is the coarse one to the next pose
+        s2 = unrefined[0][0] if unrefined else float("inf")
+        score_gap = float((s2 - s_best_c) / s2) if np.isfinite(s2) and s2 > 0 else 1.0
+        runner_ok, n_close = False, 1
+    return _Gap(score_gap, runner_ok, n_close)
+
+
+def _mark_ambiguous(result: RegistrationResult, best_T: np.ndarray, n_close: int, params: GlobalParams) -> None:
+    """Turn *result* into ``ambiguous``: the best pose becomes a candidate, with the reason first."""
+    result.verdict = "ambiguous"
+    result.details["T_candidate"] = best_T
+    result.T_match = None
+    result.reasons.insert(
+        0,
+        f"{n_close} distinct poses fit almost equally well (score gap {result.score_gap:.1%} < "
+        f"{params.ambiguity_gap:.0%}): symmetric or self-similar part; candidates in hypotheses",
+    )
+
+
+def register_global(current: Any, template: Any, params: GlobalParams | None = None) -> RegistrationResult:
+    """Register CURRENT onto TEMPLATE from any initial pose; ``p_template = T_match @ p_current``.
+
+    Never raises on bad input; see the module docstring for the pipeline and the verdict rules.
+    """
+    params = params or GlobalParams()
+    method = f"global:{params.method}"
+    t0 = time.perf_counter()
+    timings: dict[str, float] = {}
+    notes: dict[str, Any] = {}
+    try:
+        clouds = _prepare(current, template, params)
+    except InvalidInputError as exc:
+        return failed(method, str(exc))
+    timings["preprocess"] = time.perf_counter() - t0
+
+    coarse_params = _coarse_fine_params(params.fine, clouds.tmpl_c, params.coarse_backend)
+    trunc_c = coarse_params.truncation_m or 3.0 * clouds.tmpl_c.resolution()
+    candidates, why = _generate_hypotheses(clouds, params, trunc_c, notes, timings)
+    if why is not None:
+        return failed(method, why)
+    if not candidates:
+        return failed(method, "no coarse hypothesis (no main plane and no FPFH/RANSAC consensus)", **notes)
+
+    t3 = time.perf_counter()
+    refined_c = _coarse_icp(candidates, clouds, coarse_params, trunc_c, params)
+    timings["coarse_icp"] = time.perf_counter() - t3
+    if not refined_c:
+        return failed(method, "every hypothesis failed to refine", **notes)
+
+    t4 = time.perf_counter()
+    finals, unrefined = _fine_icp(refined_c, clouds, params)
     timings["fine_icp"] = time.perf_counter() - t4
     if not finals:
         return failed(method, "every hypothesis failed to refine", **notes)
@@ -208,40 +330,16 @@ def register_global(current: Any, template: Any, params: GlobalParams | None = N
     # dominated by how the two voxel grids happen to interleave, and a pose turned by 180 deg
     # scored 0.64 mm against 0.77 mm for the true one while matching 48 % of its contour
     finals.sort(key=lambda x: (_refuted(x[0]), x[0].score))
-    best_r, best_T, _ = finals[0]
-    result = best_r  # evaluated by refine (with its edge stage where the geometry needs it)
-    if params.fine.polish_voxel_m is not None:  # the polish, on the winner only
-        t5 = time.perf_counter()
-        result = refine(cur, tmpl, best_T, params.fine)
-        timings["polish"] = time.perf_counter() - t5
-        if result.T_match is not None or "T_candidate" in result.details:
-            best_T = result.T_match if result.T_match is not None else result.details["T_candidate"]
+    result, best_T = _polish_best(finals, clouds, params, timings)
     result.method = method + ("+edges" if result.method.endswith("+edges") else "")
-    hyps = [Hypothesis(T, r.score, r.fitness, r.inlier_rmse, f"{label} (fine)") for r, T, label in finals]
-    hyps += [Hypothesis(T, sc, float("nan"), float("nan"), f"{label} (coarse)") for sc, T, label in unrefined]
-    result.hypotheses = hyps
-    rivals = [r for r, _, _ in finals[1:] if not _refuted(r)]  # refuted poses compete with nothing
-    if rivals:
-        s1, s2 = finals[0][0].score, rivals[0].score
-        result.score_gap = float((s2 - s1) / s2) if s2 > 0 else 0.0
-        runner_ok = rivals[0].fitness >= params.fine.min_fitness
-        n_close = 1 + sum(1 for r in rivals if r.score > 0 and (r.score - s1) / r.score < params.ambiguity_gap)
-    else:  # runners-up merged into the best or refuted: the gap is the coarse one to the next pose
-        s2 = unrefined[0][0] if unrefined else float("inf")
-        result.score_gap = float((s2 - s_best_c) / s2) if np.isfinite(s2) and s2 > 0 else 1.0
-        runner_ok, n_close = False, 1
+    result.hypotheses = _hypotheses(finals, unrefined)
+    gap = _score_gap(finals, unrefined, refined_c[0][0], params)
+    result.score_gap = gap.score_gap
     notes["n_candidates"] = len(candidates)
-    notes["coarse_voxel_m"] = coarse_voxel
+    notes["coarse_voxel_m"] = clouds.coarse_voxel
     result.details.update(notes)
-    if result.verdict != "failed" and runner_ok and result.score_gap < params.ambiguity_gap:
-        result.verdict = "ambiguous"
-        result.details["T_candidate"] = best_T
-        result.T_match = None
-        result.reasons.insert(
-            0,
-            f"{n_close} distinct poses fit almost equally well (score gap {result.score_gap:.1%} < "
-            f"{params.ambiguity_gap:.0%}): symmetric or self-similar part; candidates in hypotheses",
-        )
+    if result.verdict != "failed" and gap.runner_ok and result.score_gap < params.ambiguity_gap:
+        _mark_ambiguous(result, best_T, gap.n_close, params)
     timings["total"] = time.perf_counter() - t0
     result.timings_s = timings
     return result
