@@ -23,8 +23,11 @@ def test_the_readme_lists_a_command_per_sample_file():
 
 @pytest.mark.parametrize("command", COMMANDS)
 def test_each_command_runs_as_written_with_a_usable_result(command, monkeypatch, capsys):
+    """Usable: exit 0, or 3 for a calibration usable with a warning (engine/exit_codes.py)."""
     monkeypatch.chdir(ROOT)
-    assert main(shlex.split(command)) == 0, capsys.readouterr().out[-2000:]
+    code = main(shlex.split(command))
+    out = capsys.readouterr().out
+    assert code == 0 or (code == 3 and "verdict WARNING" in out), out[-2000:]
 
 
 def test_gap_names_the_hidden_compliance_within_its_sigma(monkeypatch, capsys):

@@ -7,6 +7,7 @@ import json
 import cv2
 import pytest
 from board_helpers import rendered_views
+from usable_verdicts import USABLE
 
 from engine.cli.main import main
 from plugins.calibration.result import CalibrationResult
@@ -29,7 +30,7 @@ def test_images_to_a_camera_file(images, tmp_path, capsys):
     out, report = tmp_path / "camera_result.json", tmp_path / "report"
     code = main(["calibrate", "intrinsics", str(images), "--board", SPEC, "--json", str(out), "--report", str(report)])
     text = capsys.readouterr().out
-    assert code == 0, text
+    assert (code, json.loads(out.read_text())["verdict"]) in USABLE, text
     assert "board found in 10 of 11 image(s)" in text and "broken.png: not a readable image" in text
     assert "fx_px" in text and " px" in text and "standard model" in text
     res = CalibrationResult.from_dict(json.loads(out.read_text()))

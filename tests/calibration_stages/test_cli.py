@@ -14,6 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.stats import chi2
 from scipy.stats import f as f_dist
+from usable_verdicts import USABLE
 
 from engine.cli.main import main
 from engine.transforms import log_so3
@@ -47,7 +48,8 @@ def within_one_percent(t: np.ndarray) -> bool:
 @pytest.mark.parametrize("kind", ["handeye", "robot-world"])
 def test_moveit_eye_to_hand_within_one_percent_with_report(kind, tmp_path, capsys):
     out = tmp_path / "report"
-    assert calibrate(kind, MOVEIT, "--setup", "eye_to_hand", "--report", out, "--json", tmp_path / "r.json") == 0
+    # usable with a warning (exit 3): the pose-chain spread of this real data set is large
+    assert calibrate(kind, MOVEIT, "--setup", "eye_to_hand", "--report", out, "--json", tmp_path / "r.json") == 3
     text = capsys.readouterr().out
     assert "verdict WARNING" in text and "pose-chain spread" in text and "per-sample residuals" in text
     res = json.loads((out / "result.json").read_text())
@@ -64,8 +66,9 @@ def test_moveit_data_as_tcp_by_camera(tmp_path, capsys):
     save_tcp_json(
         TcpCameraData.from_marker_poses(s.T_base_tcp, s.T_cam_target, noise=TcpNoiseModel((2.6e-3,) * 3)), path
     )
-    assert calibrate("tcp", path, "--json", tmp_path / "r.json") == 0
+    code = calibrate("tcp", path, "--json", tmp_path / "r.json")
     res = json.loads((tmp_path / "r.json").read_text())
+    assert (code, res["verdict"]) in USABLE
     assert within_one_percent(np.asarray(res["estimate"]["T_base_cam"])[:3, 3])
     text = capsys.readouterr().out
     assert "tcp-camera calibration: verdict" in text and "p_flange_tcp.x" in text and "1 sigma" in text
@@ -85,8 +88,9 @@ def test_vive_desk_from_a_file_recovers_the_truth(fmt, tmp_path, capsys):
     sim = _vive()
     path = tmp_path / f"contacts.{fmt}"
     (save_vive_json if fmt == "json" else save_vive_csv)(sim.data, path)
-    assert calibrate("vive-desk", path, "--json", tmp_path / "r.json") == 0
+    code = calibrate("vive-desk", path, "--json", tmp_path / "r.json")
     res = json.loads((tmp_path / "r.json").read_text())
+    assert (code, res["verdict"]) in USABLE
     err = []
     for name, truth in (("T_base_desktop", sim.T_base_desktop), ("T_tracker_tcp", sim.T_tracker_tcp)):
         est = np.asarray(res["estimate"][name])
@@ -168,21 +172,13 @@ def test_seed_001_protocol_says_what_to_add_and_a_cad_prior_makes_it_usable(tmp_
     assert "one fixture orientation cannot determine the tracker-to-TCP lever arm" in advice
     assert "two more fixture orientations" in advice and "--tcp-prior-mm X Y Z" in advice
     cad_mm = sim.T_tracker_tcp[:3, 3] * 1e3 + np.array([0.5, -0.5, 0.3])  # a CAD value, 0.5 mm off
-    assert (
-        calibrate(
-            "vive-desk",
-            tmp_path / "seed001.json",
-            "--no-samples",
-            "--tcp-prior-mm",
-            *cad_mm,
-            "--json",
-            tmp_path / "r.json",
-        )
-        == 0
+    code = calibrate(
+        "vive-desk", tmp_path / "seed001.json", "--no-samples", "--tcp-prior-mm", *cad_mm, "--json", tmp_path / "r.json"
     )
     text = capsys.readouterr().out
     assert "note: lever-arm prior" in text and "verdict DEGENERATE" not in text
     res = json.loads((tmp_path / "r.json").read_text())
+    assert (code, res["verdict"]) in USABLE
     est = {k: np.asarray(v) for k, v in res["estimate"].items()}
     # the lever arm comes from the prior here (one orientation cannot tell it): check what the contacts
     # do determine, the TCP pose in the desk frame at the calibration orientation (the prior alone,

@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 from shared_data import SHARED
+from usable_verdicts import USABLE
 
 from plugins.calibration.cli import main as calibrate
 from plugins.calibration.handeye import NoiseModel
@@ -18,10 +19,11 @@ AR_TAG = str(Path(__file__).parent / "data" / "ar_tag_pairs.yml")
 
 def test_cli_reports_and_writes_the_result(tmp_path: Path, capsys):
     out = tmp_path / "result.json"
-    assert main([DATA, "--setup", "eye_to_hand", "--json", str(out)]) == 0
+    code = main([DATA, "--setup", "eye_to_hand", "--json", str(out)])
     text = capsys.readouterr().out
     assert "T_base_cam" in text and "pose-chain spread" in text
-    assert json.loads(out.read_text())["estimate"]["setup"] == "eye_to_hand"
+    res = json.loads(out.read_text())
+    assert res["estimate"]["setup"] == "eye_to_hand" and (code, res["verdict"]) in USABLE
 
 
 def test_cli_exit_codes_for_refused_and_bad_input(capsys):
@@ -32,7 +34,8 @@ def test_cli_exit_codes_for_refused_and_bad_input(capsys):
 
 def test_opencv_yaml_file_at_defaults_and_the_noise_limit_options(tmp_path, capsys):
     out = tmp_path / "r.json"
-    assert calibrate(["handeye", AR_TAG, "--json", str(out)]) == 0
+    code = calibrate(["handeye", AR_TAG, "--json", str(out)])
+    assert (code, json.loads(out.read_text())["verdict"]) in USABLE
     text = capsys.readouterr().out
     assert "hand-eye calibration (eye_to_hand found from the data)" in text and "camera 5 deg / 20 mm" in text
     assert "outlier sample(s) left out of the estimate: " in text and "13" in text.split("outlier sample(s)")[1]
@@ -55,7 +58,7 @@ def test_undecidable_setup_exits_one_and_a_given_setup_solves_it(tmp_path, capsy
     text = capsys.readouterr().out
     assert "set-up not determined" in text and "the set-up cannot be found from these data" in text
     assert "--setup" in text
-    assert calibrate([*args, "--setup", "eye_in_hand"]) in (0, 1)
+    assert calibrate([*args, "--setup", "eye_in_hand"]) in (0, 1, 3)  # solved: usable or not, not refused
     assert "hand-eye calibration (eye_in_hand)" in capsys.readouterr().out
     write_pose_pairs_json(path, meas.T_base_tcp, meas.T_cam_target, setup="eye_in_hand")  # the file's set-up
     calibrate(args)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 from shared_data import SHARED
+from usable_verdicts import USABLE
 
 from plugins.calibration.cli import main as calibrate
 from plugins.calibration.handeye import CLOSED_FORM_METHODS, calibrate_hand_eye, closed_form
@@ -84,9 +85,9 @@ def test_the_same_data_as_eye_in_hand_is_refused(samples):
 def test_at_the_command_lines_defaults_the_setup_is_found_and_matches_moveit(tmp_path, result):
     """``vgr calibrate handeye pose_samples.json`` with no option: eye to hand, MoveIt's camera pose."""
     out = tmp_path / "result.json"
-    assert calibrate(["handeye", str(DATA), "--json", str(out), "--no-samples"]) == 0
+    code = calibrate(["handeye", str(DATA), "--json", str(out), "--no-samples"])
     found = CalibrationResult.from_dict(json.loads(out.read_text()))
-    assert found.usable and found.estimate["setup"] == "eye_to_hand"
+    assert (code, found.verdict) in USABLE and found.estimate["setup"] == "eye_to_hand"
     T = found.estimate["T_base_cam"]
     assert np.max(np.abs(T[:3, 3] - T_REF)) < 1.5e-3
     assert is_approx(T[:3, 3], T_REF) and is_approx(eigen_euler_xyz(T[:3, :3]), EULER_REF)
