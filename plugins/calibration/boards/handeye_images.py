@@ -45,7 +45,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -56,6 +56,7 @@ from plugins.calibration.boards.detect import Detection, Detections, Rejection
 from plugins.calibration.boards.reprojection import (
     ESTIMATE,
     Refinement,
+    RobotNoise,
     holdout_rms,
     refine_reprojection,
     robot_aware_covariance,
@@ -173,6 +174,244 @@ def _param_names(x: str, y: str, camera: CameraModel, intrinsics: bool) -> list[
     return names
 
 
+class _PoseSolve(NamedTuple):
+    """Step 4's outcome: the ML solver's result, the starts of the pixel refinement ``(label, X, Y)``
+    and whether the camera's length scale is off (a wrong square size)."""
+
+    ml: CalibrationResult
+    starts: list[tuple[str, F64, F64]]
+    wrong_scale: bool
+
+
+class _PixelFit(NamedTuple):
+    """Steps 5-6: the pixel refinement through the robot poses as given from the best start, the same
+    with every robot pose corrected (its estimated robot noise beside it), the start and X it began from."""
+
+    exact: Refinement
+    noisy: Refinement
+    robot_noise: RobotNoise
+    start: str
+    n_starts: int
+    X0: F64
+
+
+class _Figures(NamedTuple):
+    """Step 7's figures of the estimate reported."""
+
+    covariance: F64
+    held: F64  # per view: leave-one-view-out RMS (px), NaN when not computed
+    held_rms: float
+    spread_t: float  # RMS spread of the board's world pose over the views (m, rad)
+    spread_r: float
+    std_t: float  # 1 sigma of X (m, rad)
+    std_r: float
+
+
+def _solve_poses(kind: Kind, setup: Setup, M: F64, B: F64, poses: list[BoardPose], notes: list[str]) -> _PoseSolve:
+    """Step 4: vgr's ML solver on the pose pairs, the noise from the board poses' covariances and
+    estimated; a camera length scale off 1 is added to ``notes`` as a wrong square size. A result not
+    usable although solved adds the declared-noise solution and the closed forms as starts."""
+    frames = frames_of(setup)
+    solve = calibrate_robot_world if kind == "robot_world" else calibrate_hand_eye
+    ml = solve(M, B, setup=setup, noise=camera_noise(poses), estimate_noise=True)
+    scale = ml.metrics.get("unit_scale_robot_per_camera")
+    wrong_scale = scale is not None and abs(scale - 1.0) > max(5.0 * ml.metrics.get("unit_scale_std", 0.0), SCALE_TOL)
+    if wrong_scale:
+        notes.append(
+            f"square size? the robot moved {scale:.4f}x the distances the camera saw: with the intrinsics right, "
+            f"the board's squares are {scale:.4f}x the size given (or the robot poses are not in metres)"
+        )
+    starts = _starts(ml, frames.x_name, frames.y_name)
+    if not ml.usable and starts:  # solved but not trusted: try the declared noise and the closed forms too
+        ml_declared = solve(M, B, setup=setup, noise=camera_noise(poses), estimate_noise=False)
+        starts += _starts(ml_declared, frames.x_name, frames.y_name, "pose solver, noise declared")
+        starts += [(f"closed form {m}", *closed_form(setup, M, B, m)) for m in CLOSED_FORM_METHODS]
+    return _PoseSolve(ml, starts, wrong_scale)
+
+
+def _refine_pixels(
+    setup: Setup,
+    M: F64,
+    views: list[Detection],
+    camera: CameraModel,
+    starts: list[tuple[str, F64, F64]],
+    refine_intrinsics: bool,
+) -> _PixelFit:
+    """Steps 5-6: the pixel refinement from every finite start, the one whose corners fit best kept;
+    from it, the same corners with every robot pose corrected under a prior: the corner and robot
+    noise (variance components), each view's correction (outliers) and, if asked, the estimate."""
+    refs = [
+        (label, refine_reprojection(setup, M, views, camera, X0, Y0, refine_intrinsics=refine_intrinsics))
+        for label, X0, Y0 in starts
+        if np.all(np.isfinite(X0)) and np.all(np.isfinite(Y0))
+    ]
+    start, ref = min(refs, key=lambda lr: lr[1].rms_px)
+    X0 = next(x for label, x, _ in starts if label == start)
+    noisy = refine_reprojection(
+        setup, M, views, ref.camera, ref.X, ref.Y, refine_intrinsics=refine_intrinsics, robot_noise=ESTIMATE
+    )
+    assert noisy.robot_noise is not None
+    return _PixelFit(ref, noisy, noisy.robot_noise, start, len(refs), X0)
+
+
+def _views_to_leave_out(
+    pixel: _PixelFit, n_views: int, left_out: Sequence[str], check_outliers: bool
+) -> NDArray[np.bool_] | None:
+    """Step 6 (b): the views :func:`moved_views` flags, when there are any and, with those left out
+    before, they are at most a third of the views; else None."""
+    flagged = (
+        moved_views(pixel.noisy.robot_d2, pixel.exact.view_rms_px) if check_outliers else np.zeros(n_views, dtype=bool)
+    )
+    n_flagged = int(flagged.sum())
+    if n_flagged and len(left_out) + n_flagged <= (n_views + len(left_out)) // 3:
+        return flagged
+    return None
+
+
+def _figures(
+    setup: Setup,
+    M: F64,
+    B: F64,
+    views: list[Detection],
+    ref: Refinement,
+    pixel: _PixelFit,
+    model_robot_noise: bool,
+    holdout: bool,
+) -> _Figures:
+    """Step 7's figures of the estimate ``ref``: leave-one-view-out RMS (refits from ``ref``, the robot
+    noise fixed at its estimate when modelled), world-pose spread, the covariance (step 6 (a) or,
+    modelling the robot noise, ``ref``'s own) and X's 1 sigma."""
+    cam = ref.camera
+    noisy = pixel.noisy
+    fixed_noise = pixel.robot_noise if model_robot_noise else None
+
+    def fit(train: NDArray[np.int64]) -> tuple[F64, F64]:
+        r = refine_reprojection(
+            setup, M[train], [views[i] for i in train], cam, ref.X, ref.Y, robot_noise=fixed_noise,
+            sigma_px=noisy.sigma_px,
+        )  # fmt: skip
+        return r.X, r.Y
+
+    held = holdout_rms(setup, M, views, cam, fit) if holdout and len(views) > MIN_VIEWS else np.full(len(views), np.nan)
+    spread_t, spread_r, _ = world_spread(setup, M, B, ref.X)
+    covariance = (
+        ref.covariance
+        if model_robot_noise
+        else robot_aware_covariance(setup, M, views, ref, noisy.sigma_px, pixel.robot_noise)
+    )
+    sd = np.sqrt(np.clip(np.diag(covariance)[:6], 0.0, None))
+    std_t, std_r = float(np.linalg.norm(sd[:3])), float(np.linalg.norm(sd[3:]))
+    held_rms = float(np.sqrt(np.nanmean(held**2))) if np.any(np.isfinite(held)) else float("nan")
+    return _Figures(covariance, held, held_rms, spread_t, spread_r, std_t, std_r)
+
+
+def _judge(
+    ml: CalibrationResult,
+    notes: list[str],
+    left_out: Sequence[str],
+    pixel: _PixelFit,
+    ref: Refinement,
+    fig: _Figures,
+    x_name: str,
+) -> tuple[Any, list[str], list[str]]:
+    """Step 7's verdict, reasons and advice: the pose solver's (its uncertainty check replaced by the
+    pixel refinement's), the views left out, then the estimate ``ref``'s uncertainty, convergence,
+    reprojection RMS and held-out RMS."""
+    ml_reasons = [r for r in ml.reasons if "uncertainty" not in r]
+    if not ml.usable:
+        ml_reasons = [
+            f"the pose solver alone gave verdict {ml.verdict} ({'; '.join(ml_reasons[-2:])}); the pixel "
+            f"refinement started from the best of {pixel.n_starts} starts: {pixel.start}"
+        ]
+    verdict: Any = "warning" if ml_reasons or left_out else "ok"
+    reasons = notes + ml_reasons
+    if left_out:
+        reasons.insert(
+            len(notes),
+            f"{len(left_out)} view(s) left out, their corners do not fit through their robot poses like the others' "
+            f"do (the board moved, the robot pose is not the image's, or a poor detection): {', '.join(left_out)}",
+        )
+    advice = [a for a in ml.advice if a != _STD_ADVICE]
+    std_t, std_r = fig.std_t, fig.std_r
+    if std_t > ACCURACY.max_std_trans_m or std_r > ACCURACY.max_std_rot_rad:
+        verdict = "warning"
+        reasons.append(
+            f"{x_name} uncertainty {std_t * 1e3:.3f} mm / {np.degrees(std_r):.4f} deg (1 sigma) exceeds the "
+            f"target {ACCURACY.max_std_trans_m * 1e3:.2f} mm / {np.degrees(ACCURACY.max_std_rot_rad):.3f} deg"
+        )
+        advice.append(_STD_ADVICE)
+    if not ref.converged:
+        verdict = "warning"
+        reasons.append("the pixel refinement stopped before converging")
+    if ref.rms_px > MAX_RMS_PX:
+        verdict = "failed"
+        reasons.append(
+            f"the corners' reprojection RMS is {ref.rms_px:.2f} px through the robot poses: the board moved, the "
+            "robot poses are not the images' (order?), or the set-up is wrong"
+        )
+    held_rms = fig.held_rms
+    if np.isfinite(held_rms) and held_rms > HOLDOUT_FACTOR * ref.rms_px and verdict == "ok":
+        verdict = "warning"
+        reasons.append(f"held-out views reproject at {held_rms:.2f} px, {held_rms / ref.rms_px:.1f}x the fit")
+    return verdict, reasons, advice
+
+
+def _metrics(
+    views: list[Detection],
+    rejected: list[Rejection],
+    poses: list[BoardPose],
+    ml: CalibrationResult,
+    ref: Refinement,
+    pixel: _PixelFit,
+    fig: _Figures,
+    left_out: Sequence[str],
+) -> dict[str, float]:
+    """Step 7's figures as the result's metrics, with the pose solver's chain spread and scale."""
+    metrics: dict[str, float] = {
+        "n_images": float(len(views) + len(rejected)),
+        "n_views": float(len(views)),
+        "n_rejected": float(len(rejected)),
+        "rms_px": ref.rms_px,
+        "sigma_px": ref.sigma_px,
+        "corner_sigma_px": pixel.noisy.sigma_px,  # per coordinate, with the robot poses corrected
+        "robot_sigma_trans_m": pixel.robot_noise.trans_m,  # per axis, estimated from the corners
+        "robot_sigma_rot_rad": pixel.robot_noise.rot_rad,
+        "holdout_rms_px": fig.held_rms,
+        "world_spread_trans_rms_m": fig.spread_t,
+        "world_spread_rot_rms_rad": fig.spread_r,
+        "board_pose_rms_px": float(np.sqrt(np.mean([p.rms_px**2 for p in poses]))),
+        "nfev": float(ref.nfev),
+        "covariance_dof": float(ref.dof),  # the covariance rests on sigma_px estimated from the residuals
+        "std_x_trans_m": fig.std_t,
+        "std_x_rot_rad": fig.std_r,
+    }
+    for key in ("chain_spread_trans_rms_m", "chain_spread_rot_rms_rad", "unit_scale_robot_per_camera"):
+        if key in ml.metrics:
+            metrics[f"ml_{key}"] = ml.metrics[key]
+    if left_out:
+        metrics["n_outlier_views"] = float(len(left_out))
+    return metrics
+
+
+def _estimate(
+    setup: Setup, views: list[Detection], ref: Refinement, X0: F64, left_out: Sequence[str]
+) -> dict[str, Any]:
+    """The result's estimate: X and Y of ``ref``, the set-up, the camera, the images used, the start
+    ``X0`` of the pixel refinement and the outlier views left out."""
+    frames = frames_of(setup)
+    estimate: dict[str, Any] = {
+        frames.x_name: ref.X,
+        frames.y_name: ref.Y,
+        "setup": setup,
+        "camera": ref.camera.to_dict(),
+        "sample_labels": [Path(v.name).name for v in views],
+        f"initial_{frames.x_name}": X0,
+    }
+    if left_out:
+        estimate["outlier_views"] = list(left_out)
+    return estimate
+
+
 def calibrate_handeye_images(
     views: Sequence[Detection],
     T_base_tcp: F64,
@@ -213,150 +452,38 @@ def calibrate_handeye_images(
     if mirrored is not None:  # (said here with its remedy; the solver would refuse it too)
         return _failed(kind, [*notes, mirrored], ["turn off any image flip in the camera or its driver; check --setup"],
                        rejected)  # fmt: skip
-    solve = calibrate_robot_world if kind == "robot_world" else calibrate_hand_eye
-    ml = solve(M, B, setup=setup, noise=camera_noise(poses), estimate_noise=True)
-    scale = ml.metrics.get("unit_scale_robot_per_camera")
-    wrong_scale = scale is not None and abs(scale - 1.0) > max(5.0 * ml.metrics.get("unit_scale_std", 0.0), SCALE_TOL)
-    if wrong_scale:
-        notes.append(
-            f"square size? the robot moved {scale:.4f}x the distances the camera saw: with the intrinsics right, "
-            f"the board's squares are {scale:.4f}x the size given (or the robot poses are not in metres)"
-        )
-    starts = _starts(ml, frames.x_name, frames.y_name)
-    if not ml.usable and starts:  # solved but not trusted: try the declared noise and the closed forms too
-        ml_declared = solve(M, B, setup=setup, noise=camera_noise(poses), estimate_noise=False)
-        starts += _starts(ml_declared, frames.x_name, frames.y_name, "pose solver, noise declared")
-        starts += [(f"closed form {m}", *closed_form(setup, M, B, m)) for m in CLOSED_FORM_METHODS]
+    ml, starts, wrong_scale = _solve_poses(kind, setup, M, B, poses, notes)
     if wrong_scale or not starts:
         ml.reasons = notes + ml.reasons
         if ml.verdict in ("ok", "warning"):
             ml.verdict = "failed"
         return HandEyeFromImages(ml, views, M, poses, rejected, ml)
-    refs = [
-        (label, refine_reprojection(setup, M, views, camera, X0, Y0, refine_intrinsics=refine_intrinsics))
-        for label, X0, Y0 in starts
-        if np.all(np.isfinite(X0)) and np.all(np.isfinite(Y0))
-    ]
-    start, ref = min(refs, key=lambda lr: lr[1].rms_px)
-    X0 = next(x for label, x, _ in starts if label == start)
-    # the same corners with every robot pose corrected under a prior: the corner and robot noise
-    # (variance components), each view's correction (outliers) and, if asked, the estimate
-    noisy = refine_reprojection(
-        setup, M, views, ref.camera, ref.X, ref.Y, refine_intrinsics=refine_intrinsics, robot_noise=ESTIMATE
-    )
-    assert noisy.robot_noise is not None
-    flagged = moved_views(noisy.robot_d2, ref.view_rms_px) if check_outliers else np.zeros(len(views), dtype=bool)
-    n_flagged = int(flagged.sum())
-    if n_flagged and len(left_out) + n_flagged <= (len(views) + len(left_out)) // 3:
+    pixel = _refine_pixels(setup, M, views, camera, starts, refine_intrinsics)
+    flagged = _views_to_leave_out(pixel, len(views), left_out, check_outliers)
+    if flagged is not None:
         keep = np.flatnonzero(~flagged)  # left out, and the rest checked again (an outlier hides others)
         return calibrate_handeye_images(
             [views[i] for i in keep], M[keep], camera, kind=kind, setup=setup, refine_intrinsics=refine_intrinsics,
             rejected=rejected, holdout=holdout, sigma_px=sigma_px, model_robot_noise=model_robot_noise,
             left_out=sorted([*left_out, *(Path(views[i].name).name for i in np.flatnonzero(flagged))]),
         )  # fmt: skip
-    if model_robot_noise:
-        ref = noisy
-    cam = ref.camera
-    fixed_noise = noisy.robot_noise if model_robot_noise else None
-
-    def fit(train: NDArray[np.int64]) -> tuple[F64, F64]:
-        r = refine_reprojection(
-            setup, M[train], [views[i] for i in train], cam, ref.X, ref.Y, robot_noise=fixed_noise,
-            sigma_px=noisy.sigma_px,
-        )  # fmt: skip
-        return r.X, r.Y
-
-    held = holdout_rms(setup, M, views, cam, fit) if holdout and len(views) > MIN_VIEWS else np.full(len(views), np.nan)
-    spread_t, spread_r, _ = world_spread(setup, M, B, ref.X)
-    covariance = (
-        ref.covariance
-        if model_robot_noise
-        else robot_aware_covariance(setup, M, views, ref, noisy.sigma_px, noisy.robot_noise)
-    )
-    # the pose solver's own uncertainty check is replaced by the one of the pixel refinement
-    ml_reasons = [r for r in ml.reasons if "uncertainty" not in r]
-    if not ml.usable:
-        ml_reasons = [
-            f"the pose solver alone gave verdict {ml.verdict} ({'; '.join(ml_reasons[-2:])}); the pixel "
-            f"refinement started from the best of {len(refs)} starts: {start}"
-        ]
-    verdict: Any = "warning" if ml_reasons or left_out else "ok"
-    reasons = notes + ml_reasons
-    if left_out:
-        reasons.insert(
-            len(notes),
-            f"{len(left_out)} view(s) left out, their corners do not fit through their robot poses like the others' "
-            f"do (the board moved, the robot pose is not the image's, or a poor detection): {', '.join(left_out)}",
-        )
-    advice = [a for a in ml.advice if a != _STD_ADVICE]
-    sd = np.sqrt(np.clip(np.diag(covariance)[:6], 0.0, None))
-    std_t, std_r = float(np.linalg.norm(sd[:3])), float(np.linalg.norm(sd[3:]))
-    if std_t > ACCURACY.max_std_trans_m or std_r > ACCURACY.max_std_rot_rad:
-        verdict = "warning"
-        reasons.append(
-            f"{frames.x_name} uncertainty {std_t * 1e3:.3f} mm / {np.degrees(std_r):.4f} deg (1 sigma) exceeds the "
-            f"target {ACCURACY.max_std_trans_m * 1e3:.2f} mm / {np.degrees(ACCURACY.max_std_rot_rad):.3f} deg"
-        )
-        advice.append(_STD_ADVICE)
-    if not ref.converged:
-        verdict = "warning"
-        reasons.append("the pixel refinement stopped before converging")
-    if ref.rms_px > MAX_RMS_PX:
-        verdict = "failed"
-        reasons.append(
-            f"the corners' reprojection RMS is {ref.rms_px:.2f} px through the robot poses: the board moved, the "
-            "robot poses are not the images' (order?), or the set-up is wrong"
-        )
-    held_rms = float(np.sqrt(np.nanmean(held**2))) if np.any(np.isfinite(held)) else float("nan")
-    if np.isfinite(held_rms) and held_rms > HOLDOUT_FACTOR * ref.rms_px and verdict == "ok":
-        verdict = "warning"
-        reasons.append(f"held-out views reproject at {held_rms:.2f} px, {held_rms / ref.rms_px:.1f}x the fit")
-    metrics: dict[str, float] = {
-        "n_images": float(len(views) + len(rejected)),
-        "n_views": float(len(views)),
-        "n_rejected": float(len(rejected)),
-        "rms_px": ref.rms_px,
-        "sigma_px": ref.sigma_px,
-        "corner_sigma_px": noisy.sigma_px,  # per coordinate, with the robot poses corrected
-        "robot_sigma_trans_m": noisy.robot_noise.trans_m,  # per axis, estimated from the corners
-        "robot_sigma_rot_rad": noisy.robot_noise.rot_rad,
-        "holdout_rms_px": held_rms,
-        "world_spread_trans_rms_m": spread_t,
-        "world_spread_rot_rms_rad": spread_r,
-        "board_pose_rms_px": float(np.sqrt(np.mean([p.rms_px**2 for p in poses]))),
-        "nfev": float(ref.nfev),
-        "covariance_dof": float(ref.dof),  # the covariance rests on sigma_px estimated from the residuals
-        "std_x_trans_m": std_t,
-        "std_x_rot_rad": std_r,
-    }
-    for key in ("chain_spread_trans_rms_m", "chain_spread_rot_rms_rad", "unit_scale_robot_per_camera"):
-        if key in ml.metrics:
-            metrics[f"ml_{key}"] = ml.metrics[key]
-    estimate: dict[str, Any] = {
-        frames.x_name: ref.X,
-        frames.y_name: ref.Y,
-        "setup": setup,
-        "camera": cam.to_dict(),
-        "sample_labels": [Path(v.name).name for v in views],
-        f"initial_{frames.x_name}": X0,
-    }
-    if left_out:
-        estimate["outlier_views"] = list(left_out)
-        metrics["n_outlier_views"] = float(len(left_out))
+    ref = pixel.noisy if model_robot_noise else pixel.exact
+    fig = _figures(setup, M, B, views, ref, pixel, model_robot_noise, holdout)
+    verdict, reasons, advice = _judge(ml, notes, left_out, pixel, ref, fig, frames.x_name)
     result = CalibrationResult(
         kind=kind,
         verdict=verdict,
-        estimate=estimate,
-        param_names=_param_names(frames.x_name, frames.y_name, cam, ref.intrinsics_refined),
-        covariance=covariance,
-        residuals=np.column_stack([ref.view_rms_px, ref.view_max_px, held]),
+        estimate=_estimate(setup, views, ref, pixel.X0, left_out),
+        param_names=_param_names(frames.x_name, frames.y_name, ref.camera, ref.intrinsics_refined),
+        covariance=fig.covariance,
+        residuals=np.column_stack([ref.view_rms_px, ref.view_max_px, fig.held]),
         residual_names=["rms_px", "max_px", "holdout_rms_px"],
         outliers=np.zeros(len(views), dtype=bool),
         reasons=reasons,
         advice=advice,
-        metrics=metrics,
+        metrics=_metrics(views, rejected, poses, ml, ref, pixel, fig, left_out),
         method=f"board poses -> {ml.method} -> reprojection refinement over {frames.x_name}, {frames.y_name}"
         + (" and the intrinsics" if ref.intrinsics_refined else ""),
         iterations=ref.nfev,
     )
-    return HandEyeFromImages(result, views, M, poses, rejected, ml, ref, held, list(left_out))
+    return HandEyeFromImages(result, views, M, poses, rejected, ml, ref, fig.held, list(left_out))

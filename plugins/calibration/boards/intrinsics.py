@@ -1,6 +1,6 @@
 """Camera intrinsics from board detections: model choice, uncertainty, outlier views, coverage, advice.
 
-OpenCV fits (``cv2.calibrateCameraExtended``; ``cv2.fisheye.calibrate`` for the fisheye model);
+OpenCV fits (:mod:`.camera_fit`: ``cv2.calibrateCamera``; ``cv2.fisheye.calibrate`` for the fisheye model);
 what is added here is what makes the answer usable by someone who did not watch it being made:
 
 * **Model choice** (``model="auto"``): the standard 5-coefficient model and the rational 8-coefficient
@@ -37,28 +37,26 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
+from plugins.calibration.boards.camera_fit import CameraFit, ModelChoice, ModelFit, choose_model, intrinsics_covariance
 from plugins.calibration.boards.detect import Detection, Detections, Rejection
 from plugins.calibration.result import CalibrationResult, Verdict
 from plugins.camera.board_spec import BoardSpec
 from plugins.camera.pinhole import DISTORTION, CameraModel
 
 F64 = NDArray[np.float64]
-ModelChoice = Literal["auto", "standard", "rational", "fisheye"]
 
 __all__ = ["IntrinsicsCalibration", "ViewFit", "calibrate_intrinsics", "plot_coverage"]
 
 MIN_VIEWS = 3
 GOOD_VIEWS = 10
 OUTLIER_FACTOR, OUTLIER_FLOOR_PX = 3.0, 0.1
-MIN_RMS_GAIN = 0.05  # the rational model must lower the RMS by 5 % as well as win on BIC
 FAIL_RMS_PX, WARN_RMS_PX = 2.0, 0.5
 COVERAGE_GRID = (8, 6)
-_CRITERIA = (3, 200, 1e-12)  # cv2.TERM_CRITERIA_COUNT | EPS
 
 
 @dataclass(frozen=True)
@@ -72,31 +70,6 @@ class ViewFit:
     T_cam_target: F64
     tilt_deg: float  # angle between the board normal and the optical axis
     used: bool
-
-
-@dataclass
-class _Fit:
-    model: str
-    K: F64
-    D: F64
-    T: list[F64]
-    rss: float  # sum of squared reprojection distances, px²
-    n_points: int
-    n_views: int
-
-    @property
-    def n_intrinsic(self) -> int:
-        return 4 + DISTORTION[self.model][0]
-
-    @property
-    def rms(self) -> float:
-        return float(np.sqrt(self.rss / self.n_points))
-
-    @property
-    def bic(self) -> float:
-        m = 2 * self.n_points
-        p = self.n_intrinsic + 6 * self.n_views
-        return float(m * np.log(max(self.rss, 1e-300) / m) + p * np.log(m))
 
 
 @dataclass
@@ -191,88 +164,7 @@ def _is_outlier(r: Rejection) -> bool:
     return r.reason.startswith("outlier view")
 
 
-# --------------------------------------------------------------------------- fitting
-
-
-def _cv_lists(views: list[Detection]) -> tuple[list[NDArray[np.float32]], list[NDArray[np.float32]]]:
-    obj = [np.asarray(v.object_points, np.float32).reshape(-1, 1, 3) for v in views]
-    img = [np.asarray(v.image_points, np.float32).reshape(-1, 1, 2) for v in views]
-    return obj, img
-
-
-def _T(rvec: NDArray[Any], tvec: NDArray[Any]) -> F64:
-    import cv2
-
-    T = np.eye(4)
-    T[:3, :3] = cv2.Rodrigues(np.asarray(rvec, float).reshape(3, 1))[0]
-    T[:3, 3] = np.asarray(tvec, float).ravel()
-    return T
-
-
-def _rss(camera: CameraModel, views: list[Detection], poses: list[F64]) -> float:
-    return float(
-        sum(
-            np.sum((camera.project(T, v.object_points) - v.image_points) ** 2)
-            for v, T in zip(views, poses, strict=True)
-        )
-    )
-
-
-def _fit(model: str, views: list[Detection], size: tuple[int, int], guess: _Fit | None = None) -> _Fit:
-    import cv2
-
-    obj, img = _cv_lists(views)
-    n_points = sum(v.n for v in views)
-    if model == "fisheye":
-        flags = cv2.fisheye.CALIB_RECOMPUTE_EXTRINSIC | cv2.fisheye.CALIB_FIX_SKEW
-        obj64 = [o.astype(np.float64).reshape(1, -1, 3) for o in obj]
-        img64 = [i.astype(np.float64).reshape(1, -1, 2) for i in img]
-        _, K, D, rvecs, tvecs = cv2.fisheye.calibrate(obj64, img64, size, None, None, flags=flags, criteria=_CRITERIA)
-    else:
-        flags = cv2.CALIB_RATIONAL_MODEL if model == "rational" else 0
-        K0, D0 = None, None
-        if guess is not None:
-            flags |= cv2.CALIB_USE_INTRINSIC_GUESS
-            K0 = guess.K.copy()
-            D0 = np.zeros(DISTORTION[model][0])
-            D0[: min(5, guess.D.size)] = guess.D[:5]
-        _, K, D, rvecs, tvecs = cv2.calibrateCamera(obj, img, size, K0, D0, flags=flags, criteria=_CRITERIA)
-    K = np.asarray(K, float)
-    D = np.asarray(D, float).ravel()[: DISTORTION[model][0]]
-    poses = [_T(r, t) for r, t in zip(rvecs, tvecs, strict=True)]
-    cam = CameraModel(size[0], size[1], K, D, model)  # type: ignore[arg-type]
-    return _Fit(model, K, D, poses, _rss(cam, views, poses), n_points, len(views))
-
-
-def _covariance(fit: _Fit, views: list[Detection], size: tuple[int, int]) -> F64:
-    """Covariance of (fx, fy, cx, cy, D...) with the view poses eliminated (module docstring)."""
-    cam = CameraModel(size[0], size[1], fit.K, fit.D, fit.model)  # type: ignore[arg-type]
-    nI = fit.n_intrinsic
-    info = np.zeros((nI, nI))
-    for v, T in zip(views, fit.T, strict=True):
-        if fit.model == "fisheye":
-            J = _fisheye_jacobian(cam, T, v.object_points)
-            A, B = J[:, :8], J[:, 8:14]
-        else:
-            _, J = cam.project_with_jacobian(T, v.object_points)
-            assert J is not None
-            A, B = J[:, 6 : 6 + nI], J[:, :6]
-        AtB = A.T @ B
-        info += A.T @ A - AtB @ np.linalg.solve(B.T @ B, AtB.T)
-    dof = 2 * fit.n_points - (nI + 6 * fit.n_views)
-    sigma2 = fit.rss / max(dof, 1)  # per coordinate
-    return sigma2 * np.linalg.pinv(info)
-
-
-def _fisheye_jacobian(cam: CameraModel, T: F64, points: F64) -> F64:
-    """``cv2.fisheye.projectPoints``' Jacobian: columns f (2), c (2), k (4), rvec (3), tvec (3)."""
-    import cv2
-
-    rvec, _ = cv2.Rodrigues(T[:3, :3])
-    _, J = cv2.fisheye.projectPoints(
-        points.reshape(-1, 1, 3), rvec, np.ascontiguousarray(T[:3, 3].reshape(3, 1)), cam.K, cam.D
-    )
-    return np.asarray(J, float)[:, :14]
+# --------------------------------------------------------------------------- views after the fit
 
 
 def _view_fits(cam: CameraModel, views: list[Detection], poses: list[F64], used: list[bool]) -> list[ViewFit]:
@@ -375,6 +267,53 @@ def _failed(board: BoardSpec, detections: Detections, reason: str, advice: list[
     )  # fmt: skip
 
 
+class _Calibrated(NamedTuple):
+    """The camera fit on the views kept: the model chosen, every view's fit (the outliers' too), the
+    views used and the covariance of the intrinsics."""
+
+    model: ModelFit
+    fits: list[ViewFit]
+    views_used: list[Detection]
+    covariance: F64
+
+
+def _fit_without_outliers(
+    model: ModelChoice, views: list[Detection], size: tuple[int, int], rejected: list[Rejection], reject_outliers: bool
+) -> _Calibrated:
+    """The model choice on every view; with outlier views (module docstring) and ``reject_outliers``,
+    those are added to ``rejected`` and the camera fitted again once without them (their poses then by
+    PnP). Raises what OpenCV raises."""
+    chosen = choose_model(model, views, size)
+    fit = chosen.fit
+    used = [True] * len(views)
+    cam = CameraModel(size[0], size[1], fit.K, fit.D, fit.model)  # type: ignore[arg-type]
+    fits = _view_fits(cam, views, fit.T, used)
+    per_view = np.array([f.rms_px for f in fits])
+    med = float(np.median(per_view))
+    bad = (per_view > OUTLIER_FACTOR * med) & (per_view > med + OUTLIER_FLOOR_PX)
+    if reject_outliers and bad.any() and (~bad).sum() >= MIN_VIEWS:
+        for k in np.flatnonzero(bad):
+            rejected.append(
+                Rejection(
+                    views[k].name,
+                    f"outlier view: reprojection RMS {per_view[k]:.3f} px, {per_view[k] / med:.1f}x the median "
+                    f"{med:.3f} px of the views (blurred, a mis-detected corner, or the board moved or bent)",
+                )
+            )
+        keep = [v for v, b in zip(views, bad, strict=True) if not b]
+        chosen = choose_model(model, keep, size)
+        fit = chosen.fit
+        cam = CameraModel(size[0], size[1], fit.K, fit.D, fit.model)  # type: ignore[arg-type]
+        used = [not b for b in bad]
+        poses_iter = iter(fit.T)
+        poses = [next(poses_iter) if u else _pose_for(cam, v) for v, u in zip(views, used, strict=True)]
+        fits = _view_fits(cam, views, poses, used)
+        views_used = keep
+    else:
+        views_used = views
+    return _Calibrated(chosen, fits, views_used, intrinsics_covariance(fit, views_used, size))
+
+
 def calibrate_intrinsics(
     detections: Detections, *, model: ModelChoice = "auto", reject_outliers: bool = True
 ) -> IntrinsicsCalibration:
@@ -392,60 +331,10 @@ def calibrate_intrinsics(
             ["check the board spec (COLSxROWS counts squares) and that the whole board is in view and sharp"],
         )  # fmt: skip
     size = views[0].image_size
-
-    def choose(vs: list[Detection]) -> tuple[_Fit, dict[str, dict[str, float]], str]:
-        if model in ("standard", "fisheye"):
-            f = _fit(model, vs, size)
-            return f, {model: {"rms_px": f.rms, "bic": f.bic}}, f"{model} model (as asked)"
-        std = _fit("standard", vs, size)
-        rat = min((_fit("rational", vs, size, std), _fit("rational", vs, size)), key=lambda f: f.rss)
-        cands = {f.model: {"rms_px": f.rms, "bic": f.bic} for f in (std, rat)}
-        if model == "rational":
-            return rat, cands, "rational model (as asked)"
-        gain = 1.0 - rat.rms / std.rms
-        if rat.bic < std.bic and gain >= MIN_RMS_GAIN:
-            why = (
-                f"rational model, chosen over standard by BIC (lower by {std.bic - rat.bic:.1f}) and RMS "
-                f"({rat.rms:.4f} vs {std.rms:.4f} px)"
-            )
-            return rat, cands, why
-        if rat.bic < std.bic:
-            why = (
-                f"standard model: the rational one lowers the RMS by only {100 * gain:.1f} % ({rat.rms:.4f} vs "
-                f"{std.rms:.4f} px; BIC alone would take it), so its 3 extra coefficients fit noise"
-            )
-        else:
-            why = f"standard model, chosen over rational by BIC (RMS {std.rms:.4f} vs {rat.rms:.4f} px)"
-        return std, cands, why
-
     try:
-        fit, candidates, why = choose(views)
-        used = [True] * len(views)
-        cam = CameraModel(size[0], size[1], fit.K, fit.D, fit.model)  # type: ignore[arg-type]
-        fits = _view_fits(cam, views, fit.T, used)
-        per_view = np.array([f.rms_px for f in fits])
-        med = float(np.median(per_view))
-        bad = (per_view > OUTLIER_FACTOR * med) & (per_view > med + OUTLIER_FLOOR_PX)
-        if reject_outliers and bad.any() and (~bad).sum() >= MIN_VIEWS:
-            for k in np.flatnonzero(bad):
-                rejected.append(
-                    Rejection(
-                        views[k].name,
-                        f"outlier view: reprojection RMS {per_view[k]:.3f} px, {per_view[k] / med:.1f}x the median "
-                        f"{med:.3f} px of the views (blurred, a mis-detected corner, or the board moved or bent)",
-                    )
-                )
-            keep = [v for v, b in zip(views, bad, strict=True) if not b]
-            fit, candidates, why = choose(keep)
-            cam = CameraModel(size[0], size[1], fit.K, fit.D, fit.model)  # type: ignore[arg-type]
-            used = [not b for b in bad]
-            poses_iter = iter(fit.T)
-            poses = [next(poses_iter) if u else _pose_for(cam, v) for v, u in zip(views, used, strict=True)]
-            fits = _view_fits(cam, views, poses, used)
-            views_used = keep
-        else:
-            views_used = views
-        cov = _covariance(fit, views_used, size)
+        (fit, candidates, why), fits, views_used, cov = _fit_without_outliers(
+            model, views, size, rejected, reject_outliers
+        )
     except Exception as exc:  # OpenCV's solver refusing (e.g. all views coplanar and frontal)
         msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
         return _failed(board, detections, f"the camera fit failed ({msg})", ["tilt the board in several views"])
@@ -469,7 +358,7 @@ def calibrate_intrinsics(
 
 
 def _judge(
-    fits: list[ViewFit], rejected: list[Rejection], rms: float, cov: dict[str, Any], std: F64, fit: _Fit
+    fits: list[ViewFit], rejected: list[Rejection], rms: float, cov: dict[str, Any], std: F64, fit: CameraFit
 ) -> tuple[Verdict, list[str], list[str]]:
     reasons: list[str] = []
     advice: list[str] = []

@@ -31,7 +31,7 @@ declared noise that does not fit, a camera length scale off 1, or an uncertainty
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -129,30 +129,26 @@ def _check_noise_limits(
     return "failed"
 
 
-def assemble_result(
-    kind: str,
-    setup: Setup,
-    x_name: str,
-    y_name: str,
-    index: NDArray[np.int64],
-    labels: list[str],
-    M: F64,
-    B: F64,
+class _ScaledCovariance(NamedTuple):
+    """Covariance scaling's outcome (module docstring): the variance factor ``chi2 / dof``, the factor
+    applied, the scaled covariance and the degrees of freedom of its confidence regions (metrics)."""
+
+    variance_factor: float
+    factor: float
+    matrix: F64
+    dof_metrics: dict[str, float]
+
+
+def _scale_covariance(
     fit: MLFit,
-    init_method: str,
-    loss: Loss,
     noise_estimated: bool,
     covariance_scale: CovarianceScale,
-    accuracy: AccuracyTargets,
     verdict: str,
     reasons: list[str],
     advice: list[str],
-    metrics: dict[str, float],
-) -> CalibrationResult:
-    n = M.shape[0]
-    inl = ~fit.outliers
-    reasons = reasons + fit.notes
-    # ---- covariance scaling
+) -> tuple[_ScaledCovariance, str]:
+    """The covariance scaled as ``covariance_scale`` asks, and the verdict (``warning``, with the
+    reason, for no redundancy or a declared noise the chi-square test rejects)."""
     vf = fit.chi2 / fit.dof if fit.dof > 0 else float("nan")
     cov_factor = 1.0
     if fit.dof <= 0:
@@ -184,49 +180,64 @@ def assemble_result(
         }
     elif cov_factor != 1.0 or (covariance_scale == "a_posteriori" and fit.dof > 0):
         cov_dof = {"covariance_dof": float(fit.dof), "covariance_dof_xy": float(fit.dof)}
+    return _ScaledCovariance(vf, cov_factor, cov, cov_dof), verdict
 
-    # ---- pose-chain spread (each sample's own estimate of Y against the fit)
-    d_chain = pose_delta(chain_poses(setup, M, fit.X, B), np.broadcast_to(fit.Y, M.shape))
+
+def _fit_metrics(
+    n: int,
+    fit: MLFit,
+    d_chain: F64,
+    cov: _ScaledCovariance,
+    noise_estimated: bool,
+    accuracy: AccuracyTargets,
+) -> dict[str, float]:
+    """The metrics of the fit: sample counts, pose-chain spread and residual RMS over the inliers,
+    chi-square, covariance scaling, the estimate's 1-sigma, the noise and its limits."""
+    inl = ~fit.outliers
     t_rms, t_max, r_rms, r_max = _spread(d_chain[inl])
-    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    metrics.update(
-        {
-            "n_samples": float(n),
-            "n_inliers": float(np.count_nonzero(inl)),
-            "n_outliers": float(np.count_nonzero(fit.outliers)),
-            "chain_spread_trans_rms_m": t_rms,
-            "chain_spread_trans_max_m": t_max,
-            "chain_spread_rot_rms_rad": r_rms,
-            "chain_spread_rot_max_rad": r_max,
-            "camera_residual_trans_rms_m": float(np.sqrt(np.mean(np.sum(fit.e_camera[inl, :3] ** 2, axis=1)))),
-            "camera_residual_rot_rms_rad": float(np.sqrt(np.mean(np.sum(fit.e_camera[inl, 3:] ** 2, axis=1)))),
-            "robot_residual_trans_rms_m": float(np.sqrt(np.mean(np.sum(fit.e_robot[inl, :3] ** 2, axis=1)))),
-            "robot_residual_rot_rms_rad": float(np.sqrt(np.mean(np.sum(fit.e_robot[inl, 3:] ** 2, axis=1)))),
-            "chi2": fit.chi2,
-            "dof": float(fit.dof),
-            "variance_factor": vf,
-            "covariance_factor": cov_factor,
-            **cov_dof,
-            "std_x_trans_m": float(np.sqrt(np.sum(std[0:3] ** 2))),
-            "std_x_rot_rad": float(np.sqrt(np.sum(std[3:6] ** 2))),
-            "std_y_trans_m": float(np.sqrt(np.sum(std[6:9] ** 2))),
-            "std_y_rot_rad": float(np.sqrt(np.sum(std[9:12] ** 2))),
-            "noise_robot_trans_m": float(np.mean(fit.noise.robot.trans_sigma)),
-            "noise_robot_rot_rad": float(np.mean(fit.noise.robot.rot_sigma)),
-            "noise_camera_trans_m": float(np.mean(fit.noise.camera.trans_sigma)),
-            "noise_camera_rot_rad": float(np.mean(fit.noise.camera.rot_sigma)),
-            "noise_estimated": float(noise_estimated),
-            "noise_groups_estimated": float(fit.noise_groups_estimated),
-            "threshold_scale": fit.threshold_scale,
-            "nfev": float(fit.nfev),
-            "noise_limit_robot_rot_rad": accuracy.max_robot_noise_rot_rad,
-            "noise_limit_robot_trans_m": accuracy.max_robot_noise_trans_m,
-            "noise_limit_camera_rot_rad": accuracy.max_camera_noise_rot_rad,
-            "noise_limit_camera_trans_m": accuracy.max_camera_noise_trans_m,
-        }
-    )
+    std = np.sqrt(np.clip(np.diag(cov.matrix), 0.0, None))
+    return {
+        "n_samples": float(n),
+        "n_inliers": float(np.count_nonzero(inl)),
+        "n_outliers": float(np.count_nonzero(fit.outliers)),
+        "chain_spread_trans_rms_m": t_rms,
+        "chain_spread_trans_max_m": t_max,
+        "chain_spread_rot_rms_rad": r_rms,
+        "chain_spread_rot_max_rad": r_max,
+        "camera_residual_trans_rms_m": float(np.sqrt(np.mean(np.sum(fit.e_camera[inl, :3] ** 2, axis=1)))),
+        "camera_residual_rot_rms_rad": float(np.sqrt(np.mean(np.sum(fit.e_camera[inl, 3:] ** 2, axis=1)))),
+        "robot_residual_trans_rms_m": float(np.sqrt(np.mean(np.sum(fit.e_robot[inl, :3] ** 2, axis=1)))),
+        "robot_residual_rot_rms_rad": float(np.sqrt(np.mean(np.sum(fit.e_robot[inl, 3:] ** 2, axis=1)))),
+        "chi2": fit.chi2,
+        "dof": float(fit.dof),
+        "variance_factor": cov.variance_factor,
+        "covariance_factor": cov.factor,
+        **cov.dof_metrics,
+        "std_x_trans_m": float(np.sqrt(np.sum(std[0:3] ** 2))),
+        "std_x_rot_rad": float(np.sqrt(np.sum(std[3:6] ** 2))),
+        "std_y_trans_m": float(np.sqrt(np.sum(std[6:9] ** 2))),
+        "std_y_rot_rad": float(np.sqrt(np.sum(std[9:12] ** 2))),
+        "noise_robot_trans_m": float(np.mean(fit.noise.robot.trans_sigma)),
+        "noise_robot_rot_rad": float(np.mean(fit.noise.robot.rot_sigma)),
+        "noise_camera_trans_m": float(np.mean(fit.noise.camera.trans_sigma)),
+        "noise_camera_rot_rad": float(np.mean(fit.noise.camera.rot_sigma)),
+        "noise_estimated": float(noise_estimated),
+        "noise_groups_estimated": float(fit.noise_groups_estimated),
+        "threshold_scale": fit.threshold_scale,
+        "nfev": float(fit.nfev),
+        "noise_limit_robot_rot_rad": accuracy.max_robot_noise_rot_rad,
+        "noise_limit_robot_trans_m": accuracy.max_robot_noise_trans_m,
+        "noise_limit_camera_rot_rad": accuracy.max_camera_noise_rot_rad,
+        "noise_limit_camera_trans_m": accuracy.max_camera_noise_trans_m,
+    }
 
-    # ---- camera length scale on the inliers (wrong target size or intrinsics scale the camera)
+
+def _check_unit_scale(
+    setup: Setup, M: F64, B: F64, fit: MLFit, metrics: dict[str, float], verdict: str, reasons: list[str]
+) -> str:
+    """The camera length scale on the inliers into the metrics (wrong target size or intrinsics scale
+    the camera); ``warning``, with the reason, when it is off 1."""
+    inl = ~fit.outliers
     unit = estimate_unit_scale(setup, M[inl], B[inl], robust=False) if np.count_nonzero(inl) >= 3 else None
     if unit is not None:
         scale, scale_sd = unit
@@ -238,22 +249,54 @@ def assemble_result(
                 f"camera translations look scaled by {1.0 / scale:.4f} relative to the robot's "
                 f"(+-{scale_sd / scale**2:.4f}): check the calibration-target size and the camera intrinsics"
             )
+    return verdict
 
-    # ---- verdict
+
+def _check_outliers(
+    fit: MLFit,
+    labels: list[str],
+    loss: Loss,
+    accuracy: AccuracyTargets,
+    verdict: str,
+    reasons: list[str],
+    advice: list[str],
+) -> str:
+    """Outlier samples named in the reasons: ``warning``, ``failed`` beyond ``max_outlier_fraction``."""
+    n = len(fit.outliers)
+    n_out = int(np.count_nonzero(fit.outliers))
+    if not n_out:
+        return verdict
+    out_ids = [labels[k] for k in np.flatnonzero(fit.outliers)]
+    idx = ", ".join(out_ids[:12]) + (f" ... ({n_out} in all)" if n_out > 12 else "")
+    fate = "kept in the estimate (loss='linear')" if loss == "linear" else "left out of the estimate"
+    reasons.append(f"{n_out} outlier sample(s) {fate}: {idx}")
+    advice.append("inspect the outlier samples (detection, robot/camera time sync, target slipped)")
+    verdict = "warning" if verdict == "ok" else verdict
+    if n_out > accuracy.max_outlier_fraction * n:
+        verdict = "failed"
+        reasons.append(f"too many outliers ({n_out} of {n}): the data are not consistent with one calibration")
+    return verdict
+
+
+def _judge(
+    fit: MLFit,
+    cov: _ScaledCovariance,
+    x_name: str,
+    labels: list[str],
+    loss: Loss,
+    noise_estimated: bool,
+    accuracy: AccuracyTargets,
+    metrics: dict[str, float],
+    verdict: str,
+    reasons: list[str],
+    advice: list[str],
+) -> str:
+    """The verdict rules of the module docstring on the fit, in order; the reasons and advice say why."""
+    vf = cov.variance_factor
     if not fit.converged:
         verdict = "failed"
         reasons.append("the maximum-likelihood refinement did not converge")
-    n_out = int(np.count_nonzero(fit.outliers))
-    if n_out:
-        out_ids = [labels[k] for k in np.flatnonzero(fit.outliers)]
-        idx = ", ".join(out_ids[:12]) + (f" ... ({n_out} in all)" if n_out > 12 else "")
-        fate = "kept in the estimate (loss='linear')" if loss == "linear" else "left out of the estimate"
-        reasons.append(f"{n_out} outlier sample(s) {fate}: {idx}")
-        advice.append("inspect the outlier samples (detection, robot/camera time sync, target slipped)")
-        verdict = "warning" if verdict == "ok" else verdict
-        if n_out > accuracy.max_outlier_fraction * n:
-            verdict = "failed"
-            reasons.append(f"too many outliers ({n_out} of {n}): the data are not consistent with one calibration")
+    verdict = _check_outliers(fit, labels, loss, accuracy, verdict, reasons, advice)
     if not noise_estimated and np.isfinite(vf) and vf > accuracy.max_variance_factor:
         verdict = "failed"
         reasons.append(f"residuals are {np.sqrt(vf):.1f}x the declared noise: the model does not fit the data")
@@ -267,17 +310,48 @@ def assemble_result(
             f"{accuracy.max_std_trans_m * 1e3:.2f} mm / {np.rad2deg(accuracy.max_std_rot_rad):.3f} deg"
         )
         advice.append("add poses with larger rotations about different axes, or reduce the measurement noise")
-    if not (np.all(np.isfinite(fit.X)) and np.all(np.isfinite(fit.Y)) and np.all(np.isfinite(cov))):
+    if not (np.all(np.isfinite(fit.X)) and np.all(np.isfinite(fit.Y)) and np.all(np.isfinite(cov.matrix))):
         verdict = "failed"
         reasons.append("non-finite estimate")
+    return verdict
 
+
+def assemble_result(
+    kind: str,
+    setup: Setup,
+    x_name: str,
+    y_name: str,
+    index: NDArray[np.int64],
+    labels: list[str],
+    M: F64,
+    B: F64,
+    fit: MLFit,
+    init_method: str,
+    loss: Loss,
+    noise_estimated: bool,
+    covariance_scale: CovarianceScale,
+    accuracy: AccuracyTargets,
+    verdict: str,
+    reasons: list[str],
+    advice: list[str],
+    metrics: dict[str, float],
+) -> CalibrationResult:
+    """The result of one ML fit (module docstring): ``reasons`` is extended into a new list, ``advice``
+    and ``metrics`` are added to in place."""
+    reasons = reasons + fit.notes
+    cov, verdict = _scale_covariance(fit, noise_estimated, covariance_scale, verdict, reasons, advice)
+    # pose-chain spread: each sample's own estimate of Y against the fit
+    d_chain = pose_delta(chain_poses(setup, M, fit.X, B), np.broadcast_to(fit.Y, M.shape))
+    metrics.update(_fit_metrics(M.shape[0], fit, d_chain, cov, noise_estimated, accuracy))
+    verdict = _check_unit_scale(setup, M, B, fit, metrics, verdict, reasons)
+    verdict = _judge(fit, cov, x_name, labels, loss, noise_estimated, accuracy, metrics, verdict, reasons, advice)
     residuals = np.column_stack([index.astype(float), d_chain, fit.e_robot, fit.e_camera, fit.s2, fit.weights])
     return CalibrationResult(
         kind=kind,
         verdict=verdict,  # type: ignore[arg-type]
         estimate={x_name: fit.X, y_name: fit.Y, "setup": setup, "sample_labels": list(labels)},
         param_names=_param_names(x_name, y_name),
-        covariance=cov,
+        covariance=cov.matrix,
         residuals=residuals,
         residual_names=list(RESIDUAL_NAMES),
         outliers=fit.outliers.copy(),

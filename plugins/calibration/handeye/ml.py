@@ -28,7 +28,7 @@ Runs :class:`ml_model.EivModel` through ``scipy.optimize.least_squares`` in four
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -168,6 +168,131 @@ def _vce_step(model: EivModel, st: EivState, weights: F64, noise: NoiseModel) ->
     return NoiseModel(robot, camera), factor, redund
 
 
+@dataclass(frozen=True)
+class _RobustFit:
+    """Phase 1's outcome: the model at the robust optimum and what the later phases need of it."""
+
+    model: EivModel
+    weights: F64  # robust weights after the last iteration
+    last_solved_w: F64  # the weights of the last solve (phase 4 need not repeat it with the same)
+    scale: float  # variance factor of the robust / outlier thresholds
+    nfev: int
+    converged: bool
+
+
+@dataclass(frozen=True)
+class _Covariance:
+    """Phase 4's covariance of (X, Y) and, with the noise estimated, its Kenward-Roger figures."""
+
+    matrix: NDArray[np.floating[Any]]
+    dof_x: float = float("inf")
+    dof_xy: float = float("inf")
+    f_scale_x: float = 1.0
+    f_scale_xy: float = 1.0
+    kr_inflation_x: float = 1.0
+
+
+def _threshold_scale(s2: F64, mask: NDArray[np.bool_], noise_declared: bool) -> float:
+    """Robust variance factor of the thresholds: median of ``s2`` over ``mask`` against chi-square(6)'s
+    median; never below 1 for a declared noise (so a correct noise model is not tightened by chance)."""
+    if not np.any(mask):
+        return 1.0
+    vf = float(np.median(s2[mask]) / CHI2_MEDIAN)
+    return max(1.0, vf) if noise_declared else max(vf, 1e-12)
+
+
+def _robust_fit(model: EivModel, weights: F64, opts: MLOptions) -> _RobustFit:
+    """Phase 1: iteratively reweighted least squares (module docstring) from ``weights``."""
+    noise_declared = not opts.estimate_noise
+    nfev_total, converged = 0, True
+    scale = 1.0
+    last_solved_w = weights
+    for _ in range(opts.max_robust_iterations):
+        last_solved_w = weights
+        model, nfev, ok = _solve(model, weights, opts)
+        nfev_total += nfev
+        converged &= ok
+        s2 = _per_sample_cost(model, model.state(np.zeros(model.n_params)))
+        scale = _threshold_scale(s2, weights > 0.5, noise_declared)
+        new_w = _robust_weights(s2, opts.loss, float(stats.chi2.ppf(opts.robust_quantile, DOF_PER_SAMPLE)) * scale)
+        if opts.loss != "linear":  # beyond the outlier threshold a sample no longer pulls at all
+            new_w[s2 > float(stats.chi2.ppf(opts.outlier_quantile, DOF_PER_SAMPLE)) * scale] = 0.0
+        done = np.max(np.abs(new_w - weights)) < 1e-3
+        weights = new_w
+        if done or opts.loss == "linear":
+            break
+    return _RobustFit(model, weights, last_solved_w, scale, nfev_total, converged)
+
+
+def _flag_outliers(
+    model: EivModel, n: int, scale: float, opts: MLOptions, notes: list[str]
+) -> tuple[NDArray[np.bool_], F64]:
+    """Phase 2: the outlier flags and the inlier weights of the later phases (all ``n`` samples, with
+    a note, when fewer than 3 inliers would be left)."""
+    st = model.state(np.zeros(model.n_params))
+    s2 = _per_sample_cost(model, st)
+    out_thr = float(stats.chi2.ppf(opts.outlier_quantile, DOF_PER_SAMPLE)) * scale
+    outliers = s2 > out_thr
+    if opts.loss == "linear":
+        inlier_w = np.ones(n)
+    else:
+        inlier_w = (~outliers).astype(float)
+    if np.count_nonzero(inlier_w) < 3:
+        notes.append("fewer than 3 inliers: the robust fit could not separate outliers; all samples used")
+        inlier_w = np.ones(n)
+        outliers = np.zeros(n, dtype=bool)
+    return outliers, inlier_w
+
+
+def _estimate_noise(
+    model: EivModel, inlier_w: F64, noise: NoiseModel, opts: MLOptions
+) -> tuple[EivModel, NoiseModel, NDArray[np.bool_], int]:
+    """Phase 3: variance-component estimation on the inliers (module docstring). Returns the model
+    with the estimated noise, that noise, the groups estimable (redundancy >= 1) and the evaluations."""
+    nfev_total = 0
+    current = noise
+    previous: F64 | None = None
+    for _ in range(opts.max_noise_iterations):
+        model, nfev, _ok = _solve(model, inlier_w, opts)
+        nfev_total += nfev
+        st = model.state(np.zeros(model.n_params), jacobian=True)
+        xy = np.concatenate([st.X[:3, 3], st.Y[:3, 3]])
+        # stop when the noise update no longer moves the estimate (1 % of its sigma)
+        if previous is not None:
+            cov = np.linalg.pinv(model.information_xy(st, inlier_w))
+            sd_t = np.sqrt(np.clip(np.diag(cov)[[0, 1, 2, 6, 7, 8]], 1e-300, None))
+            if np.max(np.abs(xy - previous) / sd_t) < 0.01:
+                break
+        previous = xy
+        current, factor, redund = _vce_step(model, st, inlier_w, current)
+        model = model.with_noise(current)
+        if np.all(np.abs(factor - 1.0) < 0.01):
+            break
+    return model, current, redund >= 1.0, nfev_total
+
+
+def _covariance(
+    model: EivModel, st: EivState, inlier_w: F64, estimated_groups: NDArray[np.bool_] | None, notes: list[str]
+) -> _Covariance:
+    """Phase 4's covariance: the inverse Fisher information at the optimum (the pseudo-inverse, with a
+    note, when singular); Kenward-Roger's (``variance``) when ``estimated_groups`` says the noise was
+    estimated."""
+    info = model.information_xy(st, inlier_w)
+    try:
+        cov = np.linalg.inv(info)
+    except np.linalg.LinAlgError:
+        cov = np.linalg.pinv(info)
+        notes.append("information matrix singular: covariance from the pseudo-inverse")
+    if estimated_groups is None:
+        return _Covariance(cov)
+    # the covariance rests on estimated variances: Kenward-Roger (``variance``)
+    kr = kenward_roger(model, st, inlier_w, estimated_groups, [slice(0, 6), slice(0, 12)])
+    kr_inflation_x = float(np.trace(np.linalg.solve(cov[:6, :6], kr.covariance[:6, :6]))) / 6.0
+    dof_x, dof_xy = kr.dof
+    f_scale_x, f_scale_xy = kr.f_scale
+    return _Covariance(kr.covariance, dof_x, dof_xy, f_scale_x, f_scale_xy, kr_inflation_x)
+
+
 def refine_ml(
     setup: Setup,
     T_base_tcp: F64,
@@ -189,93 +314,23 @@ def refine_ml(
     weights = np.ones(n)
     if initial_weights is not None and opts.loss != "linear":
         weights = np.asarray(initial_weights, dtype=float).copy()
-    nfev_total, converged = 0, True
-    noise_declared = not opts.estimate_noise
 
-    def threshold_scale(s2: F64, mask: NDArray[np.bool_]) -> float:
-        if not np.any(mask):
-            return 1.0
-        vf = float(np.median(s2[mask]) / CHI2_MEDIAN)
-        return max(1.0, vf) if noise_declared else max(vf, 1e-12)
-
-    # ---- phase 1: robust IRLS
-    scale = 1.0
-    last_solved_w = weights
-    for _ in range(opts.max_robust_iterations):
-        last_solved_w = weights
-        model, nfev, ok = _solve(model, weights, opts)
-        nfev_total += nfev
-        converged &= ok
-        s2 = _per_sample_cost(model, model.state(np.zeros(model.n_params)))
-        scale = threshold_scale(s2, weights > 0.5)
-        new_w = _robust_weights(s2, opts.loss, float(stats.chi2.ppf(opts.robust_quantile, DOF_PER_SAMPLE)) * scale)
-        if opts.loss != "linear":  # beyond the outlier threshold a sample no longer pulls at all
-            new_w[s2 > float(stats.chi2.ppf(opts.outlier_quantile, DOF_PER_SAMPLE)) * scale] = 0.0
-        done = np.max(np.abs(new_w - weights)) < 1e-3
-        weights = new_w
-        if done or opts.loss == "linear":
-            break
-
-    # ---- phase 2: outliers
-    st = model.state(np.zeros(model.n_params))
-    s2 = _per_sample_cost(model, st)
-    out_thr = float(stats.chi2.ppf(opts.outlier_quantile, DOF_PER_SAMPLE)) * scale
-    outliers = s2 > out_thr
-    if opts.loss == "linear":
-        inlier_w = np.ones(n)
-    else:
-        inlier_w = (~outliers).astype(float)
-    if np.count_nonzero(inlier_w) < 3:
-        notes.append("fewer than 3 inliers: the robust fit could not separate outliers; all samples used")
-        inlier_w = np.ones(n)
-        outliers = np.zeros(n, dtype=bool)
-
-    # ---- phase 3: noise estimation (variance components) on the inliers
+    robust = _robust_fit(model, weights, opts)
+    model, nfev_total, converged = robust.model, robust.nfev, robust.converged
+    outliers, inlier_w = _flag_outliers(model, n, robust.scale, opts, notes)
     if opts.estimate_noise:
-        current = noise
-        previous: F64 | None = None
-        for _ in range(opts.max_noise_iterations):
-            model, nfev, ok = _solve(model, inlier_w, opts)
-            nfev_total += nfev
-            st = model.state(np.zeros(model.n_params), jacobian=True)
-            xy = np.concatenate([st.X[:3, 3], st.Y[:3, 3]])
-            # stop when the noise update no longer moves the estimate (1 % of its sigma)
-            if previous is not None:
-                cov = np.linalg.pinv(model.information_xy(st, inlier_w))
-                sd_t = np.sqrt(np.clip(np.diag(cov)[[0, 1, 2, 6, 7, 8]], 1e-300, None))
-                if np.max(np.abs(xy - previous) / sd_t) < 0.01:
-                    break
-            previous = xy
-            current, factor, redund = _vce_step(model, st, inlier_w, current)
-            model = model.with_noise(current)
-            if np.all(np.abs(factor - 1.0) < 0.01):
-                break
-        estimated_groups = redund >= 1.0
+        model, noise, estimated_groups, nfev = _estimate_noise(model, inlier_w, noise, opts)
+        nfev_total += nfev
         estimable = int(np.count_nonzero(estimated_groups))
-        noise = current
 
     # ---- phase 4: final ML fit on inliers and covariance (phase 1 already is it when nothing changed)
-    if opts.estimate_noise or not np.array_equal(inlier_w, last_solved_w):
+    if opts.estimate_noise or not np.array_equal(inlier_w, robust.last_solved_w):
         model, nfev, ok = _solve(model, inlier_w, opts)
         nfev_total += nfev
         converged &= ok
     st = model.state(np.zeros(model.n_params), jacobian=True)
     s2 = _per_sample_cost(model, st)
-    info = model.information_xy(st, inlier_w)
-    try:
-        cov = np.linalg.inv(info)
-    except np.linalg.LinAlgError:
-        cov = np.linalg.pinv(info)
-        notes.append("information matrix singular: covariance from the pseudo-inverse")
-    n_in = int(np.count_nonzero(inlier_w))
-    dof_x = dof_xy = float("inf")
-    f_scale_x = f_scale_xy = kr_inflation_x = 1.0
-    if opts.estimate_noise:  # the covariance rests on estimated variances: Kenward-Roger (``variance``)
-        kr = kenward_roger(model, st, inlier_w, estimated_groups, [slice(0, 6), slice(0, 12)])
-        kr_inflation_x = float(np.trace(np.linalg.solve(cov[:6, :6], kr.covariance[:6, :6]))) / 6.0
-        cov = kr.covariance
-        dof_x, dof_xy = kr.dof
-        f_scale_x, f_scale_xy = kr.f_scale
+    cov = _covariance(model, st, inlier_w, estimated_groups if opts.estimate_noise else None, notes)
     return MLFit(
         X=st.X,
         Y=st.Y,
@@ -283,20 +338,20 @@ def refine_ml(
         e_robot=st.e_robot,
         e_camera=st.e_camera,
         s2=s2,
-        weights=weights,
+        weights=robust.weights,
         outliers=outliers,
-        covariance=0.5 * (cov + cov.T),
+        covariance=0.5 * (cov.matrix + cov.matrix.T),
         noise=noise,
         chi2=float(np.sum(s2[inlier_w > 0])),
-        dof=DOF_PER_SAMPLE * n_in - 12,
-        threshold_scale=scale,
+        dof=DOF_PER_SAMPLE * int(np.count_nonzero(inlier_w)) - 12,
+        threshold_scale=robust.scale,
         nfev=nfev_total,
         converged=converged,
         noise_groups_estimated=estimable,
-        dof_x=dof_x,
-        dof_xy=dof_xy,
-        f_scale_x=f_scale_x,
-        f_scale_xy=f_scale_xy,
-        kr_inflation_x=kr_inflation_x,
+        dof_x=cov.dof_x,
+        dof_xy=cov.dof_xy,
+        f_scale_x=cov.f_scale_x,
+        f_scale_xy=cov.f_scale_xy,
+        kr_inflation_x=cov.kr_inflation_x,
         notes=notes,
     )

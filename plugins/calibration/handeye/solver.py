@@ -98,66 +98,94 @@ def _check_units(setup: Setup, M: F64, B: F64) -> None:
         )
 
 
-def _solve(run: _Run, setup: Setup, data: ValidatedSamples, *, given: bool) -> SetupCandidate:
-    """Motion analysis, consistency, closed forms and ML for one set-up.
+@dataclass
+class _Checks:
+    """What the checks before solving hand on to the result: the verdict so far, reasons, advice, metrics."""
 
-    ``given``: the caller stated the set-up, so a reading the rotation axes clearly reject is
-    ``failed`` and mixed units raise here; when the set-up is being found from the data, both
-    readings are solved and ``setup_choice`` decides (the unit test has run before).
-    """
-    kind = run.kind
-    frames = frames_of(setup)
-    M, B = data.T_base_tcp, data.T_cam_target
+    verdict: str
+    reasons: list[str]
+    advice: list[str]
+    metrics: dict[str, float]
+
+
+@dataclass(frozen=True)
+class _Start:
+    """The initial estimate (step 4): the closed form that won, its X and Y, every finite closed form's
+    X and Y, and the samples' starting weights (0 for the consensus' outliers)."""
+
+    method: str
+    X0: F64
+    Y0: F64
+    candidates: dict[str, tuple[F64, F64]]
+    weights: F64
+
+
+def _analyse_motion(run: _Run, setup: Setup, data: ValidatedSamples) -> _Checks | CalibrationResult:
+    """Step 2 (``degeneracy``): the motion metrics, reasons and advice, or the ``degenerate`` result
+    (not solved)."""
     reasons = list(data.warnings)
     advice: list[str] = []
     verdict = "warning" if reasons else "ok"
-
-    motion = analyse_motions(setup, M, B, run.motion_thresholds)
+    motion = analyse_motions(setup, data.T_base_tcp, data.T_cam_target, run.motion_thresholds)
     metrics: dict[str, float] = dict(motion.metrics)
     metrics["n_samples_given"] = float(data.n_given)
     if motion.verdict == "degenerate":
-        res = CalibrationResult(
-            kind=kind,
+        return CalibrationResult(
+            kind=run.kind,
             verdict="degenerate",
             reasons=reasons + motion.reasons,
             advice=motion.advice,
             metrics=metrics,
             method="motion analysis (not solved)",
         )
-        return SetupCandidate(setup, res, None)
     if motion.verdict == "warning":
         verdict = "warning"
     reasons += motion.reasons
     advice += motion.advice
+    return _Checks(verdict, reasons, advice, metrics)
 
+
+def _check_consistency(
+    run: _Run, setup: Setup, data: ValidatedSamples, checks: _Checks, *, given: bool
+) -> CalibrationResult | None:
+    """Step 3 (``consistency``): the rotation axes' misfit of either set-up into the metrics; for a
+    given set-up, the ``failed`` result when they reject it, and the unit check (raises)."""
+    M, B = data.T_base_tcp, data.T_cam_target
     sc = check_setup_consistency(setup, M, B)
     for (s, _), v in sc.mismatch.items():
-        metrics[f"axis_misfit_{s}_rad"] = v
+        checks.metrics[f"axis_misfit_{s}_rad"] = v
     if given and sc.wrong:
-        res = CalibrationResult(
-            kind=kind,
+        return CalibrationResult(
+            kind=run.kind,
             verdict="failed",
-            reasons=[*reasons, sc.message],
+            reasons=[*checks.reasons, sc.message],
             advice=[
                 "check the set-up (eye_in_hand: camera on the flange; eye_to_hand: camera fixed) and that "
                 "robot poses are T_base_tcp and camera poses T_cam_target; the data fit "
                 f"setup={sc.best[0]!r} as given (or leave the set-up out to have it found from the data)"
             ],
-            metrics=metrics,
+            metrics=checks.metrics,
             method="consistency check (not solved)",
         )
-        return SetupCandidate(setup, res, None)
     if given:
         _check_units(setup, M, B)
+    return None
 
-    noise0 = run.noise if run.noise is not None else DEFAULT_PRIOR
+
+def _initial_estimate(
+    run: _Run, setup: Setup, data: ValidatedSamples, noise0: NoiseModel, checks: _Checks
+) -> _Start | CalibrationResult:
+    """Step 4: the closed forms; when the pose chains look spoilt by outliers, again on the LMedS
+    consensus set (``consensus``), whose outliers start the ML at weight 0. The closed forms'
+    spread goes into the metrics; no finite closed form is a ``failed`` result."""
+    M, B = data.T_base_tcp, data.T_cam_target
+    metrics = checks.metrics
     methods = list(CLOSED_FORM_METHODS) if run.init == "auto" else [run.init]
     weights0 = np.ones(data.n)
     try:
         best, X0, Y0, cands = _initialise(setup, M, B, methods, noise0)
     except FloatingPointError as exc:
-        res = CalibrationResult(kind=kind, verdict="failed", reasons=[*reasons, str(exc)], metrics=metrics)
-        return SetupCandidate(setup, res, None)
+        return CalibrationResult(kind=run.kind, verdict="failed", reasons=[*checks.reasons, str(exc)], metrics=metrics)
     cost = pose_chain_cost(setup, M, B, X0, Y0, noise0)
     # suspicious samples, or chains far beyond the noise (a start spoilt by many outliers)
     if np.max(cost) > 3.0 * np.median(cost) or np.median(cost) > 10.0:
@@ -171,22 +199,48 @@ def _solve(run: _Run, setup: Setup, data: ValidatedSamples, *, given: bool) -> S
         Xs = [c[0] for c in cands.values()]
         metrics["closed_form_spread_trans_m"] = max(float(np.linalg.norm(a[:3, 3] - b[:3, 3])) for a in Xs for b in Xs)
         metrics["closed_form_spread_rot_rad"] = max(angle_between(a[:3, :3], b[:3, :3]) for a in Xs for b in Xs)
+    return _Start(best, X0, Y0, cands, weights0)
 
+
+def _solve(run: _Run, setup: Setup, data: ValidatedSamples, *, given: bool) -> SetupCandidate:
+    """Motion analysis, consistency, closed forms and ML for one set-up.
+
+    ``given``: the caller stated the set-up, so a reading the rotation axes clearly reject is
+    ``failed`` and mixed units raise here; when the set-up is being found from the data, both
+    readings are solved and ``setup_choice`` decides (the unit test has run before).
+    """
+    frames = frames_of(setup)
+    checks = _analyse_motion(run, setup, data)
+    if isinstance(checks, CalibrationResult):
+        return SetupCandidate(setup, checks, None)
+    inconsistent = _check_consistency(run, setup, data, checks, given=given)
+    if inconsistent is not None:
+        return SetupCandidate(setup, inconsistent, None)
+    noise0 = run.noise if run.noise is not None else DEFAULT_PRIOR
+    start = _initial_estimate(run, setup, data, noise0, checks)
+    if isinstance(start, CalibrationResult):
+        return SetupCandidate(setup, start, None)
+
+    M, B = data.T_base_tcp, data.T_cam_target
     fit = refine_ml(
         setup,
         M,
         B,
-        X0,
-        Y0,
+        start.X0,
+        start.Y0,
         noise0,
         options=MLOptions(loss=run.loss, estimate_noise=run.estimate_noise),
-        initial_weights=weights0,
+        initial_weights=start.weights,
     )
     # the label names the initialiser that was used: for init="auto" the winner of the closed forms
-    init_label = f"{best} (best of {len(cands)} closed forms)" if run.init == "auto" and len(cands) > 1 else best
+    n_cands = len(start.candidates)
+    init_label = (
+        f"{start.method} (best of {n_cands} closed forms)" if run.init == "auto" and n_cands > 1 else start.method
+    )
     res = assemble_result(
-        kind, setup, frames.x_name, frames.y_name, data.index, data.labels, M, B, fit, init_label, run.loss,
-        run.estimate_noise, run.covariance_scale, run.accuracy, verdict, reasons, advice, metrics,
+        run.kind, setup, frames.x_name, frames.y_name, data.index, data.labels, M, B, fit, init_label, run.loss,
+        run.estimate_noise, run.covariance_scale, run.accuracy, checks.verdict, checks.reasons, checks.advice,
+        checks.metrics,
     )  # fmt: skip
     return SetupCandidate(setup, res, fit)
 
