@@ -6,13 +6,7 @@ Entry point: :func:`calibrate_kinematics` (see :mod:`.calibrate`); data: :class:
 by suffix. Several measured points per pose (a ``point`` column): :mod:`.points`.
 """
 
-from plugins.calibration.kinematics.calibrate import (
-    KinematicCalibration,
-    KinematicCalibrationConfig,
-    calibrate_kinematics,
-    candidate_parameters,
-    expected_holdout_rms,
-)
+from plugins.calibration.kinematics.calibrate import KinematicCalibration, calibrate_kinematics
 from plugins.calibration.kinematics.data import (
     KinematicSamples,
     read_csv,
@@ -24,6 +18,11 @@ from plugins.calibration.kinematics.data import (
 from plugins.calibration.kinematics.frames import initial_frames, initial_measurement_frame
 from plugins.calibration.kinematics.identifiability import Identifiability, analyse
 from plugins.calibration.kinematics.points import ToolPoints
+from plugins.calibration.kinematics.problem import (
+    KinematicCalibrationConfig,
+    candidate_parameters,
+    expected_holdout_rms,
+)
 from plugins.calibration.kinematics.report import format_table, plot_convergence
 
 __all__ = [

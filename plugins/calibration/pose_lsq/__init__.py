@@ -24,7 +24,7 @@ from plugins.calibration.pose_lsq.stats import (
     robust_variance_factor,
     studentised_block_tests,
 )
-from plugins.calibration.pose_lsq.verdict import Issue, combine_verdict
+from plugins.calibration.pose_lsq.verdict import Issue, combine_verdict, result_from_issues
 
 __all__ = [
     "Identifiability",
@@ -36,6 +36,7 @@ __all__ = [
     "finite_array",
     "looks_like_millimetres",
     "marginal_covariance",
+    "result_from_issues",
     "robust_block_pvalues",
     "robust_variance_factor",
     "studentised_block_tests",

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
-from plugins.calibration.result import Verdict
+from plugins.calibration.result import CalibrationResult, Verdict
 
 Level = Literal["info", "warning", "degenerate", "failed"]
 _RANK = {"info": 0, "warning": 1, "degenerate": 2, "failed": 3}
@@ -35,3 +35,10 @@ def combine_verdict(issues: Iterable[Issue]) -> tuple[Verdict, list[str], list[s
             advice.append(it.advice)
     verdict: Verdict = ("ok", "warning", "degenerate", "failed")[worst]  # type: ignore[assignment]
     return verdict, reasons, advice
+
+
+def result_from_issues(kind: str, issues: Iterable[Issue], **fields: Any) -> CalibrationResult:
+    """The CalibrationResult of *kind* whose verdict, reasons and advice are *issues* combined;
+    *fields* are the rest of it (estimate, covariance, residuals, metrics, method, ...)."""
+    verdict, reasons, advice = combine_verdict(issues)
+    return CalibrationResult(kind=kind, verdict=verdict, reasons=reasons, advice=advice, **fields)

@@ -18,7 +18,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,9 +31,9 @@ from plugins.calibration.pose_lsq import (
     Issue,
     analyse_identifiability,
     chi2_consistency,
-    combine_verdict,
     looks_like_millimetres,
     marginal_covariance,
+    result_from_issues,
     robust_block_pvalues,
     studentised_block_tests,
 )
@@ -251,27 +251,18 @@ def cramer_rao_bound(data: TcpCameraData, T_cam_base: F64, p_flange_tcp: F64) ->
     return marginal_covariance(problem.residual_and_jacobian(np.zeros(9))[1])
 
 
-def calibrate_tcp_camera(
+def _closed_form_start(
     data: TcpCameraData,
-    *,
-    thresholds: TcpThresholds | None = None,
-    loss: Literal["linear", "soft_l1", "huber", "cauchy"] = "linear",
-    init: Literal["auto", "seed002", "general"] = "auto",
-) -> CalibrationResult:
-    """Calibrate T_cam_base and p_flange_tcp (see the module docstring).
-
-    Raises ValueError for unusable input; quality problems come back in the verdict.
-    """
-    th = thresholds or TcpThresholds()
-    groups = translation_groups(data, np.radians(th.pure_translation_tol_deg))
-    issues = _check_input(data, groups)
-    span = translation_span(data, groups)
+    groups: list[NDArray[np.int_]],
+    span: F64,
+    init: Literal["auto", "seed002", "general"],
+    th: TcpThresholds,
+    issues: list[Issue],
+) -> ClosedForm:
+    """Step 2: seed 002's closed form when asked for, or (``auto``) when the pure translations span
+    ``th.min_translation_span_m`` in their second direction (*span*: their singular values; a
+    forced seed 002 start with a shorter span is warned about); else the general linear start."""
     has_seed_translations = span[1] >= th.min_translation_span_m
-    metrics: dict[str, float] = {
-        "n_samples": float(data.n),
-        "n_pure_translation_samples": float(sum(len(g) for g in groups)),
-        "pure_translation_span_mm": float(span[1] * 1e3),
-    }
     if init == "seed002" or (init == "auto" and has_seed_translations):
         if not groups:
             raise ValueError("seed 002 start needs pure translations (same flange orientation)")
@@ -287,12 +278,15 @@ def calibrate_tcp_camera(
             )
     else:
         start = general_linear(data)
-    metrics["init_method_is_seed002"] = float(start.method.startswith("seed"))
+    return start
 
-    problem, x, nfev, fit = _fit(data, start.T_cam_base, start.p_flange_tcp, loss)
-    method = "lm" if loss == "linear" else "trf"
-    if not fit.success:
-        issues.append(Issue("failed", f"optimiser did not converge: {fit.message}", "check the input data"))
+
+def _covariance_and_consistency(
+    problem: _Problem, x: F64, loss: str, th: TcpThresholds, metrics: dict[str, float], issues: list[Issue]
+) -> tuple[F64, F64]:
+    """Step 4's covariance (9x9) and the residuals' chi-square consistency (metrics added); with the
+    linear loss a noise model that is too optimistic inflates the covariance and is warned about.
+    Returns (the whitened Jacobian at the optimum, the covariance)."""
     r, J = problem.residual_and_jacobian(x)
     cov, rank = marginal_covariance(J)
     dof = r.size - rank
@@ -308,6 +302,12 @@ def calibrate_tcp_camera(
                 "check camera_sigma / robot noise, and re-measure flagged samples",
             )
         )
+    return J, cov
+
+
+def _check_design(J: F64, cov: F64, th: TcpThresholds, metrics: dict[str, float], issues: list[Issue]) -> None:
+    """Identifiability of the design (a null space becomes a ``degenerate`` issue with advice) and
+    the predicted accuracy (metrics; a full-rank design determined worse than the thresholds warns)."""
     ident = analyse_identifiability(J, PARAM_NAMES, np.full(9, 1e-3), rel_tol=th.identifiability_rel_tol)
     metrics["design_rank"] = float(ident.rank)
     if not ident.full_rank:
@@ -327,6 +327,12 @@ def calibrate_tcp_camera(
                 "add poses: larger orientation changes (>= 30 deg) about two or more axes and longer pure translations",
             )
         )
+
+
+def _check_outliers(
+    data: TcpCameraData, problem: _Problem, th: TcpThresholds, metrics: dict[str, float], issues: list[Issue]
+) -> NDArray[np.bool_]:
+    """The outlier flags of :func:`_flag_outliers` as an issue (and the robust scale as a metric)."""
     outliers, factor = _flag_outliers(data, problem, th)
     if factor > 1.0:
         metrics["robust_variance_factor"] = factor
@@ -339,6 +345,58 @@ def calibrate_tcp_camera(
                 f"re-measure sample(s) {', '.join(bad)} (marker detection? robot pose timing?)",
             )
         )
+    return outliers
+
+
+def _estimate(data: TcpCameraData, problem: _Problem, x: F64, start: ClosedForm) -> dict[str, Any]:
+    """The result's ``estimate``: the calibrated transforms and TCP, the closed-form start, the noise model."""
+    R_cb, t_cb, p = problem.unpack(x)
+    T_cb = T_from_Rt(R_cb, t_cb)
+    nz = data.noise
+    return {
+        "T_cam_base": T_cb,
+        "T_base_cam": inv(T_cb),
+        "p_flange_tcp": p,
+        "closed_form_T_cam_base": start.T_cam_base,
+        "closed_form_p_flange_tcp": start.p_flange_tcp,
+        "noise_model": {
+            "camera_sigma_m": list(nz.camera_sigma_m),
+            "robot_position_sigma_m": nz.robot_position_sigma_m,
+            "robot_rotation_sigma_rad": nz.robot_rotation_sigma_rad,
+        },
+    }
+
+
+def calibrate_tcp_camera(
+    data: TcpCameraData,
+    *,
+    thresholds: TcpThresholds | None = None,
+    loss: Literal["linear", "soft_l1", "huber", "cauchy"] = "linear",
+    init: Literal["auto", "seed002", "general"] = "auto",
+) -> CalibrationResult:
+    """Calibrate T_cam_base and p_flange_tcp (see the module docstring).
+
+    Raises ValueError for unusable input; quality problems come back in the verdict.
+    """
+    th = thresholds or TcpThresholds()
+    groups = translation_groups(data, np.radians(th.pure_translation_tol_deg))
+    issues = _check_input(data, groups)
+    span = translation_span(data, groups)
+    metrics: dict[str, float] = {
+        "n_samples": float(data.n),
+        "n_pure_translation_samples": float(sum(len(g) for g in groups)),
+        "pure_translation_span_mm": float(span[1] * 1e3),
+    }
+    start = _closed_form_start(data, groups, span, init, th, issues)
+    metrics["init_method_is_seed002"] = float(start.method.startswith("seed"))
+
+    problem, x, nfev, fit = _fit(data, start.T_cam_base, start.p_flange_tcp, loss)
+    method = "lm" if loss == "linear" else "trf"
+    if not fit.success:
+        issues.append(Issue("failed", f"optimiser did not converge: {fit.message}", "check the input data"))
+    J, cov = _covariance_and_consistency(problem, x, loss, th, metrics, issues)
+    _check_design(J, cov, th, metrics, issues)
+    outliers = _check_outliers(data, problem, th, metrics, issues)
     errs = problem.errors(x)
     en = np.linalg.norm(errs, axis=1)
     metrics.update(
@@ -348,32 +406,15 @@ def calibrate_tcp_camera(
             "function_evaluations": float(nfev),
         }
     )
-    R_cb, t_cb, p = problem.unpack(x)
-    T_cb = T_from_Rt(R_cb, t_cb)
-    verdict, reasons, advice = combine_verdict(issues)
-    nz = data.noise
-    return CalibrationResult(
-        kind="tcp_camera",
-        verdict=verdict,
-        estimate={
-            "T_cam_base": T_cb,
-            "T_base_cam": inv(T_cb),
-            "p_flange_tcp": p,
-            "closed_form_T_cam_base": start.T_cam_base,
-            "closed_form_p_flange_tcp": start.p_flange_tcp,
-            "noise_model": {
-                "camera_sigma_m": list(nz.camera_sigma_m),
-                "robot_position_sigma_m": nz.robot_position_sigma_m,
-                "robot_rotation_sigma_rad": nz.robot_rotation_sigma_rad,
-            },
-        },
+    return result_from_issues(
+        "tcp_camera",
+        issues,
+        estimate=_estimate(data, problem, x, start),
         param_names=list(PARAM_NAMES),
         covariance=cov,
         residuals=errs,
         residual_names=list(RESIDUAL_NAMES),
         outliers=outliers,
-        reasons=reasons,
-        advice=advice,
         metrics=metrics,
         method=f"{start.method} + maximum likelihood (scipy least_squares {method}, loss {loss})",
         iterations=nfev,
