@@ -1,7 +1,7 @@
 """Depth image -> organised point cloud in the camera frame (pinhole, optional RealSense distortion).
 
 Camera frame: x right, y down, z forward along the optical axis (metres), as OpenCV, ROS optical
-frames, librealsense and ``plugins.sim.camera``. Pixel (u, v) = (column, row) with integer
+frames, librealsense and the simulated camera (plugins/sim/camera.py). Pixel (u, v) = (column, row) with integer
 coordinates at pixel centres: ``x = (u - cx) / fx``, ``y = (v - cy) / fy``, point = depth * (x, y, 1).
 
 Distortion (librealsense ``rs2_deproject_pixel_to_point``, coefficients ``k1 k2 p1 p2 k3``):
@@ -29,7 +29,7 @@ UNDISTORT_ITERATIONS = 10  # librealsense's empirically fixed count
 
 def check_pinhole(width: float, height: float, fx: float, fy: float, cx: float, cy: float) -> None:
     """Raise ValueError unless the image size is positive and integral and fx, fy, cx, cy are finite
-    with positive focal lengths (pixels): the checks of every pinhole camera model."""
+    with positive focal lengths (pixels)."""
     if int(width) != width or int(height) != height:
         raise ValueError(f"image size must be integral, got {width} x {height}")
     if width <= 0 or height <= 0:
@@ -47,8 +47,11 @@ def pinhole_K(fx: float, fy: float, cx: float, cy: float) -> NDArray[np.float64]
 
 
 @dataclass(frozen=True)
-class DepthIntrinsics:
-    """Pinhole intrinsics in pixels plus an optional librealsense distortion model."""
+class PinholeIntrinsics:
+    """Pinhole intrinsics in pixels (OpenCV convention, pixel centres at integers) plus an optional
+    librealsense distortion model: the one intrinsics type of depth cameras, real and simulated.
+    (A camera calibrated from board images, with OpenCV's distortion models, is
+    plugins.camera.pinhole.CameraModel.)"""
 
     width: int
     height: int
@@ -70,7 +73,7 @@ class DepthIntrinsics:
             raise ValueError(f"distortion coefficients must be 5 finite numbers (k1 k2 p1 p2 k3), got {self.coeffs}")
 
     @classmethod
-    def from_K(cls, K: ArrayLike, width: int, height: int) -> DepthIntrinsics:
+    def from_K(cls, K: ArrayLike, width: int, height: int) -> PinholeIntrinsics:
         A = np.asarray(K, dtype=float)
         if A.shape != (3, 3) or not np.all(np.isfinite(A)):
             raise ValueError(f"K must be a finite 3x3 matrix, got shape {A.shape}")
@@ -85,8 +88,20 @@ class DepthIntrinsics:
     def distorted(self) -> bool:
         return self.model != "none" and any(c != 0.0 for c in self.coeffs)
 
+    @property
+    def horizontal_fov_rad(self) -> float:
+        """Full horizontal field of view through the outer pixel edges."""
+        return math.atan((self.cx + 0.5) / self.fx) + math.atan((self.width - 0.5 - self.cx) / self.fx)
 
-def normalized_rays(intr: DepthIntrinsics) -> NDArray[np.float64]:
+    def project(self, points_cam: ArrayLike) -> NDArray[np.float64]:
+        """(N, 3) camera-frame points -> (N, 2) pixel coordinates (u, v); an undistorted camera only."""
+        if self.distorted:
+            raise ValueError(f"project() is for an undistorted camera; this one has a {self.model} distortion")
+        P = np.asarray(points_cam, dtype=float).reshape(-1, 3)
+        return np.column_stack((self.fx * P[:, 0] / P[:, 2] + self.cx, self.fy * P[:, 1] / P[:, 2] + self.cy))
+
+
+def normalized_rays(intr: PinholeIntrinsics) -> NDArray[np.float64]:
     """(H, W, 2) undistorted normalised image coordinates (x, y) of every pixel."""
     u = np.arange(intr.width, dtype=float)
     v = np.arange(intr.height, dtype=float)
@@ -110,7 +125,7 @@ def normalized_rays(intr: DepthIntrinsics) -> NDArray[np.float64]:
 
 
 def deproject_depth(
-    depth_m: ArrayLike, intr: DepthIntrinsics, rays: NDArray[np.float64] | None = None
+    depth_m: ArrayLike, intr: PinholeIntrinsics, rays: NDArray[np.float64] | None = None
 ) -> NDArray[np.float32]:
     """Organised (H, W, 3) float32 cloud of a depth image in metres; NaN where depth is invalid.
 

@@ -28,7 +28,7 @@ from pydantic import Field, model_validator
 
 from engine.messages import CameraInfo, FrameTransforms, Image, PointCloud, Transform
 from engine.stage import Stage, StageContext, StageParams
-from plugins.camera.depth_projection import DepthIntrinsics
+from plugins.camera.depth_projection import PinholeIntrinsics
 from plugins.interfaces import CAMERA_OUTPUTS, CAMERA_SERVICES
 from plugins.params import PoseSpec
 
@@ -85,7 +85,7 @@ class CameraFrame:
     normals: NDArray[np.floating] | None = None
     colors: NDArray[np.uint8] | None = None
     depth_m: NDArray[np.float32] | None = None  # (H, W), NaN invalid
-    intrinsics: DepthIntrinsics | None = None
+    intrinsics: PinholeIntrinsics | None = None
     source: str = ""  # file name or device frame, for messages
 
 
@@ -106,7 +106,7 @@ def thinned(points: _Points, n: int) -> _Points:
     )
 
 
-def camera_info(intr: DepthIntrinsics, frame_id: str) -> CameraInfo:
+def camera_info(intr: PinholeIntrinsics, frame_id: str) -> CameraInfo:
     model = "inverse_brown_conrady" if intr.model == "inverse_brown_conrady" else "plumb_bob"
     return CameraInfo(
         width=intr.width,

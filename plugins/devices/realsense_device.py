@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from plugins.camera.depth_projection import DepthIntrinsics
+from plugins.camera.depth_projection import PinholeIntrinsics
 
 RECORDING_SUFFIXES = (".bag", ".db3")
 STOP_DRAIN_S = 30.0  # longest time spent reading the rest of a recording before stopping it
@@ -66,13 +66,13 @@ class RealSenseFrame:
     timestamp_ms: float
 
 
-def intrinsics_from_rs(intr: Any) -> DepthIntrinsics:
+def intrinsics_from_rs(intr: Any) -> PinholeIntrinsics:
     """vgr intrinsics from an ``rs.intrinsics`` (distortion model by its enum name)."""
     model = getattr(intr.model, "name", str(intr.model).rsplit(".", 1)[-1])
     coeffs = tuple(float(c) for c in intr.coeffs)
     if model == "none" or not any(coeffs):
         model = "none"
-    return DepthIntrinsics(
+    return PinholeIntrinsics(
         int(intr.width), int(intr.height), float(intr.fx), float(intr.fy), float(intr.ppx), float(intr.ppy),
         model, coeffs,
     )  # fmt: skip

@@ -145,6 +145,104 @@ def _reach_bound(model: ArmModel, values: F64 | None) -> tuple[F64, float]:
     return ev.group_frames["base"][0, :3, 3], model.chain.reach_bound(v, skip_groups=("base",))
 
 
+def _seeds(model: ArmModel, seed: F64, n_random_seeds: int, rng_seed: int) -> list[F64]:
+    """The start points, in the order tried: the caller's seed clipped just inside the limits, then
+    ``n_random_seeds`` uniform random ones drawn with ``rng_seed``."""
+    lo, hi = model.lower, model.upper
+    span = hi - lo
+    eps = 1e-9 * span
+    rng = np.random.default_rng(rng_seed)
+    seeds = [np.clip(seed, lo + eps, hi - eps)]
+    seeds += [lo + eps + rng.random(model.dof) * (span - 2 * eps) for _ in range(n_random_seeds)]
+    return seeds
+
+
+def _beyond_reach(model: ArmModel, T_t: F64, V: F64 | None, position_tol_m: float) -> IKResult | None:
+    """``unreachable`` when the target lies farther from the base than the links can reach, else None."""
+    reach = _reach_bound(model, V)
+    distance = float(np.linalg.norm(T_t[:3, 3] - reach[0]))
+    if distance > reach[1] + position_tol_m:
+        return IKResult(
+            False,
+            "unreachable",
+            None,
+            f"target is {distance * 1e3:.1f} mm from the robot base, beyond the {reach[1] * 1e3:.1f} mm "
+            "that the sum of its link lengths allows",
+            distance - reach[1],
+            float("nan"),
+            0,
+        )
+    return None
+
+
+@dataclass(frozen=True)
+class _Acceptance:
+    """Whether a configuration solves the problem: within the position tolerance and, unless the
+    problem is ``position_only``, the rotation tolerance; with both errors."""
+
+    prob: _Problem
+    position_tol_m: float
+    rotation_tol_rad: float
+
+    def __call__(self, q: F64) -> tuple[bool, float, float]:
+        ep, er = self.prob.errors(q)
+        return ep <= self.position_tol_m and (self.prob.position_only or er <= self.rotation_tol_rad), ep, er
+
+
+def _solve_within_limits(
+    prob: _Problem, seeds: list[F64], good: _Acceptance, max_nfev: int
+) -> tuple[IKResult | None, tuple[float, float, F64 | None]]:
+    """One bounded solve per seed until one is accepted: (its ``ok`` result or None, the best miss
+    ``(position error, rotation error, q)`` by ``position + rotation_weight_m * rotation`` error)."""
+    lo, hi = prob.model.lower, prob.model.upper
+    w = prob.w
+    best: tuple[float, float, F64 | None] = (np.inf, np.inf, None)
+    for k, s in enumerate(seeds, start=1):
+        q = np.clip(prob.solve(s, (lo, hi), max_nfev), lo, hi)
+        ok, ep, er = good(q)
+        if ok:
+            return IKResult(True, "ok", q, "ok", ep, er, k), best
+        if ep + w * er < best[0] + w * best[1]:
+            best = (ep, er, q)
+    return None, best
+
+
+def _solve_without_limits(
+    prob: _Problem, seeds: list[F64], seed: F64, good: _Acceptance, max_nfev: int, attempts: int
+) -> tuple[IKResult | None, int]:
+    """The failure classification: unbounded solves from every seed, each solution wrapped by 2 pi
+    towards the limits. Returns (an ``ok`` result if a wrapped one is within them, else the first
+    ``out_of_limits`` one, else None; the attempts counted so far)."""
+    model = prob.model
+    lo, hi = model.lower, model.upper
+    outside: IKResult | None = None
+    for s in seeds:
+        attempts += 1
+        q = prob.solve(s, None, max_nfev)
+        ok, ep, er = good(q)
+        if not ok:
+            continue
+        qw = _wrap_into_limits(q, lo, hi, seed)
+        if model.within_limits(qw):
+            ok2, ep2, er2 = good(qw)
+            if ok2:
+                return IKResult(True, "ok", qw, "ok", ep2, er2, attempts), attempts
+        if outside is None:
+            violations = "; ".join(model.limit_violations(qw))
+            outside = IKResult(
+                False,
+                "out_of_limits",
+                qw,
+                f"target reachable only outside the joint limits: {violations}",
+                ep,
+                er,
+                attempts,
+            )
+    if outside is not None:
+        return replace(outside, attempts=attempts), attempts
+    return None, attempts
+
+
 def solve_ik(
     model: ArmModel,
     T_world_tcp: ArrayLike,
@@ -171,66 +269,19 @@ def solve_ik(
     seed = model.home if q_seed is None else model.check_joints(q_seed, name="q_seed")[0][0]
     V = model.check_values(values, 1)
     prob = _Problem(model, T_t, V, position_only, rotation_weight_m)
-    lo, hi = model.lower, model.upper
-    span = hi - lo
-    eps = 1e-9 * span
-    rng = np.random.default_rng(rng_seed)
-    seeds = [np.clip(seed, lo + eps, hi - eps)]
-    seeds += [lo + eps + rng.random(model.dof) * (span - 2 * eps) for _ in range(n_random_seeds)]
-
-    reach = _reach_bound(model, V)
-    distance = float(np.linalg.norm(T_t[:3, 3] - reach[0]))
-    if distance > reach[1] + position_tol_m:
-        return IKResult(
-            False,
-            "unreachable",
-            None,
-            f"target is {distance * 1e3:.1f} mm from the robot base, beyond the {reach[1] * 1e3:.1f} mm "
-            "that the sum of its link lengths allows",
-            distance - reach[1],
-            float("nan"),
-            0,
-        )
-
-    def good(q: F64) -> tuple[bool, float, float]:
-        ep, er = prob.errors(q)
-        return ep <= position_tol_m and (position_only or er <= rotation_tol_rad), ep, er
-
-    best = (np.inf, np.inf, None)
-    for k, s in enumerate(seeds, start=1):
-        q = np.clip(prob.solve(s, (lo, hi), max_nfev), lo, hi)
-        ok, ep, er = good(q)
-        if ok:
-            return IKResult(True, "ok", q, "ok", ep, er, k)
-        if ep + rotation_weight_m * er < best[0] + rotation_weight_m * best[1]:
-            best = (ep, er, q)
+    seeds = _seeds(model, seed, n_random_seeds, rng_seed)
+    too_far = _beyond_reach(model, T_t, V, position_tol_m)
+    if too_far is not None:
+        return too_far
+    good = _Acceptance(prob, position_tol_m, rotation_tol_rad)
+    solved, best = _solve_within_limits(prob, seeds, good, max_nfev)
+    if solved is not None:
+        return solved
     attempts = len(seeds)
     if classify_failures:
-        outside: IKResult | None = None
-        for s in seeds:
-            attempts += 1
-            q = prob.solve(s, None, max_nfev)
-            ok, ep, er = good(q)
-            if not ok:
-                continue
-            qw = _wrap_into_limits(q, lo, hi, seed)
-            if model.within_limits(qw):
-                ok2, ep2, er2 = good(qw)
-                if ok2:
-                    return IKResult(True, "ok", qw, "ok", ep2, er2, attempts)
-            if outside is None:
-                violations = "; ".join(model.limit_violations(qw))
-                outside = IKResult(
-                    False,
-                    "out_of_limits",
-                    qw,
-                    f"target reachable only outside the joint limits: {violations}",
-                    ep,
-                    er,
-                    attempts,
-                )
-        if outside is not None:
-            return replace(outside, attempts=attempts)
+        found, attempts = _solve_without_limits(prob, seeds, seed, good, max_nfev, attempts)
+        if found is not None:
+            return found
     ep, er, _ = best
     return IKResult(
         False,

@@ -28,8 +28,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from plugins.camera.board_render import board_texture, render_board
 from plugins.camera.board_spec import BoardSpec
+from plugins.camera.depth_projection import PinholeIntrinsics
 from plugins.camera.pinhole import CameraModel
-from plugins.sim.camera import PinholeIntrinsics
 from plugins.util.workpieces import Workpiece
 
 __all__ = ["BoardImager", "board_workpiece"]

@@ -46,12 +46,13 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 import open3d as o3d
 
 from engine.transforms import as_transform, inv
-from plugins.camera.depth_projection import check_pinhole, pinhole_K
+from plugins.camera.depth_projection import PinholeIntrinsics
 from plugins.util.workpieces import Workpiece
 
 # Open3D prints allocator statistics at exit at its default verbosity; vgr's output stays clean.
@@ -61,40 +62,10 @@ __all__ = [
     "DepthCameraModel",
     "DepthCapture",
     "DepthNoiseModel",
-    "PinholeIntrinsics",
     "RenderTruth",
     "default_intrinsics",
     "look_at",
 ]
-
-
-@dataclass(frozen=True)
-class PinholeIntrinsics:
-    """Pinhole camera intrinsics in pixels (OpenCV convention, pixel centres at integers)."""
-
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-
-    def __post_init__(self) -> None:
-        check_pinhole(self.width, self.height, self.fx, self.fy, self.cx, self.cy)
-
-    def K(self) -> np.ndarray:
-        """3x3 camera matrix."""
-        return pinhole_K(self.fx, self.fy, self.cx, self.cy)
-
-    @property
-    def horizontal_fov_rad(self) -> float:
-        """Full horizontal field of view through the outer pixel edges."""
-        return math.atan((self.cx + 0.5) / self.fx) + math.atan((self.width - 0.5 - self.cx) / self.fx)
-
-    def project(self, points_cam: np.ndarray) -> np.ndarray:
-        """(N, 3) camera-frame points -> (N, 2) pixel coordinates (u, v)."""
-        P = np.asarray(points_cam, dtype=float).reshape(-1, 3)
-        return np.column_stack((self.fx * P[:, 0] / P[:, 2] + self.cx, self.fy * P[:, 1] / P[:, 2] + self.cy))
 
 
 def default_intrinsics() -> PinholeIntrinsics:
@@ -273,6 +244,38 @@ def _mesh_arrays(part: PartLike) -> tuple[np.ndarray, np.ndarray]:
     return V, F
 
 
+def _build_scene(
+    parts: Sequence[tuple[PartLike, np.ndarray]], T_cam_world: np.ndarray
+) -> tuple[o3d.t.geometry.RaycastingScene, list[np.ndarray], list[int], list[np.ndarray]]:
+    """The parts' meshes in a ray-casting scene in the camera frame, refused if the camera is inside one:
+    (the scene; per part its pose in the camera frame, its Open3D geometry id, its 8 bounding-box corners)."""
+    scene = o3d.t.geometry.RaycastingScene()
+    T_cam_parts: list[np.ndarray] = []
+    geometry_ids: list[int] = []
+    boxes: list[np.ndarray] = []
+    for i, item in enumerate(parts):
+        try:
+            part, T_world_part = item
+        except (TypeError, ValueError):
+            raise TypeError(f"part {i} must be a (mesh or workpiece, T_world_part) pair") from None
+        T_cam_part = T_cam_world @ as_transform(T_world_part, name=f"T_world_part of part {i}")
+        V, F = _mesh_arrays(part)
+        if len(F) == 0:
+            raise ValueError(f"part {i} has an empty mesh")
+        if not np.all(np.isfinite(V)):
+            raise ValueError(f"part {i} has NaN or infinite vertices")
+        V_cam = (V @ T_cam_part[:3, :3].T + T_cam_part[:3, 3]).astype(np.float32)
+        geometry_ids.append(int(scene.add_triangles(o3d.core.Tensor(V_cam), o3d.core.Tensor(F))))
+        T_cam_parts.append(T_cam_part)
+        lo, hi = V.min(axis=0), V.max(axis=0)
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        boxes.append(corners @ T_cam_part[:3, :3].T + T_cam_part[:3, 3])
+    origin = o3d.core.Tensor(np.zeros((1, 3), dtype=np.float32))
+    if bool(scene.compute_occupancy(origin, nsamples=3).numpy()[0] > 0.5):
+        raise ValueError("the camera is inside a part: its centre lies within a closed mesh")
+    return scene, T_cam_parts, geometry_ids, boxes
+
+
 class DepthCameraModel:
     """A depth camera: intrinsics, noise model and working range; :meth:`render` makes a frame."""
 
@@ -338,74 +341,13 @@ class DepthCameraModel:
         T_world_cam = as_transform(T_world_cam, name="T_world_cam")
         if len(parts) == 0:
             raise ValueError("nothing to render: the scene has no parts")
-        T_cam_world = inv(T_world_cam)
-        scene = o3d.t.geometry.RaycastingScene()
-        T_cam_parts: list[np.ndarray] = []
-        geometry_ids: list[int] = []
-        boxes: list[np.ndarray] = []
-        for i, item in enumerate(parts):
-            try:
-                part, T_world_part = item
-            except (TypeError, ValueError):
-                raise TypeError(f"part {i} must be a (mesh or workpiece, T_world_part) pair") from None
-            T_cam_part = T_cam_world @ as_transform(T_world_part, name=f"T_world_part of part {i}")
-            V, F = _mesh_arrays(part)
-            if len(F) == 0:
-                raise ValueError(f"part {i} has an empty mesh")
-            if not np.all(np.isfinite(V)):
-                raise ValueError(f"part {i} has NaN or infinite vertices")
-            V_cam = (V @ T_cam_part[:3, :3].T + T_cam_part[:3, 3]).astype(np.float32)
-            geometry_ids.append(int(scene.add_triangles(o3d.core.Tensor(V_cam), o3d.core.Tensor(F))))
-            T_cam_parts.append(T_cam_part)
-            lo, hi = V.min(axis=0), V.max(axis=0)
-            corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-            boxes.append(corners @ T_cam_part[:3, :3].T + T_cam_part[:3, 3])
-
-        origin = o3d.core.Tensor(np.zeros((1, 3), dtype=np.float32))
-        if bool(scene.compute_occupancy(origin, nsamples=3).numpy()[0] > 0.5):
-            raise ValueError("the camera is inside a part: its centre lies within a closed mesh")
-
-        cand, rays, d_norm = self._candidate_rays(boxes)
-        hits = scene.cast_rays(rays)
-        t_hit = hits["t_hit"].numpy()
-        nrm = hits["primitive_normals"].numpy()  # zero for rays that hit nothing
-        ray_dirs = rays.numpy()  # (x, y, 1) directions in columns 3-5, float32 as cast
-        cos_inc = -(nrm[:, 0] * ray_dirs[:, 3] + nrm[:, 1] * ray_dirs[:, 4] + nrm[:, 2]) / d_norm
-        # Back faces: Embree's fast (non-watertight) intersection lets about one ray in a million slip
-        # through a shared edge onto the inside of the far wall; such pixels are dropped.  Many of
-        # them mean the camera is inside a part or a mesh faces inwards.
-        n_back = int(np.count_nonzero(cos_inc < 0.0))
-        if n_back > max(10, 0.2 * np.count_nonzero(np.isfinite(t_hit))):
-            raise ValueError(
-                f"{n_back} rays hit the inside of a part: the camera is inside a part "
-                "or a mesh has inward-facing triangles"
-            )
-        noise = self.noise
-        ok = (t_hit >= self.min_range_m) & (t_hit <= self.max_range_m)
-        ok &= cos_inc >= math.cos(math.radians(noise.grazing_dropout_deg))
-        sub = np.flatnonzero(ok)  # into the cast rays, in pixel order
-        if noise.dropout_prob > 0.0:
-            sub = sub[rng.random(len(sub)) >= noise.dropout_prob]
-
-        idx = sub if cand is None else cand[sub]  # flat pixel index
-        z_true = t_hit[sub].astype(float)
-        dx, dy, d_norm = self._dx64[idx], self._dy64[idx], self._dir_norm64[idx]
-        sigma = noise.sigma(z_true)
-        range_meas = z_true * d_norm
-        if np.any(sigma > 0):
-            range_meas += sigma * rng.standard_normal(len(sub))
-        range_meas = noise.depth_scale * range_meas + noise.depth_bias_m
-        z_meas = range_meas / d_norm
-        if noise.depth_unit_m > 0.0:  # the sensor reports integer depth units (e.g. 16-bit, 0.1 mm)
-            z_meas = np.round(z_meas / noise.depth_unit_m) * noise.depth_unit_m
-        if np.any(z_meas <= 0.0):  # a huge negative bias pushed points behind the camera: drop them
-            ki = np.flatnonzero(z_meas > 0.0)
-            sub, idx, dx, dy, z_true, sigma, z_meas = (a[ki] for a in (sub, idx, dx, dy, z_true, sigma, z_meas))
+        scene, T_cam_parts, geometry_ids, boxes = _build_scene(parts, inv(T_world_cam))
+        cand, hits, t_hit, nrm, cos_inc = self._cast(scene, boxes)
+        sub, idx, dx, dy, z_true, sigma, z_meas = self._measure(cand, t_hit, cos_inc, rng)
         points = np.empty((len(sub), 3))
         np.multiply(dx, z_meas, out=points[:, 0])
         np.multiply(dy, z_meas, out=points[:, 1])
         points[:, 2] = z_meas
-
         k = self.intrinsics
         depth = np.full(k.width * k.height, np.nan, dtype=np.float32)
         depth[idx] = z_meas
@@ -431,6 +373,52 @@ class DepthCameraModel:
             part_of_geometry=part_of_geometry,
         )
         return capture, truth
+
+    def _cast(self, scene: o3d.t.geometry.RaycastingScene, boxes: list[np.ndarray]) -> tuple[Any, ...]:
+        """Cast the rays :meth:`_candidate_rays` picks: (cand, hits, t_hit, nrm, cos_inc); many back faces: refused."""
+        cand, rays, d_norm = self._candidate_rays(boxes)
+        hits = scene.cast_rays(rays)
+        t_hit = hits["t_hit"].numpy()
+        nrm = hits["primitive_normals"].numpy()  # zero for rays that hit nothing
+        ray_dirs = rays.numpy()  # (x, y, 1) directions in columns 3-5, float32 as cast
+        cos_inc = -(nrm[:, 0] * ray_dirs[:, 3] + nrm[:, 1] * ray_dirs[:, 4] + nrm[:, 2]) / d_norm
+        # Back faces: Embree's fast (non-watertight) intersection lets about one ray in a million slip
+        # through a shared edge onto the inside of the far wall; such pixels are dropped.  Many of
+        # them mean the camera is inside a part or a mesh faces inwards.
+        n_back = int(np.count_nonzero(cos_inc < 0.0))
+        if n_back > max(10, 0.2 * np.count_nonzero(np.isfinite(t_hit))):
+            raise ValueError(
+                f"{n_back} rays hit the inside of a part: the camera is inside a part "
+                "or a mesh has inward-facing triangles"
+            )
+        return cand, hits, t_hit, nrm, cos_inc
+
+    def _measure(
+        self, cand: np.ndarray | None, t_hit: np.ndarray, cos_inc: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, ...]:
+        """Range limits, grazing and random dropouts, range noise, depth scale / bias / units: per point kept, in
+        pixel order, (index into the cast rays, pixel index, unit-z ray x and y, true z, sigma, measured z)."""
+        noise = self.noise
+        ok = (t_hit >= self.min_range_m) & (t_hit <= self.max_range_m)
+        ok &= cos_inc >= math.cos(math.radians(noise.grazing_dropout_deg))
+        sub = np.flatnonzero(ok)  # into the cast rays, in pixel order
+        if noise.dropout_prob > 0.0:
+            sub = sub[rng.random(len(sub)) >= noise.dropout_prob]
+        idx = sub if cand is None else cand[sub]  # flat pixel index
+        z_true = t_hit[sub].astype(float)
+        dx, dy, d_norm = self._dx64[idx], self._dy64[idx], self._dir_norm64[idx]
+        sigma = noise.sigma(z_true)
+        range_meas = z_true * d_norm
+        if np.any(sigma > 0):
+            range_meas += sigma * rng.standard_normal(len(sub))
+        range_meas = noise.depth_scale * range_meas + noise.depth_bias_m
+        z_meas = range_meas / d_norm
+        if noise.depth_unit_m > 0.0:  # the sensor reports integer depth units (e.g. 16-bit, 0.1 mm)
+            z_meas = np.round(z_meas / noise.depth_unit_m) * noise.depth_unit_m
+        if np.any(z_meas <= 0.0):  # a huge negative bias pushed points behind the camera: drop them
+            ki = np.flatnonzero(z_meas > 0.0)
+            sub, idx, dx, dy, z_true, sigma, z_meas = (a[ki] for a in (sub, idx, dx, dy, z_true, sigma, z_meas))
+        return sub, idx, dx, dy, z_true, sigma, z_meas
 
     def _candidate_rays(self, boxes: list[np.ndarray]) -> tuple[np.ndarray | None, o3d.core.Tensor, np.ndarray]:
         """Rays through the pixels inside the projection of some part's bounding box.

@@ -8,12 +8,12 @@ from depth_scenes import INTR, plane_depth, plane_residual_m
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from plugins.camera.depth_projection import DepthIntrinsics, deproject_depth, normalized_rays, valid_points
+from plugins.camera.depth_projection import PinholeIntrinsics, deproject_depth, normalized_rays, valid_points
 
 D415_COLOR = (0.1396, -0.4697, 0.0012, 0.0009, 0.4117)  # typical magnitudes of a RealSense colour camera
 
 
-def rs_project(intr: DepthIntrinsics, p: np.ndarray) -> np.ndarray:
+def rs_project(intr: PinholeIntrinsics, p: np.ndarray) -> np.ndarray:
     """rsutil.h rs2_project_point_to_pixel (forward model, both Brown-Conrady variants), vectorised."""
     x, y = p[..., 0] / p[..., 2], p[..., 1] / p[..., 2]
     if intr.distorted:
@@ -53,7 +53,7 @@ def test_invalid_depth_gives_nan_points_and_keeps_the_organised_layout():
 
 @pytest.mark.parametrize("model", ["brown_conrady", "inverse_brown_conrady"])
 def test_distorted_deprojection_inverts_the_librealsense_projection(model):
-    intr = DepthIntrinsics(640, 480, 615.0, 615.5, 321.1, 238.7, model, D415_COLOR)
+    intr = PinholeIntrinsics(640, 480, 615.0, 615.5, 321.1, 238.7, model, D415_COLOR)
     rays = normalized_rays(intr)
     pts = np.concatenate([rays, np.ones((*rays.shape[:2], 1))], axis=-1)
     uv = rs_project(intr, pts)
@@ -67,7 +67,7 @@ def test_distorted_deprojection_inverts_the_librealsense_projection(model):
 )
 def test_deprojection_equals_librealsense_rs2_deproject_pixel_to_point(model, coeffs):
     rs = pytest.importorskip("pyrealsense2")
-    intr = DepthIntrinsics(640, 480, 615.0, 615.5, 321.1, 238.7, model, tuple(coeffs))
+    intr = PinholeIntrinsics(640, 480, 615.0, 615.5, 321.1, 238.7, model, tuple(coeffs))
     ri = rs.intrinsics()
     ri.width, ri.height, ri.fx, ri.fy, ri.ppx, ri.ppy = 640, 480, intr.fx, intr.fy, intr.cx, intr.cy
     ri.model = getattr(rs.distortion, model)
@@ -87,7 +87,7 @@ def test_deprojection_equals_librealsense_rs2_deproject_pixel_to_point(model, co
     z=st.floats(0.05, 10.0),
 )
 def test_constant_depth_points_have_that_depth_and_reproject(f, c, z):
-    intr = DepthIntrinsics(64, 48, f, f * 1.01, c[0], c[1])
+    intr = PinholeIntrinsics(64, 48, f, f * 1.01, c[0], c[1])
     pts = deproject_depth(np.full((48, 64), z), intr).astype(float)
     np.testing.assert_allclose(pts[..., 2], z, rtol=1e-6)
     uv = rs_project(intr, pts)
@@ -97,12 +97,12 @@ def test_constant_depth_points_have_that_depth_and_reproject(f, c, z):
 
 def test_bad_intrinsics_and_shapes_are_refused_with_a_reason():
     with pytest.raises(ValueError, match=r"kannala_brandt4.*not supported"):
-        DepthIntrinsics(64, 48, 50, 50, 32, 24, "kannala_brandt4")
+        PinholeIntrinsics(64, 48, 50, 50, 32, 24, "kannala_brandt4")
     with pytest.raises(ValueError, match="focal lengths must be positive"):
-        DepthIntrinsics(64, 48, 0.0, 50, 32, 24)
+        PinholeIntrinsics(64, 48, 0.0, 50, 32, 24)
     with pytest.raises(ValueError, match="intrinsics must be finite"):
-        DepthIntrinsics(64, 48, 50, 50, float("nan"), 24)
+        PinholeIntrinsics(64, 48, 50, 50, float("nan"), 24)
     with pytest.raises(ValueError, match=r"K must be \[\[fx, 0, cx\]"):
-        DepthIntrinsics.from_K([[50, 1, 32], [0, 50, 24], [0, 0, 1]], 64, 48)
+        PinholeIntrinsics.from_K([[50, 1, 32], [0, 50, 24], [0, 0, 1]], 64, 48)
     with pytest.raises(ValueError, match=r"\(64, 48\).*80x60"):
         deproject_depth(np.ones((48, 64)), INTR)

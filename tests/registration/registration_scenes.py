@@ -17,7 +17,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from engine import transforms as tf
-from plugins.sim.camera import DepthCameraModel, DepthNoiseModel, PinholeIntrinsics
+from plugins.camera.depth_projection import PinholeIntrinsics
+from plugins.sim.camera import DepthCameraModel, DepthNoiseModel
 from plugins.util.workpieces import Workpiece, make_workpiece
 
 #: Working distance (m) of the camera to the part's top face.

@@ -11,10 +11,10 @@ from scipy import stats
 from simcam_helpers import error_twist, expected_covariance, fit_part_pose, on_surface_distance
 
 from engine.transforms import T_from_rotvec, inv, transform_points
+from plugins.camera.depth_projection import PinholeIntrinsics
 from plugins.sim.camera import (
     DepthCameraModel,
     DepthNoiseModel,
-    PinholeIntrinsics,
     default_intrinsics,
     look_at,
 )

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from engine.transforms import T_from_rotvec, inv
-from plugins.sim.camera import DepthCameraModel, DepthNoiseModel, PinholeIntrinsics, look_at
+from plugins.camera.depth_projection import PinholeIntrinsics
+from plugins.sim.camera import DepthCameraModel, DepthNoiseModel, look_at
 from plugins.sim.cell import CameraMount, PartPlacement, SimCell, TrackerMount
 from plugins.sim.sensor_effects import CameraEffects, PoseOffset, SensorEffects, TrackerEffects
 from plugins.sim.tracker import ViveTrackerModel

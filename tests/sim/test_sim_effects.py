@@ -13,7 +13,8 @@ import pytest
 from simcam_helpers import fit_part_pose, on_surface_distance, surface_scene
 
 from engine.transforms import T_from_rotvec, inv, pose_error
-from plugins.sim.camera import DepthCameraModel, DepthNoiseModel, PinholeIntrinsics, look_at
+from plugins.camera.depth_projection import PinholeIntrinsics
+from plugins.sim.camera import DepthCameraModel, DepthNoiseModel, look_at
 from plugins.sim.cell import CameraMount, PartPlacement, SimCell
 from plugins.sim.sensor_effects import CameraEffects, PoseOffset, SensorEffects, TrackerEffects
 from plugins.util.workpieces import make_workpiece

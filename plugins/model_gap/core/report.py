@@ -54,7 +54,7 @@ from rich.table import Table
 
 from engine.plain_data import plain
 from plugins.model_gap.core.interfaces import FittedEffect
-from plugins.model_gap.core.iteration import Comparison
+from plugins.model_gap.core.iteration import Comparison, Iteration
 from plugins.model_gap.core.localise import FeatureGap
 from plugins.model_gap.core.selection import CandidateScore
 from plugins.model_gap.core.structure import StructureTest
@@ -129,39 +129,12 @@ def _feature(g: FeatureGap, s: float) -> dict[str, Any]:
 def report_dict(result: GapResult) -> dict[str, Any]:
     """The JSON-ready report (see the module docstring)."""
     s, u = result.report_scale, result.report_unit
-    sel = result.config.selection
     first = result.iterations[0]
-    round_of = {id(it.added_score): it.index for it in result.iterations if it.added_score is not None}
-    tie_round = {it.added.label: it.index for it in result.iterations if it.added is not None and it.added.tied}
-    resolved_round = {named: tie_round.get(tie) for tie, named in result.resolved_ties.items()}
-    effects = []
-    for fe, sc in result.effects:  # values and sigmas of the final joint refit
-        e: dict[str, Any] = {"name": fe.tie_name, "where": fe.tie_where, "tied": fe.tied}
-        if fe.tied:
-            e |= _fields(fe, "label", "members", "representative")
-        e |= {
-            **_fields(fe, "params", "param_std", "units"),
-            f"cv_rms_gain_{u}": sc.cv_gain * s,
-            "delta_bic": sc.delta_bic,
-            "p_value_corrected": sc.p_adjusted,
-            "independent_fraction": sc.independent_fraction,
-            "iteration": round_of.get(id(sc), resolved_round.get(fe.label)),
-            "config": fe.config,
-        }
-        if fe.note:  # e.g. the data count a direction the other way round: the value is the physical one
-            e["convention"] = fe.note
-        if fe.label in resolved_round:  # named once a later round resolved the tie it was part of
-            e["resolved_tie"] = next(t for t, n in result.resolved_ties.items() if n == fe.label)
-        if fe.tied:
-            it = result.iterations[round_of[id(sc)]] if id(sc) in round_of else None
-            e["note"] = tie_note(fe)
-            e["advice"] = (list(it.decision.advice) if it is not None else []) or ["collect data that separates them"]
-        effects.append(e)
     return {
         "format": REPORT_FORMAT,
         "verdict": result.verdict,
         "reason": result.reason,
-        "effects_added": effects,
+        "effects_added": _effects_added(result),
         "confounded": _confounded(result),
         "effects_removed": [
             {"effect": lab, "iteration": it.index, "delta_bic_given_others": g}
@@ -188,38 +161,80 @@ def report_dict(result: GapResult) -> dict[str, Any]:
         "not_testable": [
             {"name": c.name, "where": c.where, "reason": c.unavailable} for c in first.scores if c.unavailable
         ],
-        "decision_rule": {
-            "alpha_familywise": sel.alpha,
-            **_fields(sel, "bic_margin", "cv_folds", "cv_z", "absorbed_tol"),
-            "chi2_alpha": result.config.chi2_alpha,
-            "max_effects": result.config.max_effects,
-            "seed": sel.seed,
-        },
+        "decision_rule": _decision_rule(result),
         "problem": result.problem,
-        "iterations": [
-            {
-                "index": it.index,
-                "comparison": _comparison(it.comparison, s),
-                "localisation": [_feature(g, s) for g in it.localisation],
-                "candidates": [_score(c, s) for c in sorted(it.scores, key=_rank)],
-                "decision": {
-                    "status": it.decision.status,
-                    "reason": it.decision.reason,
-                    "winner": it.decision.winner.label if it.decision.winner else None,
-                    "contenders": [{"label": lab, "delta_bic_given": g} for lab, g in it.decision.contenders],
-                    "tied": it.decision.tied,
-                    "advice": it.decision.advice,
-                    "representative": it.decision.representative.label if it.decision.representative else None,
-                },
-                "added": None if it.added is None else it.added.label,
-                "added_tied": bool(it.added is not None and it.added.tied),
-                "resolved": [{"tie": t, "named": n, "reason": why} for t, n, why in it.resolved],
-                "removed": [lab for lab, _ in it.removed],
-                "model_file": it.model_file,
-            }
-            for it in result.iterations
-        ],
+        "iterations": [_iteration(it, s) for it in result.iterations],
         "files": result.files,
+    }
+
+
+def _effects_added(result: GapResult) -> list[dict[str, Any]]:
+    """``effects_added``: every effect of the final model with the values and sigmas of the final joint
+    refit and the scores of the round that added it (a resolved tie's member: the tie's round)."""
+    s, u = result.report_scale, result.report_unit
+    round_of = {id(it.added_score): it.index for it in result.iterations if it.added_score is not None}
+    tie_round = {it.added.label: it.index for it in result.iterations if it.added is not None and it.added.tied}
+    resolved_round = {named: tie_round.get(tie) for tie, named in result.resolved_ties.items()}
+    effects = []
+    for fe, sc in result.effects:  # values and sigmas of the final joint refit
+        e: dict[str, Any] = {"name": fe.tie_name, "where": fe.tie_where, "tied": fe.tied}
+        if fe.tied:
+            e |= _fields(fe, "label", "members", "representative")
+        e |= {
+            **_fields(fe, "params", "param_std", "units"),
+            f"cv_rms_gain_{u}": sc.cv_gain * s,
+            "delta_bic": sc.delta_bic,
+            "p_value_corrected": sc.p_adjusted,
+            "independent_fraction": sc.independent_fraction,
+            "iteration": round_of.get(id(sc), resolved_round.get(fe.label)),
+            "config": fe.config,
+        }
+        if fe.note:  # e.g. the data count a direction the other way round: the value is the physical one
+            e["convention"] = fe.note
+        if fe.label in resolved_round:  # named once a later round resolved the tie it was part of
+            e["resolved_tie"] = next(t for t, n in result.resolved_ties.items() if n == fe.label)
+        if fe.tied:
+            it = result.iterations[round_of[id(sc)]] if id(sc) in round_of else None
+            e["note"] = tie_note(fe)
+            e["advice"] = (list(it.decision.advice) if it is not None else []) or ["collect data that separates them"]
+        effects.append(e)
+    return effects
+
+
+def _decision_rule(result: GapResult) -> dict[str, Any]:
+    """``decision_rule``: the test levels and options the result was decided with."""
+    sel = result.config.selection
+    return {
+        "alpha_familywise": sel.alpha,
+        **_fields(sel, "bic_margin", "cv_folds", "cv_z", "absorbed_tol"),
+        "chi2_alpha": result.config.chi2_alpha,
+        "max_effects": result.config.max_effects,
+        "seed": sel.seed,
+    }
+
+
+def _iteration(it: Iteration, s: float) -> dict[str, Any]:
+    """One entry of ``iterations``: the round's comparison, localisation, ranked candidates, decision and
+    what it changed in the model."""
+    return {
+        "index": it.index,
+        "comparison": _comparison(it.comparison, s),
+        "localisation": [_feature(g, s) for g in it.localisation],
+        "candidates": [_score(c, s) for c in sorted(it.scores, key=_rank)],
+        "decision": {
+            "status": it.decision.status,
+            "reason": it.decision.reason,
+            "winner": it.decision.winner.label if it.decision.winner else None,
+            "contenders": [{"label": lab, "delta_bic_given": g} for lab, g in it.decision.contenders],
+            "tied": it.decision.tied,
+            "advice": it.decision.advice,
+            "representative": it.decision.representative.label if it.decision.representative else None,
+        },
+        "added": None if it.added is None else it.added.label,
+        "added_tied": bool(it.added is not None and it.added.tied),
+        "resolved": [{"tie": t, "named": n, "reason": why} for t, n, why in it.resolved],
+        "removed": [lab for lab, _ in it.removed],
+        "model_file": it.model_file,
     }
 
 
@@ -304,6 +319,26 @@ def _fmt_params(params: dict[str, float], std: dict[str, float], units: dict[str
 
 def render(result: GapResult, console: Console, *, top: int = 8) -> None:
     """Print the report: verdict, before/after table, localisation, candidates, effects, files."""
+    _print_gap(result, console)
+    _print_noise_and_baseline(result, console)
+    _print_localisation(result, console)
+    for it in result.iterations:
+        _print_round(it, result, console, top)
+    _print_ties(result, console)
+    _print_effects(result, console)
+    first = result.iterations[0]
+    absorbed = [c.label for c in first.scores if c.absorbed]
+    if absorbed:
+        console.print(f"absorbed by the calibration (cannot be told apart from it): {', '.join(absorbed)}")
+    missing = sorted({f"{c.name} ({c.unavailable})" for c in first.scores if c.unavailable})
+    if missing:
+        console.print("not testable on these data: " + "; ".join(missing), soft_wrap=True)
+    for name, path in result.files.items():
+        console.print(f"{name}: {escape(path)}", highlight=False, soft_wrap=True)
+
+
+def _print_gap(result: GapResult, console: Console) -> None:
+    """The verdict and the table of the gap before / after (held-out and in-sample RMS, the noise test)."""
     s, u = result.report_scale, result.report_unit
     colour = {"explained": "green", "no_gap": "green", "explained_up_to_tie": "cyan", "unexplained": "yellow"}[
         result.verdict
@@ -325,6 +360,10 @@ def render(result: GapResult, console: Console, *, top: int = 8) -> None:
     if sb is not None and sa is not None:
         t.add_row("systematic residual left (F-tests)", str(sb.found), str(sa.found), "")
     console.print(t)
+
+
+def _print_noise_and_baseline(result: GapResult, console: Console) -> None:
+    """The noise check, the baseline calibration and its notes, a warning when the noise was estimated."""
     if result.noise is not None:
         colour = "green" if result.noise.agrees else "yellow"
         console.print(f"[{colour}]noise check:[/] {escape(result.noise.note)}", soft_wrap=True)
@@ -340,6 +379,11 @@ def render(result: GapResult, console: Console, *, top: int = 8) -> None:
             "[yellow]noise not given: estimated from the data (residual of every candidate fitted at once); "
             "a gap outside the catalog would be counted as noise. Give --noise-mm for a real test.[/]"
         )
+
+
+def _print_localisation(result: GapResult, console: Console) -> None:
+    """Where the first model's gap concentrates: the 5 strongest features, RMS per bin."""
+    s, u = result.report_scale, result.report_unit
     first = result.iterations[0]
     if first.localisation:
         t = Table(title="where the gap concentrates (first model)", title_justify="left")
@@ -349,36 +393,51 @@ def render(result: GapResult, console: Console, *, top: int = 8) -> None:
             bins = ", ".join(f"{bn.label}: {bn.rms * s:.3f}" for bn in g.bins)
             t.add_row(f"{g.label} ({g.unit})" if g.unit else g.label, f"{g.z:.1f}", bins)
         console.print(t)
-    for it in result.iterations:
-        t = Table(title=f"round {it.index + 1}: candidates ({it.decision.status})", title_justify="left")
-        for col in ("effect", "k", "indep.", "dBIC", "p corr.", f"CV gain {u}", "verdict"):
-            t.add_column(col, justify="left" if col in ("effect", "verdict") else "right")
-        ranked = [c for c in sorted(it.scores, key=_rank) if c.testable][:top]
-        tied = set(it.decision.tied) if it.decision.status == "ambiguous" else set()
-        for c in ranked:
-            if it.added is not None and it.added_score is c and not it.added.tied:
-                mark = "[green]named[/]"
-            elif c.label in tied:
-                mark = "[cyan]tied[/] (in the tie term)" if it.added is not None else "[yellow]tied[/]"
-            else:
-                mark = "eligible" if c.eligible else ""
-            if not c.eligible and c.reasons and c.label not in tied:
-                mark = escape(c.reasons[0])
-            t.add_row(
-                c.label,
-                str(c.k + c.k_shape),
-                f"{c.independent_fraction:.2f}",
-                f"{c.delta_bic:.1f}",
-                f"{c.p_adjusted:.2g}",
-                f"{c.cv_gain * s:+.4f}",
-                mark,
-            )
-        console.print(t)
-        console.print(f"  {escape(it.decision.reason)}", soft_wrap=True)
-        for lab, g in it.removed:
-            console.print(f"  removed again: {escape(lab)} (the later effects explain it: dBIC given them {g:.1f})")
-        for tie, lab, why in it.resolved:
-            console.print(f"  tie resolved: {escape(tie)} -> {escape(lab)} named ({escape(why)})", soft_wrap=True)
+
+
+def _print_round(it: Iteration, result: GapResult, console: Console, top: int) -> None:
+    """One round: its ``top`` testable candidates with their scores and verdicts, the decision's reason,
+    the effects removed again and the ties resolved."""
+    s, u = result.report_scale, result.report_unit
+    t = Table(title=f"round {it.index + 1}: candidates ({it.decision.status})", title_justify="left")
+    for col in ("effect", "k", "indep.", "dBIC", "p corr.", f"CV gain {u}", "verdict"):
+        t.add_column(col, justify="left" if col in ("effect", "verdict") else "right")
+    ranked = [c for c in sorted(it.scores, key=_rank) if c.testable][:top]
+    tied = set(it.decision.tied) if it.decision.status == "ambiguous" else set()
+    for c in ranked:
+        t.add_row(
+            c.label,
+            str(c.k + c.k_shape),
+            f"{c.independent_fraction:.2f}",
+            f"{c.delta_bic:.1f}",
+            f"{c.p_adjusted:.2g}",
+            f"{c.cv_gain * s:+.4f}",
+            _candidate_mark(it, c, tied),
+        )
+    console.print(t)
+    console.print(f"  {escape(it.decision.reason)}", soft_wrap=True)
+    for lab, g in it.removed:
+        console.print(f"  removed again: {escape(lab)} (the later effects explain it: dBIC given them {g:.1f})")
+    for tie, lab, why in it.resolved:
+        console.print(f"  tie resolved: {escape(tie)} -> {escape(lab)} named ({escape(why)})", soft_wrap=True)
+
+
+def _candidate_mark(it: Iteration, c: CandidateScore, tied: set[str]) -> str:
+    """A candidate's verdict column: named, tied (in the tie term or not), eligible, or why not."""
+    if it.added is not None and it.added_score is c and not it.added.tied:
+        mark = "[green]named[/]"
+    elif c.label in tied:
+        mark = "[cyan]tied[/] (in the tie term)" if it.added is not None else "[yellow]tied[/]"
+    else:
+        mark = "eligible" if c.eligible else ""
+    if not c.eligible and c.reasons and c.label not in tied:
+        mark = escape(c.reasons[0])
+    return mark
+
+
+def _print_ties(result: GapResult, console: Console) -> None:
+    """Every round that ended tied: resolved later (the member named), or none named and what would
+    separate them."""
     resolved = result.resolved_ties
     for it, group in result.tie_groups:
         added = it.added is not None and it.added.tied
@@ -401,6 +460,11 @@ def render(result: GapResult, console: Console, *, top: int = 8) -> None:
         )
         for a in it.decision.advice or ["collect data that separates them"]:
             console.print(f"  to separate them: {escape(a)}", soft_wrap=True)
+
+
+def _print_effects(result: GapResult, console: Console) -> None:
+    """The effects of the final model with their parameters ± 1 sigma and held-out gain, and their notes."""
+    s, u = result.report_scale, result.report_unit
     if result.effects:
         t = Table(title="effects added (SI values shown in urad, mm, ms, ppm)", title_justify="left")
         for col in ("effect", "parameters ± 1 sigma", f"held-out gain {u}"):
@@ -413,11 +477,3 @@ def render(result: GapResult, console: Console, *, top: int = 8) -> None:
         for fe, _ in result.effects:
             if fe.note:
                 console.print(f"  {escape(fe.label)}: {escape(fe.note)}", soft_wrap=True)
-    absorbed = [c.label for c in first.scores if c.absorbed]
-    if absorbed:
-        console.print(f"absorbed by the calibration (cannot be told apart from it): {', '.join(absorbed)}")
-    missing = sorted({f"{c.name} ({c.unavailable})" for c in first.scores if c.unavailable})
-    if missing:
-        console.print("not testable on these data: " + "; ".join(missing), soft_wrap=True)
-    for name, path in result.files.items():
-        console.print(f"{name}: {escape(path)}", highlight=False, soft_wrap=True)

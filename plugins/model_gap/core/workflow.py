@@ -57,6 +57,8 @@ from plugins.model_gap.core.localise import localise
 from plugins.model_gap.core.selection import (
     BaselineScore,
     CandidateScore,
+    Decision,
+    Scorer,
     SelectionConfig,
     _basis,
     _perp,
@@ -204,11 +206,7 @@ def run_gap(
 ) -> GapResult:
     """Run the loop of the module docstring; write each augmented model to ``model_dir`` if given."""
     cfg = config or GapConfig()
-    if cfg.selection.cv_folds < 2:
-        raise GapInputError("cross-validation needs at least 2 folds")
-    candidates = collect_candidates(problem, families)
-    if not candidates:
-        raise GapInputError("no candidate effects: is a plugin providing vgr_model_effects loaded?")
+    candidates = _checked_candidates(problem, families, cfg)
     out_dir = Path(model_dir) if model_dir is not None else None
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -223,45 +221,20 @@ def run_gap(
         if index == 0:
             _check_size(lin, candidates, cfg)
         active = [c for c in candidates if (c.name, c.where) not in added_labels]
-        scorer, baseline, scores = score_all(lin, active, problem, cfg.selection)
-        decision = decide(scorer, scores, cfg.selection)
-        feats = problem.features()
-        it = Iteration(
-            index,
-            compare(lin, baseline, cfg.chi2_alpha),
-            localise(lin, feats),
-            scores,
-            decision,
-            lin.physical_residual(),
-            lin.residual.copy(),
-            structure=residual_structure(lin, feats, cfg.chi2_alpha),
-        )
+        it, scorer = _examine(problem, lin, active, index, cfg)
         if index == 0 and out_dir is not None:
             files["model_baseline"] = str(problem.save_model(out_dir / "model_0_baseline.yaml"))
         iterations.append(it)
-        if decision.status == "none":
+        if it.decision.status == "none":
             break
-        by_label = {s.label: s for s in scores}
-        if decision.status == "named":
-            w, tied_with = decision.winner, ()
-        else:  # tied: the group joins as one term, evaluated as its representative, named as the group
-            w = decision.representative
-            assert w is not None
-            tied_with = tuple(sorted(lab for lab in decision.tied if lab != w.label))
-        assert w is not None and w.design is not None
+        by_label = {s.label: s for s in it.scores}
+        w, tied_with = _term_to_add(it.decision)
         counts = not all(is_geometric(by_label[lab].candidate) for lab in (w.label, *tied_with))
         if counts and n_terms >= cfg.max_effects:
             break
         n_terms += counts
-        it.signature = w.candidate.signature(problem)
-        it.contribution = (w.design.columns @ w.beta) * lin.sigma[:, None]
-        it.identifiable = scorer.identifiable_part(w.design, w.beta) * lin.sigma[:, None]
-        if tied_with:
-            it.added = problem.add_effect(w.candidate, w.values, tied_with=tied_with)
-        else:
-            it.added = problem.add_effect(w.candidate, w.values)
-        it.added_score = w
-        effects.append((it.added, w))
+        added = _add_term(problem, it, lin, scorer, w, tied_with)
+        effects.append((added, w))
         # never tested again, even if pruned below (no cycles); a tie's members neither, one by one
         added_labels.add((w.name, w.where))
         added_labels.update((by_label[lab].name, by_label[lab].where) for lab in tied_with)
@@ -270,8 +243,88 @@ def run_gap(
         if tied_with:
             tie_members[w.label] = [by_label[lab] for lab in sorted({w.label, *tied_with})]
         if out_dir is not None:
-            it.model_file = str(problem.save_model(out_dir / f"model_{index + 1}_{it.added.file_stem}.yaml"))
-    # the effects as the final joint refit has them (values and sigmas move when later effects are added)
+            it.model_file = str(problem.save_model(out_dir / f"model_{index + 1}_{added.file_stem}.yaml"))
+    return _result(problem, iterations, effects, cfg, files)
+
+
+def _checked_candidates(problem: GapProblem, families: list[EffectFamily], cfg: GapConfig) -> list[Candidate]:
+    """The catalog's candidates, after the checks that need no data (enough folds, a non-empty catalog)."""
+    if cfg.selection.cv_folds < 2:
+        raise GapInputError("cross-validation needs at least 2 folds")
+    candidates = collect_candidates(problem, families)
+    if not candidates:
+        raise GapInputError("no candidate effects: is a plugin providing vgr_model_effects loaded?")
+    return candidates
+
+
+def _examine(
+    problem: GapProblem, lin: Linearisation, active: list[Candidate], index: int, cfg: GapConfig
+) -> tuple[Iteration, Scorer]:
+    """Steps 1 and 2 of one round on the current model's linearisation: score the candidates still
+    active and decide; the round (its comparison, localisation, scores, decision, residuals and
+    residual structure) and the scorer that judged it."""
+    scorer, baseline, scores = score_all(lin, active, problem, cfg.selection)
+    decision = decide(scorer, scores, cfg.selection)
+    feats = problem.features()
+    it = Iteration(
+        index,
+        compare(lin, baseline, cfg.chi2_alpha),
+        localise(lin, feats),
+        scores,
+        decision,
+        lin.physical_residual(),
+        lin.residual.copy(),
+        structure=residual_structure(lin, feats, cfg.chi2_alpha),
+    )
+    return it, scorer
+
+
+def _term_to_add(decision: Decision) -> tuple[CandidateScore, tuple[str, ...]]:
+    """The term a round adds: (the named winner, ()), or for a tie (its representative, the labels of the
+    other members)."""
+    tied_with: tuple[str, ...]
+    if decision.status == "named":
+        w, tied_with = decision.winner, ()
+    else:  # tied: the group joins as one term, evaluated as its representative, named as the group
+        w = decision.representative
+        assert w is not None
+        tied_with = tuple(sorted(lab for lab in decision.tied if lab != w.label))
+    assert w is not None and w.design is not None
+    return w, tied_with
+
+
+def _add_term(
+    problem: GapProblem,
+    it: Iteration,
+    lin: Linearisation,
+    scorer: Scorer,
+    w: CandidateScore,
+    tied_with: tuple[str, ...],
+) -> FittedEffect:
+    """Step 3: add the round's term to the problem (which refits everything), a tie as one term evaluated
+    as ``w``; record on the round what it added: the signature, the contribution and its identifiable
+    part (physical units, this round's linearisation), the fitted effect and its score."""
+    assert w.design is not None  # _term_to_add
+    it.signature = w.candidate.signature(problem)
+    it.contribution = (w.design.columns @ w.beta) * lin.sigma[:, None]
+    it.identifiable = scorer.identifiable_part(w.design, w.beta) * lin.sigma[:, None]
+    if tied_with:
+        it.added = problem.add_effect(w.candidate, w.values, tied_with=tied_with)
+    else:
+        it.added = problem.add_effect(w.candidate, w.values)
+    it.added_score = w
+    return it.added
+
+
+def _result(
+    problem: GapProblem,
+    iterations: list[Iteration],
+    effects: list[tuple[FittedEffect, CandidateScore]],
+    cfg: GapConfig,
+    files: dict[str, str],
+) -> GapResult:
+    """The loop's outcome: the effects as the final joint refit has them (values and sigmas move when
+    later effects are added), the noise check of the final residuals and the verdict."""
     final = {(fe.name, fe.where): fe for fe in problem.fitted_effects()}
     effects = [(final.get((fe.name, fe.where), fe), sc) for fe, sc in effects]
     desc = problem.describe()

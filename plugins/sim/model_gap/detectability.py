@@ -50,6 +50,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from plugins.model_gap.core.interfaces import Candidate
 from plugins.model_gap.core.selection import SelectionConfig, _basis, _perp
 from plugins.model_gap.core.workflow import GapConfig, collect_candidates
 from plugins.model_gap.effects import builtin_families
@@ -160,75 +161,29 @@ def classify(
     rank_c = QC.shape[1]
 
     tol = sel.absorbed_tol
-    # every candidate's designs, and the Bonferroni count of the workflow's first round
-    designs: dict[str, list[np.ndarray]] = {}
-    n_tests = 0
-    for c in cands:
-        mats = [d.columns.reshape(M, -1) for d in c.designs(problem)]
-        designs[f"{c.name}@{c.where}"] = mats
-        if any(_new_directions(QC, B, tol).shape[1] for B in mats):
-            n_tests += len(mats)
+    designs, n_tests = _catalog_designs(cands, problem, QC, M, tol)
     alpha_t = sel.alpha / max(n_tests, 1)
 
     s_tot = camp.signal_m.reshape(-1) / sigma
     y_tot = _perp(QC, s_tot)
     lambda_gap = float(y_tot @ y_tot)
-    dof0 = max(1, M - rank_c)
-    crit = stats.chi2.isf(cfg.chi2_alpha, dof0)
-    power_chi2 = float(stats.ncx2.sf(crit, dof0, max(lambda_gap, 1e-12)))
+    power_chi2 = _power_chi2(lambda_gap, M - rank_c, cfg.chi2_alpha)
     if not case.effects:
         return CaseClassification("noise", lambda_gap, 0.0, 0, 0.0, power_chi2, n_tests, alpha_t)
 
     labels = [f"{e.name}@{e.where}" for e in case.effects]
     sig = [x.reshape(-1) / sigma for x in camp.signals_m]
-    true_d = []  # each hidden effect's design at its best-fitting grid point
-    for lab, s in zip(labels, sig, strict=True):
-        mats = designs.get(lab)
-        if not mats:
-            raise ValueError(f"{lab} is not a candidate of the catalog for this campaign")
-        ys = _perp(QC, s)
-        true_d.append(max(mats, key=lambda B: _proj_norm2(_new_directions(QC, B, tol), ys)))
+    true_d = _true_designs(labels, sig, designs, QC, tol)
     D_all = _new_directions(QC, np.concatenate(true_d, axis=1), tol)
     k_det = D_all.shape[1]
     lambda_det = _proj_norm2(D_all, y_tot)
     power_det = _power_f(lambda_det, k_det, M - rank_c - k_det, alpha_t)
 
-    effects: list[EffectIdentifiability] = []
-    for i, (lab, s, D) in enumerate(zip(labels, sig, true_d, strict=True)):
-        others = [X for j in range(len(labels)) if j != i for X in (true_d[j], sig[j][:, None])]
-        Qb = np.concatenate([QC, _new_directions(QC, np.concatenate(others, axis=1), tol)], axis=1) if others else QC
-
-        def independent(extra: np.ndarray, Qb=Qb, s=s, D=D) -> tuple[float, int, int]:
-            """(noncentrality of D's F-test on top of Qb + extra, rank of that model, rank of D's new part)."""
-            Q = np.concatenate([Qb, _new_directions(Qb, extra, tol)], axis=1)
-            Z = _new_directions(Q, D, tol)
-            return _proj_norm2(Z, _perp(Q, s)), Q.shape[1], Z.shape[1]
-
-        lam_alone = _proj_norm2(_new_directions(QC, D, tol), _perp(QC, s))
-        lam_given, rank_b, k_i = independent(np.zeros((M, 0)))
-        best = (lam_given, "none", rank_b, k_i)
-        for r, mats in designs.items():
-            if r in labels:
-                continue
-            for B in mats:
-                lam, rk, k = independent(B)
-                if lam < best[0]:
-                    best = (lam, r, rk, k)
-        lam_id, rival, rank_r, k_r = best
-        p_id = _power_f(lam_id, k_r, M - rank_r - k_r, alpha_t)
-        k_shape = 1 if len(designs[lab]) > 1 else 0  # a profiled time constant
-        gain_needed = sel.bic_margin + (k_r + k_shape) * np.log(M)
-        p_margin = float(stats.ncx2.sf(gain_needed, k_r, max(lam_id, 1e-12))) if k_r else 0.0
-        effects.append(
-            EffectIdentifiability(lab, k_i, lam_alone, lam_given, lam_id, rival, p_id, p_id >= power, p_margin)
-        )
-
-    def case_class(ok: list[bool]) -> str:
-        if power_det < power:
-            return "undetectable"
-        return "identifiable" if all(ok) else "confounded"
-
-    cls = case_class([e.identifiable for e in effects])
+    effects = [
+        _identifiability(i, labels, sig, true_d, designs, QC, M, tol, alpha_t, sel.bic_margin, power)
+        for i in range(len(labels))
+    ]
+    cls = _case_class(power_det, power, [e.identifiable for e in effects])
     part = [e.label for e in effects if e.identifiable] if cls != "undetectable" else []
     return CaseClassification(
         cls,
@@ -241,5 +196,91 @@ def classify(
         alpha_t,
         effects,
         part,
-        case_class([e.power_margin >= power for e in effects]),
+        _case_class(power_det, power, [e.power_margin >= power for e in effects]),
     )
+
+
+def _catalog_designs(
+    cands: list[Candidate], problem: KinematicGapProblem, QC: np.ndarray, M: int, tol: float
+) -> tuple[dict[str, list[np.ndarray]], int]:
+    """Every candidate's designs (``(M, k)``, one per grid point), by ``name@where``, and the Bonferroni
+    count of the workflow's first round (the designs of every candidate the calibration does not absorb)."""
+    designs: dict[str, list[np.ndarray]] = {}
+    n_tests = 0
+    for c in cands:
+        mats = [d.columns.reshape(M, -1) for d in c.designs(problem)]
+        designs[f"{c.name}@{c.where}"] = mats
+        if any(_new_directions(QC, B, tol).shape[1] for B in mats):
+            n_tests += len(mats)
+    return designs, n_tests
+
+
+def _power_chi2(lambda_gap: float, dof: int, chi2_alpha: float) -> float:
+    """Power of the workflow's chi-square test of the residuals (``dof`` = M - rank C, at least 1)."""
+    dof0 = max(1, dof)
+    crit = stats.chi2.isf(chi2_alpha, dof0)
+    return float(stats.ncx2.sf(crit, dof0, max(lambda_gap, 1e-12)))
+
+
+def _true_designs(
+    labels: list[str], sig: list[np.ndarray], designs: dict[str, list[np.ndarray]], QC: np.ndarray, tol: float
+) -> list[np.ndarray]:
+    """Each hidden effect's design at its best-fitting grid point (the largest signal after the calibration)."""
+    true_d = []
+    for lab, s in zip(labels, sig, strict=True):
+        mats = designs.get(lab)
+        if not mats:
+            raise ValueError(f"{lab} is not a candidate of the catalog for this campaign")
+        ys = _perp(QC, s)
+        true_d.append(max(mats, key=lambda B: _proj_norm2(_new_directions(QC, B, tol), ys)))
+    return true_d
+
+
+def _independent(Qb: np.ndarray, extra: np.ndarray, s: np.ndarray, D: np.ndarray, tol: float) -> tuple[float, int, int]:
+    """(noncentrality of D's F-test on top of Qb + extra, rank of that model, rank of D's new part)."""
+    Q = np.concatenate([Qb, _new_directions(Qb, extra, tol)], axis=1)
+    Z = _new_directions(Q, D, tol)
+    return _proj_norm2(Z, _perp(Q, s)), Q.shape[1], Z.shape[1]
+
+
+def _identifiability(
+    i: int,
+    labels: list[str],
+    sig: list[np.ndarray],
+    true_d: list[np.ndarray],
+    designs: dict[str, list[np.ndarray]],
+    QC: np.ndarray,
+    M: int,
+    tol: float,
+    alpha_t: float,
+    bic_margin: float,
+    power: float,
+) -> EffectIdentifiability:
+    """Identifiability of hidden effect ``i`` (module docstring): its signal left on top of the calibration,
+    the other hidden effects and the best rival (the candidate, not hidden, that leaves the least)."""
+    lab, s, D = labels[i], sig[i], true_d[i]
+    others = [X for j in range(len(labels)) if j != i for X in (true_d[j], sig[j][:, None])]
+    Qb = np.concatenate([QC, _new_directions(QC, np.concatenate(others, axis=1), tol)], axis=1) if others else QC
+    lam_alone = _proj_norm2(_new_directions(QC, D, tol), _perp(QC, s))
+    lam_given, rank_b, k_i = _independent(Qb, np.zeros((M, 0)), s, D, tol)
+    best = (lam_given, "none", rank_b, k_i)
+    for r, mats in designs.items():
+        if r in labels:
+            continue
+        for B in mats:
+            lam, rk, k = _independent(Qb, B, s, D, tol)
+            if lam < best[0]:
+                best = (lam, r, rk, k)
+    lam_id, rival, rank_r, k_r = best
+    p_id = _power_f(lam_id, k_r, M - rank_r - k_r, alpha_t)
+    k_shape = 1 if len(designs[lab]) > 1 else 0  # a profiled time constant
+    gain_needed = bic_margin + (k_r + k_shape) * np.log(M)
+    p_margin = float(stats.ncx2.sf(gain_needed, k_r, max(lam_id, 1e-12))) if k_r else 0.0
+    return EffectIdentifiability(lab, k_i, lam_alone, lam_given, lam_id, rival, p_id, p_id >= power, p_margin)
+
+
+def _case_class(power_det: float, power: float, ok: list[bool]) -> str:
+    """``undetectable`` below the detection power, else ``identifiable`` if every effect is, else ``confounded``."""
+    if power_det < power:
+        return "undetectable"
+    return "identifiable" if all(ok) else "confounded"

@@ -216,6 +216,55 @@ def simulate_campaign(
         true_model = true_model.with_param_offsets(geometric_errors(nominal, np.random.default_rng([seed, 2])))
 
     # 1. the motion: the controller plans it (the effects do not change what it commands)
+    mo = _move(true_model, nominal, n_samples, rng)
+    Q, QD, T_s, PAY = mo.Q, mo.QD, mo.T_s, mo.PAY
+    TEMP = motor_temperature(T_s, np.random.default_rng([seed, 3])) if temperature else None
+    ctx = SampleContext(t_s=T_s, direction=np.array(mo.d), payload_kg=PAY, temp_c=TEMP)
+
+    # 2. every hidden effect scaled so that the gap it leaves after the calibration has the RMS asked
+    measured = _Measurement(true_model, Q, QD, ctx, T_meas_world)
+    base = measured([], {})
+    C = _calibration_columns(true_model, Q, T_meas_world, scenario)
+    robot_effects, meas, signals = _hide(effects, measured, base, C, rng, temperature)
+    truth = RobotWithEffects(true_model, robot_effects)
+    signal = measured(robot_effects, meas) - base
+    combined_gap = _rms_3d(_uncalibrated(signal, C))
+    latency = meas.get("time_latency", 0.0)
+    camera = CameraEffects(depth_scale=1.0 + meas.get("depth_scale", 0.0), depth_bias_m=meas.get("depth_bias", 0.0))
+    tracker = TrackerEffects(latency_s=latency)
+
+    # 3. what the sensor reports: the truth at t - L (the controller's state then), ranged, noisy
+    logged_dir = -np.array(mo.d) if flip_dir else np.array(mo.d)  # what the controller logs
+    data = _sensor_data(
+        mo, truth, camera, latency, T_meas_world, TEMP, logged_dir, points=points, noise_m=noise_m, rng=rng
+    )
+    # the true frames (the sensor frame as the model's world: so is its gravity vector)
+    known = _with_gravity(true_model.with_base(T_meas_world), T_meas_world[:3, :3] @ nominal.gravity_world)
+    model = known if scenario == "known" else nominal.with_tool(_translation(TOOL_GUESS))
+    clean = KinematicSamples(Q, base, None, T_s, logged_dir, TEMP, PAY)
+    truth_data = GapData(clean, qd=QD, range_m=np.linalg.norm(base, axis=1), sensor=SENSOR, source="simulated truth")
+    return SimulatedCampaign(
+        data, model, truth, camera, tracker, combined_gap, tuple(signals), signal, C, known, truth_data
+    )
+
+
+@dataclass(eq=False)
+class _Motion:
+    """The campaign's poses as the controller drove them: the controller (its state at any time), and per
+    sample the joints, joint velocities, approach directions (one array per sample), time and payload."""
+
+    ctl: SimRobotController
+    Q: np.ndarray
+    QD: np.ndarray
+    d: list[np.ndarray]
+    T_s: np.ndarray
+    PAY: np.ndarray
+
+
+def _move(true_model: RobotModel, nominal: RobotModel, n_samples: int, rng: np.random.Generator) -> _Motion:
+    """Step 1: joint moves to random configurations within the limits (at most +-pi), a random payload
+    and speed per move, one sample at a random time of each move; from a cold start, the i-th sample
+    near ``CAMPAIGN_S (i / n)^2``."""
     clock = SimClock()
     ctl = SimRobotController(true_model, clock, warmup_start_s=0.0)
     lo, hi = np.maximum(nominal.lower, -np.pi), np.minimum(nominal.upper, np.pi)
@@ -235,43 +284,83 @@ def simulate_campaign(
         pay.append(ctl.payload_kg)
         # from a cold start, measured densely during the warm-up: the i-th sample near T (i / n)^2
         clock.advance_to(max(res.end_s, CAMPAIGN_S * ((i + 1) / n_samples) ** 2))
-    Q, QD, T_s, PAY = np.array(q), np.array(qd), np.array(t), np.array(pay)
-    TEMP = motor_temperature(T_s, np.random.default_rng([seed, 3])) if temperature else None
-    ctx = SampleContext(t_s=T_s, direction=np.array(d), payload_kg=PAY, temp_c=TEMP)
+    return _Motion(ctl, np.array(q), np.array(qd), d, np.array(t), np.array(pay))
 
-    # 2. every hidden effect scaled so that the gap it leaves after the calibration has the RMS asked
-    def measured(robot_effects, meas: dict) -> np.ndarray:
+
+@dataclass(eq=False)
+class _Measurement:
+    """The noise-free measurement of the campaign's poses by the true robot with some hidden effects:
+    the tool point in the measurement frame, with the stream latency and the range distortion."""
+
+    true_model: RobotModel
+    Q: np.ndarray
+    QD: np.ndarray
+    ctx: SampleContext
+    T_meas_world: np.ndarray
+
+    def __call__(self, robot_effects: list[RobotEffect], meas: dict[str, float]) -> np.ndarray:
         lat = meas.get("time_latency", 0.0)
-        p_w = RobotWithEffects(true_model, robot_effects).fk(Q - lat * QD, ctx)[:, :3, 3]
-        p = p_w @ T_meas_world[:3, :3].T + T_meas_world[:3, 3]
+        p_w = RobotWithEffects(self.true_model, robot_effects).fk(self.Q - lat * self.QD, self.ctx)[:, :3, 3]
+        p = p_w @ self.T_meas_world[:3, :3].T + self.T_meas_world[:3, 3]
         return apply_range_distortion(p, meas.get("depth_scale", 0.0), meas.get("depth_bias", 0.0))
 
-    base = measured([], {})
-    C = _calibration_columns(true_model, Q, T_meas_world, scenario)
-    robot_effects, meas, signals = [], {}, []
+
+def _uncalibrated(disp: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """``(N, 3)`` displacement less what the baseline calibration's columns ``C`` absorb (least squares)."""
+    if C.shape[1]:
+        disp = disp - (C @ np.linalg.lstsq(C, disp.reshape(-1), rcond=None)[0]).reshape(disp.shape)
+    return disp
+
+
+def _rms_3d(disp: np.ndarray) -> float:
+    """3-D RMS over the samples of an ``(N, 3)`` displacement."""
+    return float(np.sqrt(np.mean(np.sum(disp**2, axis=1))))
+
+
+def _hide(
+    effects: tuple[HiddenEffect, ...],
+    measured: _Measurement,
+    base: np.ndarray,
+    C: np.ndarray,
+    rng: np.random.Generator,
+    temperature: bool,
+) -> tuple[list[RobotEffect], dict[str, float], list[np.ndarray]]:
+    """Step 2: each hidden effect at a unit size (:func:`_unit_effect`), scaled so that the gap it leaves
+    after the calibration has the RMS ``gap_m``: (the robot effects, the measurement effects, the
+    noise-free displacement of the measured point by each effect alone)."""
+    robot_effects: list[RobotEffect] = []
+    meas: dict[str, float] = {}
+    signals: list[np.ndarray] = []
     for e in effects:
-        unit, unit_meas = _unit_effect(e, true_model, rng, temperature)  # the true tool point (robot_scale scales it)
-        disp = measured([unit] if unit else [], unit_meas) - base
-        if C.shape[1]:
-            disp = disp - (C @ np.linalg.lstsq(C, disp.reshape(-1), rcond=None)[0]).reshape(disp.shape)
-        factor = e.gap_m / float(np.sqrt(np.mean(np.sum(disp**2, axis=1))))
+        # on the true model: its tool point is the true one (robot_scale scales it)
+        unit, unit_meas = _unit_effect(e, measured.true_model, rng, temperature)
+        disp = _uncalibrated(measured([unit] if unit else [], unit_meas) - base, C)
+        factor = e.gap_m / _rms_3d(disp)
         scaled = [_scaled(unit, factor)] if unit is not None else []
         scaled_meas = {k: v * factor for k, v in unit_meas.items()}
         robot_effects += scaled
         meas.update(scaled_meas)
         signals.append(measured(scaled, scaled_meas) - base)
-    truth = RobotWithEffects(true_model, robot_effects)
-    signal = measured(robot_effects, meas) - base
-    disp = signal
-    if C.shape[1]:
-        disp = disp - (C @ np.linalg.lstsq(C, disp.reshape(-1), rcond=None)[0]).reshape(disp.shape)
-    combined_gap = float(np.sqrt(np.mean(np.sum(disp**2, axis=1))))
-    latency = meas.get("time_latency", 0.0)
-    camera = CameraEffects(depth_scale=1.0 + meas.get("depth_scale", 0.0), depth_bias_m=meas.get("depth_bias", 0.0))
-    tracker = TrackerEffects(latency_s=latency)
+    return robot_effects, meas, signals
 
-    # 3. what the sensor reports: the truth at t - L (the controller's state then), ranged, noisy
-    seen = [ctl.state(ti - latency) for ti in T_s]
+
+def _sensor_data(
+    mo: _Motion,
+    truth: RobotWithEffects,
+    camera: CameraEffects,
+    latency: float,
+    T_meas_world: np.ndarray,
+    TEMP: np.ndarray | None,
+    logged_dir: np.ndarray,
+    *,
+    points: int,
+    noise_m: float,
+    rng: np.random.Generator,
+) -> GapData:
+    """Step 3: what the campaign logs: per pose and reflector (one row each) the sensor's reading -- the
+    true robot at ``t - L`` (the controller's state then), ranged, noisy -- and the controller's logs."""
+    Q, T_s, PAY = mo.Q, mo.T_s, mo.PAY
+    seen = [mo.ctl.state(ti - latency) for ti in T_s]
     ctx_seen = SampleContext(
         t_s=T_s - latency, direction=np.array([s_.approach_direction for s_ in seen]), payload_kg=PAY, temp_c=TEMP
     )
@@ -283,19 +372,10 @@ def simulate_campaign(
     p_true = p_world @ T_meas_world[:3, :3].T + T_meas_world[:3, 3]
     p = apply_range_distortion(p_true, camera.depth_scale - 1.0, camera.depth_bias_m)
     p = p + rng.normal(0.0, noise_m, p.shape)
-    logged_dir = -np.array(d) if flip_dir else np.array(d)  # what the controller logs
     names = np.array([f"R{i + 1}" for i in range(k)])[np.tile(np.arange(k), len(Q))] if k > 1 else None
     temp = None if TEMP is None else TEMP[rows]
     samples = KinematicSamples(Q[rows], p, None, T_s[rows], logged_dir[rows], temp, PAY[rows], names)
-    data = GapData(samples, qd=QD[rows], range_m=np.linalg.norm(p, axis=1), sensor=SENSOR, source="simulated")
-    # the true frames (the sensor frame as the model's world: so is its gravity vector)
-    known = _with_gravity(true_model.with_base(T_meas_world), T_meas_world[:3, :3] @ nominal.gravity_world)
-    model = known if scenario == "known" else nominal.with_tool(_translation(TOOL_GUESS))
-    clean = KinematicSamples(Q, base, None, T_s, logged_dir, TEMP, PAY)
-    truth_data = GapData(clean, qd=QD, range_m=np.linalg.norm(base, axis=1), sensor=SENSOR, source="simulated truth")
-    return SimulatedCampaign(
-        data, model, truth, camera, tracker, combined_gap, tuple(signals), signal, C, known, truth_data
-    )
+    return GapData(samples, qd=mo.QD[rows], range_m=np.linalg.norm(p, axis=1), sensor=SENSOR, source="simulated")
 
 
 def geometric_errors(model: RobotModel, rng: np.random.Generator) -> dict[str, float]:

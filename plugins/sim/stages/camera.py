@@ -41,11 +41,12 @@ from engine.messages import (
 )
 from engine.stage import ServiceSpec, Stage, StageParams
 from plugins.camera.board_spec import parse_board
+from plugins.camera.depth_projection import PinholeIntrinsics
 from plugins.devices.camera_output import thinned
 from plugins.interfaces import CAMERA_OUTPUTS, CAMERA_SERVICES
 from plugins.params import PoseSpec
 from plugins.sim.board import BoardImager, board_workpiece
-from plugins.sim.camera import DepthCameraModel, DepthNoiseModel, PinholeIntrinsics, default_intrinsics
+from plugins.sim.camera import DepthCameraModel, DepthNoiseModel, default_intrinsics
 from plugins.sim.cell import CameraMount, PartPlacement, SimCell
 from plugins.sim.sensor_effects import SensorEffects
 from plugins.util.workpieces import make_workpiece
