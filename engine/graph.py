@@ -246,12 +246,17 @@ def _stage_nodes(
 
 
 def _undeclared(
-    loaded: LoadedRecipe, name: str, section: str, named: Iterable[str], declared: Mapping[str, Any], what: str
+    loaded: LoadedRecipe,
+    name: str,
+    section: str,
+    named: Iterable[str],
+    declared: Mapping[str, Any],
+    message: Callable[[str], str],
 ) -> list[Problem]:
     """A problem for each name the recipe wires under ``stages.<name>.<section>`` that the stage's
-    type does not declare (*what*: how the message names it)."""
+    type does not declare (*message*: what the problem says of that name)."""
     return [
-        loaded.problem(("stages", name, section, key), what.format(key=key), nearest(key, declared))
+        loaded.problem(("stages", name, section, key), message(key), nearest(key, declared))
         for key in named
         if key not in declared
     ]
@@ -269,7 +274,7 @@ def _input_edges(
         "inputs",
         spec.inputs,
         cls.inputs,
-        f"stage type {cls.type_name!r} has no input port {{key!r}} (inputs: {inputs})",
+        lambda key: f"stage type {cls.type_name!r} has no input port {key!r} (inputs: {inputs})",
     )
     edges = []
     for port, in_type in cls.inputs.items():
@@ -308,7 +313,12 @@ def _service_edges(
     matching request and reply type, not to itself (it would deadlock)."""
     spec = loaded.recipe.stages[name]
     problems += _undeclared(
-        loaded, name, "uses", spec.uses, cls.uses, f"stage type {cls.type_name!r} uses no service called {{key!r}}"
+        loaded,
+        name,
+        "uses",
+        spec.uses,
+        cls.uses,
+        lambda key: f"stage type {cls.type_name!r} uses no service called {key!r}",
     )
     edges = []
     for client, need in cls.uses.items():

@@ -72,10 +72,10 @@ def _plugin_manager(extra_modules: Iterable[str], entry_points: bool) -> pluggy.
     return pm
 
 
-def plugin_verbs(taken: Iterable[str] = (), extra_modules: Iterable[str] = ()) -> dict[str, CliVerb]:
+def plugin_verbs(taken: Iterable[str] = ()) -> dict[str, CliVerb]:
     """The verbs the installed plugins add to ``vgr``, by name; *taken* are the engine's own verbs.
     Imports only the plugins' entry-point modules, not the verbs' modules."""
-    pm = _plugin_manager(extra_modules, entry_points=True)
+    pm = _plugin_manager((), entry_points=True)
     owner = dict.fromkeys(taken, "the engine")
     verbs: dict[str, CliVerb] = {}
     for impl in pm.hook.vgr_cli_verbs.get_hookimpls():
@@ -83,7 +83,9 @@ def plugin_verbs(taken: Iterable[str] = (), extra_modules: Iterable[str] = ()) -
             if not isinstance(verb, CliVerb):
                 raise PluginError(f"plugin {impl.plugin_name} returned {verb!r} as a verb: expected a CliVerb")
             if verb.name in owner:
-                raise PluginError(f"verb {verb.name!r} is provided twice: by {owner[verb.name]} and {impl.plugin_name}")
+                raise PluginError(
+                    f"verb {verb.name!r} is provided twice: by {owner[verb.name]} and by plugin {impl.plugin_name}"
+                )
             owner[verb.name] = f"plugin {impl.plugin_name}"
             verbs[verb.name] = verb
     return verbs
