@@ -87,7 +87,7 @@ def _open3d_cast(parts, T_world_cam, intrinsics) -> int:
         mesh = o3d.t.geometry.TriangleMesh.from_legacy(part.mesh).transform(T)
         scene.add_triangles(mesh)
     rays = o3d.t.geometry.RaycastingScene.create_rays_pinhole(
-        o3d.core.Tensor(intrinsics.K()),
+        o3d.core.Tensor(intrinsics.K),
         o3d.core.Tensor(inv(T_world_cam)),
         intrinsics.width,
         intrinsics.height,

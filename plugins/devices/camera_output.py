@@ -28,7 +28,7 @@ from pydantic import Field, model_validator
 
 from engine.messages import CameraInfo, FrameTransforms, Image, PointCloud, Transform
 from engine.stage import Stage, StageContext, StageParams
-from plugins.camera.depth_projection import PinholeIntrinsics
+from plugins.camera.pinhole import CameraModel
 from plugins.interfaces import CAMERA_OUTPUTS, CAMERA_SERVICES
 from plugins.params import PoseSpec
 
@@ -85,7 +85,7 @@ class CameraFrame:
     normals: NDArray[np.floating] | None = None
     colors: NDArray[np.uint8] | None = None
     depth_m: NDArray[np.float32] | None = None  # (H, W), NaN invalid
-    intrinsics: PinholeIntrinsics | None = None
+    intrinsics: CameraModel | None = None
     source: str = ""  # file name or device frame, for messages
 
 
@@ -106,16 +106,9 @@ def thinned(points: _Points, n: int) -> _Points:
     )
 
 
-def camera_info(intr: PinholeIntrinsics, frame_id: str) -> CameraInfo:
-    model = "inverse_brown_conrady" if intr.model == "inverse_brown_conrady" else "plumb_bob"
-    return CameraInfo(
-        width=intr.width,
-        height=intr.height,
-        K=intr.K(),
-        D=np.asarray(intr.coeffs, dtype=float),
-        distortion_model=model,
-        frame_id=frame_id,
-    )
+def camera_info(camera: CameraModel, frame_id: str) -> CameraInfo:
+    """The ``CameraInfo`` of a depth frame (stamped when published)."""
+    return camera.to_camera_info(frame_id)
 
 
 def publish_capture(ctx: StageContext, params: DepthCameraParams, frame: CameraFrame) -> PointCloud:

@@ -29,7 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from plugins.camera.depth_projection import PinholeIntrinsics, deproject_depth, valid_points
+from plugins.camera.depth_projection import deproject_depth, valid_points
+from plugins.camera.pinhole import CameraModel
 from plugins.devices.camera_output import CameraFrame
 
 FRAME_SUFFIXES = (".ply", ".pcd", ".npz")
@@ -119,7 +120,7 @@ def _load_npz(path: Path) -> CameraFrame:
         if "K" not in data:
             raise FrameFileError(f"{path}: has 'depth' but no 'K' (3x3 intrinsics)")
         try:
-            intr = PinholeIntrinsics.from_K(data["K"], depth.shape[1], depth.shape[0])
+            intr = CameraModel(depth.shape[1], depth.shape[0], np.asarray(data["K"], dtype=float), np.zeros(5))
         except ValueError as exc:
             raise FrameFileError(f"{path}: {exc}") from exc
         depth = np.where(np.isfinite(depth) & (depth > 0), depth, np.nan)

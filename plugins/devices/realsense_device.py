@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from plugins.camera.depth_projection import PinholeIntrinsics
+from plugins.camera.pinhole import CameraModel
 
 RECORDING_SUFFIXES = (".bag", ".db3")
 STOP_DRAIN_S = 30.0  # longest time spent reading the rest of a recording before stopping it
@@ -66,15 +66,28 @@ class RealSenseFrame:
     timestamp_ms: float
 
 
-def intrinsics_from_rs(intr: Any) -> PinholeIntrinsics:
-    """vgr intrinsics from an ``rs.intrinsics`` (distortion model by its enum name)."""
-    model = getattr(intr.model, "name", str(intr.model).rsplit(".", 1)[-1])
-    coeffs = tuple(float(c) for c in intr.coeffs)
-    if model == "none" or not any(coeffs):
-        model = "none"
-    return PinholeIntrinsics(
+#: librealsense distortion model (``rs2_distortion`` enum name) -> CameraModel model, coefficients used
+RS_DISTORTION: dict[str, tuple[str, int]] = {
+    "none": ("standard", 0),
+    "brown_conrady": ("standard", 5),
+    "inverse_brown_conrady": ("inverse_brown_conrady", 5),
+    "kannala_brandt4": ("fisheye", 4),
+}
+
+
+def intrinsics_from_rs(intr: Any) -> CameraModel:
+    """The camera of an ``rs.intrinsics`` (distortion model by its enum name). ``modified_brown_conrady``
+    and ``ftheta`` are refused: no vgr model reproduces them."""
+    name = getattr(intr.model, "name", str(intr.model).rsplit(".", 1)[-1])
+    if name not in RS_DISTORTION:
+        raise ValueError(
+            f"the RealSense distortion model {name!r} is not supported (supported: {', '.join(RS_DISTORTION)})"
+        )
+    model, n = RS_DISTORTION[name]
+    D = [float(c) for c in intr.coeffs][:n]
+    return CameraModel.pinhole(
         int(intr.width), int(intr.height), float(intr.fx), float(intr.fy), float(intr.ppx), float(intr.ppy),
-        model, coeffs,
+        D, model,  # type: ignore[arg-type]
     )  # fmt: skip
 
 

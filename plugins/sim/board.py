@@ -28,7 +28,6 @@ from numpy.typing import ArrayLike, NDArray
 
 from plugins.camera.board_render import board_texture, render_board
 from plugins.camera.board_spec import BoardSpec
-from plugins.camera.depth_projection import PinholeIntrinsics
 from plugins.camera.pinhole import CameraModel
 from plugins.util.workpieces import Workpiece
 
@@ -84,11 +83,11 @@ class BoardImager:
 
     @classmethod
     def for_depth_camera(
-        cls, board: BoardSpec, intrinsics: PinholeIntrinsics, distortion: ArrayLike, **options: float
+        cls, board: BoardSpec, depth_camera: CameraModel, distortion: ArrayLike, **options: float
     ) -> BoardImager:
-        """The imager of a depth camera's intensity image: its intrinsics, the given distortion
-        ``(k1, k2, p1, p2, k3)``."""
-        camera = CameraModel(intrinsics.width, intrinsics.height, intrinsics.K(), np.asarray(distortion, float))
+        """The imager of a depth camera's intensity image: the depth camera's intrinsics, the given
+        distortion ``(k1, k2, p1, p2, k3)``."""
+        camera = CameraModel(depth_camera.width, depth_camera.height, depth_camera.K, np.asarray(distortion, float))
         return cls(board, camera, **options)  # type: ignore[arg-type]
 
     def render(self, T_cam_board: ArrayLike, rng: np.random.Generator) -> NDArray[np.uint8]:

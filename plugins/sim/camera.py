@@ -52,7 +52,7 @@ import numpy as np
 import open3d as o3d
 
 from engine.transforms import as_transform, inv
-from plugins.camera.depth_projection import PinholeIntrinsics
+from plugins.camera.pinhole import CameraModel
 from plugins.util.workpieces import Workpiece
 
 # Open3D prints allocator statistics at exit at its default verbosity; vgr's output stays clean.
@@ -68,11 +68,11 @@ __all__ = [
 ]
 
 
-def default_intrinsics() -> PinholeIntrinsics:
+def default_intrinsics() -> CameraModel:
     """640 x 480, 60 degrees horizontal field of view, principal point at the image centre."""
     width, height = 640, 480
     f = (width / 2.0) / math.tan(math.radians(60.0) / 2.0)
-    return PinholeIntrinsics(width, height, f, f, (width - 1) / 2.0, (height - 1) / 2.0)
+    return CameraModel.pinhole(width, height, f, f, (width - 1) / 2.0, (height - 1) / 2.0)
 
 
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
@@ -163,7 +163,7 @@ class DepthCapture:
 
     depth: np.ndarray  # (H, W) float32 metres along the optical axis, NaN where invalid
     points: np.ndarray  # (N, 3) float64 valid points in the camera frame (m)
-    intrinsics: PinholeIntrinsics
+    intrinsics: CameraModel
     pixel_index: np.ndarray  # (N,) flat pixel index v * width + u of each valid point
     stamp_ns: int = 0  # time stamp the sensor puts on the frame
     # (normals of the cast rays as Open3D returned them (float32), index of each valid point in them)
@@ -281,13 +281,15 @@ class DepthCameraModel:
 
     def __init__(
         self,
-        intrinsics: PinholeIntrinsics,
+        intrinsics: CameraModel,
         noise: DepthNoiseModel | None = None,
         min_range_m: float = 0.2,
         max_range_m: float = 2.0,
     ) -> None:
-        if not isinstance(intrinsics, PinholeIntrinsics):
-            raise TypeError("intrinsics must be a PinholeIntrinsics")
+        if not isinstance(intrinsics, CameraModel):
+            raise TypeError("intrinsics must be a CameraModel")
+        if intrinsics.distorted:
+            raise ValueError("the simulated depth camera is an undistorted pinhole: give zero distortion")
         if not (math.isfinite(min_range_m) and math.isfinite(max_range_m)) or not (0.0 <= min_range_m < max_range_m):
             raise ValueError(f"need 0 <= min_range_m < max_range_m, got {min_range_m}, {max_range_m}")
         self.intrinsics = intrinsics
@@ -440,7 +442,7 @@ class DepthCameraModel:
         for corners in boxes:
             if np.any(corners[:, 2] <= 1e-6):
                 return everything
-            span = _box_row_spans(k.project(corners), k.height, k.width, CULL_MARGIN_PX)
+            span = _box_row_spans(k.project_camera_points(corners), k.height, k.width, CULL_MARGIN_PX)
             if span is not None:
                 spans.append(span)
         if not spans:

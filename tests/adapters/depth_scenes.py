@@ -12,14 +12,15 @@ from pathlib import Path
 
 import numpy as np
 
-from plugins.camera.depth_projection import PinholeIntrinsics, normalized_rays
+from plugins.camera.depth_projection import normalized_rays
+from plugins.camera.pinhole import CameraModel
 
-INTR = PinholeIntrinsics(80, 60, 70.0, 71.5, 39.7, 29.3)
+INTR = CameraModel.pinhole(80, 60, 70.0, 71.5, 39.7, 29.3)
 PLANE_NORMAL = np.array([0.2, -0.3, -1.0]) / np.linalg.norm([0.2, -0.3, -1.0])  # facing the camera
 PLANE_POINT = np.array([0.01, -0.02, 0.6])
 
 
-def plane_depth(intr: PinholeIntrinsics = INTR, n=PLANE_NORMAL, p0=PLANE_POINT) -> np.ndarray:
+def plane_depth(intr: CameraModel = INTR, n=PLANE_NORMAL, p0=PLANE_POINT) -> np.ndarray:
     """(H, W) depth z (m) of the plane n . p = n . p0 seen through each pixel."""
     rays = normalized_rays(intr)
     denom = n[0] * rays[..., 0] + n[1] * rays[..., 1] + n[2]
@@ -34,7 +35,7 @@ def z16_of(depth_m: np.ndarray, scale: float) -> np.ndarray:
     return np.clip(np.round(depth_m / scale), 0, 65535).astype(np.uint16)
 
 
-def write_recording(path: Path, frames: list[np.ndarray], intr: PinholeIntrinsics, depth_scale: float) -> Path:
+def write_recording(path: Path, frames: list[np.ndarray], intr: CameraModel, depth_scale: float) -> Path:
     """Record z16 *frames* with *intr* and *depth_scale* to a librealsense file (needs pyrealsense2)."""
     import pyrealsense2 as rs
 

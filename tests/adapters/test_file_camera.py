@@ -105,7 +105,7 @@ def test_npz_points_organised_with_nan_holes_normals_and_float_colours(tmp_path)
 def test_npz_depth_and_K_are_deprojected_and_published_in_millimetre_files(tmp_path):
     depth_mm = plane_depth() * 1000.0
     depth_mm[10:12, 20:25] = 0.0  # no measurement
-    np.savez(tmp_path / "d.npz", depth=depth_mm, K=INTR.K())
+    np.savez(tmp_path / "d.npz", depth=depth_mm, K=INTR.K)
     stage, ctx = file_camera(folder=str(tmp_path), unit_scale_m=0.001)
     cloud = capture(stage)
     assert len(cloud.points) == INTR.width * INTR.height - 10
@@ -113,7 +113,7 @@ def test_npz_depth_and_K_are_deprojected_and_published_in_millimetre_files(tmp_p
     depth = ctx.published["depth"][-1]
     assert np.isnan(depth.data[10:12, 20:25]).all()
     np.testing.assert_allclose(depth.data[0, 0], plane_depth()[0, 0], rtol=1e-6)
-    np.testing.assert_allclose(ctx.published["camera_info"][-1].K, INTR.K())
+    np.testing.assert_allclose(ctx.published["camera_info"][-1].K, INTR.K)
 
 
 def test_decimate_keeps_every_nth_point(tmp_path):

@@ -64,7 +64,7 @@ def test_live_capture_is_metres_on_the_plane_with_the_profile_intrinsics(cam):
     assert np.isnan(depth.data[20:24, 30:36]).all()
     np.testing.assert_allclose(depth.data[0, 0], cam.frames[6][0, 0] * SCALE, rtol=1e-6)
     info = ctx.published["camera_info"][-1]
-    np.testing.assert_allclose(info.K, INTR.K())
+    np.testing.assert_allclose(info.K, INTR.K)
     assert info.distortion_model == "plumb_bob" and (info.width, info.height) == (INTR.width, INTR.height)
     np.testing.assert_array_equal(ctx.published["cloud"][-1].points, cloud.points)
 
@@ -137,10 +137,12 @@ def test_recording_loops_when_asked(cam, tmp_path):
         ),
         (
             lambda c, p: setattr(
-                c, "intrinsics", Intrinsics(80, 60, 50, 50, 40, 30, distortion.kannala_brandt4, [0.1, 0, 0, 0, 0])
+                c,
+                "intrinsics",
+                Intrinsics(80, 60, 50, 50, 40, 30, distortion.modified_brown_conrady, [0.1, 0, 0, 0, 0]),
             ),
             {},
-            "'kannala_brandt4' is not supported",
+            "'modified_brown_conrady' is not supported",
         ),
         (
             lambda c, p: ((p / "d.db3").write_bytes(b"x"), setattr(c, "recording_has_color", False)),
@@ -155,6 +157,18 @@ def test_setup_errors_say_what_is_wrong(cam, tmp_path, setup, params, expect):
     stage, _ = make_stage(RealSenseCamera, {"width": 80, "height": 60, **params})
     with pytest.raises((RealSenseError, ValueError), match=expect):
         stage.setup()
+
+
+def test_librealsense_distortion_models_map_onto_the_camera_models():
+    from plugins.devices.realsense_device import intrinsics_from_rs
+
+    D = [0.1, -0.02, 0.001, 0.002, 0.03]
+    cases = {"none": ("standard", [0.0] * 5), "brown_conrady": ("standard", D)}
+    cases |= {"inverse_brown_conrady": ("inverse_brown_conrady", D), "kannala_brandt4": ("fisheye", D[:4])}
+    for rs_name, (model, coeffs) in cases.items():
+        rs_D = [0.5] * 5 if rs_name == "none" else D  # librealsense ignores the coefficients of 'none'
+        camera = intrinsics_from_rs(Intrinsics(80, 60, 50, 51, 40, 30, getattr(distortion, rs_name), rs_D))
+        assert (camera.model, camera.D.tolist(), camera.fy, camera.cx) == (model, coeffs, 51.0, 40.0)
 
 
 def test_a_failed_configuration_stops_the_started_pipeline(cam):
@@ -195,7 +209,7 @@ def test_real_sdk_plays_a_recording_frame_by_frame_with_its_scale_and_intrinsics
     stage, ctx = camera(recording=str(rec))
     assert stage.device.depth_scale == pytest.approx(SCALE, rel=1e-6)  # stored as float32 by librealsense
     intr = stage.device.intrinsics
-    assert (intr.width, intr.height, intr.model) == (INTR.width, INTR.height, "none")
+    assert (intr.width, intr.height, intr.model, intr.distorted) == (INTR.width, INTR.height, "standard", False)
     np.testing.assert_allclose([intr.fx, intr.fy, intr.cx, intr.cy], [INTR.fx, INTR.fy, INTR.cx, INTR.cy], rtol=1e-6)
     n = np.array([0.2, -0.3, -1.0]) / np.linalg.norm([0.2, -0.3, -1.0])
     for k in range(8):

@@ -17,7 +17,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from engine import transforms as tf
-from plugins.camera.depth_projection import PinholeIntrinsics
+from plugins.camera.pinhole import CameraModel
 from plugins.sim.camera import DepthCameraModel, DepthNoiseModel
 from plugins.util.workpieces import Workpiece, make_workpiece
 
@@ -33,7 +33,7 @@ def workpiece(name: str) -> Workpiece:
 def camera(width: int = 640, height: int = 480, sigma_m: float = 1e-4, hfov_deg: float = 60.0) -> DepthCameraModel:
     """Pinhole depth camera with ``sigma_m`` depth noise (0.1 mm default) and 80 deg grazing dropout."""
     f = (width / 2.0) / np.tan(np.radians(hfov_deg) / 2.0)
-    k = PinholeIntrinsics(width, height, f, f, (width - 1) / 2.0, (height - 1) / 2.0)
+    k = CameraModel.pinhole(width, height, f, f, (width - 1) / 2.0, (height - 1) / 2.0)
     return DepthCameraModel(k, DepthNoiseModel(sigma_const_m=sigma_m), min_range_m=0.1, max_range_m=2.0)
 
 

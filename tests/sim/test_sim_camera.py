@@ -11,7 +11,7 @@ from scipy import stats
 from simcam_helpers import error_twist, expected_covariance, fit_part_pose, on_surface_distance
 
 from engine.transforms import T_from_rotvec, inv, transform_points
-from plugins.camera.depth_projection import PinholeIntrinsics
+from plugins.camera.pinhole import CameraModel
 from plugins.sim.camera import (
     DepthCameraModel,
     DepthNoiseModel,
@@ -21,7 +21,7 @@ from plugins.sim.camera import (
 from plugins.util.workpieces import make_workpiece
 
 MM = 1e-3
-SMALL = PinholeIntrinsics(160, 120, 138.6, 138.6, 79.5, 59.5)  # 60 deg HFOV, quick to render
+SMALL = CameraModel.pinhole(160, 120, 138.6, 138.6, 79.5, 59.5)  # 60 deg HFOV, quick to render
 
 
 def wall(size: float = 2.0, thickness: float = 0.02) -> o3d.geometry.TriangleMesh:
@@ -46,7 +46,7 @@ def test_default_intrinsics():
     k = default_intrinsics()
     assert (k.width, k.height) == (640, 480)
     assert math.degrees(k.horizontal_fov_rad) == pytest.approx(60.0, abs=0.01)
-    np.testing.assert_allclose(k.K(), [[k.fx, 0, k.cx], [0, k.fy, k.cy], [0, 0, 1]])
+    np.testing.assert_allclose(k.K, [[k.fx, 0, k.cx], [0, k.fy, k.cy], [0, 0, 1]])
 
 
 def test_noiseless_points_lie_on_the_part_and_reproject_to_their_pixels(feature_part):
@@ -67,7 +67,7 @@ def test_noiseless_points_lie_on_the_part_and_reproject_to_their_pixels(feature_
     assert np.count_nonzero(cap.valid_mask) == len(cap.points)
     assert np.all(np.isnan(cap.depth[~cap.valid_mask])) and np.all(np.isnan(cap.organized[~cap.valid_mask]))
     # pinhole projection of each point lands on its own pixel centre
-    np.testing.assert_allclose(cap.intrinsics.project(cap.points), cap.pixels, atol=1e-4)
+    np.testing.assert_allclose(cap.intrinsics.project_camera_points(cap.points), cap.pixels, atol=1e-4)
     # reported normals are the true outward normals, facing the camera
     assert np.all(np.einsum("ij,ij->i", cap.normals, cap.points) < 0)
     np.testing.assert_allclose(np.linalg.norm(cap.normals, axis=1), 1.0, atol=1e-6)
@@ -179,7 +179,7 @@ def test_occlusion_and_part_labels(feature_part):
 # --------------------------------------------------------------------------- pose recovery
 
 
-def _fit_case(feature_part, seed: int, intrinsics: PinholeIntrinsics):
+def _fit_case(feature_part, seed: int, intrinsics: CameraModel):
     cam = DepthCameraModel(intrinsics, DepthNoiseModel(sigma_const_m=0.0003))
     T_world_cam = look_at([0.3, 0.25, 0.55], [0.0, 0.0, 0.03])
     T_world_part = T_from_rotvec([0.05, -0.03, 0.4], [0.01, -0.02, 0.0])
@@ -215,7 +215,7 @@ def test_fit_errors_match_the_predicted_covariance_over_seeds(feature_part):
     m2 = []
     for seed in range(12):
         xi, cov, _ = _fit_case(
-            feature_part, seed=100 + seed, intrinsics=PinholeIntrinsics(320, 240, 277.1, 277.1, 159.5, 119.5)
+            feature_part, seed=100 + seed, intrinsics=CameraModel.pinhole(320, 240, 277.1, 277.1, 159.5, 119.5)
         )
         m2.append(float(xi @ np.linalg.solve(cov, xi)))
     assert 3.0 < np.mean(m2) < 14.0, m2
@@ -306,7 +306,7 @@ def test_inward_facing_mesh_is_refused_and_a_few_back_faces_are_dropped():
     cap = cam.render([(tiles, wall_pose(1.0))], np.eye(4), rng)
     lost = SMALL.width * SMALL.height - len(cap.points)
     assert 0 < lost < 0.05 * SMALL.width * SMALL.height
-    u, v = np.rint(SMALL.project(centres[flip] + [0.0, 0.0, 1.0])[0]).astype(int)
+    u, v = np.rint(SMALL.project_camera_points(centres[flip] + [0.0, 0.0, 1.0])[0]).astype(int)
     assert not cap.valid_mask[v, u]  # the flipped triangle's centre pixel is among the lost ones
 
 
@@ -351,17 +351,17 @@ def test_non_rigid_poses_are_refused(kind, amount, on_camera):
 def test_bad_intrinsics_are_refused(width, height, f):
     valid = width > 0 and height > 0 and math.isfinite(f) and f > 0
     if valid:
-        assert PinholeIntrinsics(width, height, f, f, 0.0, 0.0).K()[0, 0] == f
+        assert CameraModel.pinhole(width, height, f, f, 0.0, 0.0).K[0, 0] == f
     else:
         with pytest.raises(ValueError):
-            PinholeIntrinsics(width, height, f, f, 0.0, 0.0)
+            CameraModel.pinhole(width, height, f, f, 0.0, 0.0)
 
 
 def test_zero_size_image_and_bad_noise_or_range_are_refused():
     with pytest.raises(ValueError, match="positive"):
-        PinholeIntrinsics(0, 480, 500.0, 500.0, 320.0, 240.0)
+        CameraModel.pinhole(0, 480, 500.0, 500.0, 320.0, 240.0)
     with pytest.raises(ValueError, match="integral"):
-        PinholeIntrinsics(640.5, 480, 500.0, 500.0, 320.0, 240.0)
+        CameraModel.pinhole(640.5, 480, 500.0, 500.0, 320.0, 240.0)
     for bad in (
         dict(sigma_const_m=-1e-3),
         dict(sigma_quad_per_m=float("nan")),
@@ -402,7 +402,7 @@ def test_any_pose_renders_finite_points_on_the_surface_within_range(rotvec, posi
         return
     assert cap.points[:, 2].min() >= 0.2 and cap.points[:, 2].max() <= 2.0
     assert on_surface_distance(wp, cap.points, T_cam_part).max() < 1e-6
-    np.testing.assert_allclose(SMALL.project(cap.points), cap.pixels, atol=1e-3)
+    np.testing.assert_allclose(SMALL.project_camera_points(cap.points), cap.pixels, atol=1e-3)
 
 
 def test_depth_units_round_the_reported_z_along_the_ray():
@@ -414,7 +414,9 @@ def test_depth_units_round_the_reported_z_along_the_ray():
     cap, truth = cam.render_with_truth([(wall(), wall_pose(1.0, tilt_deg=30.0))], np.eye(4), np.random.default_rng(0))
     z = cap.points[:, 2]
     np.testing.assert_allclose(z / unit, np.round(z / unit), atol=1e-6)
-    np.testing.assert_allclose(SMALL.project(cap.points), cap.pixels, atol=1e-3)  # as the other projection tests
+    np.testing.assert_allclose(
+        SMALL.project_camera_points(cap.points), cap.pixels, atol=1e-3
+    )  # as the other projection tests
     err = z - truth.z_true
     assert np.abs(err).max() <= unit / 2 + 1e-12
     assert np.std(err) == pytest.approx(unit / np.sqrt(12), rel=0.1)

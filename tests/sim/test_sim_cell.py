@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 
 from engine.transforms import T_from_rotvec, inv
-from plugins.camera.depth_projection import PinholeIntrinsics
+from plugins.camera.pinhole import CameraModel
 from plugins.sim.camera import DepthCameraModel, DepthNoiseModel, look_at
 from plugins.sim.cell import CameraMount, PartPlacement, SimCell, TrackerMount
 from plugins.sim.sensor_effects import CameraEffects, PoseOffset, SensorEffects, TrackerEffects
 from plugins.sim.tracker import ViveTrackerModel
 from plugins.util.workpieces import assembled_plate_pose, make_workpiece
 
-INTRINSICS = PinholeIntrinsics(160, 120, 138.6, 138.6, 79.5, 59.5)
+INTRINSICS = CameraModel.pinhole(160, 120, 138.6, 138.6, 79.5, 59.5)
 T_WORLD_BASE = T_from_rotvec([0.0, 0.0, 0.1], [0.2, 0.0, 0.0])
 T_WORLD_TCP = look_at([0.6, 0.2, 0.6], [0.5, 0.0, 0.0])
 T_TCP_CAM = T_from_rotvec([0.0, 0.0, 0.05], [0.03, 0.0, 0.05])

@@ -13,14 +13,14 @@ import pytest
 from simcam_helpers import fit_part_pose, on_surface_distance, surface_scene
 
 from engine.transforms import T_from_rotvec, inv, pose_error
-from plugins.camera.depth_projection import PinholeIntrinsics
+from plugins.camera.pinhole import CameraModel
 from plugins.sim.camera import DepthCameraModel, DepthNoiseModel, look_at
 from plugins.sim.cell import CameraMount, PartPlacement, SimCell
 from plugins.sim.sensor_effects import CameraEffects, PoseOffset, SensorEffects, TrackerEffects
 from plugins.util.workpieces import make_workpiece
 
 MM = 1e-3
-INTRINSICS = PinholeIntrinsics(320, 240, 277.1, 277.1, 159.5, 119.5)
+INTRINSICS = CameraModel.pinhole(320, 240, 277.1, 277.1, 159.5, 119.5)
 T_WORLD_PART = T_from_rotvec([0.0, 0.0, 0.3], [0.55, 0.05, 0.0])
 T_WORLD_TCP = look_at([0.75, 0.25, 0.5], [0.55, 0.05, 0.03])  # the TCP looks at the part
 T_TCP_CAM = T_from_rotvec([0.0, 0.0, 0.05], [0.03, -0.02, 0.05])

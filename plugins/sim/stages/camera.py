@@ -41,7 +41,7 @@ from engine.messages import (
 )
 from engine.stage import ServiceSpec, Stage, StageParams
 from plugins.camera.board_spec import parse_board
-from plugins.camera.depth_projection import PinholeIntrinsics
+from plugins.camera.pinhole import CameraModel
 from plugins.devices.camera_output import thinned
 from plugins.interfaces import CAMERA_OUTPUTS, CAMERA_SERVICES
 from plugins.params import PoseSpec
@@ -198,12 +198,12 @@ class SimCamera(Stage):
         )
 
     @staticmethod
-    def _intrinsics(s: IntrinsicsSpec) -> PinholeIntrinsics:
+    def _intrinsics(s: IntrinsicsSpec) -> CameraModel:
         d = default_intrinsics()
         sx, sy = s.width / d.width, s.height / d.height
         fx = s.fx or d.fx * sx
         fy = s.fy or d.fy * sy
-        return PinholeIntrinsics(
+        return CameraModel.pinhole(
             s.width,
             s.height,
             fx,
@@ -230,7 +230,7 @@ class SimCamera(Stage):
         if p.publish_depth:
             self.ctx.publish("depth", Image(data=cap.depth, encoding="32FC1", frame_id=p.frame_id, stamp_ns=stamp))
             intr = self.intrinsics
-            info = CameraInfo(width=intr.width, height=intr.height, K=intr.K(), frame_id=p.frame_id, stamp_ns=stamp)
+            info = CameraInfo(width=intr.width, height=intr.height, K=intr.K, frame_id=p.frame_id, stamp_ns=stamp)
             self.ctx.publish("camera_info", info)
         if self.imager is not None and p.board is not None:
             gray = self.imager.render(truth.T_cam_parts[p.board.name], self.ctx.rng)
