@@ -374,6 +374,7 @@ class Runner:
         if self.stop_event.is_set():
             return
         # the data is complete everywhere: service-only stages end their streams, consumers drain
+        self._halt_busy_devices()
         for name in self.graph.stages_in(self.process):
             rt = self.runtimes[name]
             if name not in self.driven and not rt.node.cls.inputs:
@@ -439,17 +440,32 @@ class Runner:
     def _halt_devices(self) -> None:
         """Motion stops first: every stage that drives a device halts it before anything else ends."""
         for name, rt in self.runtimes.items():
-            stage = rt.stage
-            if stage is None or type(stage).halt is Stage.halt:
-                continue
-            try:
-                stage.halt()
-            except Exception as exc:  # the others must still be halted
-                log.error("halting %s failed: %s: %s", name, type(exc).__name__, exc)
-                log.debug("halting %s failed", name, exc_info=True)  # (its traceback, with -vv)
-                self.run_event("error", "halt_failed", name, f"{type(exc).__name__}: {exc}")
-            else:
-                self.run_event("warning", "halted", name, f"halted: {self.stop_reason}")
+            self._halt(name, rt, str(self.stop_reason))
+
+    def _halt_busy_devices(self) -> None:
+        """The data is complete, yet a device stage is still serving a request whose caller stopped
+        waiting (a move that timed out, its alarm raised): the device is halted as a stop would halt
+        it, and its handler given ``STOP_GRACE_S`` to return before its streams end."""
+        for name, rt in self.runtimes.items():
+            service = rt.serving
+            halted = service and self._halt(name, rt, f"the run's data ended while it still served {service!r}")
+            if halted and rt.lock.acquire(timeout=STOP_GRACE_S):
+                rt.lock.release()
+
+    def _halt(self, name: str, rt: StageRuntime, reason: str) -> bool:
+        """Halt *rt*'s device if its stage drives one (True), with a ``halted`` or ``halt_failed`` event."""
+        stage = rt.stage
+        if stage is None or type(stage).halt is Stage.halt:
+            return False
+        try:
+            stage.halt()
+        except Exception as exc:  # the others must still be halted
+            log.error("halting %s failed: %s: %s", name, type(exc).__name__, exc)
+            log.debug("halting %s failed", name, exc_info=True)  # (its traceback, with -vv)
+            self.run_event("error", "halt_failed", name, f"{type(exc).__name__}: {exc}")
+        else:
+            self.run_event("warning", "halted", name, f"halted: {reason}")
+        return True
 
     def snapshot(self) -> list[StageStats]:
         """Live per-stage counters (for progress displays)."""

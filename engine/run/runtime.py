@@ -121,6 +121,7 @@ class StageRuntime(StageContext):
         self.host = host
         self.node = node
         self.lock = threading.RLock()  # serialises the stage's handlers
+        self.serving = ""  # the service whose request the stage is handling now ("": none)
         self.inline = node.spec.dispatch == "auto"
         self.stats = StageStats(
             node.name,
@@ -433,6 +434,7 @@ class StageRuntime(StageContext):
         None and the error, which the stage survives (it goes on serving)."""
         with self.lock:
             t0 = time.perf_counter()
+            self.serving = svc
             self._causal.stamp = request.stamp_ns
             try:
                 assert self.stage is not None
@@ -448,6 +450,7 @@ class StageRuntime(StageContext):
                 self.event("error", "service_exception", f"{svc}: {error}", traceback=traceback.format_exc())
                 return None, error
             finally:
+                self.serving = ""
                 self._causal.stamp = 0
                 self.stats.busy_s += time.perf_counter() - t0
                 self.stats.requests_served += 1

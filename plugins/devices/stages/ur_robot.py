@@ -158,7 +158,8 @@ class URRobot(Stage):
         self._publish_state(self.driver.state())
 
     def halt(self) -> None:
-        """The run stops early: decelerate the joints (stopJ) at once, whatever command is running."""
+        """The run stops early, or its data ends while a move is still served (its caller timed out):
+        decelerate the joints (stopJ) at once, whatever command is running."""
         p: URRobotParams = self.params  # type: ignore[assignment]
         if self.driver is not None and p.control:
             self.driver.stop(p.stop_deceleration_rad_s2)

@@ -15,7 +15,8 @@ the controller's motion profile evaluated at its stamp, so a move of ``d`` secon
 ``wall`` clock a late wake-up samples later, at the time it reads). ``state_rate_hz: 0`` publishes
 at set-up and at rest only.
 
-``halt()`` (the run stops early: Ctrl-C, a failed stage) stops the move in progress on its path, as a
+``halt()`` (the run stops early: Ctrl-C, a failed stage; or its data ends while a move is still
+being served, as after a move whose caller timed out) stops the move in progress on its path, as a
 controller's stop does: the controller decelerates at the move's own acceleration and the move ends
 where the robot comes to rest (an ``info`` event ``move_halted`` says which command and where); the
 move's reply, if its caller still waits, is ``ok: false`` with ``error: halted ...``.
@@ -24,6 +25,7 @@ move's reply, if its caller still waits, is ``ok: false`` with ``error: halted .
 from __future__ import annotations
 
 import math
+import threading
 from typing import Any, ClassVar
 
 import numpy as np
@@ -79,6 +81,7 @@ class SimRobot(Stage):
             nominal, clock=self.ctx.clock.now_s, true_robot=self.true_robot, q_initial=q0, payload_kg=p.payload_kg
         )
         self.nominal = nominal
+        self._halt_requested = threading.Event()  # set by halt(): a move being followed ends at rest
         self._publish_state()
 
     # -- services ------------------------------------------------------------------------------
@@ -125,6 +128,7 @@ class SimRobot(Stage):
             return self._refused(cmd, "move_j needs joints or a target pose T")
         if res.accepted and not res.duplicate:
             self._follow(t0_ns, res.duration_s)  # the motion takes (simulated) time
+            res = self.ctl.result(cmd.command_id) or res  # (halted meanwhile: it ends early, at rest)
             self._arrive(res.end_s)
             res = self.ctl.result(cmd.command_id) or res  # (halted meanwhile: it ended early)
         state = self.ctl.state()
@@ -148,6 +152,7 @@ class SimRobot(Stage):
         controller: ctl.SimRobotController | None = getattr(self, "ctl", None)  # None: stopped before setup
         if controller is None or (res := controller.halt()) is None:
             return
+        self._halt_requested.set()
         q_rest = np.degrees(controller.state(res.end_s).q)
         self.ctx.event(
             "info",
@@ -182,8 +187,8 @@ class SimRobot(Stage):
         end_ns = t0_ns + round(duration_s * 1e9)
         k = 1
         while (tick_ns := t0_ns + round(k * 1e9 / rate)) < end_ns:
-            if not self.ctx.sleep(max(0, tick_ns - self.ctx.clock.now_ns()) / 1e9):
-                return  # the run is stopping
+            if not self.ctx.sleep(max(0, tick_ns - self.ctx.clock.now_ns()) / 1e9) or self._halt_requested.is_set():
+                return  # the run is stopping, or the move was halted
             now_ns = self.ctx.clock.now_ns()
             if now_ns >= end_ns:
                 return
