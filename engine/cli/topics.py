@@ -17,6 +17,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from engine.cli.arguments import add_listen_option
 from engine.exit_codes import ExitCode
 
 out = Console(width=None if sys.stdout.isatty() else 160)
@@ -72,13 +73,14 @@ def _print_list(run: Any, as_json: bool) -> int:
 def cmd_play(args: argparse.Namespace) -> int:
     from engine.recipe.endpoint_syntax import PRIVATE
     from engine.recipe.model import ZenohSettings
-    from engine.recording.play import PROCESS, Player, Selection, select
+    from engine.recording.play import PROCESS, Player, Selection, load_recorded_types, select
     from engine.recording.reader import load
     from engine.run.sigint import on_sigint
     from engine.transport.bus import Bus
     from engine.transport.endpoints import private_socket, run_sockets
 
     rec = load(args.file)
+    load_recorded_types(rec)
     msgs = select(rec, Selection(args.topics, args.start, args.end))
     run_id = args.run_id or rec.metadata.get("vgr.run", {}).get("run_id") or Path(args.file).stem
     live = run_sockets(run_id)
@@ -142,12 +144,7 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg
     p.add_argument("--start", type=float, metavar="S", help="from S seconds after the recording's first message")
     p.add_argument("--end", type=float, metavar="S", help="to S seconds after the recording's first message")
     p.add_argument("--run-id", help="run id of the keys played on (default: the recorded run's)")
-    p.add_argument(
-        "--listen",
-        action="append",
-        metavar="ENDPOINT",
-        help="zenoh listen endpoint (default tcp/127.0.0.1:<free port>)",
-    )
+    add_listen_option(p, "private")
     p.add_argument(
         "--wait-subscribers", type=float, default=0.0, metavar="S",
         help="wait up to S seconds for a subscriber on every played topic before the first message (default 0)",

@@ -16,6 +16,9 @@ robot command), and the engine's own records (``/_vgr/*``, service exchanges, de
 A running stage therefore never receives what it plays; a foreign subscriber (a controller, a
 dashboard, ``vgr topics echo``) does. The player answers ``vgr/<run>/_info/play`` like a run's
 process (engine.transport.discovery, ``source: play``), so ``vgr topics`` finds it.
+
+A plugin's message types (a guidance run's ``GuidanceResult``) are known once the plugins of the
+recorded recipe are loaded (:func:`load_recorded_types`), as a replay loads them.
 """
 
 from __future__ import annotations
@@ -37,6 +40,18 @@ PROCESS = "play"
 
 class PlayError(ValueError):
     """The recording cannot be played as asked (no such topic, an empty selection, a bad rate)."""
+
+
+def load_recorded_types(rec: Recording) -> None:
+    """Load the plugins of *rec*'s recorded recipe (the installed ones and its ``plugins:``), so that
+    the message types their stages publish are known to the codec."""
+    from engine.plugin_manager import load_registry
+    from engine.recipe.model import load_recipe
+
+    plugins: list[str] = []
+    if rec.recipe_text:
+        plugins = load_recipe(f"{rec.path}#recipe", rec.overrides, text=rec.recipe_text).recipe.plugins
+    load_registry(plugins)
 
 
 @dataclass(frozen=True)

@@ -151,3 +151,15 @@ def test_any_selection_is_played_within_its_bounds_or_refused(topics, start, end
     assert msgs and all(start is None or m.log_time - t0 >= start * 1e9 - 1 for m in msgs)
     assert all(end is None or m.log_time - t0 <= end * 1e9 + 1 for m in msgs)
     assert topics is None or {m.topic for m in msgs} <= {"/" + t.strip("/") for t in topics}
+
+
+def test_a_guidance_recording_plays_its_plugin_message_types(listener):
+    """A guidance run's GuidanceResult is a plugin's type: play loads the recorded recipe's plugins."""
+    dock = ROOT / "recordings" / "eye_in_hand_dock.mcap"
+    argv = vgr("play", str(dock), "--connect", listener.endpoint, "--wait-subscribers", "20")
+    argv += ["--listen", "tcp/127.0.0.1:0", "--topics", "/guidance/result", "--rate", "1000"]
+    done = subprocess.run(argv, env=env(), capture_output=True, text=True, timeout=90)
+    assert done.returncode == 0, done.stderr
+    run_id = load(dock).metadata["vgr.run"]["run_id"]
+    kinds = [kind for _, key, kind, _ in listener.samples if key == f"vgr/{run_id}/guidance/result"]
+    assert kinds[:1] == [0] and len(kinds) == 2, listener.samples  # the result, then the end of stream
