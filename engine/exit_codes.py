@@ -43,3 +43,11 @@ OUTCOME_EXIT_CODES: dict[str, ExitCode] = {
     "failed": ExitCode.FAILED,
     "interrupted": ExitCode.INTERRUPTED,
 }
+
+
+#: the table in one line, for every verb's ``--help``
+HELP_EPILOG = (
+    "exit codes (the same for every verb): 0 ok; 1 the outcome is no (refused, alarm, failed checks, "
+    "a gap left, replay differs); 2 invalid input or usage; 3 ok that needs a human look; 4 a fault "
+    "(a stage failed, a device or peer lost); 130 interrupted, motion halted first. README: Exit codes."
+)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import re
+import os
 import signal
 import sys
 import threading
@@ -28,9 +28,10 @@ from rich.table import Table
 
 from engine import run_folder
 from engine.cli import recording as cli_recording
+from engine.cli.arguments import ArgumentParser, add_listen_option, split_negative_values
 from engine.errors import RecipeError
-from engine.exit_codes import ExitCode
-from engine.graph import Graph, build_graph
+from engine.exit_codes import HELP_EPILOG, ExitCode
+from engine.graph import Graph, build_graph, missing_input_files
 from engine.plugin_manager import PluginError, Registry, load_registry, plugin_verbs
 from engine.recipe.model import load_recipe
 from engine.recording.reader import RecordingError
@@ -44,10 +45,17 @@ console = Console(stderr=True)
 out = Console(width=None if sys.stdout.isatty() else 160)
 
 
-def _load_graph(args: argparse.Namespace) -> tuple[Graph, Registry]:
+def _load_graph(args: argparse.Namespace, check_inputs: bool = False) -> tuple[Graph, Registry]:
+    """The recipe's graph; with *check_inputs*, RecipeError also when an input file (a template, a
+    calibration file) of a stage of ``args.process`` (None: of any process) does not exist."""
     loaded = load_recipe(args.recipe, args.param or [])
     registry = load_registry(loaded.recipe.plugins)
-    return build_graph(loaded, registry), registry
+    graph = build_graph(loaded, registry)
+    if check_inputs:
+        missing = missing_input_files(graph, None if args.process is None else [args.process])
+        if missing:
+            raise RecipeError(missing)
+    return graph, registry
 
 
 def _stats_table(stats: Sequence[StageStats], title: str) -> Table:
@@ -131,7 +139,7 @@ def run_with_progress(runner: Runner, show: bool) -> RunSummary:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    graph, registry = _load_graph(args)
+    graph, registry = _load_graph(args, check_inputs=True)
     recipe = graph.recipe
     from engine.recipe.model import ProcessSettings
 
@@ -201,6 +209,22 @@ def _summary_dict(s: RunSummary) -> dict[str, Any]:
     }
 
 
+def _print_invalid_json(args: argparse.Namespace, error: str, problems: Sequence[Any]) -> None:
+    """With ``--json`` (a flag, not a file name), the refusal as JSON on stdout: a controller script
+    reads the outcome and every problem from it, as it reads a run's summary."""
+    if getattr(args, "json", None) is not True:
+        return
+    doc = {
+        "verb": args.verb,
+        "ok": False,
+        "outcome": "invalid",
+        "exit_code": int(ExitCode.INVALID),
+        "error": error,
+        "problems": [vars(p) for p in problems],
+    }
+    print(json.dumps(doc))
+
+
 def _security_refused(graph: Graph, certs_dir: str | None) -> bool:
     """Print what keeps the recipe's ``security:`` block from working (engine.transport.session_config);
     True when there is anything."""
@@ -214,9 +238,19 @@ def _security_refused(graph: Graph, certs_dir: str | None) -> bool:
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
-    graph, _ = _load_graph(args)
+    graph, _ = _load_graph(args, check_inputs=True)
     if _security_refused(graph, args.certs):
         return ExitCode.INVALID
+    if args.json:
+        doc = {
+            "verb": "validate",
+            "ok": True,
+            "outcome": "ok",
+            "exit_code": int(ExitCode.OK),
+            "recipe": graph.recipe.name,
+        }
+        print(json.dumps({**doc, "stages": len(graph.nodes), "processes": graph.processes()}))
+        return ExitCode.OK
     out.print(
         f"[green]ok[/]: {graph.loaded.file}: recipe {graph.recipe.name!r}, {len(graph.nodes)} stages, "
         f"{len(graph.edges)} data edges, {len(graph.service_edges)} service edges, "
@@ -339,7 +373,7 @@ def _add_recipe_args(p: argparse.ArgumentParser) -> None:
 
 def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
     """The parser; *verb* (the one being run) has its module imported and its full options."""
-    parser = argparse.ArgumentParser(prog="vgr", description="3D-vision-guided robot correction")
+    parser = ArgumentParser(prog="vgr", description="3D-vision-guided robot correction")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv for debug)")
     sub = parser.add_subparsers(dest="verb", required=True)
 
@@ -347,9 +381,7 @@ def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
     _add_recipe_args(p)
     p.add_argument("--process", default="main", help="which of the recipe's processes to run here (default main)")
     p.add_argument("--run-id", help="run id shared by all processes of the run (default: recipe run_id or name)")
-    p.add_argument(
-        "--listen", action="append", metavar="ENDPOINT", help="zenoh listen endpoint, e.g. tcp/127.0.0.1:7447"
-    )
+    add_listen_option(p, "the recipe's, else none for a single-process run, private sockets between processes")
     p.add_argument("--connect", action="append", metavar="ENDPOINT", help="zenoh endpoint to connect to")
     p.add_argument("--certs", metavar="DIR", help="certificate folder of the recipe's security: block (overrides it)")
     p.add_argument("--ready-timeout", type=float, default=15.0, help="seconds to wait for the other processes")
@@ -361,6 +393,8 @@ def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
     p = sub.add_parser("validate", help="check a recipe (types, wiring, parameters, cycles) without running it")
     _add_recipe_args(p)
     p.add_argument("--certs", metavar="DIR", help="certificate folder of the recipe's security: block (overrides it)")
+    p.add_argument("--process", help="check the input files of this process's stages only (default: every process's)")
+    p.add_argument("--json", action="store_true", help="print the outcome as JSON")
     p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("graph", help="print a recipe's DAG (Mermaid or Graphviz dot)")
@@ -387,36 +421,34 @@ def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
     for name, (_, text) in modules.items():
         if name not in sub.choices:  # a placeholder: listed in --help, its module loads when it runs
             sub.add_parser(name, help=text, add_help=False)
+    _tell_exit_codes([parser, *sub.choices.values()])
     return parser
+
+
+def _tell_exit_codes(parsers: Iterable[argparse.ArgumentParser]) -> None:
+    """Every verb's ``--help`` ends with the exit-code table (engine.exit_codes), its sub-verbs' too."""
+    for p in parsers:
+        if p.epilog is None or "exit codes" not in p.epilog:
+            p.epilog = HELP_EPILOG if p.epilog is None else f"{p.epilog}\n\n{HELP_EPILOG}"
+        for action in p._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                _tell_exit_codes(action.choices.values())
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """The ``vgr`` command; *argv* None means this process is the command's own (sys.argv)."""
     try:
         return _main(list(sys.argv[1:] if argv is None else argv), own_process=argv is None)
+    except BrokenPipeError:  # `vgr graph ... | head`: the reader closed the pipe; no traceback
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # (Python's exit flush would fail)
+        return ExitCode.NOT_OK
     except KeyboardInterrupt:  # before the run started (imports, parsing): nothing to stop yet
         console.print("[yellow]interrupted (Ctrl-C) before the run started[/]")
         return ExitCode.INTERRUPTED
 
 
-# a value such as -470,-80,0 or -0.5 or -1e-3 (argparse takes "-470,..." for an option otherwise)
-_NEGATIVE_VALUE = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(,\s*-?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)*$")
-
-
-def join_negative_values(argv: Sequence[str]) -> list[str]:
-    """``--pose -470,-80,0`` -> ``--pose=-470,-80,0``: a long option followed by a negative number or
-    list of numbers takes it as its value, as a user writing it means."""
-    out: list[str] = []
-    for a in argv:
-        if out and _NEGATIVE_VALUE.match(a) and out[-1].startswith("--") and "=" not in out[-1]:
-            out[-1] = f"{out[-1]}={a}"
-        else:
-            out.append(a)
-    return out
-
-
 def _main(argv: list[str], own_process: bool = False) -> int:
-    argv = join_negative_values(argv)
+    argv = split_negative_values(argv)
     verb = next((a for a in argv if not a.startswith("-")), None)
     try:
         parser = build_parser(verb)
@@ -436,6 +468,7 @@ def _main(argv: list[str], own_process: bool = False) -> int:
         console.print(f"[red]invalid recipe[/] ({len(exc.problems)} problem{'s' * (len(exc.problems) > 1)}):")
         for p in exc.problems:
             console.print(f"  {p}", markup=False, highlight=False, soft_wrap=True)
+        _print_invalid_json(args, str(exc), exc.problems)
         return ExitCode.INVALID
     except (
         PluginError,
@@ -448,6 +481,7 @@ def _main(argv: list[str], own_process: bool = False) -> int:
         ReplayError,
     ) as exc:
         console.print(f"[red]error[/]: {escape(str(exc))}", highlight=False, soft_wrap=True)
+        _print_invalid_json(args, str(exc), [])
         return ExitCode.INVALID
     except KeyboardInterrupt:
         console.print("[yellow]interrupted (Ctrl-C)[/]")

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from engine.cli.arguments import ArgumentParser
 from engine.exit_codes import ExitCode
 from engine.files import replace_text
 from engine.messages import JointState, PoseStamped, TrackerPose
@@ -470,7 +471,7 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m plugins.calibration.cli KIND DATA ...`` (the same as ``vgr calibrate``)."""
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="vgr calibrate",
         description="Every calibration of vgr from a plain file or a vgr recording.",
         epilog=EPILOG,

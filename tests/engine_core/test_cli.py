@@ -82,32 +82,45 @@ def test_every_lazily_loaded_verb_is_defined_by_its_module(capsys):
         assert f"vgr {verb}" in capsys.readouterr().out
 
 
-@given(st.lists(st.floats(-1e6, 1e6, allow_nan=False), min_size=1, max_size=6))
-def test_a_long_option_takes_a_negative_number_list_as_its_value(values):
-    from engine.cli.main import join_negative_values
+@given(st.lists(st.floats(-1e6, 1e6, allow_nan=False), min_size=1, max_size=6), st.booleans())
+def test_a_long_option_takes_a_negative_number_list_as_its_value(values, with_equals):
+    from engine.cli.arguments import split_negative_values
+    from engine.cli.main import build_parser
 
     text = ",".join(repr(v) if v < 0 else repr(-v - 1.0) for v in values)  # starts with "-"
-    assert join_negative_values(["teach", "install", "r.yaml", "--pose", text]) == [
-        "teach",
-        "install",
-        "r.yaml",
-        f"--pose={text}",
-    ]
+    argv = ["teach", "install", "r.yaml", *([f"--pose={text}"] if with_equals else ["--pose", text])]
+    assert build_parser("teach").parse_args(split_negative_values(argv)).pose == text
+
+
+@pytest.mark.parametrize("tool", [["--tool-mm", "-30", "20", "120"], ["--tool-mm=-30", "20", "120"]])
+@pytest.mark.parametrize("noise", [["--noise-mm", "-1e-3"], ["--noise-mm=-1e-3"]])
+def test_several_value_options_take_leading_negative_numbers_with_or_without_equals(tool, noise):
+    from engine.cli.arguments import split_negative_values
+    from engine.cli.main import build_parser
+
+    parser = build_parser("calibrate")
+    args = parser.parse_args(
+        split_negative_values(["calibrate", "kinematics", "c.csv", "--model", "ur5e", *tool, *noise])
+    )
+    assert (args.tool_mm, args.noise_mm) == ([-30.0, 20.0, 120.0], -1e-3)
+    prior = [a.replace("tool", "tcp-prior") for a in tool]
+    args = parser.parse_args(split_negative_values(["calibrate", "vive-desk", "desk.json", *prior]))
+    assert args.tcp_prior_mm == [-30.0, 20.0, 120.0]
 
 
 @pytest.mark.parametrize(
     "argv",
     [
-        ["run", "r.yaml", "--no-progress", "-p", "a.b=-1"],  # not after a long option
+        ["run", "r.yaml", "--no-progress", "-p", "a.b=-1"],  # not a long option's value
         ["run", "r.yaml", "--json", "--run-id", "x"],  # not a number
-        ["teach", "install", "r.yaml", "--pose=-1,2,3,0,0,0"],  # already joined
-        ["run", "r.yaml", "-p", "-1"],  # a short option is left to argparse
+        ["run", "r.yaml", "--run-id=-x"],  # not a number
+        ["run", "r.yaml", "-p", "-1"],  # a short option's value is argparse's to take
     ],
 )
 def test_other_arguments_are_left_as_they_are(argv):
-    from engine.cli.main import join_negative_values
+    from engine.cli.arguments import split_negative_values
 
-    assert join_negative_values(argv) == argv
+    assert split_negative_values(argv) == argv
 
 
 def _verbs() -> list[str]:
@@ -164,3 +177,27 @@ def test_a_plugin_adds_a_verb_through_the_hook_and_may_not_take_an_engine_verb(m
     plugin.verbs = [CliVerb("replay", "mine", "hello_verb")]
     assert main(["replay", "x.mcap"]) == 2
     assert "verb 'replay' is provided twice" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv", [["run", "--help"], ["replay", "--help"], ["validate", "--help"], ["play", "--help"]])
+def test_every_verb_help_ends_with_the_exit_code_table(argv, capsys):
+    from engine.cli.main import main
+
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "exit codes (the same for every verb): 0 ok; 1" in text and "130 interrupted" in text
+
+
+def test_a_closed_stdout_ends_quietly():
+    """`vgr graph ... | head`: the reader is gone before vgr writes (here `true`, which reads nothing)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    cmd = f"set -o pipefail; {sys.executable} -m engine.cli.main graph recipes/eye_in_hand_dock.yaml | true"
+    done = subprocess.run(["bash", "-c", cmd], cwd=root, capture_output=True, text=True, timeout=120)
+    assert "Traceback" not in done.stderr and "BrokenPipeError" not in done.stderr, done.stderr
+    assert done.returncode == 1  # the output could not be written: not ok, quietly
