@@ -29,7 +29,7 @@ from engine.messages import Message
 from engine.plugin_manager import Registry
 from engine.recipe.model import LoadedRecipe, StageSpec, pydantic_problems
 from engine.recipe.unit_checks import implausible_lengths
-from engine.stage import Stage, StageParams
+from engine.stage import INPUT_FILE_MARK, Stage, StageParams, resolve_input
 
 TRUTH_PREFIX = "truth/"  # ports carrying simulation ground truth
 TRUTH_SERVICE = "truth"  # services whose name starts with this give ground truth
@@ -207,6 +207,25 @@ def build_graph(loaded: LoadedRecipe, registry: Registry) -> Graph:
     if problems:
         raise RecipeError(problems)
     return Graph(loaded, nodes, edges, service_edges, order)
+
+
+def missing_input_files(graph: Graph, processes: Iterable[str] | None = None) -> list[Problem]:
+    """A problem for each :func:`engine.stage.input_file` parameter of the stages of *processes*
+    (None: every process) that names no existing file or folder."""
+    path = graph.loaded.path
+    recipe_dir = path.resolve().parent if path is not None and path.is_file() else None
+    hosted = set(graph.processes() if processes is None else processes)
+    problems = []
+    for name, node in graph.nodes.items():
+        if node.spec.process not in hosted:
+            continue
+        for key, info in type(node.params).model_fields.items():
+            value = getattr(node.params, key)
+            marked = isinstance(info.json_schema_extra, dict) and info.json_schema_extra.get(INPUT_FILE_MARK)
+            if marked and value and not (file := resolve_input(value, recipe_dir)).exists():
+                where = ("stages", name, "params", key)
+                problems.append(graph.loaded.problem(where, f"{key} {str(value)!r}: no such file or folder ({file})"))
+    return problems
 
 
 def _stage_nodes(

@@ -28,7 +28,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Literal, get_args, get_origin
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, Field
+from pydantic_core import PydanticUndefined
 
 from engine import run_folder
 from engine.messages import Message
@@ -52,6 +53,22 @@ class StageParams(BaseModel):
     """Base of every stage's parameter model: unknown keys are rejected, values validated."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, arbitrary_types_allowed=True)
+
+
+INPUT_FILE_MARK = "vgr_input_file"
+
+
+def input_file(default: Any = PydanticUndefined, *, description: str) -> Any:
+    """A parameter naming a file or folder the stage reads (relative: to the recipe's folder, see
+    :func:`resolve_input`). ``vgr validate`` and ``vgr run`` refuse a recipe whose input file does not
+    exist before anything starts (engine.graph.missing_input_files)."""
+    return Field(default, description=description, json_schema_extra={INPUT_FILE_MARK: True})
+
+
+def resolve_input(value: str | Path, recipe_dir: Path | None) -> Path:
+    """An input file's path: *value* as given when absolute or without a recipe folder, else inside it."""
+    path = Path(value).expanduser()
+    return path if path.is_absolute() or recipe_dir is None else recipe_dir / path
 
 
 @dataclass(frozen=True)
@@ -111,6 +128,10 @@ class StageContext:
         self.rng = stage_rng(seed, name)
         self.clock, self.log, self.recipe_dir = clock, log, recipe_dir
         self._output_dirs: dict[str, Path | None] = {}
+
+    def input_path(self, value: str | Path) -> Path:
+        """The file or folder an :func:`input_file` parameter names (relative: to the recipe's folder)."""
+        return resolve_input(value, self.recipe_dir)
 
     def files_in_run(self, details: dict[str, Any]) -> dict[str, Any]:
         """*details* of an event with its ``files`` named relative to the run folder when inside it."""

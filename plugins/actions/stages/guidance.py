@@ -19,14 +19,13 @@ repeated trigger never moves twice (the robot answers ``duplicate`` and guidance
 from __future__ import annotations
 
 import json
-from pathlib import Path
 from typing import ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
 
 from engine.messages import PointCloud, Request, RobotReply
-from engine.stage import ServiceError, ServiceSpec, Stage, StageParams
+from engine.stage import ServiceError, ServiceSpec, Stage, StageParams, input_file
 from engine.transforms import as_transform
 from plugins.actions import guidance_math as gm
 from plugins.actions import robot_moves
@@ -65,7 +64,7 @@ class Guidance(Stage):
     class Params(StageParams):
         mode: Literal["eye_in_hand", "eye_to_hand"] = "eye_in_hand"
         hand_eye: PoseSpec | None = Field(None, description="T_tcp_cam (eye in hand) or T_base_cam (eye to hand)")
-        hand_eye_file: str | None = Field(None, description="calibration result JSON (vgr calibrate ... --json)")
+        hand_eye_file: str | None = input_file(None, description="calibration result JSON (vgr calibrate ... --json)")
         photo_pose: PoseSpec | None = Field(None, description="T_base_tcp to start from; None: where the robot is")
         translation_tol_mm: float = Field(0.1, gt=0.0)
         rotation_tol_deg: float = Field(0.01, gt=0.0)
@@ -86,9 +85,7 @@ class Guidance(Stage):
     def _hand_eye(self, p: Guidance.Params) -> np.ndarray:
         want = "T_tcp_cam" if p.mode == "eye_in_hand" else "T_base_cam"
         if p.hand_eye_file:
-            path = Path(p.hand_eye_file)
-            if not path.is_absolute() and self.ctx.recipe_dir is not None:
-                path = self.ctx.recipe_dir / path
+            path = self.ctx.input_path(p.hand_eye_file)
             doc = json.loads(path.read_text())
             if doc.get("verdict") not in ("ok", "warning"):
                 raise ValueError(f"{path}: calibration verdict {doc.get('verdict')!r} may not drive a robot")
@@ -197,7 +194,7 @@ class Guidance(Stage):
                     "not_converged",
                     "not_converged",
                     f"not converged after {p.max_iterations} moves: residual {t * 1e3:.3f} mm / "
-                    f"{np.degrees(r):.4f} deg (check the hand-eye calibration)",
+                    f"{np.degrees(r):.4f} deg ({gm.not_converged_hint(result.residual_mm, result.residual_deg, p)})",
                 )
             if p.mode == "eye_in_hand":
                 T_next = T_cur @ gm.delta_eye_in_hand(T_match, self.X)

@@ -9,13 +9,10 @@ malformed file fails the stage at set-up, before any data flows.
 from __future__ import annotations
 
 import json
-from pathlib import Path
 from typing import ClassVar
 
-from pydantic import Field
-
 from engine.messages import CalibrationResultMsg
-from engine.stage import Stage, StageParams
+from engine.stage import Stage, StageParams, input_file
 from plugins.calibration.result import CalibrationResult
 from plugins.calibration.stages.base import result_message
 
@@ -28,11 +25,11 @@ class CalibrationFile(Stage):
     outputs: ClassVar = {"calibration": CalibrationResultMsg}
 
     class Params(StageParams):
-        path: str = Field(description="result.json of a calibration")
+        path: str = input_file(description="result.json of a calibration (relative: to the recipe file)")
 
     def setup(self) -> None:
         p: CalibrationFile.Params = self.params  # type: ignore[assignment]
-        path = Path(p.path)
+        path = self.ctx.input_path(p.path)
         try:
             self.result = CalibrationResult.from_dict(json.loads(path.read_text()))
         except (OSError, ValueError, KeyError) as exc:

@@ -34,7 +34,7 @@ import numpy as np
 from pydantic import Field
 
 from engine.messages import PointCloud, PoseStamped
-from engine.stage import Stage, StageParams
+from engine.stage import Stage, StageParams, input_file
 from engine.transforms import inv
 from plugins.params import PoseSpec
 from plugins.registration import FineParams, GlobalParams, prepare_cloud, register_fine, register_global
@@ -51,7 +51,7 @@ class TargetPose(Stage):
 
     class Params(StageParams):
         model: str | None = Field("feature_part", description="simulated-cell workpiece name")
-        mesh_path: str | None = Field(None, description="or a mesh file (metres, part frame)")
+        mesh_path: str | None = input_file(None, description="or a mesh file (metres, part frame)")
         model_points: int = Field(100_000, ge=1000, le=5_000_000)
         visible_min_normal_z: float | None = Field(-0.3, ge=-1.0, le=1.0, description="None: whole surface")
         setup: Literal["eye_in_hand", "eye_to_hand"] = "eye_in_hand"
@@ -78,7 +78,7 @@ class TargetPose(Stage):
     def _model_surface(self, p: TargetPose.Params) -> tuple[np.ndarray, np.ndarray]:
         rng = np.random.default_rng([self.ctx.seed & 0xFFFFFFFF, 7])
         if p.mesh_path:
-            mesh = read_mesh(p.mesh_path)
+            mesh = read_mesh(self.ctx.input_path(p.mesh_path))
             return sample_surface(mesh.vertices, mesh.triangles, p.model_points, rng)
         if p.model:
             # a demo part by name (the parts the simulated cell shows)

@@ -16,6 +16,7 @@ from typing import Any
 from pydantic import Field
 
 from engine.messages import PointCloud
+from engine.stage import input_file
 from plugins.devices.camera_output import DepthCameraAdapter, DepthCameraParams, publish_capture, publish_mount
 from plugins.devices.frame_files import FrameFileError, list_frame_files, load_frame
 
@@ -23,7 +24,7 @@ from plugins.devices.frame_files import FrameFileError, list_frame_files, load_f
 class FileCameraParams(DepthCameraParams):
     """Parameters of ``file_camera``."""
 
-    folder: str = Field(description="folder holding the frame files (.ply, .pcd, .npz)")
+    folder: str = input_file(description="folder holding the frame files (.ply, .pcd, .npz); relative: to the recipe")
     pattern: str = Field("*", description="glob of the files to play inside the folder, e.g. 'scan_*.pcd'")
     loop: bool = Field(False, description="start over after the last file (else capture fails)")
     unit_scale_m: float = Field(1.0, gt=0.0, description="metres per file unit (0.001 for files in mm)")
@@ -37,7 +38,7 @@ class FileCamera(DepthCameraAdapter):
 
     def setup(self) -> None:
         p: FileCameraParams = self.params  # type: ignore[assignment]
-        self.files = list_frame_files(p.folder, p.pattern)
+        self.files = list_frame_files(self.ctx.input_path(p.folder), p.pattern)
         self.next_index = 0
         self.ctx.event("info", "frames_found", f"{len(self.files)} frame files in {p.folder}", count=len(self.files))
         publish_mount(self.ctx, p)

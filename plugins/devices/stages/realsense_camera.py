@@ -19,6 +19,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from engine.messages import PointCloud
+from engine.stage import input_file
 from plugins.camera.depth_projection import deproject_depth, normalized_rays
 from plugins.devices.camera_output import (
     CameraFrame,
@@ -35,7 +36,7 @@ class RealSenseCameraParams(DepthCameraParams):
     """Parameters of ``realsense_camera`` (units in names: m, s, Hz)."""
 
     serial: str | None = Field(None, description="camera serial number; None = the first camera found")
-    recording: str | None = Field(
+    recording: str | None = input_file(
         None, description="play this .db3 (or ROS1 .bag: untested with the real SDK) recording instead of a live camera"
     )
     loop: bool = Field(False, description="recording: start over after the last frame (else capture fails)")
@@ -69,7 +70,7 @@ class RealSenseCamera(DepthCameraAdapter):
         rs = import_sdk("pyrealsense2", stage_type=self.type_name, extra="realsense", package="pyrealsense2")
         cfg = RealSenseConfig(
             serial=p.serial,
-            recording=p.recording,
+            recording=None if p.recording is None else str(self.ctx.input_path(p.recording)),
             width=p.width,
             height=p.height,
             fps=p.fps,

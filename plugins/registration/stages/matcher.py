@@ -19,14 +19,13 @@ test_registration_stage.py). ``coarse_backend`` refines the global hypotheses; `
 from __future__ import annotations
 
 from dataclasses import replace
-from pathlib import Path
 from typing import Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
 
 from engine.messages import PointCloud
-from engine.stage import ServiceSpec, Stage, StageParams
+from engine.stage import ServiceSpec, Stage, StageParams, input_file
 from plugins.registration.edges import EdgeParams
 from plugins.registration.feature_frame import FeatureFrameParams, register_feature_frame
 from plugins.registration.fine import FineParams, register_fine
@@ -50,7 +49,7 @@ class Matcher(Stage):
     services: ClassVar = {"match": MATCH_SERVICE, "match_first": MATCH_FIRST_SERVICE}
 
     class Params(StageParams):
-        template: str = Field(description="template directory (.vgrtpl); relative paths: to the recipe file")
+        template: str = input_file(description="template directory (.vgrtpl); relative paths: to the recipe file")
         method: Method = Field("fine", description="matcher for later looks (after a correction)")
         first_method: Method = Field("global", description="matcher for the first look at a part")
         backend: Backend = Field("small_gicp_gicp", description="fine backend (see docs/registration.md)")
@@ -88,9 +87,7 @@ class Matcher(Stage):
 
     def setup(self) -> None:
         p: Matcher.Params = self.params  # type: ignore[assignment]
-        path = Path(p.template)
-        if not path.is_absolute() and self.ctx.recipe_dir is not None:
-            path = self.ctx.recipe_dir / path
+        path = self.ctx.input_path(p.template)
         self.template: Template = load_template(path)
         if self.template.points is not None:
             self.template.prepared()  # built once here, reused (with its caches) by every match
