@@ -223,6 +223,18 @@ class BusError(RuntimeError):
     """The zenoh session could not be opened or used."""
 
 
+def _open_error(settings: ZenohSettings, exc: Exception) -> str:
+    """What a failed ``zenoh.open`` means: a unix socket another process holds (zenoh locks
+    ``<socket>.lock``: "Unable to acquire lock") is a run of the same id on this host."""
+    held = [e for e in settings.listen if e.startswith("unixsock-stream/")]
+    if held and "acquire lock" in str(exc):
+        return (
+            f"another process of this user listens on {held[0].split('/', 1)[1]}: a run with the same run id "
+            "and process is running on this host; give this one another --run-id (or stop the other)"
+        )
+    return f"cannot open zenoh session ({settings.mode}, listen={settings.listen}, connect={settings.connect}): {exc}"
+
+
 class RequestCancelled(Exception):  # noqa: N818 - a cancellation, not a program error
     """The request's cancellation token was cancelled: no reply is awaited (none was sent when the token
     was cancelled before the request)."""
@@ -252,10 +264,7 @@ class Bus:
         try:
             self.session = zenoh.open(zenoh_config(self.settings, extra))
         except Exception as exc:
-            raise BusError(
-                f"cannot open zenoh session ({self.settings.mode}, listen={self.settings.listen}, "
-                f"connect={self.settings.connect}): {exc}"
-            ) from exc
+            raise BusError(_open_error(self.settings, exc)) from exc
         # this session's ZenohId, as zenoh names it in replies and source infos (it never changes)
         self.zid = str(self.session.zid())
         self._decls: list[Any] = []

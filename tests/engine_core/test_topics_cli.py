@@ -150,3 +150,18 @@ def test_garbage_samples_raise_codec_errors_only(att, payload, valid_envelope):
     except codec.CodecError:  # a ValueError: protobuf's DecodeError (not one) must not escape
         return
     assert doc["topic"] == "/a/b"
+
+
+def test_a_second_session_on_a_held_private_socket_is_told_to_take_another_run_id(tmp_path, monkeypatch):
+    from engine.recipe.model import ZenohSettings
+    from engine.transport.bus import Bus, BusError
+    from engine.transport.endpoints import private_socket
+
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))
+    tmp_path.chmod(0o700)
+    endpoint = private_socket("same-id", "main")
+    with Bus(ZenohSettings(listen=[endpoint])), pytest.raises(BusError) as err:
+        Bus(ZenohSettings(listen=[endpoint]))
+    message = str(err.value)
+    assert "another --run-id" in message and endpoint.split("/", 1)[1] in message
+    assert "unicast.rs" not in message and "EAGAIN" not in message
