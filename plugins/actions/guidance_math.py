@@ -31,6 +31,8 @@ iterating). Tests in tests/guidance check every formula against a simulated cell
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -99,3 +101,20 @@ def over_limit(T_from: F64, T_to: F64, max_mm: float, max_deg: float, what: str)
     if t * 1e3 > max_mm or np.degrees(r) > max_deg:
         return f"{what} {t * 1e3:.2f} mm / {np.degrees(r):.2f} deg exceeds the limit {max_mm} mm / {max_deg} deg"
     return None
+
+
+def not_converged_hint(residual_mm: list[float], residual_deg: list[float], tol: Any) -> str:
+    """Why the loop did not converge, from its residuals per look and *tol* (``translation_tol_mm``,
+    ``rotation_tol_deg``): residuals that stopped shrinking within 3x the tolerance mean the
+    tolerance is below what one look resolves (the matcher's noise); anything else, that each move
+    does not take the part where the view says, as a wrong hand-eye transform does."""
+    last_mm, last_deg = residual_mm[-1], residual_deg[-1]
+    near = last_mm < 3 * tol.translation_tol_mm and last_deg < 3 * tol.rotation_tol_deg
+    stalled = len(residual_mm) >= 3 and last_mm > 0.5 * residual_mm[-3] and last_deg > 0.5 * residual_deg[-3]
+    if near and stalled:
+        return (
+            f"the residuals stopped shrinking near the tolerance {tol.translation_tol_mm:g} mm / "
+            f"{tol.rotation_tol_deg:g} deg: it is below what one look resolves; raise translation_tol_mm / "
+            "rotation_tol_deg"
+        )
+    return "each move missed where the view said: check the hand-eye calibration"

@@ -116,6 +116,16 @@ class _EdgeTerm(NamedTuple):
     refutes: bool = False
 
 
+def percents(have: float, need: float) -> tuple[str, str]:
+    """*have* and *need* as percentages with as few decimals as tell them apart (at most 4): not
+    "only 100 % ... (need 100 %)" for 99.996 % against 99.999 %."""
+    for decimals in range(5):
+        shown = f"{have:.{decimals}%}", f"{need:.{decimals}%}"
+        if shown[0] != shown[1]:
+            break
+    return shown
+
+
 def _overlap_reasons(sc: AlignmentScore, inlier_d: float, params: FineParams) -> list[str]:
     """Why the overlap is too small for a match (too few inliers, or too low a fitness); [] if enough."""
     if sc.n_inliers < max(params.min_inliers, 7):
@@ -124,9 +134,10 @@ def _overlap_reasons(sc: AlignmentScore, inlier_d: float, params: FineParams) ->
             f"(need {params.min_inliers}): wrong part, part missing or initial guess too far"
         ]
     if sc.fitness < params.min_fitness:
+        have, need = percents(sc.fitness, params.min_fitness)
         return [
-            f"only {sc.fitness:.0%} of the current points lie within {inlier_d * 1e3:.3g} mm of the "
-            f"template (need {params.min_fitness:.0%}): wrong part, part missing or initial guess too far"
+            f"only {have} of the current points lie within {inlier_d * 1e3:.3g} mm of the "
+            f"template (need {need}): wrong part, part missing or initial guess too far"
         ]
     return []
 
@@ -151,9 +162,10 @@ def _contour_check(
     res.details["edge_points"] = len(edges[0])
     contour_refutes = bool(pairs.fitness < ep.min_fitness)
     if contour_refutes:
+        have, need = percents(pairs.fitness, ep.min_fitness)
         reasons.append(
-            f"only {pairs.fitness:.0%} of the current contour ({len(edges[0])} edge points) lies within "
-            f"{ep.inlier_factor * spacing * 1e3:.2g} mm of the template's (need {ep.min_fitness:.0%}): "
+            f"only {have} of the current contour ({len(edges[0])} edge points) lies within "
+            f"{ep.inlier_factor * spacing * 1e3:.2g} mm of the template's (need {need}): "
             "wrong pose (e.g. turned in the plane) or wrong part"
         )
     edge_floor = spacing**2 / 6.0  # each capture's contour is sampled to +-spacing / 2

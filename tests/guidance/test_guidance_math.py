@@ -98,3 +98,15 @@ def test_sizes_and_thresholds():
     assert not gm.converged(T, 1e-5, np.radians(0.01))
     t, r = gm.correction_between(np.eye(4), T)
     assert abs(t - 5e-5) < 1e-12 and abs(r - np.radians(0.005)) < 1e-12
+
+
+def test_a_loop_stalled_at_its_tolerance_is_told_to_raise_it_not_to_recalibrate():
+    from types import SimpleNamespace
+
+    from plugins.actions.guidance_math import not_converged_hint
+
+    tol = SimpleNamespace(translation_tol_mm=0.001, rotation_tol_deg=0.001)
+    stalled = not_converged_hint([3.0, 0.002, 0.0021, 0.0019], [1.0, 0.002, 0.0018, 0.0022], tol)
+    assert "below what one look resolves" in stalled and "hand-eye" not in stalled
+    slow = not_converged_hint([3.0, 1.5, 0.8, 0.4], [1.0, 0.5, 0.25, 0.12], tol)  # shrinking, far off
+    assert "hand-eye" in slow

@@ -108,3 +108,25 @@ def test_the_effect_plot_draws_what_the_calibrated_residuals_show(effects, name,
         assert slope(es.y_full) < 0.75  # the full effect would overshoot the residuals
     else:
         assert es.identifiable_share > 0.95
+
+
+def test_the_recipe_states_effects_in_the_units_the_cli_table_uses():
+    from plugins.model_gap.stages.model_gap import gap_text
+
+    rep = {
+        "verdict": "explained",
+        "effects_added": [
+            {
+                "name": "joint_compliance",
+                "where": "joint2",
+                "params": {"k": 6.016e-06},
+                "param_std": {"k": 1.2e-07},
+                "units": {"k": "rad/(N m)"},
+            }
+        ],
+        "rms_before_mm": 0.5,
+        "rms_after_mm": 0.05,
+        "noise_floor_mm": 0.05,
+    }
+    text = gap_text(rep)
+    assert "k = 6.016 ± 0.12 urad/(N m)" in text and "e-06" not in text

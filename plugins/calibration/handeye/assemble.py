@@ -302,13 +302,20 @@ def _judge(
         reasons.append(f"residuals are {np.sqrt(vf):.1f}x the declared noise: the model does not fit the data")
     if noise_estimated:
         verdict = _check_noise_limits(fit, accuracy, verdict, reasons, advice)
-    if metrics["std_x_trans_m"] > accuracy.max_std_trans_m or metrics["std_x_rot_rad"] > accuracy.max_std_rot_rad:
-        verdict = "warning" if verdict == "ok" else verdict
-        reasons.append(
-            f"{x_name} uncertainty {metrics['std_x_trans_m'] * 1e3:.3f} mm / "
-            f"{np.rad2deg(metrics['std_x_rot_rad']):.4f} deg (1 sigma) exceeds the target "
-            f"{accuracy.max_std_trans_m * 1e3:.2f} mm / {np.rad2deg(accuracy.max_std_rot_rad):.3f} deg"
+    over = []
+    if metrics["std_x_trans_m"] > accuracy.max_std_trans_m:
+        over.append(
+            f"translation {metrics['std_x_trans_m'] * 1e3:.3f} mm (1 sigma) exceeds the target "
+            f"{accuracy.max_std_trans_m * 1e3:.2f} mm"
         )
+    if metrics["std_x_rot_rad"] > accuracy.max_std_rot_rad:
+        over.append(
+            f"rotation {np.rad2deg(metrics['std_x_rot_rad']):.4f} deg (1 sigma) exceeds the target "
+            f"{np.rad2deg(accuracy.max_std_rot_rad):.3f} deg"
+        )
+    if over:
+        verdict = "warning" if verdict == "ok" else verdict
+        reasons.append(f"{x_name} uncertainty: {' and '.join(over)}")
         advice.append("add poses with larger rotations about different axes, or reduce the measurement noise")
     if not (np.all(np.isfinite(fit.X)) and np.all(np.isfinite(fit.Y)) and np.all(np.isfinite(cov.matrix))):
         verdict = "failed"

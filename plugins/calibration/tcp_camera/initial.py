@@ -91,7 +91,9 @@ def seed002_closed_form(data: TcpCameraData, groups: list[NDArray[np.int_]]) -> 
     """Seed 002's method (module docstring); *groups* from :func:`translation_groups`."""
     R_cb = _rotation_from_translations(data, groups)
     p, t_cb = _tcp_given_rotation(data, R_cb)
-    return ClosedForm(T_from_Rt(R_cb, t_cb), p, "seed 002 closed form (pure translations + linear LS)", groups)
+    return ClosedForm(
+        T_from_Rt(R_cb, t_cb), p, "closed form: pure translations + linear LS (docs/vive_and_tcp.md)", groups
+    )
 
 
 def general_linear(data: TcpCameraData) -> ClosedForm:

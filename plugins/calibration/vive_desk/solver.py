@@ -395,12 +395,17 @@ def _check_seed_acceptance(
         metrics["mean_position_error_mm"] < th.accept_mean_position_m * 1e3 and mean_rot < th.accept_mean_rotation_deg
     )
     if seed_ok:
-        issues.append(Issue("info", "seed 001 acceptance passed (mean position < 1 mm, mean rotation < 0.5 deg)"))
+        issues.append(
+            Issue(
+                "info",
+                "Vive desk acceptance passed (mean position < 1 mm, mean rotation < 0.5 deg; docs/vive_and_tcp.md)",
+            )
+        )
     else:
         issues.append(
             Issue(
                 "failed",
-                "seed 001 acceptance not met: mean position error "
+                "Vive desk acceptance (docs/vive_and_tcp.md) not met: mean position error "
                 f"{metrics['mean_position_error_mm']:.2f} mm "
                 f"(limit {th.accept_mean_position_m * 1e3:.1f}), mean rotation error {mean_rot:.2f} deg "
                 f"(limit {th.accept_mean_rotation_deg})",

@@ -24,7 +24,7 @@ from engine.plugin_manager import PluginError
 from engine.stage import Stage, StageParams
 from plugins.model_gap.analyse import analyse_gap, families_from_registry
 from plugins.model_gap.core import GapConfig, GapInputError, SelectionConfig
-from plugins.model_gap.core.report import report_dict
+from plugins.model_gap.core.report import display, report_dict
 from plugins.model_gap.data import GapDataError, with_payload
 from plugins.model_gap.recordings import pair_streams
 
@@ -115,8 +115,9 @@ def gap_text(rep: dict) -> str:
     for e in rep["effects_added"]:
         values = []
         for k, v in e["params"].items():
-            sd = e["param_std"].get(k, float("nan"))
-            values.append(f"{k} = {v:.4g} ± {sd:.2g} {e['units'].get(k, '')}".rstrip())
+            shown, unit = display(v, e["units"].get(k, ""))  # the unit the CLI's table shows (urad, mm, ...)
+            sd = display(e["param_std"].get(k, float("nan")), e["units"].get(k, ""))[0]
+            values.append(f"{k} = {shown:.4g} ± {sd:.2g} {unit}".rstrip())
         parts.append(f"{e.get('label') or e['name'] + '@' + e['where']} ({', '.join(values)})")
     rms = f"RMS {rep['rms_before_mm']:.3f} -> {rep['rms_after_mm']:.3f} mm (noise {rep['noise_floor_mm']:.3f} mm)"
     return f"{rep['verdict']}: effects added: {'; '.join(parts) or 'none'}; {rms}"
