@@ -111,3 +111,19 @@ def test_every_markdown_link_reaches_its_file_and_heading(path):
             elif anchor and dest.suffix == ".md" and anchor not in heading_anchors(dest.read_text(encoding="utf-8")):
                 broken.append(f"{path.relative_to(ROOT)}:{i}: {m.group(1)} (no such heading)")
     assert not broken, "broken links:\n" + "\n".join(broken)
+
+
+def test_every_page_in_docs_is_linked_from_the_readme_or_another_page():
+    pages = sorted((ROOT / "docs").glob("*.md"))
+    linked: set[Path] = set()
+    for md in [ROOT / "README.md", *pages]:
+        for target in MD_LINK.findall(md.read_text()):
+            linked.add((md.parent / target.split("#", 1)[0]).resolve())
+    orphans = [p.name for p in pages if p.resolve() not in linked]
+    assert not orphans, f"pages no reader can find from the README: {orphans}"
+
+
+@pytest.mark.parametrize("path", [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))], ids=lambda p: p.name)
+def test_docs_cite_what_a_reader_can_look_up_not_the_issue_tracker(path):
+    text = " ".join(path.read_text().split())
+    assert not re.search(r"\bthe issue(?:'s| tracker| asks)\b", text), path.name

@@ -135,8 +135,30 @@ def cmd_show(args: argparse.Namespace) -> int:
     }
     if tpl.points is not None:
         info["extent_mm"] = (np.ptp(tpl.points, axis=0) * 1e3).round(2).tolist()
-    print(json.dumps(info, indent=2, default=str))
+    if args.json:
+        print(json.dumps(info, indent=2, default=str))
+    else:
+        _print_template(info)
     return ExitCode.OK
+
+
+def _print_template(info: dict) -> None:
+    """A template's metadata as lines a person reads: sizes in mm, the photo pose as xyz + rpy."""
+    from scipy.spatial.transform import Rotation
+
+    T = np.asarray(info["T_base_tcp_photo"], dtype=float)
+    xyz = ", ".join(f"{v * 1e3:.1f}" for v in T[:3, 3])
+    rpy = ", ".join(f"{v:.2f}" for v in Rotation.from_matrix(T[:3, :3]).as_euler("xyz", degrees=True))
+    size = "" if info["points"] is None else f", {info['points']} points ({info['points_resolution']})"
+    lines = [f"template {info['name']!r}: {info['kind']}{size}, schema {info['schema_version']}"]
+    if "extent_mm" in info:
+        lines.append("extent: " + " x ".join(f"{v:g}" for v in info["extent_mm"]) + " mm")
+    lines.append(f"photo pose T_base_tcp: xyz ({xyz}) mm, rpy xyz ({rpy}) deg")
+    pre = info["preprocess"] if isinstance(info["preprocess"], dict) else {}
+    lines.append("preprocess: " + (", ".join(f"{k}={v}" for k, v in pre.items()) or "none"))
+    for k, v in (info["metadata"] or {}).items():
+        lines.append(f"  {k}: {v}")
+    out.print("\n".join(lines), highlight=False, markup=False, soft_wrap=True)
 
 
 def add_verbs(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -167,4 +189,5 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg
     m.set_defaults(func=cmd_make)
     s = tsub.add_parser("show", help="print a template's metadata")
     s.add_argument("path")
+    s.add_argument("--json", action="store_true", help="print the metadata as JSON")
     s.set_defaults(func=cmd_show)
