@@ -118,6 +118,24 @@ def relative(run_dir: Path, path: str | Path) -> str:
         return str(path)
 
 
+def new_folder(path: str | Path, what: str) -> Path:
+    """The folder a user named for a verb's files (*what*, e.g. ``--report``), created: new, or an
+    existing empty folder, never a link. A verb never replaces files it did not create, so a second
+    report into the same folder is refused (:class:`OutputDirError`) rather than written over the first."""
+    folder = Path(path).expanduser()
+    if folder.is_symlink():
+        raise OutputDirError(f"{what} {folder} is a link: name a new folder")
+    if folder.exists() and not folder.is_dir():
+        raise OutputDirError(f"{what} {folder} is a file, not a folder")
+    if folder.is_dir() and any(folder.iterdir()):
+        raise OutputDirError(
+            f"{what} {folder} exists and holds files (an earlier report?): vgr never replaces files it did "
+            "not create; name a new folder"
+        )
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
 def output_dir(run_dir: Path | None, stage: str, named: str | Path | None) -> Path | None:
     """The folder stage *stage* writes its files in, created; None when it should write none.
 

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from engine import run_folder
 from engine.cli.arguments import ArgumentParser
 from engine.exit_codes import ExitCode
 from engine.files import replace_text
@@ -397,6 +398,8 @@ def run_kind(args: argparse.Namespace) -> int:
         print(f"bad input: --json {args.json} is the data file itself: choose another output", file=sys.stderr)
         return ExitCode.INVALID
     try:
+        if args.report:  # refused before the work, not after it: the folder must be new or empty
+            args.report = run_folder.new_folder(args.report, "--report")
         outcome = runner(args)
     except KeyError as exc:  # a field missing in a JSON file
         print(f"bad input: {data}: missing field {exc}", file=sys.stderr)

@@ -23,6 +23,7 @@ from typing import Any
 
 from rich.console import Console
 
+from engine import run_folder
 from engine.exit_codes import ExitCode
 
 #: the exit code of each workflow verdict (engine.exit_codes)
@@ -135,7 +136,7 @@ def _common(args: argparse.Namespace) -> dict[str, Any]:
     data_options = {k: getattr(args, k) for k in ("joint_topic", "measurement_topic", "sensor", "payload_kg")}
     return {
         "noise_mm": args.noise_mm,
-        "report_dir": args.report,
+        "report_dir": None if args.report is None else run_folder.new_folder(args.report, "--report"),
         "console": None if args.json else Console(width=None if sys.stdout.isatty() else 160),
         "families": families_from_registry(tuple(args.plugin or ())),
         "data_options": {k: v for k, v in data_options.items() if v is not None},
