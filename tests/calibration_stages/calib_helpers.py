@@ -48,8 +48,10 @@ def run(
     *,
     text: str | None = None,
     record: Path | None = None,
+    run_dir: Path | None = None,
 ) -> tuple[RunSummary, dict[tuple[str, str], list[Any]]]:
-    """Run a recipe file (or recipe *text*) in this process; returns the summary and the messages."""
+    """Run a recipe file (or recipe *text*) in this process (its files in *run_dir*, as ``vgr run``'s
+    run folder); returns the summary and the messages."""
     source = str(recipe) if recipe is not None else "test.yaml"
     loaded = load_recipe(source, overrides, text=None if text is None else textwrap.dedent(text))
     registry = load_registry(loaded.recipe.plugins)
@@ -58,7 +60,9 @@ def run(
     observers: list[Observer] = [keep]
     if record is not None:
         observers.append(Recorder(record, graph.recipe.record, graph.loaded, registry.plugins))
-    summary = Runner(graph, observers=observers).run()
+    runner = Runner(graph, observers=observers)
+    runner.run_dir = run_dir
+    summary = runner.run()
     return summary, keep.msgs
 
 

@@ -268,5 +268,26 @@ def test_the_calibration_result_is_printed_at_the_end_of_the_run(fixture, reques
     summary, msgs, _ = request.getfixturevalue(fixture)
     res = ok_result(summary, msgs)
     (ev,) = [e for e in summary.events if e.level == "result" and e.code.endswith("_result")]
-    assert ev.message.startswith(f"{res.kind.replace('_', '-')} calibration: verdict ok; ")
+    assert ev.message.startswith(f"{res.kind.replace('_', '-')} calibration: verdict ok\n  ")
+    assert max(len(line) for line in ev.message.splitlines()) < 160  # a line per estimate, not one of 1,000
     assert " ± " in ev.message and (" mm" in ev.message or " deg" in ev.message)
+
+
+def test_a_calibration_recipe_leaves_its_result_in_the_run_folder_for_calibration_file(tmp_path):
+    """result.json in the solver's folder of the run folder, the format `vgr calibrate --json` writes
+    and a `calibration_file` stage reads: no second `vgr calibrate RUN.mcap` to get it."""
+    summary, msgs = run(RECIPES / "calibrate_tcp_sim.yaml", run_dir=tmp_path)
+    (ev,) = [e for e in summary.events if e.level == "result" and e.code.endswith("_result")]
+    assert ev.details["files"] == {"result": "calibrate/result.json"}  # (relative to the run folder)
+    path = tmp_path / "calibrate" / "result.json"
+    assert path.is_file()
+    (res,) = results(msgs)
+    assert json.loads(path.read_text()) == json.loads(res.to_json())
+    loaded, _ = run(
+        text=f"""
+        name: reuse
+        stages:
+          calib: {{type: calibration_file, params: {{path: {path}}}}}
+        """
+    )
+    assert loaded.ok, loaded.events

@@ -33,6 +33,7 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 from pydantic import Field
 
+from engine.files import replace_text
 from engine.messages import CalibrationResultMsg, Message, Request, Transform
 from engine.stage import Stage, StageParams
 from plugins.calibration.inputs import PairingOptions
@@ -117,9 +118,12 @@ class CalibrationStage(Stage):
         p: PairingParams = self.params  # type: ignore[assignment]
         if self._waiting is not None or (p.solve_on_finish and (self._new_samples or self.solves == 0)):
             self._solve(self._waiting[1] + ", at the end of input" if self._waiting else "end of input")
-        if self.last_result is not None:  # the answer, printed at the end of the run
+        if self.last_result is not None:  # the answer, printed at the end of the run, kept in the run folder
             r = self.last_result
-            self.ctx.event("result", f"{self.KIND}_result", result_text(r), verdict=r.verdict)
+            files = {}
+            if (folder := self.ctx.output_dir()) is not None:
+                files["result"] = str(replace_text(folder / "result.json", r.to_json(indent=1) + "\n"))
+            self.ctx.event("result", f"{self.KIND}_result", result_text(r), verdict=r.verdict, files=files)
 
     def pairing(self) -> PairingOptions:
         p: PairingParams = self.params  # type: ignore[assignment]
@@ -197,13 +201,13 @@ class CalibrationStage(Stage):
 
 
 def result_text(result: CalibrationResult) -> str:
-    """One paragraph for the end of a run: kind and verdict, each estimate with its 1-sigma (mm, deg),
-    and why when it is not ok."""
-    est = "; ".join(
-        f"{r.name} = {r.value:.3f}" + ("" if r.sigma is None else f" ± {r.sigma:.3f}") + f" {r.unit}"
+    """The answer at the end of a run: kind and verdict, then one line per estimate with its 1-sigma
+    (mm, deg), then why when it is not ok."""
+    lines = [f"{result.kind.replace('_', '-')} calibration: verdict {result.verdict}"]
+    lines += [
+        f"  {r.name} = {r.value:.3f}" + ("" if r.sigma is None else f" ± {r.sigma:.3f}") + f" {r.unit}"
         for r in result.summary_rows()
-    )
-    text = f"{result.kind.replace('_', '-')} calibration: verdict {result.verdict}" + (f"; {est}" if est else "")
+    ]
     if result.verdict != "ok" and result.reasons:
-        text += " (" + "; ".join(result.reasons[:3]) + ")"
-    return text
+        lines += [f"  because: {reason}" for reason in result.reasons[:3]]
+    return "\n".join(lines)
