@@ -29,6 +29,7 @@ from rich.table import Table
 from engine import run_folder
 from engine.cli import recording as cli_recording
 from engine.cli.arguments import ArgumentParser, add_listen_option, split_negative_values
+from engine.cli.json_output import invalid_document, run_document, validate_document
 from engine.errors import RecipeError
 from engine.exit_codes import HELP_EPILOG, ExitCode
 from engine.graph import Graph, build_graph, missing_input_files
@@ -177,7 +178,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         summary = run_with_progress(runner, show=not args.no_progress and console.is_terminal)
     summary.artifacts["run folder"] = str(run_dir)
     if args.json:
-        out.print_json(json.dumps(_summary_dict(summary)))
+        print(json.dumps(run_document(summary)))
     else:
         print_summary(summary)
     incomplete = "recording_error" in summary.artifacts
@@ -192,37 +193,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     return summary.exit_code
 
 
-def _summary_dict(s: RunSummary) -> dict[str, Any]:
-    return {
-        "run_id": s.run_id,
-        "recipe": s.recipe,
-        "process": s.process,
-        "ok": s.outcome == "ok",
-        "outcome": s.outcome,
-        "exit_code": s.exit_code,
-        "stop_reason": s.stop_reason,
-        "wall_s": s.wall_s,
-        "artifacts": s.artifacts,
-        "shared_memory": s.shared_memory,
-        "stages": [{**vars(st), "messages_in": st.messages_in, "messages_out": st.messages_out} for st in s.stages],
-        "events": [{"level": e.level, "stage": e.stage, "code": e.code, "message": e.message} for e in s.events],
-    }
-
-
 def _print_invalid_json(args: argparse.Namespace, error: str, problems: Sequence[Any]) -> None:
-    """With ``--json`` (a flag, not a file name), the refusal as JSON on stdout: a controller script
-    reads the outcome and every problem from it, as it reads a run's summary."""
-    if getattr(args, "json", None) is not True:
-        return
-    doc = {
-        "verb": args.verb,
-        "ok": False,
-        "outcome": "invalid",
-        "exit_code": int(ExitCode.INVALID),
-        "error": error,
-        "problems": [vars(p) for p in problems],
-    }
-    print(json.dumps(doc))
+    """With ``--json`` (a flag, not a file name), the refusal as JSON on stdout (engine.cli.json_output)."""
+    if getattr(args, "json", None) is True:
+        print(json.dumps(invalid_document(args.verb, error, problems)))
 
 
 def _security_refused(graph: Graph, certs_dir: str | None) -> bool:
@@ -242,14 +216,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
     if _security_refused(graph, args.certs):
         return ExitCode.INVALID
     if args.json:
-        doc = {
-            "verb": "validate",
-            "ok": True,
-            "outcome": "ok",
-            "exit_code": int(ExitCode.OK),
-            "recipe": graph.recipe.name,
-        }
-        print(json.dumps({**doc, "stages": len(graph.nodes), "processes": graph.processes()}))
+        print(json.dumps(validate_document(graph.recipe.name, len(graph.nodes), graph.processes())))
         return ExitCode.OK
     out.print(
         f"[green]ok[/]: {graph.loaded.file}: recipe {graph.recipe.name!r}, {len(graph.nodes)} stages, "
