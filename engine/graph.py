@@ -251,7 +251,9 @@ def _stage_nodes(
             params = cls.Params.model_validate(spec.params)
         except ValidationError as exc:
             problems.extend(
-                pydantic_problems(exc, cls.Params, ("stages", name, "params"), loaded.locations, loaded.file)
+                pydantic_problems(
+                    exc, cls.Params, ("stages", name, "params"), loaded.locations, loaded.file, loaded.overridden
+                )
             )
             continue
         units = [

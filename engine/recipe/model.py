@@ -165,10 +165,11 @@ class LoadedRecipe:
     locations: Locations
     overrides: list[str] = field(default_factory=list)
     data: dict[str, Any] = field(default_factory=dict)  # after overrides and vars, before validation
+    overridden: dict[tuple[str | int, ...], str] = field(default_factory=dict)  # data path -> its -p text
 
     def problem(self, path: tuple[str | int, ...], message: str, suggestion: str | None = None) -> Problem:
-        line, col = locate(self.locations, path)
-        return Problem(message, ".".join(map(str, path)), self.file, line, col, suggestion)
+        file, line, col = place(path, self.locations, self.file, self.overridden)
+        return Problem(message, ".".join(map(str, path)), file, line, col, suggestion)
 
     @property
     def path(self) -> Path | None:
@@ -185,8 +186,30 @@ def _parse_scalar(text: str) -> Any:
         return text
 
 
-def apply_overrides(data: dict[str, Any], overrides: list[str], file: str | None) -> list[Problem]:
-    """Apply ``key.path=value`` overrides to raw recipe data in place; return problems found."""
+COMMAND_LINE = "<command line>"
+
+
+def place(
+    path: tuple[str | int, ...], lr: Locations, file: str | None, overridden: dict[tuple[str | int, ...], str]
+) -> tuple[str | None, int | None, int | None]:
+    """Where the value at *path* came from: ``<command line> -p ...`` when an override set it (or a
+    mapping above it), else its line and column in *file*."""
+    for p, text in overridden.items():
+        if path[: len(p)] == p:
+            return f"{COMMAND_LINE} -p {text}", None, None
+    line, col = locate(lr, path)
+    return file, line, col
+
+
+def apply_overrides(
+    data: dict[str, Any],
+    overrides: list[str],
+    file: str | None,
+    overridden: dict[tuple[str | int, ...], str] | None = None,
+) -> list[Problem]:
+    """Apply ``key.path=value`` overrides to raw recipe data in place; return problems found. Each
+    value set is noted in *overridden* (its data path -> the override's text)."""
+    overridden = {} if overridden is None else overridden
     problems: list[Problem] = []
     stages = data.get("stages") if isinstance(data.get("stages"), dict) else {}
     for ov in overrides:
@@ -202,6 +225,7 @@ def apply_overrides(data: dict[str, Any], overrides: list[str], file: str | None
             continue
         if parts[0] in ("seed", "name", "clock", "run_id", "on_error", "rejoin") and len(parts) == 1:
             data[parts[0]] = value
+            overridden[(parts[0],)] = ov
             continue
         if parts[0] == "vars" and len(parts) == 2:
             if not isinstance(data.get("vars"), dict):
@@ -241,6 +265,7 @@ def apply_overrides(data: dict[str, Any], overrides: list[str], file: str | None
             target = nxt
         else:
             target[keys[-1]] = value
+            overridden[("stages", stage, "params", *keys)] = ov
     return problems
 
 
@@ -306,23 +331,25 @@ def pydantic_problems(
     prefix: tuple[str | int, ...],
     lr: Locations,
     file: str | None,
+    overridden: dict[tuple[str | int, ...], str] | None = None,
 ) -> list[Problem]:
-    """Turn a pydantic ValidationError into located problems with suggestions."""
+    """Turn a pydantic ValidationError into located problems with suggestions (at the command line's
+    ``-p`` for a value an override set)."""
     out: list[Problem] = []
     for err in exc.errors():
         loc = tuple(err["loc"])
         path = (*prefix, *loc)
-        line, col = locate(lr, path)
+        file_of, line, col = place(path, lr, file, overridden or {})
         key = ".".join(map(str, path))
         etype = err["type"]
         if etype == "extra_forbidden" and loc:
             sugg = nearest(str(loc[-1]), _fields_at(model, loc[:-1]))
-            out.append(Problem(f"unknown key {loc[-1]!r}", key, file, line, col, sugg))
+            out.append(Problem(f"unknown key {loc[-1]!r}", key, file_of, line, col, sugg))
         elif etype == "missing" and loc:
-            out.append(Problem(f"missing required key {loc[-1]!r}", key, file, line, col))
+            out.append(Problem(f"missing required key {loc[-1]!r}", key, file_of, line, col))
         else:
             msg = err["msg"].removeprefix("Value error, ")
-            out.append(Problem(f"{msg} (got {_short(err.get('input'))})", key, file, line, col))
+            out.append(Problem(f"{msg} (got {_short(err.get('input'))})", key, file_of, line, col))
     return out
 
 
@@ -350,7 +377,8 @@ def load_recipe(source: str | Path, overrides: list[str] | None = None, *, text:
     if not isinstance(data, dict):
         got = "an empty file" if data is None else f"a {type(data).__name__}"
         raise RecipeError([Problem(f"a recipe must be a YAML mapping, got {got}", file=file, line=1)])
-    problems = apply_overrides(data, overrides, file)
+    overridden: dict[tuple[str | int, ...], str] = {}
+    problems = apply_overrides(data, overrides, file, overridden)
     variables = data.get("vars") if isinstance(data.get("vars"), dict) else {}
     if isinstance(data.get("stages"), dict):
         data["stages"] = substitute_vars(data["stages"], variables, ("stages",), locations, file, problems)
@@ -359,5 +387,5 @@ def load_recipe(source: str | Path, overrides: list[str] | None = None, *, text:
     try:
         recipe = Recipe.model_validate(data)
     except ValidationError as exc:
-        raise RecipeError(pydantic_problems(exc, Recipe, (), locations, file)) from None
-    return LoadedRecipe(recipe, text, file, locations, overrides, data)
+        raise RecipeError(pydantic_problems(exc, Recipe, (), locations, file, overridden)) from None
+    return LoadedRecipe(recipe, text, file, locations, overrides, data, overridden)

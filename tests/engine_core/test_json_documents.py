@@ -52,3 +52,14 @@ def test_invalid_input_prints_the_invalid_document(argv, capsys, monkeypatch):
 def test_a_valid_recipe_prints_the_validate_document(capsys):
     assert main(["validate", str(ROOT / "recipes/eye_in_hand_dock.yaml"), "--json"]) == 0
     jsonschema.validate(printed(capsys), schema("validate"))
+
+
+def test_a_bad_command_line_value_is_reported_at_the_command_line_not_the_recipe(capsys):
+    recipe = str(ROOT / "recipes/eye_in_hand_dock.yaml")
+    assert main(["validate", recipe, "-p", "matcher.min_fitness=abc", "--json"]) == 2
+    (problem,) = printed(capsys)["problems"]
+    assert problem["file"] == "<command line> -p matcher.min_fitness=abc" and problem["line"] is None
+    assert problem["key"] == "stages.matcher.params.min_fitness"
+    assert main(["validate", recipe, "-p", "matcher.nope=1", "--json"]) == 2  # an unknown key too
+    (problem,) = printed(capsys)["problems"]
+    assert problem["file"].startswith("<command line>") and "nope" in problem["message"]
