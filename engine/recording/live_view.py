@@ -1,8 +1,9 @@
 """The live view: every topic of a run (or a replay) served to the Foxglove app over WebSocket.
 
 ``vgr run --view [PORT]`` and ``vgr replay --view [PORT]`` start a Foxglove WebSocket server (the
-``foxglove-sdk`` package, protocol ``foxglove.websocket.v1``) on ``127.0.0.1`` (``--view-host`` for
-another address) and serve each output stream as a channel named like its recording topic
+``foxglove-sdk`` package; clients offering the protocol as ``foxglove.sdk.v1`` or by its older name
+``foxglove.websocket.v1`` are both served, engine/recording/view_proxy.py) on ``127.0.0.1``
+(``--view-host`` for another address) and serve each output stream as a channel named like its recording topic
 (``/<stage>/<port>``), protobuf-encoded with the schema the recorder writes for it
 (:func:`engine.messages.schemas.descriptor_set`: Foxglove schemas for geometry, ``vgr.v1`` for the rest), so the
 app shows what it shows of a recording (docs/messages.md). In Foxglove: *Open connection*, *Foxglove
@@ -21,6 +22,7 @@ simulated clock ends in about a second, before anyone could connect.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 from pathlib import Path
@@ -28,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 
 from engine.messages import codec
 from engine.messages.schemas import descriptor_set
+from engine.recording.view_proxy import ProtocolNameProxy
 from engine.run.runner import Observer, Runner
 from engine.transport.bus import topic_of
 from engine.transport.discovery import graph_topics
@@ -50,14 +53,17 @@ class LiveView:
         self._channels: dict[str, Any] = {}
         self._last: dict[str, tuple[bytes, int]] = {}  # topic -> its last message and log time
         self._lock = threading.Lock()
-        try:
+        try:  # the SDK's server on a loopback port of its own, the proxy where the user asked
             self.server = foxglove.start_server(
-                name=name, host=host, port=port, context=self._context, server_listener=_latch(self)
+                name=name, host="127.0.0.1", port=0, context=self._context, server_listener=_latch(self)
             )
+            self._proxy = ProtocolNameProxy(host, port, int(self.server.port))
         except Exception as exc:  # port taken, address not on this host
+            with contextlib.suppress(Exception):
+                self.server.stop()
             raise ValueError(f"cannot serve the live view on {host}:{port}: {exc}") from exc
         self.host = host
-        self.port = int(self.server.port)
+        self.port = self._proxy.port
 
     @property
     def url(self) -> str:
@@ -121,6 +127,7 @@ class LiveView:
         self.log(topic, codec.registry.get(type_name).SCHEMA, payload, log_time_ns)
 
     def close(self) -> None:
+        self._proxy.close()
         try:
             self.server.stop()
         except Exception as exc:  # already stopped

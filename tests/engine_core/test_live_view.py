@@ -2,9 +2,8 @@
 (advertise, subscribe, binary messageData opcode 1) subscribes to a point-cloud channel and decodes a
 message with the schema the channel advertised.
 
-The client offers both subprotocol names: the protocol's original ``foxglove.websocket.v1`` and
-``foxglove.sdk.v1``, the name foxglove-sdk 0.30's server insists on (it answers 400 to a client that
-offers only the first; the messages are those of the ws-protocol spec either way)."""
+The client offers both subprotocol names, ``foxglove.websocket.v1`` and ``foxglove.sdk.v1`` (either
+alone is served too: test_view_protocol_names.py); the messages are those of the ws-protocol spec."""
 
 from __future__ import annotations
 
