@@ -227,3 +227,17 @@ def test_overdue_is_measured_from_arrival_and_ignores_what_it_cannot_read():
     assert late is not None and 190 < late < 260
     for params in ({}, {TIMEOUT_PARAM: "soon"}):  # a foreign querier that says nothing usable: served
         assert overdue_ms(Query(params), now - 10**12) is None
+
+
+def test_cloud_stats_says_what_the_clouds_were_at_the_end_of_the_run():
+    from plugins.util.stages.clouds import stats_text
+
+    rows = [
+        {"n_finite": 30545, "centroid_mm": [1.0, 2.0, 3.0], "extent_mm": [90.0, 60.0, 20.0], "frame_id": "camera"},
+        {"n_finite": 30612, "centroid_mm": [-490.04, 80.0, 5.0], "extent_mm": [90.0, 60.0, 20.5], "frame_id": "base"},
+    ]
+    assert stats_text(rows) == (
+        "2 clouds of 30,545-30,612 valid points; the last in base: centroid (-490.0, 80.0, 5.0) mm, "
+        "extent 90.0 x 60.0 x 20.5 mm"
+    )
+    assert stats_text([]) == "no clouds received"

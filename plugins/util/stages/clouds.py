@@ -129,10 +129,19 @@ class CloudStats(Stage):
             path.parent.mkdir(parents=True, exist_ok=True)
             path.write_text("".join(json.dumps(r) + "\n" for r in self.rows))
         last = self.rows[-1] if self.rows else {}
-        self.ctx.event(
-            "info",
-            "cloud_stats",
-            f"{len(self.rows)} clouds; last centroid {last.get('centroid_mm')} mm",
-            clouds=len(self.rows),
-            last=last,
-        )
+        self.ctx.event("result", "cloud_stats", stats_text(self.rows), clouds=len(self.rows), last=last)
+
+
+def stats_text(rows: list[dict[str, object]]) -> str:
+    """What the clouds were, for the end of a run: how many, their points, the last one's place and size."""
+    if not rows:
+        return "no clouds received"
+    counts = [int(r["n_finite"]) for r in rows]  # type: ignore[call-overload]
+    points = f"{min(counts):,}" if min(counts) == max(counts) else f"{min(counts):,}-{max(counts):,}"
+    last = rows[-1]
+    text = f"{len(rows)} cloud{'s' * (len(rows) > 1)} of {points} valid points"
+    if last["centroid_mm"] is not None:
+        c = ", ".join(f"{v:.1f}" for v in last["centroid_mm"])  # type: ignore[attr-defined]
+        e = " x ".join(f"{v:.1f}" for v in last["extent_mm"])  # type: ignore[attr-defined]
+        text += f"; the last in {last['frame_id'] or 'its frame'}: centroid ({c}) mm, extent {e} mm"
+    return text
