@@ -312,6 +312,7 @@ VERB_MODULES: dict[str, tuple[str, str]] = {
     "topics": ("engine.cli.topics", "list, echo or time the topics of a running run (like ros2 topic)"),
     "play": ("engine.cli.topics", "put a recording's topics back on zenoh at their recorded pace (like ros2 bag play)"),
     "certs": ("engine.cli.security", "development certificates for a recipe's security: block"),
+    "doctor": ("engine.cli.doctor", "check the installation and the machine, and say what to fix"),
 }
 
 
