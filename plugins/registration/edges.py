@@ -38,6 +38,7 @@ from typing import Literal
 import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
 from engine import transforms as tf
 from plugins.registration.preprocess import PreparedCloud
@@ -46,6 +47,24 @@ EdgeMode = Literal["auto", "on", "off"]
 
 #: edge_icp stops when a Gauss-Newton step is below 0.1 sigma of the estimate (squared, in sigma^2).
 STEP_SIGMA2 = 1e-2
+#: ... and, out of iterations, accepts an estimate whose last WANDER_STEPS steps all stayed within one
+#: sigma: it wanders in its own noise (contour pairs flipping back and forth), it is not diverging
+WANDER_STEPS = 6
+
+
+def settled(recent: list[tuple[np.ndarray, float]], T: np.ndarray) -> tuple[np.ndarray, bool]:
+    """After the last iteration: (the mean of the last poses, True) when each of the last
+    :data:`WANDER_STEPS` steps was below one sigma of the estimate (``step2 < 1``), else (*T*, False).
+    A fine match on the edge of converging, which stops a step short on one CPU and a step later on
+    another, is then converged on every CPU; one that still moves by more than its noise is not."""
+    last = recent[-WANDER_STEPS:]
+    if len(last) < WANDER_STEPS or any(step2 >= 1.0 for _, step2 in last):
+        return T, False
+    poses = np.array([p for p, _ in last])
+    out = np.eye(4)
+    out[:3, :3] = Rotation.from_matrix(poses[:, :3, :3]).mean().as_matrix()
+    out[:3, 3] = poses[:, :3, 3].mean(axis=0)
+    return out, True
 
 
 @dataclass(frozen=True)
@@ -299,6 +318,7 @@ def edge_icp(
         centre = current.centroid
         converged = False
         prev: np.ndarray | None = None
+        recent: list[tuple[np.ndarray, float]] = []  # (pose after each step, its size in sigma^2)
         for _ in range(iterations):
             total += 1
             P = tf.transform_points(T, current.points)
@@ -328,10 +348,13 @@ def edge_icp(
                     break
             prev = xi
             T = tf.exp_se3(xi) @ T
+            recent.append((T, step2))
             small = np.linalg.norm(dv) < translation_eps_m and np.linalg.norm(xi[3:]) < rotation_eps_rad
             # H is the information matrix (inverse-variance weights): xi^T H xi is the step in units
             # of the estimate's own variance: a step below a tenth of a sigma is convergence.
             if small or step2 < STEP_SIGMA2:
                 converged = True
                 break
+        else:  # out of iterations: converged if it only wanders within its noise
+            T, converged = settled(recent, T)
     return T, total, converged
