@@ -127,3 +127,25 @@ def test_every_page_in_docs_is_linked_from_the_readme_or_another_page():
 def test_docs_cite_what_a_reader_can_look_up_not_the_issue_tracker(path):
     text = " ".join(path.read_text().split())
     assert not re.search(r"\bthe issue(?:'s| tracker| asks)\b", text), path.name
+
+
+def test_the_stage_example_uses_every_name_it_imports_and_defines_a_working_stage():
+    import ast
+
+    text = (ROOT / "docs" / "writing_stages.md").read_text()
+    code = text.split("```python\n", 1)[1].split("```", 1)[0]
+    tree = ast.parse(code)
+    imported = {
+        a.asname or a.name.split(".")[0]
+        for n in ast.walk(tree)
+        if isinstance(n, ast.Import | ast.ImportFrom)
+        for a in n.names
+    }
+    used = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)} | {
+        n.value.id for n in ast.walk(tree) if isinstance(n, ast.Attribute) and isinstance(n.value, ast.Name)
+    }
+    assert imported <= used, f"imported, never used: {sorted(imported - used)}"
+    namespace: dict = {}
+    exec(compile(code, "writing_stages.md", "exec"), namespace)
+    (stage,) = namespace["vgr_stage_types"]()
+    assert stage.type_name == "centroid" and stage.Params(min_points=3).min_points == 3
