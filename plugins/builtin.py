@@ -27,6 +27,7 @@ def vgr_stage_types() -> list[type]:
     from plugins.model_gap.stages.measurement_campaign import MeasurementCampaign
     from plugins.model_gap.stages.model_gap import ModelGap
     from plugins.registration.stages.matcher import Matcher
+    from plugins.sim.stages.calibration_evaluation import CalibrationEvaluator
     from plugins.sim.stages.camera import SimCamera
     from plugins.sim.stages.evaluation import DockingEvaluator
     from plugins.sim.stages.point_tracker import SimPointTracker
@@ -35,7 +36,7 @@ def vgr_stage_types() -> list[type]:
     from plugins.util.stages.clouds import CloudStats, SyntheticCloud, TransformCloud
     from plugins.util.stages.trigger import Trigger
 
-    sim = [SimRobot, SimCamera, SimTracker, DockingEvaluator]
+    sim = [SimRobot, SimCamera, SimTracker, DockingEvaluator, CalibrationEvaluator]
     devices = [URRobot, ViveTracker, RealSenseCamera, FileCamera]
     calibration = [  # data collection in the simulated cell, solver stages, saved results
         SimPointTracker,

@@ -9,11 +9,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 from calib_helpers import RECIPES, events, mahalanobis2, results, run
 from scipy.stats import chi2
 
 from engine.cli.main import main
+from engine.recipe.model import load_recipe
 from engine.recording.replay import replay
 from engine.transforms import inv, log_so3
 from plugins.params import PoseSpec
@@ -25,7 +25,8 @@ pytestmark = pytest.mark.timeout(300)
 
 
 def stage_params(recipe: Path, stage: str) -> dict:
-    return yaml.safe_load(recipe.read_text())["stages"][stage].get("params", {})
+    """The parameters of *stage* as the run sees them (the recipe's vars substituted)."""
+    return load_recipe(str(recipe)).data["stages"][stage].get("params", {})
 
 
 def pose(d: dict) -> np.ndarray:
@@ -291,3 +292,15 @@ def test_a_calibration_recipe_leaves_its_result_in_the_run_folder_for_calibratio
         """
     )
     assert loaded.ok, loaded.events
+
+
+def test_a_simulated_calibration_reports_its_error_against_the_truth(tmp_path):
+    """The evaluator compares the result with the truth the recipe gave the simulation (one vars
+    entry feeds both): the TCP tip within 1 mm, and the error is a result event with typed details."""
+    summary, _ = run(RECIPES / "calibrate_tcp_sim.yaml")
+    (ev,) = [e for e in summary.events if e.code == "calibration_evaluation"]
+    assert ev.level == "result" and ev.details["verdict"] == "ok"
+    errors = ev.details["errors"]
+    assert set(errors) == {"T_base_cam", "p_flange_tcp"}
+    assert 0 < errors["p_flange_tcp"]["error_mm"] < 1.0
+    assert errors["T_base_cam"]["error_mm"] < 5.0 and errors["T_base_cam"]["error_deg"] < 0.5

@@ -87,13 +87,15 @@ def _tcp_given_rotation(data: TcpCameraData, R_cb: F64) -> tuple[F64, F64]:
     return sol[:3], R_cb @ sol[3:]
 
 
+#: the method name of :func:`seed002_closed_form` in results (docs/vive_and_tcp.md explains it)
+TRANSLATIONS_METHOD = "closed form: pure translations + linear LS (docs/vive_and_tcp.md)"
+
+
 def seed002_closed_form(data: TcpCameraData, groups: list[NDArray[np.int_]]) -> ClosedForm:
     """Seed 002's method (module docstring); *groups* from :func:`translation_groups`."""
     R_cb = _rotation_from_translations(data, groups)
     p, t_cb = _tcp_given_rotation(data, R_cb)
-    return ClosedForm(
-        T_from_Rt(R_cb, t_cb), p, "closed form: pure translations + linear LS (docs/vive_and_tcp.md)", groups
-    )
+    return ClosedForm(T_from_Rt(R_cb, t_cb), p, TRANSLATIONS_METHOD, groups)
 
 
 def general_linear(data: TcpCameraData) -> ClosedForm:

@@ -40,6 +40,7 @@ from plugins.calibration.pose_lsq import (
 from plugins.calibration.result import CalibrationResult
 from plugins.calibration.tcp_camera.data import TcpCameraData
 from plugins.calibration.tcp_camera.initial import (
+    TRANSLATIONS_METHOD,
     ClosedForm,
     general_linear,
     seed002_closed_form,
@@ -388,7 +389,7 @@ def calibrate_tcp_camera(
         "pure_translation_span_mm": float(span[1] * 1e3),
     }
     start = _closed_form_start(data, groups, span, init, th, issues)
-    metrics["init_method_is_seed002"] = float(start.method.startswith("seed"))
+    metrics["init_method_is_seed002"] = float(start.method == TRANSLATIONS_METHOD)
 
     problem, x, nfev, fit = _fit(data, start.T_cam_base, start.p_flange_tcp, loss)
     method = "lm" if loss == "linear" else "trf"

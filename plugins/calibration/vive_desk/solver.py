@@ -405,7 +405,7 @@ def _check_seed_acceptance(
         issues.append(
             Issue(
                 "failed",
-                "Vive desk acceptance (docs/vive_and_tcp.md) not met: mean position error "
+                "Vive desk acceptance not met (docs/vive_and_tcp.md): mean position error "
                 f"{metrics['mean_position_error_mm']:.2f} mm "
                 f"(limit {th.accept_mean_position_m * 1e3:.1f}), mean rotation error {mean_rot:.2f} deg "
                 f"(limit {th.accept_mean_rotation_deg})",
