@@ -1,7 +1,7 @@
 """What ``--json`` prints: one versioned JSON document per verb outcome, the same on invalid input.
 
 A cell controller or a CI script reads these instead of vgr's text. Each document names its format
-(``format``: ``vgr.run/1``, ``vgr.invalid/1``, ``vgr.validate/1``) and carries ``ok``, ``outcome``
+(``format``: ``vgr.run/1``, ``vgr.replay/1``, ``vgr.invalid/1``, ``vgr.validate/1``) and carries ``ok``, ``outcome``
 and ``exit_code`` (the exit-code table of engine/exit_codes.py). A run's document holds the job's
 results as typed fields: ``results`` lists every ``result`` event with its details (a calibration's
 verdict and the file of its ``result.json``, a docking evaluation's errors in mm and deg, ...), and
@@ -24,6 +24,7 @@ from engine.run.summary import RunSummary
 RUN_FORMAT = "vgr.run/1"
 INVALID_FORMAT = "vgr.invalid/1"
 VALIDATE_FORMAT = "vgr.validate/1"
+REPLAY_FORMAT = "vgr.replay/1"  # built by engine/cli/recording.py (also written as the replay folder's replay.json)
 SCHEMA_DIR = Path(__file__).with_name("schemas")
 
 

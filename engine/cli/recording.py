@@ -16,6 +16,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from engine import run_folder
+from engine.cli.json_output import REPLAY_FORMAT
 from engine.exit_codes import ExitCode
 from engine.graph import Graph
 
@@ -162,9 +163,12 @@ def cmd_replay(args: argparse.Namespace) -> int:
     verdicts = (*report.streams, *report.requests)
     recorded = rec.metadata.get("vgr.summary", {}).get("outcome", "")
     doc = {
+        "format": REPLAY_FORMAT,
+        "verb": "replay",
         "recording": str(args.file),
+        "ok": report.outcome == "ok",
         "outcome": report.outcome,
-        "exit_code": OUTCOME_EXIT_CODES[report.outcome],
+        "exit_code": int(OUTCOME_EXIT_CODES[report.outcome]),
         "recorded_outcome": recorded,
         "rerun": report.rerun,
         "failures": report.failures,
@@ -174,7 +178,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     }
     (run_dir / "replay.json").write_text(json.dumps(doc, indent=2, default=str))
     if args.json:
-        out.print_json(json.dumps(doc, default=str))
+        print(json.dumps(doc, default=str))
     else:
         t = Table(title=f"replay of {args.file}: re-ran {', '.join(report.rerun) or 'nothing'}", title_justify="left")
         for col in ("topic", "recorded", "replayed", "verdict", "first difference"):

@@ -63,3 +63,11 @@ def test_a_bad_command_line_value_is_reported_at_the_command_line_not_the_recipe
     assert main(["validate", recipe, "-p", "matcher.nope=1", "--json"]) == 2  # an unknown key too
     (problem,) = printed(capsys)["problems"]
     assert problem["file"].startswith("<command line>") and "nope" in problem["message"]
+
+
+def test_a_replay_document_validates_and_is_the_replay_folders_file(tmp_path, capsys):
+    code = main(["replay", str(ROOT / "recordings/demo.mcap"), "--json", "--runs-dir", str(tmp_path)])
+    doc = printed(capsys)
+    jsonschema.validate(doc, schema("replay"))
+    assert doc["exit_code"] == code == 0 and doc["outcome"] == "ok"
+    assert json.loads((Path(doc["run_folder"]) / "replay.json").read_text()) == doc
