@@ -30,6 +30,7 @@ USABLE_VERDICTS: frozenset[str] = frozenset({"ok", "warning"})
 
 _MM, _DEG = 1e3, float(np.degrees(1.0))
 _DIAGNOSTIC_PREFIXES = ("closed_form_", "initial_")  # estimate entries that document the start, not the result
+RESULT_FORMAT = "vgr.calibration_result/1"
 _JSON_FIELDS = ("kind", "verdict", "method", "iterations", "estimate", "param_names", "covariance", "residuals",
                 "residual_names", "outliers", "reasons", "advice", "metrics")  # fmt: skip
 _ANGLE_SUFFIXES = ("rx", "ry", "rz", "wx", "wy", "wz", "theta", "alpha", "beta")
@@ -204,8 +205,9 @@ class CalibrationResult:
         return lines
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dictionary (numpy arrays become nested lists)."""
-        return plain({name: getattr(self, name) for name in _JSON_FIELDS})
+        """JSON-ready dictionary (numpy arrays become nested lists), format ``vgr.calibration_result/1``
+        (its JSON Schema: plugins/calibration/schemas/result.schema.json)."""
+        return {"format": RESULT_FORMAT, **plain({name: getattr(self, name) for name in _JSON_FIELDS})}
 
     def to_json(self, **kwargs: Any) -> str:
         return json.dumps(self.to_dict(), **kwargs)

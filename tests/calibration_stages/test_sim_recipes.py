@@ -7,9 +7,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import jsonschema
 import numpy as np
 import pytest
-from calib_helpers import RECIPES, events, mahalanobis2, results, run
+from calib_helpers import RECIPES, ROOT, events, mahalanobis2, results, run
 from scipy.stats import chi2
 
 from engine.cli.main import main
@@ -284,6 +285,8 @@ def test_a_calibration_recipe_leaves_its_result_in_the_run_folder_for_calibratio
     assert path.is_file()
     (res,) = results(msgs)
     assert json.loads(path.read_text()) == json.loads(res.to_json())
+    schema = json.loads((ROOT / "plugins/calibration/schemas/result.schema.json").read_text())
+    jsonschema.validate(json.loads(path.read_text()), schema)
     loaded, _ = run(
         text=f"""
         name: reuse
