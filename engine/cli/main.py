@@ -39,7 +39,7 @@ from engine.recording.reader import RecordingError
 from engine.recording.replay import ReplayError
 from engine.run.runner import RunError, Runner, RunSummary
 from engine.run.runtime import StageStats
-from engine.run.sigint import on_sigint
+from engine.run.sigint import on_stop_signals, stop_reason
 from engine.transport.bus import BusError
 
 console = Console(stderr=True)
@@ -123,11 +123,11 @@ def run_with_progress(runner: Runner, show: bool) -> RunSummary:
     if th:
         th.start()
 
-    def stop_on_sigint(signum: int, frame: Any) -> None:
+    def stop_on_signal(signum: int, frame: Any) -> None:
         signal.signal(signal.SIGINT, signal.default_int_handler)  # a second Ctrl-C interrupts hard
-        runner.stop("interrupted (Ctrl-C)")
+        runner.stop(stop_reason(signum))
 
-    with on_sigint(stop_on_sigint):
+    with on_stop_signals(stop_on_signal):
         try:
             return runner.run()
         finally:

@@ -75,7 +75,7 @@ def cmd_play(args: argparse.Namespace) -> int:
     from engine.recipe.model import ZenohSettings
     from engine.recording.play import PROCESS, Player, Selection, load_recorded_types, select
     from engine.recording.reader import load
-    from engine.run.sigint import on_sigint
+    from engine.run.sigint import on_stop_signals
     from engine.transport.bus import Bus
     from engine.transport.endpoints import private_socket, run_sockets
 
@@ -89,7 +89,7 @@ def cmd_play(args: argparse.Namespace) -> int:
     listen = [private_socket(run_id, PROCESS) if e == PRIVATE else e for e in (args.listen or [PRIVATE])]
     with Bus(ZenohSettings(listen=listen, connect=list(args.connect or []))) as bus:
         player = Player(bus, run_id, msgs, args.rate)
-        with on_sigint(lambda *_: player.stop()):
+        with on_stop_signals(lambda *_: player.stop()):
             topics = sorted({m.topic for m in msgs})
             err.print(
                 f"playing {len(msgs)} messages of {len(topics)} topic(s) as run {run_id} at {args.rate:g}x "

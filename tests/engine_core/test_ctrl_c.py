@@ -1,4 +1,4 @@
-"""Ctrl-C on `vgr run` of a data-collection recipe while the robot moves (the shipped model-gap
+"""Ctrl-C, SIGTERM or SIGHUP on `vgr run` of a data-collection recipe while the robot moves (the shipped model-gap
 campaign on the simulated cell, in real time with slow moves): the robot is halted, no move is
 commanded after the interrupt, every stage ends within the grace period, the command exits 130 with
 no traceback, and the recording tells the shutdown (README, *Command line*)."""
@@ -21,7 +21,12 @@ pytestmark = [pytest.mark.subprocess, pytest.mark.timeout(180)]
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_sigint_halts_the_robot_and_vgr_run_exits_130_without_a_traceback(tmp_path):
+@pytest.mark.parametrize(
+    "signum,named", [(signal.SIGINT, "Ctrl-C"), (signal.SIGTERM, "SIGTERM"), (signal.SIGHUP, "SIGHUP")]
+)
+def test_a_stop_signal_halts_the_robot_and_vgr_run_exits_130_without_a_traceback(tmp_path, signum, named):
+    """SIGTERM (systemd, containers, kill) and SIGHUP stop as Ctrl-C does: before, SIGTERM ended vgr
+    with 143 and no halt, SIGHUP killed it at once."""
     record = tmp_path / "campaign.mcap"
     cmd = [sys.executable, "-m", "engine.cli.main", "run", str(ROOT / "recipes" / "model_gap_sim.yaml")]
     cmd += ["-p", "clock=wall", "-p", "campaign.speed=0.5", "--no-progress", "--record", str(record)]
@@ -36,7 +41,7 @@ def test_sigint_halts_the_robot_and_vgr_run_exits_130_without_a_traceback(tmp_pa
             time.sleep(0.1)
         assert record.exists() and p.poll() is None, "the run did not start"
         time.sleep(1.5)
-        p.send_signal(signal.SIGINT)
+        p.send_signal(signum)
         out, err = p.communicate(timeout=60)
     finally:
         if p.poll() is None:
@@ -44,13 +49,13 @@ def test_sigint_halts_the_robot_and_vgr_run_exits_130_without_a_traceback(tmp_pa
             p.communicate()
     assert p.returncode == 130, out + err
     assert "Traceback" not in out + err, out + err
-    assert "run interrupted" in out and "interrupted (Ctrl-C)" in out
+    assert "run interrupted" in out and f"interrupted ({named})" in out
 
     rec = load(record)
     assert rec.metadata["vgr.summary"]["outcome"] == "interrupted"
     run = [codec.decode_payload(Event, m.payload) for m in rec.messages("/_vgr/run")]
     codes = [(e.code, e.stage) for e in run]
-    assert codes[0] == ("stop", "") and run[0].details["reason"] == "interrupted (Ctrl-C)"
+    assert codes[0] == ("stop", "") and run[0].details["reason"] == f"interrupted ({named})"
     assert codes[1] == ("halted", "robot")  # motion stops first
     assert ("stage_stopped", "campaign") in codes and not [c for c in codes if c[0] == "stage_stuck"]
     assert codes[-1] == ("stop_done", "") and run[-1].details["after_s"] < 5.0  # measured by the run
