@@ -42,7 +42,7 @@ def cmd_certs_make(args: argparse.Namespace) -> int:
         written = write_bundle(
             Path(args.out), identities, ca_name=f"vgr development CA ({recipe.name})", days=args.days
         )
-    except FileExistsError as exc:
+    except (FileExistsError, PermissionError) as exc:
         out.print(f"[red]refused[/]: {exc}")
         return ExitCode.INVALID
     names = ", ".join(i.name for i in identities)

@@ -136,6 +136,11 @@ def write_bundle(out: Path, identities: list[Identity], *, ca_name: str, days: i
     Returns the files written. Raises FileExistsError when *out* holds files."""
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise FileExistsError(f"{out} exists and is not an empty folder: certificates are only written to a new one")
+    if out.exists() and (out.stat().st_uid not in (os.geteuid(), 0) or out.stat().st_mode & 0o022):
+        raise PermissionError(
+            f"{out} belongs to another user or others may write it: they could replace the CA and keys "
+            "after they are made; use a new folder of your own"
+        )
     out.mkdir(parents=True, exist_ok=True, mode=0o700)
     ca_cert, ca_key = make_ca(ca_name, days)
     written = [out / "ca.pem", out / "ca.key"]

@@ -19,6 +19,7 @@ elsewhere (a plant's own PKI).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -133,4 +134,21 @@ def identity_problems(ident: ProcessIdentity) -> list[str]:
         problems.append(f"{ident.cert} is not signed by the CA {ident.ca}")
     if ident.key.stat().st_mode & 0o077:
         problems.append(f"{ident.key}: the private key can be read by other users (chmod 600 it)")
+    files = (ident.ca, ident.cert, ident.key)
+    for path in dict.fromkeys((*files, *(f.parent for f in files))):
+        problems += foreign_write_access(path)
+    return problems
+
+
+def foreign_write_access(path: Path) -> list[str]:
+    """Who else could replace *path* (a certificate, a key or their folder): owned by another user
+    than this one (root excepted), or writable by its group or by others. A user who can write the
+    CA or a key can put in their own and be trusted."""
+    st = path.stat()
+    me = os.geteuid()
+    problems = []
+    if st.st_uid not in (me, 0):
+        problems.append(f"{path} belongs to user {st.st_uid}, not to this user ({me}): they could swap in their own CA")
+    if st.st_mode & 0o022:
+        problems.append(f"{path} can be written by its group or by others (chmod go-w it): they could swap in theirs")
     return problems

@@ -329,3 +329,25 @@ def test_certs_make_writes_one_identity_per_process_and_never_into_a_used_folder
     )
     assert again.returncode == 2 and "not an empty folder" in again.stdout
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_certificates_another_user_could_replace_are_refused(tmp_path):
+    """A CA or key in a folder someone else owns or may write could be swapped for theirs: validate
+    says so; certs make refuses such a folder before writing into it."""
+    from engine.security.tls import foreign_write_access
+
+    certs = tmp_path / "certs"
+    write_bundle(certs, [Identity("producer")], ca_name="test CA")
+    assert foreign_write_access(certs) == [] and foreign_write_access(certs / "ca.pem") == []
+    certs.chmod(0o777)
+    assert "can be written by its group or by others" in " ".join(foreign_write_access(certs))
+    certs.chmod(0o700)
+    if os.geteuid() != 0:
+        pytest.skip("making a folder of another user needs root")
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    os.chown(theirs, 65534, 65534)
+    with pytest.raises(PermissionError, match="belongs to another user"):
+        write_bundle(theirs, [Identity("producer")], ca_name="test CA")
+    os.chown(certs / "ca.pem", 65534, 65534)
+    assert "belongs to user 65534" in " ".join(foreign_write_access(certs / "ca.pem"))
