@@ -47,6 +47,7 @@ from typing import TYPE_CHECKING, Any
 from mcap.writer import CompressionType, Writer
 
 from engine import __version__
+from engine.files import create_new
 from engine.messages import codec
 from engine.messages.codec import Envelope
 from engine.messages.schemas import descriptor_set, proto_class
@@ -104,7 +105,7 @@ def resolve_path(
         path = Path(target)
         if override is None and process != "main":
             path = path.with_name(f"{path.stem}-{process}{path.suffix}")
-    if not generated and path.exists():
+    if not generated and (path.exists() or path.is_symlink()):  # (a dangling link too)
         raise ValueError(
             f"{path} exists: a run never replaces a file; name a new file, or a folder to get a new name in it"
         )
@@ -115,7 +116,7 @@ def resolve_path(
 def _unused(path: Path) -> Path:
     """*path*, or ``<stem>-1``, ``<stem>-2`` ... beside it: the first name no file has."""
     n, candidate = 1, path
-    while candidate.exists():
+    while candidate.exists() or candidate.is_symlink():
         candidate = path.with_name(f"{path.stem}-{n}{path.suffix}")
         n += 1
     return candidate
@@ -159,7 +160,7 @@ class Recorder(Observer):
     # -- observer interface (stage threads) ----------------------------------------------------
     def on_start(self, runner: Runner) -> None:
         self._runner = runner
-        self._file = self.path.open("wb")
+        self._file = create_new(self.path)
         self._writer = Writer(
             self._file, chunk_size=self.settings.chunk_size, compression=_COMPRESSION[self.settings.compression]
         )
