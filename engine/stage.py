@@ -50,9 +50,10 @@ def stage_rng(seed: int, stage: str) -> np.random.Generator:
 
 
 class StageParams(BaseModel):
-    """Base of every stage's parameter model: unknown keys are rejected, values validated."""
+    """Base of every stage's parameter model: unknown keys are rejected, values validated, inf and NaN refused."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, arbitrary_types_allowed=True)
+    # inf and NaN refused: an infinite limit or rate is no limit (a limit may be absent, never infinite)
+    model_config = ConfigDict(extra="forbid", frozen=True, arbitrary_types_allowed=True, allow_inf_nan=False)
 
 
 INPUT_FILE_MARK = "vgr_input_file"

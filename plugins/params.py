@@ -12,7 +12,7 @@ from engine.transforms import T_from_Rt, as_transform
 class PoseSpec(BaseModel):
     """A pose in a recipe: ``xyz_m`` and ``rpy_deg`` (R = Rz(yaw) Ry(pitch) Rx(roll)), or a 4x4 ``matrix``."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     xyz_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)

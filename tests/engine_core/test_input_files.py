@@ -49,3 +49,13 @@ def test_only_the_stages_of_the_process_run_here_are_checked(tmp_path, capsys):
     (tmp_path / "result.json").write_text("{}")
     assert main(["validate", str(recipe), "--process", "vision"]) == 0  # scans/ belongs to main
     assert main(["validate", str(recipe)]) == 2
+
+
+@pytest.mark.parametrize(
+    "override", ["guidance.max_total_mm=.inf", "guidance.translation_tol_mm=.nan", "guidance.max_step_deg=-.inf"]
+)
+def test_an_infinite_or_nan_limit_is_refused_not_taken_as_no_limit(override, capsys):
+    """`.inf` as max_total_mm switched the limit off (rc 0): a limit may be absent, never infinite."""
+    assert main(["validate", str(DOCK), "-p", override, "--json"]) == 2
+    (problem,) = json.loads(capsys.readouterr().out)["problems"]
+    assert problem["key"] == "stages.guidance.params." + override.split("=")[0].split(".")[1]
