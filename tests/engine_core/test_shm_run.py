@@ -45,9 +45,8 @@ def expected() -> list[list]:
 
 
 def summary_json(output: str) -> dict:
-    """The ``--json`` summary at the end of a ``vgr run`` output (pretty-printed, from a line "{")."""
-    start_at = output.rindex("\n{\n") + 1 if not output.startswith("{\n") else 0
-    return json.loads(output[start_at : output.rindex("}") + 1])
+    """The ``--json`` summary of a ``vgr run``: its stdout's one JSON line."""
+    return json.loads(next(line for line in reversed(output.splitlines()) if line.startswith("{")))
 
 
 @pytest.mark.parametrize(
