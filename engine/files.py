@@ -42,9 +42,10 @@ def replacing(path: str | Path) -> Iterator[Path]:
         tmp.unlink(missing_ok=True)
 
 
-def create_new(path: str | Path) -> BinaryIO:
-    """*path* created and opened for writing; FileExistsError when anything (a file, a link) is there."""
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o644)
+def create_new(path: str | Path, mode: int = 0o644) -> BinaryIO:
+    """*path* created (with *mode*) and opened for writing; FileExistsError when anything (a file, a
+    link) is there."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, mode)
     return os.fdopen(fd, "wb")
 
 

@@ -33,14 +33,18 @@ def schema(name: str) -> dict[str, Any]:
     return json.loads((SCHEMA_DIR / f"{name}.schema.json").read_text())
 
 
+def files_written(s: RunSummary, event: Any) -> list[tuple[str, Path]]:
+    """(label, path) of each file *event* names, resolved against the run folder of *s*."""
+    folder = s.artifacts.get("run folder")
+    named = (event.details.get("files") or {}).items()
+    return [(label, Path(folder, p) if folder and not Path(p).is_absolute() else Path(p)) for label, p in named]
+
+
 def run_document(s: RunSummary) -> dict[str, Any]:
     """The document of a finished run (``vgr run --json``)."""
-    folder = s.artifacts.get("run folder")
-    files = []
-    for e in s.events:
-        for label, path in (e.details.get("files") or {}).items():
-            where = Path(folder, path) if folder and not Path(path).is_absolute() else Path(path)
-            files.append({"stage": e.stage, "label": label, "path": str(where)})
+    files = [
+        {"stage": e.stage, "label": label, "path": str(path)} for e in s.events for label, path in files_written(s, e)
+    ]
     doc = {
         "format": RUN_FORMAT,
         "verb": "run",

@@ -29,7 +29,7 @@ from rich.table import Table
 from engine import run_folder
 from engine.cli import recording as cli_recording
 from engine.cli.arguments import ArgumentParser, add_listen_option, split_negative_values
-from engine.cli.json_output import invalid_document, run_document, validate_document
+from engine.cli.json_output import files_written, invalid_document, run_document, validate_document
 from engine.errors import RecipeError
 from engine.exit_codes import HELP_EPILOG, ExitCode
 from engine.graph import Graph, build_graph, missing_input_files
@@ -80,12 +80,10 @@ def _stats_table(stats: Sequence[StageStats], title: str) -> Table:
 
 def print_summary(summary: RunSummary) -> None:
     out.print(_stats_table(summary.stages, f"run {summary.run_id} ({summary.process}) in {summary.wall_s:.2f} s"))
-    folder = summary.artifacts.get("run folder")  # files stages name are relative to it
     for ev in summary.events:
         if ev.level == "result":  # a stage's report for people: its text, then the files it wrote
             out.print(f"[bold green]{ev.stage}[/]: {escape(ev.message)}", soft_wrap=True, highlight=False)
-            for label, path in (ev.details.get("files") or {}).items():
-                where = Path(folder, path) if folder and not Path(path).is_absolute() else Path(path)
+            for label, where in files_written(summary, ev):
                 out.print(f"  {label}: {escape(str(where))}", highlight=False, soft_wrap=True)
             continue
         colour = "yellow" if ev.level == "warning" else "red"

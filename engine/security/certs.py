@@ -30,6 +30,8 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
+from engine.files import create_new
+
 DEFAULT_DAYS = 365
 LOCAL_NAMES = ("localhost", "127.0.0.1", "::1")
 
@@ -115,9 +117,8 @@ def make_leaf(
 
 
 def _write(path: Path, data: bytes, private: bool) -> None:
-    """Create *path* (never replace one: O_EXCL), 0600 for private keys."""
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600 if private else 0o644)
-    with os.fdopen(fd, "wb") as f:
+    """Create *path* (never replace one, never through a link), 0600 for private keys."""
+    with create_new(path, 0o600 if private else 0o644) as f:
         f.write(data)
 
 
