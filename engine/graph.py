@@ -20,6 +20,7 @@ import itertools
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
+from pathlib import Path
 from typing import Any
 
 from pydantic import ValidationError
@@ -209,22 +210,33 @@ def build_graph(loaded: LoadedRecipe, registry: Registry) -> Graph:
     return Graph(loaded, nodes, edges, service_edges, order)
 
 
-def missing_input_files(graph: Graph, processes: Iterable[str] | None = None) -> list[Problem]:
-    """A problem for each :func:`engine.stage.input_file` parameter of the stages of *processes*
-    (None: every process) that names no existing file or folder."""
+def input_files(graph: Graph, processes: Iterable[str] | None = None) -> list[tuple[str, str, Path]]:
+    """``(stage, parameter, path)`` of every :func:`engine.stage.input_file` parameter that is set,
+    of the stages of *processes* (None: every process); relative paths resolved from the recipe's folder."""
     path = graph.loaded.path
     recipe_dir = path.resolve().parent if path is not None and path.is_file() else None
     hosted = set(graph.processes() if processes is None else processes)
-    problems = []
+    found = []
     for name, node in graph.nodes.items():
         if node.spec.process not in hosted:
             continue
         for key, info in type(node.params).model_fields.items():
             value = getattr(node.params, key)
             marked = isinstance(info.json_schema_extra, dict) and info.json_schema_extra.get(INPUT_FILE_MARK)
-            if marked and value and not (file := resolve_input(value, recipe_dir)).exists():
-                where = ("stages", name, "params", key)
-                problems.append(graph.loaded.problem(where, f"{key} {str(value)!r}: no such file or folder ({file})"))
+            if marked and value:
+                found.append((name, key, resolve_input(value, recipe_dir)))
+    return found
+
+
+def missing_input_files(graph: Graph, processes: Iterable[str] | None = None) -> list[Problem]:
+    """A problem for each :func:`engine.stage.input_file` parameter of the stages of *processes*
+    (None: every process) that names no existing file or folder."""
+    problems = []
+    for name, key, file in input_files(graph, processes):
+        if not file.exists():
+            value = getattr(graph.nodes[name].params, key)
+            where = ("stages", name, "params", key)
+            problems.append(graph.loaded.problem(where, f"{key} {str(value)!r}: no such file or folder ({file})"))
     return problems
 
 

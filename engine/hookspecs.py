@@ -24,6 +24,13 @@ class CliVerb(NamedTuple):
     module: str  # imported only when the verb runs; its ``add_verbs(subparsers)`` adds the full parser
 
 
+class CellGateway(NamedTuple):
+    """A way for controllers to reach a cell service besides zenoh (hook ``vgr_cell_gateways``)."""
+
+    name: str  # the key of the recipe's ``serve.gateways`` block that starts it
+    module: str  # imported when a served recipe names it; ``start_gateway(handle, settings, log)``
+
+
 class VgrSpecs:
     @hookspec
     def vgr_stage_types(self) -> list[type]:  # type: ignore[empty-body]
@@ -49,4 +56,13 @@ class VgrSpecs:
         only when that verb runs, so ``vgr --help`` and ``vgr run`` do not pay for every capability's
         libraries; its ``add_verbs(subparsers)`` adds the parser, whose ``func`` returns an exit code of
         engine.exit_codes. A verb name that another plugin or the engine already has is an error.
+        """
+
+    @hookspec
+    def vgr_cell_gateways(self) -> list[CellGateway]:  # type: ignore[empty-body]
+        """Return the gateways this plugin offers a cell service (:class:`CellGateway`). A served recipe's
+        ``serve.gateways: {<name>: {settings}}`` starts gateway *name*: its module's
+        ``start_gateway(handle, settings, log)`` gets ``handle(command, request_document) -> reply
+        document`` (engine.run.cell.protocol) and returns an object with ``close()`` and ``address``;
+        bad settings raise ValueError.
         """

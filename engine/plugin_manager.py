@@ -91,6 +91,18 @@ def plugin_verbs(taken: Iterable[str] = ()) -> dict[str, CliVerb]:
     return verbs
 
 
+def cell_gateways() -> dict[str, str]:
+    """The gateways the installed plugins offer a cell service: name -> module (hook vgr_cell_gateways)."""
+    pm = _plugin_manager((), entry_points=True)
+    found: dict[str, str] = {}
+    for impl in pm.hook.vgr_cell_gateways.get_hookimpls():
+        for gw in impl.function() or []:
+            if gw.name in found:
+                raise PluginError(f"cell gateway {gw.name!r} is provided twice (plugin {impl.plugin_name})")
+            found[gw.name] = gw.module
+    return found
+
+
 def load_registry(extra_modules: Iterable[str] = (), *, entry_points: bool = True) -> Registry:
     """Load plugins (entry points of group ``vgr`` + *extra_modules*) and build the registry."""
     pm = _plugin_manager(extra_modules, entry_points)

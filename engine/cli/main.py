@@ -140,6 +140,8 @@ def run_with_progress(runner: Runner, show: bool) -> RunSummary:
 def cmd_run(args: argparse.Namespace) -> int:
     graph, registry = _load_graph(args, check_inputs=True)
     recipe = graph.recipe
+    if recipe.serve is not None:  # its jobs come as requests: a run of it would start, find no data and end
+        raise RecipeError([graph.loaded.problem(("serve",), f"a cell service: run it with `vgr serve {args.recipe}`")])
     from engine.recipe.model import ProcessSettings
 
     if args.listen or args.connect:
@@ -311,6 +313,8 @@ VERB_MODULES: dict[str, tuple[str, str]] = {
     "play": ("engine.cli.topics", "put a recording's topics back on zenoh at their recorded pace (like ros2 bag play)"),
     "certs": ("engine.cli.security", "development certificates for a recipe's security: block"),
     "doctor": ("engine.cli.doctor", "check the installation and the machine, and say what to fix"),
+    "serve": ("engine.cli.serve", "host a recipe as a cell service a robot controller drives"),
+    "call": ("engine.cli.serve", "send one request to a cell service and print its reply (like ros2 service call)"),
 }
 
 

@@ -41,6 +41,7 @@ from engine.messages.vgr_v1 import (
     ROBOT_COMMAND_KINDS,
     Blob,
     CalibrationResultMsg,
+    CellReply,
     Correction,
     Event,
     Request,
@@ -65,6 +66,7 @@ BUILTIN_MESSAGE_TYPES: tuple[type[Message], ...] = (
     RobotReply,
     Correction,
     Request,
+    CellReply,
     SceneMeshes,
     PoseWithCovarianceStamped,
 )
@@ -78,6 +80,7 @@ __all__ = [
     "Bulk",
     "CalibrationResultMsg",
     "CameraInfo",
+    "CellReply",
     "Correction",
     "Event",
     "FrameTransforms",

@@ -245,6 +245,12 @@ message Request {                    // a generic service request (capture now, 
   string command = 2;
   string args_json = 3;
 }
+message CellReply {                  // a cell service job's answer (engine.run.cell)
+  google.protobuf.Timestamp timestamp = 1;
+  string status = 2;                 // a name of engine.run.cell.codes: ok | no_part | ...
+  string message = 3;                // for people: what happened, what to do
+  string result_json = 4;            // the command's result (its schema is the command's)
+}
 """,
 )
 

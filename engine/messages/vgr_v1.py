@@ -141,3 +141,16 @@ class Request(Message, schema="vgr.v1.Request"):
 
     command: str = ""
     args: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(kw_only=True, eq=False)
+class CellReply(Message, schema="vgr.v1.CellReply"):
+    """A cell service job's answer to its :class:`Request`: a status of engine.run.cell.codes, a
+    message for people and the command's result (plain JSON data)."""
+
+    WIRE_EXACT: ClassVar[bool] = True
+    WIRE: ClassVar[WireMap] = {"result": "result_json"}
+
+    status: str = "fault"
+    message: str = ""
+    result: dict[str, Any] = field(default_factory=dict)

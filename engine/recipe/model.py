@@ -98,6 +98,28 @@ class RecordSettings(_Strict):
     chunk_size: int = Field(1 << 20, ge=1024)
 
 
+class CycleRecordSettings(_Strict):
+    """Rolling recordings of a cell service (engine.recording.cycle_files): a new file every
+    ``cycles_per_file`` cycles, the oldest removed beyond any of the limits (0: no limit of that kind)."""
+
+    cycles_per_file: int = Field(1, ge=1, le=100_000)
+    keep_files: int = Field(1000, ge=0)
+    keep_mb: float = Field(2000.0, ge=0.0)
+    keep_hours: float = Field(0.0, ge=0.0)
+
+
+class ServeSettings(_Strict):
+    """A recipe hosted as a cell service (``vgr serve``, engine.run.cell): its cell name, which stage
+    service answers each job command, how many replies it remembers, its recordings and gateways."""
+
+    cell: str = Field(pattern=r"^[A-Za-z][A-Za-z0-9_-]{0,63}$")
+    commands: dict[Literal["locate", "guide"], str] = Field(min_length=1)  # command -> "stage.service"
+    remember: int = Field(1000, ge=1, le=1_000_000)  # replies kept for repeated request ids
+    cycle_timeout_s: float = Field(30.0, gt=0.0, le=3600.0)
+    record: CycleRecordSettings = Field(default_factory=CycleRecordSettings)
+    gateways: dict[str, dict[str, Any]] = Field(default_factory=dict)  # name -> its settings (hook vgr_cell_gateways)
+
+
 class Recipe(_Strict):
     vgr: int = RECIPE_FORMAT
     name: str
@@ -115,6 +137,7 @@ class Recipe(_Strict):
     processes: dict[str, ProcessSettings] = Field(default_factory=dict)
     security: SecuritySettings | None = None
     record: RecordSettings = Field(default_factory=RecordSettings)
+    serve: ServeSettings | None = None  # a cell service (vgr serve); vgr run refuses such a recipe
     stages: dict[str, StageSpec]
 
     @field_validator("vgr")

@@ -160,11 +160,21 @@ class Recorder(Observer):
     # -- observer interface (stage threads) ----------------------------------------------------
     def on_start(self, runner: Runner) -> None:
         self._runner = runner
-        self._file = create_new(self.path)
+        self._open_file(self.path)
+        self._thread = threading.Thread(target=self._write_loop, name="vgr:recorder", daemon=True)
+        self._thread.start()
+
+    def _open_file(self, path: Path, extra: dict[str, dict[str, str]] | None = None) -> None:
+        """Create *path* (a new file) and write its header: the run, the recipe (text and overrides),
+        the versions, *extra* metadata records, the recipe as an attachment."""
+        runner = self._runner
+        assert runner is not None
+        self._file = create_new(path)
         self._writer = Writer(
             self._file, chunk_size=self.settings.chunk_size, compression=_COMPRESSION[self.settings.compression]
         )
         self._writer.start(profile="", library=f"vgr {__version__}")
+        self._schemas, self._channels = {}, {}  # (ids are per file)
         recipe = self.loaded.recipe
         self._writer.add_metadata(
             "vgr.run",
@@ -188,6 +198,8 @@ class Recorder(Observer):
             },
         )
         self._writer.add_metadata("vgr.versions", versions(self.plugins))
+        for name, record in (extra or {}).items():
+            self._writer.add_metadata(name, record)
         self._writer.add_attachment(
             log_time=runner.clock.now_ns(),
             create_time=runner.clock.now_ns(),
@@ -195,8 +207,6 @@ class Recorder(Observer):
             media_type="application/yaml",
             data=self.loaded.text.encode(),
         )
-        self._thread = threading.Thread(target=self._write_loop, name="vgr:recorder", daemon=True)
-        self._thread.start()
 
     def _now(self) -> int:
         assert self._runner is not None
@@ -374,32 +384,36 @@ class Recorder(Observer):
         self._writer.add_message(channel_id=cid, log_time=log_time, data=data, publish_time=log_time, sequence=sequence)
 
     def _close(self, summary: RunSummary) -> None:
+        self._finish_file(self._summary_record(summary))
+
+    def _finish_file(self, summary: dict[str, str]) -> None:
+        """Write *summary* (metadata ``vgr.summary``), the index and the footer; close the file."""
         try:
-            self._writer.add_metadata(
-                "vgr.summary",
-                {
-                    "ok": str(summary.ok).lower(),
-                    "outcome": summary.outcome,
-                    "stop_reason": summary.stop_reason or "",
-                    "wall_s": f"{summary.wall_s:.3f}",
-                    "stop_to_end_s": "" if summary.stop_to_end_s is None else f"{summary.stop_to_end_s:.3f}",
-                    "stages": json.dumps(
-                        [
-                            {
-                                "name": s.name,
-                                "state": s.state,
-                                "in": s.messages_in,
-                                "out": s.messages_out,
-                                "errors": s.errors,
-                            }
-                            for s in summary.stages
-                        ]
-                    ),
-                    "recording_error": self.error or "",
-                },
-            )
+            self._writer.add_metadata("vgr.summary", summary)
             self._writer.finish()
         except Exception as exc:
             self.error = self.error or f"{type(exc).__name__}: {exc}"
         finally:
             self._file.close()
+
+    def _summary_record(self, summary: RunSummary) -> dict[str, str]:
+        return {
+            "ok": str(summary.ok).lower(),
+            "outcome": summary.outcome,
+            "stop_reason": summary.stop_reason or "",
+            "wall_s": f"{summary.wall_s:.3f}",
+            "stop_to_end_s": "" if summary.stop_to_end_s is None else f"{summary.stop_to_end_s:.3f}",
+            "stages": json.dumps(
+                [
+                    {
+                        "name": s.name,
+                        "state": s.state,
+                        "in": s.messages_in,
+                        "out": s.messages_out,
+                        "errors": s.errors,
+                    }
+                    for s in summary.stages
+                ]
+            ),
+            "recording_error": self.error or "",
+        }

@@ -177,6 +177,9 @@ class Replayer:
         self.provider_replies: dict[str, list[tuple[int, bytes]]] = defaultdict(list)
         self.recorded_replies: dict[str, list[tuple[int, bytes]]] = defaultdict(list)
         self.failures: list[str] = []
+        # a recording that begins mid-run (a cell service's cycle file, engine.recording.cycle_files): the
+        # sequence numbers of the re-run stages' outputs and calls go on from where the file begins
+        self.call_seq_base: dict[tuple[str, str], int] = {}
 
     # -- service calls made by re-run stages ---------------------------------------------------
     def serve_call(self, ctx: _ReplayContext, client: str, request: Message) -> Message:
@@ -186,7 +189,7 @@ class Replayer:
         if not request.stamp_ns:
             request.stamp_ns = ctx.causal_stamp or self.clock.now_ns()
         sent = self.requests_sent[(ctx.name, client)]
-        request.seq = len(sent) + 1
+        request.seq = len(sent) + 1 + self.call_seq_base.get((ctx.name, client), 0)
         sent.append((request.seq, codec.encode_payload(request)))
         if edge.provider in self.stages:
             reply = self._provider_answer(edge.provider, edge.service, request)
@@ -256,10 +259,14 @@ class Replayer:
                     playback[(m.topic, m.seq)] = m
             elif r[0] == "svc" and r[1].caller in rerun:
                 self.exchanges[(r[1].caller, r[1].client)].append(r[1])
+                self.call_seq_base.setdefault((r[1].caller, r[1].client), r[1].request_seq - 1)
         for name in self.graph.order:
             if name in rerun:
                 node = self.graph.nodes[name]
                 ctx = _ReplayContext(self, node)
+                for recorded in recorded_out.values():  # (a file that begins mid-run)
+                    if recorded and recorded[0].stage == name:
+                        ctx.seq[recorded[0].port] = recorded[0].seq - 1
                 self.contexts[name] = ctx
                 self.stages[name] = node.cls(ctx, node.params)
         for name, stage in self.stages.items():

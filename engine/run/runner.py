@@ -122,6 +122,7 @@ class Runner:
         freeze_gc: bool = False,
         run_dir: Path | None = None,
         certs_dir: str | None = None,
+        hold_open: bool = False,
     ) -> None:
         recipe = graph.recipe
         if process not in graph.processes():
@@ -150,6 +151,12 @@ class Runner:
         self._stop_claim = threading.Lock()  # taken by the one stop() that stops the run
         self.stop_to_end_s: float | None = None
         self.started = False  # True once every local stage's setup() has run
+        self.ready = threading.Event()  # set once every local stage runs (sources started): a service may serve
+        # a cell service (engine.run.cell) holds its run open until release(): the end of the data
+        # ends nothing, since each job comes as a request
+        self.hold_open = hold_open
+        self._released = threading.Event()
+        self.before_shutdown: list[Any] = []  # called first in the shutdown, the bus still open (a service's close)
         self.stop_reason: str | None = None
         self.failed_stages: list[str] = []
         self.driven = _driven_stages(graph)
@@ -260,6 +267,11 @@ class Runner:
         if broadcast:
             self.members.broadcast_stop(reason)
 
+    def release(self) -> None:
+        """End a run held open (``hold_open``) in order, as if its data had ended: no stop, no halt."""
+        self._released.set()
+        self._progress.set()
+
     def _wake_all(self) -> None:
         """Unblock every pump thread of this process (non-blocking)."""
         for rt in self.runtimes.values():
@@ -326,7 +338,7 @@ class Runner:
         discovery.announce(self.bus, self.run_id, self.process, topics)  # what `vgr topics` and foreign tools read
         for rt in self.runtimes.values():
             rt.declare_inputs(self.runtimes)
-        self.members.join(local, drives=bool(self.driven & self.runtimes.keys()))
+        self.members.join(local, drives=bool(self.driven & self.runtimes.keys()) or self.hold_open)
         self.members.await_stages()
         for name in local:
             rt = self.runtimes[name]
@@ -354,6 +366,7 @@ class Runner:
         self.members.await_started()
         for name in local:
             self.runtimes[name].start_source()
+        self.ready.set()
 
     def _track_driven(self) -> None:
         """Before the stages start: every driven stage of this process is open until :meth:`_settle`."""
@@ -367,7 +380,9 @@ class Runner:
         for name in list(self._driven_ports):  # (whatever ended before this loop began)
             self._settle(name)
         while not self.stop_event.is_set():
-            if not self._open_driven and self.members.ended_everywhere():
+            if self.hold_open and not self._released.is_set():
+                pass  # (a cell service: until release())
+            elif not self._open_driven and self.members.ended_everywhere():
                 break
             self._progress.wait(0.05)
             self._progress.clear()
@@ -389,6 +404,11 @@ class Runner:
     def _shutdown(self) -> None:
         if self._bus is None:
             return
+        for before in self.before_shutdown:
+            try:
+                before()
+            except Exception:
+                log.exception("closing %r failed", before)
         self.stop_event.set()  # ends service pumps and idle readers; a failure only if stop_reason is set
         if self.stop_reason:
             self._halt_devices()  # motion stops first

@@ -213,6 +213,7 @@ class StageRuntime(StageContext):
         key = service_key(self.run_id, edge.provider, edge.service)
         self.stats.calls_made += 1
         reply_payload, reply_att, error = b"", b"", ""
+        t0 = perf_counter()
         try:
             answers = self.host.bus.request(key, payload, att, timeout_s, self.host.calls_token)
             where = f"{self.name} -> {edge.provider}.{edge.service}"
@@ -239,7 +240,8 @@ class StageRuntime(StageContext):
             raise ServiceError(f"{where}: {exc}") from None
         finally:
             if self._observers:
-                done = ServiceCall(self.name, client, edge, payload, att, reply_payload, reply_att, error)
+                elapsed = perf_counter() - t0
+                done = ServiceCall(self.name, client, edge, payload, att, reply_payload, reply_att, error, elapsed)
                 for obs in self._observers:
                     obs.on_service(done)
         if not isinstance(reply, spec.reply):

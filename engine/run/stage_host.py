@@ -37,6 +37,7 @@ class ServiceCall:
     reply_payload: bytes  # empty (and reply_env too) when no reply came
     reply_env: bytes
     error: str  # why the call failed; empty when it was answered
+    elapsed_s: float = 0.0  # from the request leaving to the reply (a figure for people, never recorded)
 
 
 @dataclass(frozen=True, slots=True)
