@@ -3,13 +3,14 @@ exactly as a third-party package would (pyproject: ``[project.entry-points.vgr] 
 
 from __future__ import annotations
 
-from engine.hookspecs import CliVerb, hookimpl
+from engine.hookspecs import CellGateway, CliVerb, hookimpl
 
 
 @hookimpl
 def vgr_stage_types() -> list[type]:
     from plugins.actions.stages.calibration_poses import CalibrationPoses
     from plugins.actions.stages.capture import CaptureAtPose
+    from plugins.actions.stages.cell_locator import CellLocator
     from plugins.actions.stages.docking import Docking, DualDocking
     from plugins.actions.stages.guidance import Guidance
     from plugins.actions.stages.guidance_report import GuidanceReport
@@ -50,7 +51,7 @@ def vgr_stage_types() -> list[type]:
         KinematicCalibrationStage,
         CalibrationFile,
     ]
-    actions = [CaptureAtPose, Guidance, Docking, DualDocking, GuidanceReport]
+    actions = [CaptureAtPose, Guidance, Docking, DualDocking, GuidanceReport, CellLocator]
     model_gap = [MeasurementCampaign, ModelGap]  # model-gap workflow
     return [
         SyntheticCloud,
@@ -97,3 +98,8 @@ def vgr_cli_verbs() -> list[CliVerb]:
             "gap", "compare a robot model with measurements, name the missing effect, add it", "plugins.model_gap.cli"
         ),
     ]
+
+
+@hookimpl
+def vgr_cell_gateways() -> list[CellGateway]:
+    return [CellGateway("tcp", "plugins.actions.cell.tcp_gateway")]

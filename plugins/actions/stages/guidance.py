@@ -18,7 +18,6 @@ repeated trigger never moves twice (the robot answers ``duplicate`` and guidance
 
 from __future__ import annotations
 
-import json
 from typing import ClassVar, Literal
 
 import numpy as np
@@ -26,9 +25,9 @@ from pydantic import Field
 
 from engine.messages import PointCloud, Request, RobotReply
 from engine.stage import ServiceError, ServiceSpec, Stage, StageParams, input_file
-from engine.transforms import as_transform
 from plugins.actions import guidance_math as gm
 from plugins.actions import robot_moves
+from plugins.actions.hand_eye_source import load_hand_eye
 from plugins.actions.messages import GuidanceResult
 from plugins.interfaces import CAMERA_CAPTURE, ROBOT_MOVE
 from plugins.params import PoseSpec
@@ -83,18 +82,7 @@ class Guidance(Stage):
         self.tol = (p.translation_tol_mm / 1e3, float(np.radians(p.rotation_tol_deg)))
 
     def _hand_eye(self, p: Guidance.Params) -> np.ndarray:
-        want = "T_tcp_cam" if p.mode == "eye_in_hand" else "T_base_cam"
-        if p.hand_eye_file:
-            path = self.ctx.input_path(p.hand_eye_file)
-            doc = json.loads(path.read_text())
-            if doc.get("verdict") not in ("ok", "warning"):
-                raise ValueError(f"{path}: calibration verdict {doc.get('verdict')!r} may not drive a robot")
-            if want not in doc.get("estimate", {}):
-                raise ValueError(f"{path}: no {want} in the calibration estimate (mode {p.mode})")
-            return as_transform(np.array(doc["estimate"][want], dtype=float), name=want)
-        if p.hand_eye is None:
-            raise ValueError(f"guidance needs the hand-eye transform {want}: set hand_eye or hand_eye_file")
-        return p.hand_eye.T()
+        return load_hand_eye(self.ctx, p.mode, p.hand_eye, p.hand_eye_file)
 
     # -- services ------------------------------------------------------------------------------
     def _move(self, job: int, k: str, T: np.ndarray, kind: str) -> RobotReply:

@@ -22,6 +22,7 @@ second parent (``world -> tcp`` beside ``base -> tcp``) or a second pose would n
 
 from __future__ import annotations
 
+import time
 from dataclasses import replace
 from typing import Any, ClassVar, Literal
 
@@ -121,7 +122,15 @@ class SimCamera(Stage):
 
     type_name = "sim_camera"
     role = "sensor"
-    services: ClassVar = CAMERA_SERVICES
+    services: ClassVar = {
+        **CAMERA_SERVICES,
+        "place": ServiceSpec(
+            Request, Request, "simulation: put part args.part at args.pose (a pose document) in the world"
+        ),
+        "fault": ServiceSpec(
+            Request, Request, "simulation: the next args.captures captures fail (kind disconnect) or hang args.seconds"
+        ),
+    }
     outputs: ClassVar = {
         **CAMERA_OUTPUTS,
         "frames": FrameTransforms,
@@ -220,7 +229,43 @@ class SimCamera(Stage):
             raise RuntimeError(f"the simulated robot did not give its TCP pose: {reply.error}")
         return reply.T
 
-    def on_request(self, service: str, request: Any) -> PointCloud:
+    def _place(self, request: Request) -> Request:
+        """Move a part lying in the world (a simulated controller's next part, at a new offset)."""
+        from engine.run.cell.protocol import pose_from_doc
+
+        name = request.args.get("part")
+        index = next((i for i, pp in enumerate(self.cell.parts) if pp.name == name), None)
+        if index is None or self.cell.parts[index].parent != "world":
+            lying = [pp.name for pp in self.cell.parts if pp.parent == "world"]
+            raise ValueError(f"no part {name!r} lying in the world (parts: {', '.join(lying)})")
+        T = pose_from_doc(request.args.get("pose"), "pose")
+        self.cell.parts[index] = replace(self.cell.parts[index], T_parent_part=T)
+        return Request(command="placed", args={"part": name})
+
+    def _fault(self, request: Request) -> Request:
+        """A camera fault from now on: ``disconnect`` (the next ``captures`` captures fail, as a cable
+        pulled and put back does) or ``hang`` (the next capture takes ``seconds`` of wall time, as a
+        stalled USB link does); the cell service must answer camera_fault and go on."""
+        kind, args = request.args.get("kind"), request.args
+        if kind == "disconnect":
+            self._fail_captures = int(args.get("captures", 1))
+        elif kind == "hang":
+            self._hang_s = float(args.get("seconds", 1.0))
+        else:
+            raise ValueError(f"fault kind {kind!r}: disconnect or hang")
+        return Request(command="fault", args={"kind": kind})
+
+    def on_request(self, service: str, request: Any) -> Any:
+        if service == "place":
+            return self._place(request)
+        if service == "fault":
+            return self._fault(request)
+        if getattr(self, "_fail_captures", 0) > 0:
+            self._fail_captures -= 1
+            raise ConnectionError("camera disconnected (simulated fault): no frame")
+        if getattr(self, "_hang_s", 0.0) > 0:
+            hang, self._hang_s = self._hang_s, 0.0
+            time.sleep(hang)  # (wall time: a device that stalls, whatever the run's clock)
         p: SimCamera.Params = self.params  # type: ignore[assignment]
         T_world_tcp = self._tcp_truth()
         t = self.ctx.clock.now_s()
