@@ -213,6 +213,12 @@ def _security_refused(graph: Graph, certs_dir: str | None) -> bool:
 
 def cmd_validate(args: argparse.Namespace) -> int:
     graph, _ = _load_graph(args, check_inputs=True)
+    if graph.recipe.serve is not None:  # a cell service: its commands must name job services
+        from engine.run.cell.settings import serve_problems
+
+        problems = serve_problems(graph)
+        if problems:
+            raise RecipeError(problems)
     if _security_refused(graph, args.certs):
         return ExitCode.INVALID
     if args.json:

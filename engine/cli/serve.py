@@ -64,6 +64,12 @@ def cmd_serve(args: argparse.Namespace) -> int:
     recipe = graph.recipe
     serve = recipe.serve
     assert serve is not None
+    if args.cell:
+        from engine.recipe.model import NAME_RE
+
+        if not NAME_RE.match(args.cell):
+            raise ValueError(f"--cell {args.cell!r}: letters, digits, '_' and '-', starting with a letter (max 64)")
+        serve = recipe.serve = serve.model_copy(update={"cell": args.cell})
     over = recipe.processes.get(args.process) or ProcessSettings()
     listen = args.listen or over.listen or ["private"]  # the cell's socket: `vgr call <cell>` finds it
     recipe.processes[args.process] = ProcessSettings(listen=listen, connect=args.connect or over.connect)
@@ -328,6 +334,7 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg
     p = sub.add_parser("serve", help="host a recipe as a cell service a robot controller drives")
     _add_recipe_args(p)
     p.add_argument("--process", default="main", help="the recipe's process to run here (default main: the service)")
+    p.add_argument("--cell", help="the cell's name (default: the recipe's serve.cell)")
     add_listen_option(p, "private: the cell's unix socket, this user only")
     p.add_argument("--connect", action="append", metavar="ENDPOINT", help="zenoh endpoint to connect to")
     p.add_argument("--certs", metavar="DIR", help="certificate folder of the recipe's security: block")

@@ -51,6 +51,13 @@ class InvalidRequest(ValueError):  # noqa: N818 - answered as the status invalid
     """A request the service cannot take (answered ``invalid_request`` with this message)."""
 
 
+def schema() -> dict[str, Any]:
+    """The JSON Schema of every request and reply (``$defs``: ``<command>_request``, ``reply``)."""
+    from importlib import resources
+
+    return json.loads(resources.files("engine.run.cell").joinpath("schemas/cell_api.schema.json").read_text())
+
+
 def api_key(cell: str, command: str) -> str:
     """The zenoh key of *command* of cell *cell*."""
     return f"vgr/{cell}/api/{command}"
@@ -67,8 +74,8 @@ def parse_request(command: str, payload: bytes) -> dict[str, Any]:
         raise InvalidRequest(f"unknown command {command!r}: the API has {', '.join(COMMANDS)}")
     if len(payload) > MAX_REQUEST_BYTES:
         raise InvalidRequest(f"request of {len(payload)} bytes: at most {MAX_REQUEST_BYTES}")
-    text = payload.decode("utf-8", errors="strict") if payload else "{}"
     try:
+        text = payload.decode("utf-8", errors="strict") if payload else "{}"
         doc = json.loads(text, parse_constant=_no_constant)
     except (ValueError, UnicodeDecodeError) as exc:
         raise InvalidRequest(f"the request is not JSON: {exc}") from None

@@ -29,6 +29,7 @@ from plugins.devices.camera_output import (
     publish_mount,
 )
 from plugins.devices.realsense_device import RealSenseConfig, RealSenseDevice
+from plugins.devices.reconnect import Reconnecting
 from plugins.util.sdk import import_sdk
 
 
@@ -80,7 +81,10 @@ class RealSenseCamera(DepthCameraAdapter):
             discard_frames=p.discard_frames,
             timeout_s=p.timeout_s,
         )
-        self.device = RealSenseDevice(rs, cfg)
+        self.link: Reconnecting[RealSenseDevice] = Reconnecting(
+            lambda: RealSenseDevice(rs, cfg), lambda d: d.close(), what=p.serial or "RealSense"
+        )
+        self.device = self.link.connect()  # (at set-up a camera that cannot open is the run's error)
         self.rays = normalized_rays(self.device.intrinsics)  # per pixel, reused for every frame
         intr = self.device.intrinsics
         self.ctx.event(
@@ -94,14 +98,16 @@ class RealSenseCamera(DepthCameraAdapter):
         publish_mount(self.ctx, p)
 
     def teardown(self) -> None:
-        if self.device is not None:
-            self.device.close()
-            self.device = None
+        link = getattr(self, "link", None)
+        if link is not None:
+            link.close()
+        self.device = None
 
     def on_request(self, service: str, request: Any) -> PointCloud:
         p: RealSenseCameraParams = self.params  # type: ignore[assignment]
-        assert self.device is not None
-        shot = self.device.capture()
+        # a failed capture closes the device; a later one reopens it with back-off (plugins.devices.reconnect)
+        shot = self.link.use(lambda device: device.capture())
+        self.device = self.link.device
         depth = shot.depth_m
         depth[(depth < p.min_depth_m) | (depth > p.max_depth_m)] = np.nan
         organised = deproject_depth(depth, self.device.intrinsics, self.rays)
