@@ -31,7 +31,7 @@ def _hosts(endpoints: list[str]) -> list[str]:
 def cmd_certs_make(args: argparse.Namespace) -> int:
     loaded = load_recipe(Path(args.recipe), args.param or [])
     recipe = loaded.recipe
-    observers = list(recipe.security.observers) if recipe.security else []
+    observers = [*recipe.security.observers, *recipe.security.controllers] if recipe.security else []
     observers += [o for o in args.observer or [] if o not in observers]
     identities = [
         Identity(p, tuple(_hosts(recipe.zenoh_for(p).listen or []) + (args.host or [])))

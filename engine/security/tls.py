@@ -51,12 +51,17 @@ class SecuritySettings(BaseModel):
         default_factory=list, description="Common Names of certificates that may subscribe to the run, read-only"
     )
 
-    @field_validator("observers")
+    controllers: list[str] = Field(
+        default_factory=list,
+        description="Common Names of certificates that may call a cell service's API (vgr serve): robot controllers",
+    )
+
+    @field_validator("observers", "controllers")
     @classmethod
     def _observer_names(cls, v: list[str]) -> list[str]:
         bad = [n for n in v if not n or "/" in n or n.startswith(("_", "."))]
         if bad:
-            raise ValueError(f"observer names {bad} must be plain certificate Common Names")
+            raise ValueError(f"names {bad} must be plain certificate Common Names")
         return v
 
 

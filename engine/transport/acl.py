@@ -18,6 +18,10 @@ engine.transport.bus):
 - liveliness: Q may declare only its own tokens (``_ready/<its stages>``, ``_started/Q``,
   ``_active/Q``, ``_peer/Q/**``); any process may watch the run's tokens.
 
+Controllers (``security.controllers``, robot controllers of a cell service, engine.run.cell) may query
+the API of the cell (``vgr/<cell>/api/<command>``; the cell is the run) and see its serving token
+there, on the process that serves it (``main``); nothing else of the run.
+
 Observers (``security.observers``) may subscribe to anything of the run and watch its tokens, and
 query P's description ``_info/P`` (engine.transport.discovery: its topics and schemas, read-only); they may
 put, declare a queryable or a token nowhere and query nothing else. Anyone else gets nothing: no subject,
@@ -26,6 +30,7 @@ no policy.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 from engine.graph import Graph
@@ -69,7 +74,9 @@ def process_token_keys(run: str, graph: Graph, process: str) -> list[str]:
     ]
 
 
-def acl_for(graph: Graph, process: str, run: str, observers: list[str]) -> dict[str, Any]:
+def acl_for(
+    graph: Graph, process: str, run: str, observers: Sequence[str], controllers: Sequence[str] = ()
+) -> dict[str, Any]:
     """zenoh's ``access_control`` section for *process* of *graph* in run *run*."""
     mine = set(graph.stages_in(process))
     r = _Rules()
@@ -124,8 +131,16 @@ def acl_for(graph: Graph, process: str, run: str, observers: list[str]) -> dict[
         # zenoh refuses a key expression wider than the rule's; this process alone answers it here
         r.allow(subj, "read the description", "ingress", ["query"], [info_key(run, "*")])
         r.allow(subj, "read the description", "egress", ["declare_queryable", "reply"], [info_key(run, process)])
+    serving = graph.recipe.serve is not None and process == "main"
+    for name in controllers if serving else ():
+        subj = f"controller {name}"
+        api = [f"vgr/{run}/api/*"]
+        r.allow(subj, "call the cell", "ingress", ["query", "liveliness_query"], api)
+        r.allow(subj, "call the cell", "egress", ["declare_queryable", "reply", "liveliness_token"], api)
     subjects = [{"id": _process_subject(p), "cert_common_names": [p]} for p in graph.processes() if p != process]
     subjects += [{"id": _observer_subject(o), "cert_common_names": [o]} for o in observers]
+    if serving:
+        subjects += [{"id": f"controller {c}", "cert_common_names": [c]} for c in controllers]
     return {
         "enabled": True,
         "default_permission": "deny",

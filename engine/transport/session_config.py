@@ -68,7 +68,8 @@ def plan_session(
             f"(not {', '.join(plain)})"
         )
     ident = identity(sec, process, base or Path.cwd(), certs_dir)
-    extra: dict[str, Any] = {**tls_entries(ident), "access_control": acl_for(graph, process, run, sec.observers)}
+    acl = acl_for(graph, process, run, sec.observers, sec.controllers)
+    extra: dict[str, Any] = {**tls_entries(ident), "access_control": acl}
     return SessionPlan(settings, extra, secured=True)
 
 
@@ -90,7 +91,9 @@ def security_problems(graph: Graph, *, base: Path | None = None, certs_dir: str 
             )
         ident = identity(sec, process, base or Path.cwd(), certs_dir)
         problems += [f"process {process!r}: {p}" for p in identity_problems(ident)]
-    clash = set(sec.observers) & set(graph.processes())
+    clash = (set(sec.observers) | set(sec.controllers)) & set(graph.processes())
     if clash:
-        problems.append(f"observers {sorted(clash)} have the names of processes: an observer must be another identity")
+        problems.append(
+            f"observers/controllers {sorted(clash)} have the names of processes: each must be another identity"
+        )
     return problems
