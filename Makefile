@@ -45,6 +45,7 @@ golden: install
 	  -p camera.publish_depth=false -p start.count=2 --record recordings/sim_capture.mcap --no-progress
 	@for r in eye_in_hand_dock eye_to_hand_dock dual_dock planar_assembly; do \
 	  $(BIN)/vgr run recipes/$$r.yaml --record recordings/$$r.mcap --no-progress || exit 1; done
+	$(BIN)/python tests/cell/golden_cycle.py recordings/cell_service_cycle.mcap
 
 # Teach the guidance scenarios: run each teach recipe, make its matcher template from the capture.
 TEACH := eye_in_hand eye_to_hand planar_assembly

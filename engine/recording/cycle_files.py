@@ -106,6 +106,7 @@ class CycleRecorder(Recorder):
             path = self.folder / f"{Path(cycle_file_name(self._next_cycle)).stem}-{n}.mcap"
             n += 1
         self.path = path
+        self._seen_remote.clear()  # (messages from other processes are written once per file)
         self._open_file(path, {"vgr.inputs": {"json": json.dumps(self.inputs())}})
 
     def _finish_current(self) -> None:

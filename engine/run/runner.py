@@ -41,6 +41,7 @@ end (also :attr:`RunSummary.stop_to_end_s`).
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import gc
 import logging
@@ -72,6 +73,7 @@ __all__ = ["Observer", "RunError", "RunSummary", "Runner", "recipe_dir"]
 log = logging.getLogger("vgr.runner")
 
 STOP_GRACE_S = 2.0  # after a stop, how long the stages' threads have to end before they are reported
+SERVICE_EVENTS_KEPT = 1000  # events a held-open run (a cell service) keeps for its summary
 DRAIN_TIMEOUT_S = 10.0  # at the normal end, how long consumers have to drain what service-only stages sent
 
 
@@ -170,7 +172,10 @@ class Runner:
             else plan_session(graph, process, self.run_id, base=recipe_dir(graph), certs_dir=certs_dir)
         )
         self.runtimes: dict[str, StageRuntime] = {}
-        self.events: list[Event] = []
+        # a service runs for months: it keeps its last events only (the run log and the recordings keep all)
+        self.events: list[Event] | collections.deque[Event] = (
+            collections.deque(maxlen=SERVICE_EVENTS_KEPT) if hold_open else []
+        )
         self._events_lock = threading.Lock()
         self._progress = threading.Event()
         self.started_at = datetime.now(UTC)
