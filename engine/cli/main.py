@@ -452,6 +452,7 @@ def _main(argv: list[str], own_process: bool = False) -> int:
         BusError,
         FileNotFoundError,
         FileExistsError,
+        PermissionError,  # (a socket folder or a file of another user, a folder others may write: said, exit 2)
         ValueError,
         RecordingError,
         ReplayError,
