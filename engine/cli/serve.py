@@ -95,7 +95,18 @@ def cmd_serve(args: argparse.Namespace) -> int:
         summary = _serve_until_stopped(runner, service)
     for gw in gateways.values():
         gw.close()
+    _remove_socket_folder(serve.cell)
     return _report(args, summary, service, run_dir, cycles)
+
+
+def _remove_socket_folder(cell: str) -> None:
+    """The cell's private socket folder, once the service's socket is gone (kept if anything is left)."""
+    import contextlib
+
+    from engine.transport.endpoints import private_socket_dir
+
+    with contextlib.suppress(OSError):
+        (private_socket_dir() / cell).rmdir()
 
 
 def _serve_member(args: argparse.Namespace, graph: Any, cell: str) -> int:

@@ -263,7 +263,8 @@ class Recorder(Observer):
         last_flush = time.monotonic()
         dirty = False
         while True:
-            timeout = max(0.0, interval - (time.monotonic() - last_flush))
+            # nothing unflushed: wait for the next item (a timeout of 0 here would spin a core while idle)
+            timeout = max(0.0, interval - (time.monotonic() - last_flush)) if dirty else None
             try:
                 item = self._q.get(timeout=timeout)
             except queue.Empty:
