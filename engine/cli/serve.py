@@ -253,7 +253,11 @@ def _report(args: argparse.Namespace, summary: Any, service: Any, run_dir: Path,
         "cell": service.cell,
         "exit_code": int(code),
         "outcome": "ok" if code == ExitCode.OK else summary.outcome,
-        "stop_reason": service.stop_reason or summary.stop_reason or "",
+        # a stop that cut a cycle short says so (the runner's reason: "...: cycle N cut short after 5 s")
+        "stop_reason": (summary.stop_reason if service.cut_short else "")
+        or service.stop_reason
+        or summary.stop_reason
+        or "",
         "cycles": service.cycles,
         "by_status": service.by_status,
         "reloads": service.reloads,

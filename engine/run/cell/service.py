@@ -189,7 +189,19 @@ class CellService(Observer):
 
     def _take_job(self, command: str, payload: bytes, query: Any) -> None:
         """A job request from zenoh: answered at once when it cannot run, else handed to the worker
-        (the pump goes on reading, so a request meanwhile is answered ``busy``, not left waiting)."""
+        (the pump goes on reading, so a request meanwhile is answered ``busy``, not left waiting).
+        A repeat of a request whose cycle still runs waits for it in a thread of its own, not in the pump."""
+        rid = _peek_id(payload) if len(payload) <= protocol.MAX_REQUEST_BYTES else None
+        with self._ids_lock:
+            repeat_in_flight = isinstance(rid, str) and rid in self._inflight
+        if repeat_in_flight:
+            threading.Thread(
+                target=self._answer_job, args=(command, payload, query), name="vgr:cell.repeat", daemon=True
+            ).start()
+            return
+        self._answer_job(command, payload, query)
+
+    def _answer_job(self, command: str, payload: bytes, query: Any) -> None:
         early, doc = self._admit(command, payload)
         if early is not None:
             with query:
