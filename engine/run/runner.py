@@ -296,6 +296,11 @@ class Runner:
                     self._wait_until_done()
                 except KeyboardInterrupt:
                     self.stop("interrupted (Ctrl-C)")
+                except RunError:
+                    if not self.stop_event.is_set():
+                        raise
+                    # a stop (Ctrl-C, SIGTERM) while waiting at the start-up barrier: the stop is what
+                    # happened (outcome interrupted, exit 130), not a run that could not start
             finally:
                 self._shutdown()
         ok = not self.failed_stages and self.stop_reason is None and self.members.lost_peer is None
