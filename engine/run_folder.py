@@ -161,3 +161,19 @@ def output_dir(run_dir: Path | None, stage: str, named: str | Path | None) -> Pa
             raise OutputDirError(f"stage {stage!r}: {folder} is a file, not a folder")
     folder.mkdir(parents=True, exist_ok=True)
     return folder
+
+
+def output_file(run_dir: Path | None, stage: str, named: str | Path) -> Path:
+    """Where stage *stage* writes the file its parameter *named* names, its folder created: a relative
+    name lies inside the run folder (outside one: from the working directory); an absolute one is the
+    user's and must be new (:class:`OutputDirError`): a run never replaces a file it did not create.
+    Write it with engine.files.create_new (exclusive, never through a link)."""
+    p = Path(named).expanduser()
+    path = run_dir / p if run_dir is not None and not p.is_absolute() else p
+    if path.exists() or path.is_symlink():
+        raise OutputDirError(
+            f"stage {stage!r}: {path} exists; a run never replaces a file it did not create: name a new file, "
+            "or a relative one (it then lies inside the run folder)"
+        )
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path

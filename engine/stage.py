@@ -152,6 +152,12 @@ class StageContext:
             self._output_dirs[key] = run_folder.output_dir(self.run_dir, self.name, named)
         return self._output_dirs[key]
 
+    def output_file(self, named: str | Path) -> Path:
+        """The path of the file a parameter of this stage names (e.g. ``output``), to create with
+        engine.files.create_new: relative, inside the run folder; absolute, a new file of the user's
+        (engine.run_folder.output_file; OutputDirError when it exists)."""
+        return run_folder.output_file(self.run_dir, self.name, named)
+
     def publish(self, port: str, msg: Message) -> None:
         """Publish *msg* on output *port* (seq and, if unset, stamp are filled in)."""
         raise NotImplementedError

@@ -3,12 +3,14 @@
 Files, in the service's run folder under ``cycles/``:
 
 * ``start.mcap``: from the start to the service being ready (set-up events, first states);
-* ``cycle-<first cycle, 7 digits>.mcap``: the next ``serve.record.cycles_per_file`` cycles, and what
-  happened between them and the previous file (robot moves the controller made, streams). A file is
-  finished (index, footer, ``vgr.cycles`` metadata: each cycle's number, command, id, status) right
-  after the reply of its last cycle, so a finished cycle is safe on disk whatever happens next;
-  a kill mid-cycle leaves that one file unindexed (``vgr recover`` restores it). A reload finishes
-  the file early, so every file holds cycles of one configuration.
+* ``cycle-<first cycle, 7 digits>.mcap``: first the last frame tree and scene of each topic (published
+  once at start-up, they would otherwise be in ``start.mcap`` only), then the next
+  ``serve.record.cycles_per_file`` cycles and what happened between them and the previous file
+  (robot moves the controller made, streams). A file is finished (index, footer, ``vgr.cycles``
+  metadata: each cycle's number, command, id, status) right after the reply of its last cycle, so a
+  finished cycle is safe on disk whatever happens next; a kill mid-cycle leaves that one file
+  unindexed (``vgr recover`` restores it). A reload finishes the file early, so every file holds
+  cycles of one configuration.
 
 Each file is self-contained, as a run's recording is (engine.recording.recorder): the recipe text with
 the overrides in effect (a reload's included), the versions of vgr and its libraries, and
@@ -34,8 +36,13 @@ from typing import Any
 from engine.recipe.model import CycleRecordSettings, LoadedRecipe, RecordSettings
 from engine.recording.recorder import Recorder
 from engine.run.runner import Runner, RunSummary
+from engine.stage import PLAYBACK_ROLES
+from engine.transport.bus import topic_of
 
 log = logging.getLogger("vgr.cell.cycles")
+# published once (a robot's base, a camera's mount, the workpiece meshes): each file starts with the
+# last of each, so it draws the cell's frame tree and scene on its own (a viewer, a reader)
+LATCHED_TYPES = frozenset({"FrameTransforms", "SceneMeshes"})
 CYCLES_FOLDER = "cycles"
 
 
@@ -65,6 +72,7 @@ class CycleRecorder(Recorder):
         self._written: deque[tuple[Path, float]] = deque()  # finished files (path, finished at), oldest first
         self._lock = threading.Lock()
         self.files_removed = 0
+        self._latched: dict[str, tuple[Any, ...]] = {}  # topic -> its last FrameTransforms / SceneMeshes
 
     def on_start(self, runner: Runner) -> None:
         self._runner = runner
@@ -97,6 +105,14 @@ class CycleRecorder(Recorder):
                 self._next_file()
         else:
             super()._write(item)
+            if item[0] in ("msg", "remote") and item[3] in LATCHED_TYPES and self._played_back(item[1]):
+                self._latched[topic_of(item[1], item[2])] = item
+
+    def _played_back(self, stage: str) -> bool:
+        """A stage replay feeds from the file (its messages may open every file; a re-run stage's may not)."""
+        assert self._runner is not None
+        cls = self._runner.graph.nodes[stage].cls
+        return cls.role in PLAYBACK_ROLES or cls.is_source()
 
     def _next_file(self) -> None:
         self._finish_current()
@@ -108,6 +124,10 @@ class CycleRecorder(Recorder):
         self.path = path
         self._seen_remote.clear()  # (messages from other processes are written once per file)
         self._open_file(path, {"vgr.inputs": {"json": json.dumps(self.inputs())}})
+        now = self._now()
+        for item in list(self._latched.values()):  # the frame tree and the scene, as they are now
+            kind, stage, port, type_name, _, stamp, seq, payload = item
+            super()._write((kind, stage, port, type_name, now, stamp, seq, payload))
 
     def _finish_current(self) -> None:
         cycles, self._cycles = self._cycles, []

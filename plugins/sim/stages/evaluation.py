@@ -22,12 +22,12 @@ as true, which holds for a robot without injected kinematic errors (see docs/gui
 from __future__ import annotations
 
 import json
-from pathlib import Path
 from typing import ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
 
+from engine.files import create_new
 from engine.messages import Correction, FrameTransforms, PoseStamped
 from engine.stage import Stage, StageParams
 from engine.transforms import inv, pose_error, transform_points
@@ -67,9 +67,9 @@ class DockingEvaluator(Stage):
     def finish(self) -> None:
         result = self.evaluate()
         p: DockingEvaluator.Params = self.params  # type: ignore[assignment]
-        if p.output:
-            Path(p.output).parent.mkdir(parents=True, exist_ok=True)
-            Path(p.output).write_text(json.dumps(result, indent=2))
+        if p.output:  # (relative: inside the run folder; an absolute name must be a new file)
+            with create_new(self.ctx.output_file(p.output)) as f:
+                f.write(json.dumps(result, indent=2).encode())
         if result.get("error_mm") is None:
             text = f"not docked: {result['reason']}"
         elif p.scenario == "assembly":

@@ -7,13 +7,13 @@ any device: ``synthetic_cloud -> transform_cloud -> cloud_stats``.
 from __future__ import annotations
 
 import json
-from pathlib import Path
 from typing import ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
 
 from engine import transforms as tf
+from engine.files import create_new
 from engine.messages import PointCloud, PoseStamped
 from engine.stage import Stage, StageParams
 
@@ -124,12 +124,15 @@ class CloudStats(Stage):
     def finish(self) -> None:
         p = self.params
         assert isinstance(p, CloudStats.Params)
-        if p.output:
-            path = Path(p.output)
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text("".join(json.dumps(r) + "\n" for r in self.rows))
+        files = {}
+        if p.output:  # (relative: inside the run folder; an absolute name must be a new file)
+            path = self.ctx.output_file(p.output)
+            with create_new(path) as f:
+                f.write("".join(json.dumps(r) + "\n" for r in self.rows).encode())
+            files["stats"] = str(path)
         last = self.rows[-1] if self.rows else {}
-        self.ctx.event("result", "cloud_stats", stats_text(self.rows), clouds=len(self.rows), last=last)
+        details = {"clouds": len(self.rows), "last": last, **({"files": files} if files else {})}
+        self.ctx.event("result", "cloud_stats", stats_text(self.rows), **details)
 
 
 def stats_text(rows: list[dict[str, object]]) -> str:
