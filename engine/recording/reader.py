@@ -9,6 +9,8 @@ read back and written to a new, indexed file — the same job as ``mcap recover`
 from __future__ import annotations
 
 import json
+import struct
+import zlib
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,7 +18,7 @@ from typing import Any
 
 from mcap.reader import make_reader
 from mcap.records import Attachment, Channel, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
+from mcap.stream_reader import CRCValidationError, StreamReader
 from mcap.writer import CompressionType, Writer
 
 from engine import __version__
@@ -125,14 +127,47 @@ def _records_from(schemas: dict[int, Schema], channels: dict[int, Channel], msg:
     )
 
 
+class RecordingDamagedError(RecordingError):
+    """The file's checksums do not match its bytes: it was changed after it was written (a disk, a copy)."""
+
+
+_FOOTER = struct.Struct("<BQQQI")  # opcode, record length, summary_start, summary_offset_start, summary_crc
+_DATA_END = 13  # opcode, record length, data_section_crc
+
+
+def check_checksums(path: Path, data: bytes) -> None:
+    """The MCAP's own CRCs of what no chunk CRC covers: the data section as a whole (records between
+    the chunks: metadata, the recipe) and the summary (RecordingDamagedError naming the byte range).
+    A CRC of 0 means the writer did not compute it (recordings of older vgr versions)."""
+    if len(data) < 8 + _FOOTER.size + 8 + _DATA_END or data[-8 - _FOOTER.size] != 0x02:
+        return  # no footer: a file cut short (vgr recover), reported by the reader
+    _, _, summary_start, _, summary_crc = _FOOTER.unpack_from(data, len(data) - 8 - _FOOTER.size)
+    end_of_summary = len(data) - 8 - 4
+    if summary_crc and summary_start and zlib.crc32(data[summary_start:end_of_summary]) != summary_crc:
+        raise RecordingDamagedError(
+            f"{path} is damaged: its summary (bytes {summary_start}-{end_of_summary}) does not match its CRC"
+        )
+    data_end = (summary_start or len(data) - 8 - _FOOTER.size) - _DATA_END
+    if data_end < 8 or data[data_end] != 0x0F:
+        return
+    (data_crc,) = struct.unpack_from("<I", data, data_end + 9)
+    if data_crc and zlib.crc32(data[:data_end]) != data_crc:
+        raise RecordingDamagedError(
+            f"{path} is damaged: its data (bytes 0-{data_end}) does not match its CRC; "
+            f"`vgr recover {path}` salvages the chunks that are intact"
+        )
+
+
 def load(path: str | Path) -> Recording:
-    """Read a whole recording (file order kept). Raises RecordingError with advice if it is damaged."""
+    """Read a whole recording (file order kept). Raises RecordingError with advice if it is damaged
+    (RecordingDamagedError when a checksum says its bytes changed)."""
     path = Path(path)
     if not path.is_file():
         raise RecordingError(f"no such recording: {path}")
+    check_checksums(path, path.read_bytes())
     with path.open("rb") as f:
         try:
-            reader = make_reader(f)
+            reader = make_reader(f, validate_crcs=True)  # a flipped bit is a damaged file, not data
             summary = reader.get_summary()
             if summary is None:
                 raise RecordingError(f"{path} has no summary (the run was killed?): run `vgr recover {path}`")
@@ -155,6 +190,10 @@ def load(path: str | Path) -> Recording:
                     rec.records.append(r)
         except RecordingError:
             raise
+        except CRCValidationError as exc:
+            raise RecordingDamagedError(
+                f"{path} is damaged: {exc}; `vgr recover {path}` salvages the chunks that are intact"
+            ) from None
         except Exception as exc:  # any failure to parse a damaged file (McapError,
             # zstd's ZstdError, OverflowError on a flipped length, ...) is the file's, not vgr's
             raise RecordingError(
@@ -236,6 +275,39 @@ def recover(src: str | Path, dst: str | Path | None = None, *, overwrite: bool =
     return report
 
 
+def _summary_records(f: Any) -> list[Any]:
+    """The schema and channel records of the file's summary section, when it has a readable one."""
+    try:
+        f.seek(0)
+        summary = make_reader(f).get_summary()
+    except Exception:
+        return []
+    if summary is None:
+        return []
+    return [*summary.schemas.values(), *summary.channels.values()]
+
+
+def _chunks_opened(records: Any, damaged: list[int]) -> Any:
+    """The records of a stream, each chunk's opened; a chunk that does not open (CRC, compression)
+    is skipped and its number (1 = the first chunk) noted in *damaged*, so the chunks after it are
+    still recovered."""
+    from mcap.records import Chunk
+    from mcap.stream_reader import breakup_chunk
+
+    k = 0
+    for record in records:
+        if not isinstance(record, Chunk):
+            yield record
+            continue
+        k += 1
+        try:
+            inner = list(breakup_chunk(record, validate_crc=True))
+        except Exception:
+            damaged.append(k)
+            continue
+        yield from inner
+
+
 def _copy_readable(src: Path, tmp: Path, dst: Path) -> RecoverReport:
     """recover()'s copy of *src* into *tmp* (reported as *dst*)."""
     schemas: dict[int, Schema] = {}
@@ -243,12 +315,26 @@ def _copy_readable(src: Path, tmp: Path, dst: Path) -> RecoverReport:
     out_schema: dict[int, int] = {}
     out_channel: dict[int, int] = {}
     n, last, error, complete = 0, None, "", False
+    damaged: list[int] = []  # chunks whose CRC or compression is broken: skipped, the others kept
+    lost = 0  # messages whose channel is known nowhere (its record was in a damaged chunk, no summary)
     with src.open("rb") as f, tmp.open("wb") as g:
-        w = Writer(g, compression=CompressionType.ZSTD)
+        w = Writer(g, compression=CompressionType.ZSTD, enable_data_crcs=True)
         w.start(profile="", library=f"vgr {__version__} recover")
-        reader = StreamReader(f, skip_magic=False, emit_chunks=False, validate_crcs=True)
+        for record in _summary_records(f):  # (a damaged chunk may have held a channel's only record)
+            if isinstance(record, Schema):
+                schemas[record.id] = record
+                out_schema[record.id] = w.register_schema(record.name, record.encoding, record.data)
+        for record in _summary_records(f):
+            if isinstance(record, Channel) and record.schema_id in out_schema | {0: 0}:
+                channels[record.id] = record
+                schema = out_schema.get(record.schema_id, 0)
+                out_channel[record.id] = w.register_channel(
+                    record.topic, record.message_encoding, schema, dict(record.metadata)
+                )
+        f.seek(0)
+        reader = StreamReader(f, skip_magic=False, emit_chunks=True, validate_crcs=True)
         try:
-            for record in reader.records:
+            for record in _chunks_opened(reader.records, damaged):
                 if isinstance(record, Schema):
                     schemas[record.id] = record
                     if record.id not in out_schema:
@@ -262,6 +348,8 @@ def _copy_readable(src: Path, tmp: Path, dst: Path) -> RecoverReport:
                             out_schema.get(record.schema_id, 0),
                             dict(record.metadata),
                         )
+                elif isinstance(record, Message) and record.channel_id not in out_channel:
+                    lost += 1
                 elif isinstance(record, Message):
                     w.add_message(
                         out_channel[record.channel_id],
@@ -281,7 +369,13 @@ def _copy_readable(src: Path, tmp: Path, dst: Path) -> RecoverReport:
         except Exception as exc:  # the truncated tail: everything before it is kept
             error = f"{type(exc).__name__}: {exc}"
         if not schemas and not channels and n == 0:  # nothing of a recording in it: write nothing
+            if damaged:
+                raise RecordingDamagedError(f"{src}: every chunk of it is damaged ({len(damaged)}): nothing to recover")
             raise RecordingError(f"{src} holds nothing to recover (not an MCAP recording?): {error or 'no records'}")
+        if damaged:
+            skipped = f"{len(damaged)} damaged chunk(s) skipped (number {', '.join(map(str, damaged))})"
+            skipped += f", {lost} message(s) of unknown channels" if lost else ""
+            error = f"{skipped}; {error}" if error else skipped
         w.add_metadata("vgr.recovered", {"from": str(src), "messages": str(n), "tail_error": error})
         w.finish()
     return RecoverReport(str(src), str(dst), n, 0, complete, error, last)

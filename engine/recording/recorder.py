@@ -171,7 +171,10 @@ class Recorder(Observer):
         assert runner is not None
         self._file = create_new(path)
         self._writer = Writer(
-            self._file, chunk_size=self.settings.chunk_size, compression=_COMPRESSION[self.settings.compression]
+            self._file,
+            chunk_size=self.settings.chunk_size,
+            compression=_COMPRESSION[self.settings.compression],
+            enable_data_crcs=True,  # (every chunk has its CRC; this one covers what lies between them too)
         )
         self._writer.start(profile="", library=f"vgr {__version__}")
         self._schemas, self._channels = {}, {}  # (ids are per file)
