@@ -10,7 +10,7 @@ import json
 from typing import ClassVar, Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from engine import transforms as tf
 from engine.files import create_new
@@ -39,8 +39,18 @@ class SyntheticCloud(Stage):
 
     class Params(StageParams):
         n_points: int = Field(2000, ge=1, le=10_000_000, description="points per frame")
-        frames: int = Field(10, ge=0, description="number of frames, then end of stream")
-        rate_hz: float = Field(0.0, ge=0.0, description="frame rate on the run's clock; 0 = as fast as possible")
+        frames: int = Field(10, ge=0, le=1_000_000_000, description="number of frames, then end of stream")
+        rate_hz: float = Field(
+            0.0, ge=0.0, le=10_000.0, description="frame rate on the run's clock; 0 = as fast as possible"
+        )
+
+        @field_validator("rate_hz")
+        @classmethod
+        def _a_rate_a_run_can_keep(cls, v: float) -> float:
+            if 0.0 < v < 1e-3:  # (1e-300 validated, then overflowed the sleep: a frame a thousand years)
+                raise ValueError("a rate below 0.001 Hz (a frame every 17 min) is not one a run keeps: use 0 or more")
+            return v
+
         shape: Literal["box", "sphere"] = "box"
         size_m: float = Field(0.1, gt=0.0)
         noise_m: float = Field(0.0005, ge=0.0, description="isotropic Gaussian noise sigma")

@@ -24,7 +24,7 @@ class Trigger(Stage):
 
     class Params(StageParams):
         count: int = Field(1, ge=0, le=1_000_000)
-        interval_s: float = Field(0.0, ge=0.0)
+        interval_s: float = Field(0.0, ge=0.0, le=86_400.0, description="between triggers, s (at most a day)")
         command: str = "start"
         args: dict[str, Any] = Field(default_factory=dict)
 
