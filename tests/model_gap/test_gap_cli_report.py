@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import jsonschema
 import pytest
 import yaml
 from model_gap_helpers import N_SAMPLES, case
@@ -21,8 +22,16 @@ def campaign_csv(effects: list[tuple[str, str]], seed: int, tmp_path) -> str:
     return str(write_gap_csv(make_case(case(effects, seed=seed)).data, tmp_path / "x.csv"))
 
 
+SCHEMA = json.loads(
+    (Path(__file__).resolve().parents[2] / "plugins/model_gap/schemas/gap_report.schema.json").read_text()
+)
+
+
 def gap_report(folder) -> dict:
-    return json.loads((folder / "gap_report.json").read_text(encoding="utf-8"))
+    """The report folder's gap_report.json, checked against its JSON Schema (vgr.gap_report/1)."""
+    doc = json.loads((folder / "gap_report.json").read_text(encoding="utf-8"))
+    jsonschema.validate(doc, SCHEMA)
+    return doc
 
 
 def gap_with_report(
@@ -78,6 +87,7 @@ def test_exit_code_1_when_a_gap_is_left_unexplained(tmp_path, capsys):
     rc = main(["gap", "--model", "ur5e", "--data", data, "--noise-mm", "0.05", "--max-effects", "0", "--json"])
     assert rc == 1
     rep = json.loads(capsys.readouterr().out)
+    jsonschema.validate(rep, SCHEMA)
     assert rep["verdict"] == "unexplained" and rep["effects_added"] == []
 
 
