@@ -426,6 +426,27 @@ def test_sigterm_mid_cycle_lets_the_cycle_finish_and_starts_no_other(own_server:
     assert "Traceback" not in server.output()
 
 
+TWO_PARTS = (
+    "camera.parts=[{name: part, workpiece: feature_part, pose: {xyz_m: [-0.49, -0.08, 0.0], rpy_deg: [0, 0, 10]}}, "
+    "{name: part2, workpiece: feature_part, pose: {xyz_m: [-0.46, -0.16, 0.0], rpy_deg: [0, 0, 40]}}]"
+)
+
+
+def test_several_parts_in_one_capture_the_ones_beyond_the_limits_rejected(own_server: Any) -> None:
+    """Two parts in view: the one at the taught place is usable; the other, turned 30 deg further, is
+    found but beyond the limits (50 mm / 15 deg): listed as rejected, never as a part to use."""
+    server = own_server(unique_cell("two"), "-p", TWO_PARTS)
+    c = served(server)
+    reply = check(c.locate(count=2, request_id="two-parts"), "ok")
+    result = reply["result"]
+    assert (result["requested"], result["found"], len(result["parts"]), len(result["rejected"])) == (2, 1, 1, 1)
+    assert result["parts"][0]["translation_mm"] < 1.0
+    assert "exceeds the limit" in result["rejected"][0]["refused"]
+    assert result["rejected"][0]["rotation_deg"] == pytest.approx(30.0, abs=0.5)
+    one = check(c.locate(count=1, request_id="one-part"), "ok")["result"]
+    assert one["found"] == 1 and one["rejected"] == []
+
+
 def test_serve_json_is_one_document_of_its_schema(own_server: Any) -> None:
     import jsonschema
 

@@ -14,7 +14,8 @@ and gets an answer back (engine.run.cell.protocol; docs/cell_service.md). Two se
     carries the correction, each of the recipe's ``targets`` corrected, the match quality and its
     uncertainty. ``count`` > 1 finds up to that many parts in one capture: after each part the
     capture's points within ``part_radius_mm`` of the part's template points are removed and the rest
-    matched again.
+    matched again. ``parts`` holds the parts within the limits (the reply is ``ok`` when there is at
+    least one), ``rejected`` those beyond them, with the reason: listed for the record, never to use.
 ``guide``   one step of the iterative guidance loop (seed 000) with the robot as master: ``step`` 0 is
     the first look (global), later steps look with ``match`` (fine, from identity). The reply is the
     next flange pose to move to, or ``converged`` with the correction (``T_end T_start^-1``, the
@@ -124,8 +125,8 @@ class CellLocator(Stage):
         count = _integer(args.get("count", 1), "count", 1, p.max_parts)
         T = self._robot_pose(args, "pose")
         cloud = self._capture()
-        parts: list[dict[str, Any]] = []
-        problems: list[str] = []
+        parts: list[dict[str, Any]] = []  # within the limits: the controller may use them
+        rejected: list[dict[str, Any]] = []  # found, but beyond the limits: listed, never to be used
         for k in range(count):
             match = self._match("match_first", cloud)
             if not match.usable:
@@ -134,19 +135,31 @@ class CellLocator(Stage):
                     raise Refusal(status, f"match {match.verdict}: {'; '.join(match.reasons) or 'no reason given'}")
                 break
             part, problem = self._part(T, match)
-            parts.append(part)
             if problem:
-                problems.append(f"part {k + 1}: {problem}")
+                rejected.append({**part, "refused": problem})
+            else:
+                parts.append(part)
             if k + 1 < count:
                 cloud = self._without_part(cloud, match)
                 if cloud.points.shape[0] < MIN_POINTS_LEFT:
                     break
-        result = {"frame": self._frame(), "requested": count, "found": len(parts), "pose": pose_doc(T), "parts": parts}
-        if problems:
-            raise Refusal("out_of_limits", "; ".join(problems), result)
+        result = {
+            "frame": self._frame(),
+            "requested": count,
+            "found": len(parts),
+            "pose": pose_doc(T),
+            "parts": parts,
+            "rejected": rejected,
+        }
+        if not parts:  # (one part asked for, or none of several within the limits: nothing to use)
+            raise Refusal("out_of_limits", "; ".join(r["refused"] for r in rejected), result)
         found = f"{len(parts)} of {count} parts" if count > 1 else "the part"
+        beyond = f"; {len(rejected)} more beyond the limits" if rejected else ""
         first = parts[0]
-        return f"located {found}: correction {first['translation_mm']:.3f} mm / {first['rotation_deg']:.3f} deg", result
+        return (
+            f"located {found}: correction {first['translation_mm']:.3f} mm / {first['rotation_deg']:.3f} deg{beyond}",
+            result,
+        )
 
     def _frame(self) -> str:
         """Where the correction applies: ``base`` (left-multiply) or ``tool`` (right-multiply)."""
