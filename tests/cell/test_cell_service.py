@@ -250,8 +250,9 @@ def test_out_of_limits_when_the_part_is_further_off_than_the_limit(nominal: Cell
     place(nominal.sim, shifted(0.08))  # 80 mm: beyond max_correction_mm 50
     reply = check(nominal.locate(), "out_of_limits")
     assert "install 80.0" in reply["message"] and "exceeds the limit 50.0 mm" in reply["message"], reply
-    [part] = reply["result"]["parts"]
-    assert 79.0 < part["translation_mm"] < 81.0  # the refused correction is reported, not applied
+    assert reply["result"]["parts"] == [] and reply["result"]["found"] == 0
+    [part] = reply["result"]["rejected"]
+    assert 79.0 < part["translation_mm"] < 81.0  # the refused correction is reported, not to be applied
 
 
 def test_not_converged_at_the_last_step_with_the_part_off(nominal: Cell) -> None:
