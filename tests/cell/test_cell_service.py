@@ -427,6 +427,21 @@ def test_sigterm_mid_cycle_lets_the_cycle_finish_and_starts_no_other(own_server:
     assert "Traceback" not in server.output()
 
 
+def test_joint_angles_instead_of_the_pose_give_the_same_correction(nominal: Cell) -> None:
+    from engine.messages import Request
+
+    state = nominal.sim._device("robot", "state", Request(command="state"))
+    by_pose = check(nominal.client.locate(state.T, request_id="by-pose"), "ok")["result"]
+    by_joints = check(
+        nominal.client.call("locate", {"id": "by-joints", "joints_rad": [float(v) for v in state.joints]}), "ok"
+    )["result"]
+    np.testing.assert_allclose(by_joints["pose"]["xyz_m"], by_pose["pose"]["xyz_m"], atol=1e-9)
+    assert by_joints["parts"][0]["translation_mm"] == pytest.approx(by_pose["parts"][0]["translation_mm"], abs=0.02)
+    bad = nominal.client.call("locate", {"id": "bad-joints", "joints_rad": [0.0, 1.0]})
+    check(bad, "robot_pose_invalid")
+    assert "6 finite angles" in bad["message"]
+
+
 TWO_PARTS = (
     "camera.parts=[{name: part, workpiece: feature_part, pose: {xyz_m: [-0.49, -0.08, 0.0], rpy_deg: [0, 0, 10]}}, "
     "{name: part2, workpiece: feature_part, pose: {xyz_m: [-0.46, -0.16, 0.0], rpy_deg: [0, 0, 40]}}]"

@@ -5,6 +5,10 @@ and gets an answer back (engine.run.cell.protocol; docs/cell_service.md). Two se
 :class:`~engine.messages.Request` (``args`` = the API request document) and replying a
 :class:`~engine.messages.CellReply` with a status of engine.run.cell.codes:
 
+The robot's pose comes as ``pose`` (the flange ``T_base_tcp``), or as ``joints_rad`` when the recipe
+names the ``robot_model`` (the pose is then its forward kinematics), or, in simulation
+(``pose_from_robot``), from the robot stage.
+
 ``locate``  capture, match (``match_first``: global registration, the part may be anywhere), and the
     correction the controller applies to its taught poses. Eye-in-hand (the part moved by ``D``,
     base frame, left-multiply): with ``C = T_base_tcp T_tcp_cam`` now and ``C0`` at the template's
@@ -46,6 +50,7 @@ from plugins.interfaces import CAMERA_CAPTURE
 from plugins.params import PoseSpec
 from plugins.registration.messages import MatchResult
 from plugins.registration.template import load_template
+from plugins.robot.model_file import load_robot_model
 
 JOB = ServiceSpec(Request, CellReply, "one cell-service job (engine.run.cell)")
 MATCH = ServiceSpec(PointCloud, MatchResult)
@@ -92,6 +97,10 @@ class CellLocator(Stage):
         max_total_mm: float = Field(40.0, gt=0.0, description="guide: largest distance from the start pose")
         max_total_deg: float = Field(20.0, gt=0.0)
         pose_from_robot: bool = Field(False, description="a request without pose takes the `state` client's")
+        robot_model: str | None = Field(
+            None, description="robot model (name or file): a request may send joints_rad instead of its pose"
+        )
+        T_flange_tcp: PoseSpec | None = Field(None, description="the tool on the flange (default: the model's)")
         timeout_s: float = Field(10.0, gt=0.0)
 
     def setup(self) -> None:
@@ -101,6 +110,9 @@ class CellLocator(Stage):
         self.T_photo = p.photo_pose.T() if p.photo_pose is not None else np.asarray(template.T_base_tcp_photo)
         self.template_points = template.points
         self.targets = {name: pose.T() for name, pose in p.targets.items()}
+        self.model = None if p.robot_model is None else load_robot_model(p.robot_model)
+        if self.model is not None and p.T_flange_tcp is not None:
+            self.model = self.model.with_tool(p.T_flange_tcp.T())
         if p.pose_from_robot and not self.ctx.has_client("state"):
             raise ValueError("pose_from_robot needs the `state` client wired to the robot")
 
@@ -260,6 +272,8 @@ class CellLocator(Stage):
         p: CellLocator.Params = self.params  # type: ignore[assignment]
         if key in args:
             return self._checked_pose(args[key], key)
+        if "joints_rad" in args:
+            return self._pose_of_joints(args["joints_rad"])
         if not p.pose_from_robot:
             raise Refusal("robot_pose_invalid", f"the request has no {key}: send the robot's flange pose")
         try:
@@ -269,6 +283,18 @@ class CellLocator(Stage):
         if not reply.ok or reply.T is None:
             raise Refusal("robot_pose_invalid", f"no pose sent and the robot did not report one: {reply.error}")
         return np.asarray(reply.T, dtype=float)
+
+    def _pose_of_joints(self, joints: Any) -> np.ndarray:
+        """``T_base_tcp`` of the joint angles a request sent, by the recipe's robot model."""
+        if self.model is None:
+            raise Refusal("robot_pose_invalid", "joints_rad sent, but this cell has no robot_model: send the pose")
+        try:
+            q = np.asarray(joints, dtype=float)
+            if q.shape != (self.model.dof,) or not np.all(np.isfinite(q)):
+                raise ValueError(f"{self.model.dof} finite angles (rad) expected, got {joints!r}")
+            return np.asarray(self.model.fk(q, frame="base"), dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise Refusal("robot_pose_invalid", f"joints_rad: {exc}") from None
 
     @staticmethod
     def _checked_pose(doc: Any, name: str) -> np.ndarray:
