@@ -162,6 +162,8 @@ def samples() -> dict[str, m.Message]:
         "Correction/half_turn": m.Correction(kind="delta_base", T=T3, stamp_ns=2),
         "Request/default": m.Request(),
         "Request/full": m.Request(command="capture", args={"z": 1, "exposure": np.float64(3.5), "arr": np.ones(2)}),
+        "CellReply/default": m.CellReply(),
+        "CellReply/full": m.CellReply(status="ok", message="located", result={"found": 1, "parts": [{"x": 0.25}]}),
         "MatchResult/default": MatchResult(),
         "MatchResult/ok": MatchResult(
             method="icp",
