@@ -436,7 +436,8 @@ def test_joint_angles_instead_of_the_pose_give_the_same_correction(nominal: Cell
         nominal.client.call("locate", {"id": "by-joints", "joints_rad": [float(v) for v in state.joints]}), "ok"
     )["result"]
     np.testing.assert_allclose(by_joints["pose"]["xyz_m"], by_pose["pose"]["xyz_m"], atol=1e-9)
-    assert by_joints["parts"][0]["translation_mm"] == pytest.approx(by_pose["parts"][0]["translation_mm"], abs=0.02)
+    # (two captures: their noise moves the match by a few hundredths of a millimetre)
+    assert by_joints["parts"][0]["translation_mm"] == pytest.approx(by_pose["parts"][0]["translation_mm"], abs=0.1)
     bad = nominal.client.call("locate", {"id": "bad-joints", "joints_rad": [0.0, 1.0]})
     check(bad, "robot_pose_invalid")
     assert "6 finite angles" in bad["message"]
