@@ -89,9 +89,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
     run_folder.write_recipe(run_dir, graph.loaded)
     service, cycles = _service(args, runner, registry, run_dir)
     gateways = _start_gateways(serve.gateways, service)
+    service.when_ready(lambda: _say_ready(serve.cell, gateways))
     with run_folder.logging_to(run_dir):
         service.start()
-        threading.Thread(target=_say_ready, args=(runner, serve.cell, gateways), daemon=True).start()
         summary = _serve_until_stopped(runner, service)
     for gw in gateways.values():
         gw.close()
@@ -175,18 +175,9 @@ def _service(args: argparse.Namespace, runner: Any, registry: Any, run_dir: Path
         runner, serve, reload=reloader(runner, registry, swapped), on_cycle=on_cycle, status_extra=status_extra
     )
     if cycles is not None:
-        started = threading.Thread(target=_roll_when_ready, args=(runner, cycles), daemon=True)
-        started.start()
+        service.when_ready(cycles.roll)  # start.mcap ends when the service is ready: the first cycle file begins
     runner.before_shutdown.append(log_file.close)
     return service, cycles
-
-
-def _roll_when_ready(runner: Any, cycles: Any) -> None:
-    """start.mcap ends when the service is ready: the first cycle file begins."""
-    while not runner.ready.wait(0.1):
-        if runner.stop_event.is_set():
-            return
-    cycles.roll()
 
 
 def _start_gateways(settings: dict[str, dict[str, Any]], service: Any) -> dict[str, Any]:
@@ -210,14 +201,10 @@ def _start_gateways(settings: dict[str, dict[str, Any]], service: Any) -> dict[s
     return started
 
 
-def _say_ready(runner: Any, cell: str, gateways: dict[str, Any]) -> None:
-    while not runner.ready.wait(0.2):
-        if runner.stop_event.is_set():
-            return
+def _say_ready(cell: str, gateways: dict[str, Any]) -> None:
     where = "".join(f"; {name} gateway on {gw.address[0]}:{gw.address[1]}" for name, gw in gateways.items())
-    console.print(
-        f"cell [bold]{cell}[/] ready: `vgr call {cell} status` from another shell{escape(where)}; Ctrl-C stops it"
-    )
+    told = f"`vgr call {cell} status` from another shell{escape(where)}; Ctrl-C stops it"
+    console.print(f"cell [bold]{cell}[/] ready: {told}")
 
 
 def _serve_until_stopped(runner: Any, service: Any) -> Any:
@@ -328,17 +315,12 @@ def _call_request(args: argparse.Namespace) -> dict[str, Any]:
             key, sep, value = item.partition("=")
             if not sep:
                 raise ValueError(f"--set {item!r}: use stage.param=value")
-            changes[key] = json.loads(value) if _is_json(value) else value
+            try:
+                changes[key] = json.loads(value)
+            except ValueError:  # (a bare word: the string itself)
+                changes[key] = value
         doc["set"] = changes
     return doc
-
-
-def _is_json(text: str) -> bool:
-    try:
-        json.loads(text)
-    except ValueError:
-        return False
-    return True
 
 
 # --------------------------------------------------------------------------- parsers

@@ -89,6 +89,7 @@ class CellService(Observer):
         self._reload = reload
         self._on_cycle = on_cycle
         self._status_extra = status_extra
+        self._on_ready: list[Callable[[], None]] = []  # see when_ready()
         self.stopping = False
         self.stop_reason = ""
         self.cut_short = False  # a stop ended the run while a cycle still ran
@@ -130,6 +131,12 @@ class CellService(Observer):
         self._alive = bus.token(protocol.alive_key(self.cell))
         log.info("cell %s serving %s", self.cell, ", ".join(protocol.COMMANDS))
         self.runner.run_event("info", "cell_ready", "", f"cell {self.cell} ready", cell=self.cell)
+        for ready in self._on_ready:
+            ready()
+
+    def when_ready(self, call: Callable[[], None]) -> None:
+        """*call()* once the API is declared and serving (before start(): e.g. the first cycle file)."""
+        self._on_ready.append(call)
 
     def _spawn(self, name: str, target: Callable[..., None], *args: Any) -> None:
         t = threading.Thread(target=target, args=args, name=name, daemon=True)
@@ -191,18 +198,22 @@ class CellService(Observer):
         """A job request from zenoh: answered at once when it cannot run, else handed to the worker
         (the pump goes on reading, so a request meanwhile is answered ``busy``, not left waiting).
         A repeat of a request whose cycle still runs waits for it in a thread of its own, not in the pump."""
-        rid = _peek_id(payload) if len(payload) <= protocol.MAX_REQUEST_BYTES else None
+        doc, refused = self._parse_job(command, payload)
+        if refused is not None:
+            with query:
+                self._reply(query, refused)
+            return
         with self._ids_lock:
-            repeat_in_flight = isinstance(rid, str) and rid in self._inflight
+            repeat_in_flight = doc["id"] in self._inflight
         if repeat_in_flight:
             threading.Thread(
-                target=self._answer_job, args=(command, payload, query), name="vgr:cell.repeat", daemon=True
+                target=self._answer_job, args=(command, doc, query), name="vgr:cell.repeat", daemon=True
             ).start()
             return
-        self._answer_job(command, payload, query)
+        self._answer_job(command, doc, query)
 
-    def _answer_job(self, command: str, payload: bytes, query: Any) -> None:
-        early, doc = self._admit(command, payload)
+    def _answer_job(self, command: str, doc: dict[str, Any], query: Any) -> None:
+        early = self._admit(command, doc)
         if early is not None:
             with query:
                 self._reply(query, early)
@@ -231,7 +242,10 @@ class CellService(Observer):
     def handle_bytes(self, command: str, payload: bytes) -> dict[str, Any]:
         """The reply document to *payload* (a request as sent), any command, on the caller's thread."""
         if command in protocol.JOB_COMMANDS:
-            early, doc = self._admit(command, payload)
+            doc, refused = self._parse_job(command, payload)
+            if refused is not None:
+                return refused
+            early = self._admit(command, doc)
             return early if early is not None else self._run_admitted(command, doc)
         try:
             doc = protocol.parse_request(command, payload)
@@ -260,19 +274,23 @@ class CellService(Observer):
     def _reply_doc(self, command: str, rid: str | None, status: str, message: str, **kw: Any) -> dict[str, Any]:
         return protocol.reply_doc(self.cell, command, rid, status, message, **kw)
 
-    def _admit(self, command: str, payload: bytes) -> tuple[dict[str, Any] | None, dict[str, Any]]:
-        """(the reply, {}) to a job request that does not run a cycle now, else (None, its document);
-        an admitted request holds the cycle lock until :meth:`_run_admitted` releases it."""
+    def _parse_job(self, command: str, payload: bytes) -> tuple[dict[str, Any], dict[str, Any] | None]:
+        """(the request document, None), or ({}, the reply) to one that cannot be taken or that
+        names a command this cell does not serve."""
         try:
             doc = protocol.parse_request(command, payload)
         except protocol.InvalidRequest as exc:
-            return protocol.invalid(self.cell, command, _peek_id(payload), str(exc)), {}
-        rid = doc["id"]
+            return {}, protocol.invalid(self.cell, command, _peek_id(payload), str(exc))
         if command not in self.settings.commands:
             served = ", ".join(self.settings.commands)
-            return self._reply_doc(
-                command, rid, "invalid_request", f"this cell does not {command} (it serves {served})"
-            ), {}
+            why = f"this cell does not {command} (it serves {served})"
+            return {}, self._reply_doc(command, doc["id"], "invalid_request", why)
+        return doc, None
+
+    def _admit(self, command: str, doc: dict[str, Any]) -> dict[str, Any] | None:
+        """The reply to a job request that does not run a cycle now, else None: the request is
+        admitted and holds the cycle lock until :meth:`_run_admitted` releases it."""
+        rid = doc["id"]
         while True:
             with self._ids_lock:
                 known = self._replies.get(rid)
@@ -284,29 +302,30 @@ class CellService(Observer):
                             if self.stopping
                             else "not ready yet: the stages are starting"
                         )
-                        return self._reply_doc(command, rid, "stopping" if self.stopping else "busy", why), {}
+                        return self._reply_doc(command, rid, "stopping" if self.stopping else "busy", why)
                     if not self._cycle_lock.acquire(blocking=False):
                         busy = self._cycle
                         what = f"cycle {busy.number} ({busy.command} {busy.request_id})" if busy else "a reload"
-                        return self._reply_doc(command, rid, "busy", f"busy with {what}: ask again after it"), {}
+                        return self._reply_doc(command, rid, "busy", f"busy with {what}: ask again after it")
                     self._inflight[rid] = threading.Event()
-                    return None, doc
+                    return None
             if known is not None:
                 first_command, reply = known
                 if first_command != command:
                     msg = f"id {rid!r} was a {first_command} request: a new request needs a new id"
-                    return self._reply_doc(command, rid, "invalid_request", msg), {}
-                return reply, {}
+                    return self._reply_doc(command, rid, "invalid_request", msg)
+                return reply
             if not waiting.wait(REPEAT_WAIT_S):  # (a repeat while its first request's cycle still runs)
-                return self._reply_doc(command, rid, "busy", f"id {rid!r}: its first request is still running"), {}
+                return self._reply_doc(command, rid, "busy", f"id {rid!r}: its first request is still running")
 
     def _run_admitted(self, command: str, doc: dict[str, Any]) -> dict[str, Any]:
         rid = doc["id"]
         try:
             reply = self._cycle_of(command, doc)
         finally:
-            with self._ids_lock:
+            with self._parts_lock:
                 self._cycle = None
+            with self._ids_lock:
                 done = self._inflight.pop(rid)
             self._cycle_lock.release()
         done.set()
