@@ -130,25 +130,15 @@ class CycleRecorder(Recorder):
             super()._write((kind, stage, port, type_name, now, stamp, seq, payload))
 
     def _finish_current(self) -> None:
-        cycles, self._cycles = self._cycles, []
-        self._finish_file(
-            {
-                "ok": "true",
-                "outcome": "ok",
-                "stop_reason": "",
-                "cycles": json.dumps(cycles),
-                "recording_error": self.error or "",
-            }
-        )
-        with self._lock:
-            self._written.append((self.path, time.time()))
-        self._retain()
+        self._finish_with({"ok": "true", "outcome": "ok", "stop_reason": "", "recording_error": self.error or ""})
 
     def _close(self, summary: RunSummary) -> None:
+        self._finish_with(self._summary_record(summary))
+
+    def _finish_with(self, summary: dict[str, str]) -> None:
+        """Finish the open file with *summary* and its cycles (``vgr.summary``), then apply the retention."""
         cycles, self._cycles = self._cycles, []
-        record = self._summary_record(summary)
-        record["cycles"] = json.dumps(cycles)
-        self._finish_file(record)
+        self._finish_file({**summary, "cycles": json.dumps(cycles)})
         with self._lock:
             self._written.append((self.path, time.time()))
         self._retain()

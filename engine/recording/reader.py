@@ -9,6 +9,7 @@ read back and written to a new, indexed file — the same job as ``mcap recover`
 from __future__ import annotations
 
 import json
+import mmap
 import struct
 import zlib
 from collections import Counter
@@ -135,7 +136,7 @@ _FOOTER = struct.Struct("<BQQQI")  # opcode, record length, summary_start, summa
 _DATA_END = 13  # opcode, record length, data_section_crc
 
 
-def check_checksums(path: Path, data: bytes) -> None:
+def check_checksums(path: Path, data: bytes | memoryview) -> None:
     """The MCAP's own CRCs of what no chunk CRC covers: the data section as a whole (records between
     the chunks: metadata, the recipe) and the summary (RecordingDamagedError naming the byte range).
     A CRC of 0 means the writer did not compute it (recordings of older vgr versions)."""
@@ -164,8 +165,10 @@ def load(path: str | Path) -> Recording:
     path = Path(path)
     if not path.is_file():
         raise RecordingError(f"no such recording: {path}")
-    check_checksums(path, path.read_bytes())
     with path.open("rb") as f:
+        if path.stat().st_size:  # (mapped, not read into memory: a recording may be gigabytes)
+            with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mapped, memoryview(mapped) as data:
+                check_checksums(path, data)
         try:
             reader = make_reader(f, validate_crcs=True)  # a flipped bit is a damaged file, not data
             summary = reader.get_summary()

@@ -165,8 +165,6 @@ def pose_from_doc(doc: Any, name: str = "pose") -> np.ndarray:
 
 
 def pose_doc(T: np.ndarray) -> dict[str, list[float]]:
-    """The pose document of *T* (quaternion with w >= 0, so one rotation has one document)."""
+    """The pose document of *T* (quaternion with w >= 0, as pose7_from_T gives it: one rotation, one document)."""
     xyz, q = pose7_from_T(T)
-    if q[3] < 0:
-        q = -q
     return {"xyz_m": [float(v) for v in xyz], "quat_xyzw": [float(v) for v in q]}
