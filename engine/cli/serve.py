@@ -229,22 +229,16 @@ def _serve_until_stopped(runner: Any, service: Any) -> Any:
 
 def _report(args: argparse.Namespace, summary: Any, service: Any, run_dir: Path, cycles: Any) -> int:
     summary.artifacts["run folder"] = str(run_dir)
-    if service.cut_short:
-        code = ExitCode.INTERRUPTED
-    elif summary.ok or (summary.outcome == "interrupted" and not service.cut_short and service.stopping):
-        code = ExitCode.OK
-    else:
-        code = ExitCode(summary.exit_code)
+    # an orderly stop releases the run (outcome ok, 0); a stop that cut a cycle short, or a second stop
+    # signal, stopped it (interrupted, 130: motion halted first); a failed stage or a lost process: 4
+    code = ExitCode.INTERRUPTED if service.cut_short else ExitCode(summary.exit_code)
     doc = {
         "format": "vgr.serve/1",
         "cell": service.cell,
         "exit_code": int(code),
         "outcome": "ok" if code == ExitCode.OK else summary.outcome,
-        # a stop that cut a cycle short says so (the runner's reason: "...: cycle N cut short after 5 s")
-        "stop_reason": (summary.stop_reason if service.cut_short else "")
-        or service.stop_reason
-        or summary.stop_reason
-        or "",
+        # the runner's reason when it was stopped (a cycle cut short, a second signal), else the service's
+        "stop_reason": summary.stop_reason or service.stop_reason or "",
         "cycles": service.cycles,
         "by_status": service.by_status,
         "reloads": service.reloads,

@@ -10,6 +10,7 @@ shared by the tests that can share it; stop, SIGTERM, security and the two-proce
 
 from __future__ import annotations
 
+import contextlib
 import json
 import secrets
 import shutil
@@ -42,7 +43,7 @@ from engine.recording.reader import load
 from engine.recording.replay import replay
 from engine.run.cell.client import CellClient, CellUnreachableError
 from engine.run.cell.codes import Status
-from engine.run.cell.protocol import pose_from_doc
+from engine.run.cell.protocol import pose_doc, pose_from_doc
 from engine.transforms import T_from_Rt
 from plugins.sim.cell_controller import PART_POSE, PHOTO_POSE, SimController
 from plugins.vendor_poses import ur_from_T
@@ -255,6 +256,13 @@ def test_out_of_limits_when_the_part_is_further_off_than_the_limit(nominal: Cell
     assert 79.0 < part["translation_mm"] < 81.0  # the refused correction is reported, not to be applied
 
 
+def test_a_bad_start_pose_is_robot_pose_invalid_at_any_step(nominal: Cell) -> None:
+    bad = {"xyz_m": [0.0, 0.0, 0.0], "quat_xyzw": [0.0, 0.0, 0.0, 2.0]}
+    for step in (0, 1):
+        doc = {"id": f"bad-start-{step}", "step": step, "pose": pose_doc(PHOTO_POSE), "start_pose": bad}
+        check(nominal.client.call("guide", doc), "robot_pose_invalid")
+
+
 def test_not_converged_at_the_last_step_with_the_part_off(nominal: Cell) -> None:
     place(nominal.sim, shifted(0.005))
     reply = check(nominal.client.guide(PHOTO_POSE, 5, PHOTO_POSE), "not_converged")
@@ -462,6 +470,21 @@ def test_several_parts_in_one_capture_the_ones_beyond_the_limits_rejected(own_se
     assert result["rejected"][0]["rotation_deg"] == pytest.approx(30.0, abs=0.5)
     one = check(c.locate(count=1, request_id="one-part"), "ok")["result"]
     assert one["found"] == 1 and one["rejected"] == []
+
+
+def test_a_second_stop_signal_stops_at_once_exit_130(own_server: Any) -> None:
+    server = own_server(unique_cell("twice"))
+    c = served(server)
+    camera_fault(c.sim, kind="hang", seconds=GRACE_S + 3.0)
+    in_flight = Later(lambda: c.locate(request_id="long"))
+    c.wait_cycle_started(1)
+    server.send(signal.SIGINT)
+    wait_for("the service stopping", lambda: c.client.status()["result"]["state"] == "stopping", 10.0)
+    server.send(signal.SIGINT)
+    assert server.wait(40.0) == 130, server.output()
+    assert "second stop signal" in " ".join(server.out().split()), server.output()
+    with contextlib.suppress(CellUnreachableError):
+        assert in_flight.result(30.0)["status"] in ("stopping", "fault")
 
 
 def test_serve_json_is_one_document_of_its_schema(own_server: Any) -> None:

@@ -230,12 +230,12 @@ class CellLocator(Stage):
         p: CellLocator.Params = self.params  # type: ignore[assignment]
         step = _integer(args.get("step"), "step", 0, p.max_iterations)
         T = self._robot_pose(args, "pose")
-        if step == 0:
-            T_start = pose_from_doc(args["start_pose"], "start_pose") if "start_pose" in args else T
-        elif "start_pose" not in args:
-            raise InvalidRequest("guide step > 0 needs start_pose: the pose of step 0")
-        else:
+        if "start_pose" in args:
             T_start = self._checked_pose(args["start_pose"], "start_pose")
+        elif step == 0:
+            T_start = T
+        else:
+            raise InvalidRequest("guide step > 0 needs start_pose: the pose of step 0")
         client = "match_first" if step == 0 or not self.ctx.has_client("match") else "match"
         match = self._match(client, self._capture())
         if not match.usable:
