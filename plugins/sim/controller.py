@@ -24,8 +24,10 @@ Behaves like a vendor controller in simulated time:
 
 from __future__ import annotations
 
+import bisect
 import functools
 import threading
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Concatenate, Literal, ParamSpec, TypeVar
@@ -141,6 +143,7 @@ class SimRobotController:
         payload_kg: float = 0.0,
         warmup_start_s: float | None = None,
         initial_direction: ArrayLike | float = 1.0,
+        keep_moves: int = 2000,
     ) -> None:
         self.nominal = nominal
         self.true_robot = true_robot if true_robot is not None else RobotWithEffects(nominal)
@@ -157,8 +160,13 @@ class SimRobotController:
         self._dir_initial = d
         self.payload_kg = float(payload_kg)
         self.warmup_start_s = float(clock()) if warmup_start_s is None else float(warmup_start_s)
-        self._segments: list[_Segment] = []
-        self._results: dict[str, MoveResult] = {}
+        if int(keep_moves) < 2:
+            raise ValueError(f"keep_moves must be at least 2, got {keep_moves}")
+        self.keep_moves = int(keep_moves)
+        self._segments: list[_Segment] = []  # the kept moves, in time order
+        self._dir_before_kept = self._dir_initial  # approach direction before the oldest kept move
+        self._forgot_moves = False
+        self._results: OrderedDict[str, MoveResult] = OrderedDict()
         self._lock = threading.RLock()  # halt() comes from another thread than the moves
 
     # ----------------------------------------------------------------------------- state
@@ -171,12 +179,10 @@ class SimRobotController:
 
     def _segment_at(self, t: float) -> tuple[_Segment | None, bool]:
         """(segment in effect at t, whether it is still moving); None before the first move."""
-        seg = None
-        for s in self._segments:
-            if s.t0 <= t:
-                seg = s
-            else:
-                break
+        i = bisect.bisect_right(self._segments, t, key=lambda s: s.t0)
+        if i == 0 and self._forgot_moves:
+            raise ValueError(f"t = {t:.3f} s is before the {self.keep_moves} moves this controller keeps")
+        seg = self._segments[i - 1] if i > 0 else None
         return seg, seg is not None and t < seg.t1 - TIME_EPS_S
 
     def _joints_at(self, seg: _Segment | None, t: float) -> tuple[F64, F64, F64]:
@@ -202,7 +208,7 @@ class SimRobotController:
 
     def _direction_before(self, seg: _Segment) -> F64:
         i = self._segments.index(seg)
-        return self._segments[i - 1].direction_after if i > 0 else self._dir_initial
+        return self._segments[i - 1].direction_after if i > 0 else self._dir_before_kept
 
     def state(self, t_s: float | None = None) -> RobotState:
         """Reported and true state at ``t_s`` (default: the clock's now)."""
@@ -284,10 +290,20 @@ class SimRobotController:
         except _RefusedError as refusal:
             res = MoveResult(command_id, kind, False, str(refusal), now, now)
         else:
-            self._segments.append(seg)
+            self._keep(seg)
             res = MoveResult(seg.command_id, seg.kind, True, "ok", seg.t0, seg.t1, seg.q1.copy())
         self._results[command_id] = res
+        while len(self._results) > 4 * self.keep_moves:
+            self._results.popitem(last=False)
         return res
+
+    def _keep(self, seg: _Segment) -> None:
+        """Append an accepted move; forget the oldest beyond ``keep_moves``."""
+        self._segments.append(seg)
+        if len(self._segments) > self.keep_moves:
+            self._dir_before_kept = self._segments[0].direction_after
+            del self._segments[0]
+            self._forgot_moves = True
 
     @_locked
     def move_j(

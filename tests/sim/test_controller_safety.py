@@ -160,3 +160,38 @@ def test_bad_construction_and_clock():
     clock.advance(2.0)
     with pytest.raises(ValueError, match="back"):
         clock.advance_to(1.0)
+
+
+def test_history_is_bounded_and_never_guessed():
+    """A controller running for months keeps its last moves only: the state inside that history is
+    exact (same as a controller keeping everything), before it is refused, and an id older than the
+    kept results is a new command."""
+    clock_a = SimClock()
+    keep_all = SimRobotController(UR5E, clock_a, keep_moves=100)
+    clock_b = SimClock()
+    bounded = SimRobotController(UR5E, clock_b, keep_moves=3)
+    home = UR5E.home
+    t_marks = []
+    for i in range(8):
+        q = home + np.radians([5.0 * (i % 2), -3.0, 2.0, 0.0, 1.0 * i, 0.0])
+        for clock, ctl in ((clock_a, keep_all), (clock_b, bounded)):
+            assert ctl.move_j(f"m{i}", q).accepted
+            clock.advance(5.0)
+        t_marks.append(clock_b.now_s())
+    assert len(bounded._segments) == 3 and len(bounded._results) == 8
+    for t in np.linspace(t_marks[-3] - 4.0, t_marks[-1] + 1.0, 25):  # inside the kept 3 moves
+        a, b = keep_all.state(t), bounded.state(t)
+        assert np.array_equal(a.q, b.q) and np.array_equal(a.approach_direction, b.approach_direction)
+    with pytest.raises(ValueError, match="before the 3 moves"):
+        bounded.state(t_marks[0])
+    assert bounded.move_j("m7", home).duplicate  # a kept id is still idempotent
+    for i in range(8, 20):
+        clock_b.advance(5.0)
+        bounded.move_j(f"r{i}", home)
+    fresh = bounded.move_j("m0", home)  # forgotten: a new command (home: already there, nothing moves)
+    assert not fresh.duplicate
+
+
+def test_keep_moves_must_hold_at_least_two():
+    with pytest.raises(ValueError, match="keep_moves"):
+        SimRobotController(UR5E, SimClock(), keep_moves=1)
