@@ -53,11 +53,12 @@ from engine.messages.codec import CodecError, Envelope, Kind
 from engine.run.inbox import END, STOP, PortInbox
 from engine.run.output_port import OutputPort
 from engine.run.remote_input import RemoteInput
+from engine.run.service_call import CUT_SHORT, exchange
 from engine.run.service_port import ServicePort
-from engine.run.stage_host import ServiceCall, StageHost
+from engine.run.stage_host import StageHost
 from engine.stage import EVENTS_PORT, RunStoppingError, ServiceError, ServiceTimeoutError, Stage, StageContext
 from engine.transport.bus import RequestCancelled, service_key, wire_key
-from engine.transport.peers import ForgedReply, owners_answer
+from engine.transport.peers import ForgedReply
 
 log = logging.getLogger("vgr.runtime")
 LOCAL_QUEUE_DEPTH = 64  # messages a local producer may run ahead of its consumer
@@ -209,41 +210,23 @@ class StageRuntime(StageContext):
         if not request.stamp_ns:
             request.stamp_ns = self._causal.stamp or self.clock.now_ns()
         self._call_seq[client] = request.seq = self._call_seq.get(client, 0) + 1
-        payload, att = codec.encode(request)
-        key = service_key(self.run_id, edge.provider, edge.service)
         self.stats.calls_made += 1
-        reply_payload, reply_att, error = b"", b"", ""
-        t0 = perf_counter()
+        where = f"{self.name} -> {edge.provider}.{edge.service}"
         try:
-            answers = self.host.bus.request(key, payload, att, timeout_s, self.host.calls_token)
-            where = f"{self.name} -> {edge.provider}.{edge.service}"
-            answer = owners_answer(answers, self.host.service_owner(edge.provider), where)
-            if answer.error is not None:
-                raise RuntimeError(answer.error)
-            reply_payload, reply_att = answer.payload, answer.attachment
-            reply = codec.decode(reply_payload, codec.decode_envelope(reply_att))
+            reply = exchange(self.host, self.name, edge, request, timeout_s, self._observers)
         except ForgedReply as exc:  # nothing is taken from this request: no result, no motion
-            error = str(exc)
-            repliers = sorted({a.replier or "unknown" for a in answers})
-            self.event("alarm", "forged_reply", error, service=f"{edge.provider}.{edge.service}", repliers=repliers)
-            raise ServiceError(error) from None
+            self.event(
+                "alarm", "forged_reply", str(exc), service=f"{edge.provider}.{edge.service}", repliers=exc.repliers
+            )
+            raise ServiceError(str(exc)) from None
         except RequestCancelled:  # the stop came first: no reply is awaited (nor sent, if it was not yet)
-            error = "cut short: the run is stopping"
-            raise RunStoppingError(f"{self.name} -> {edge.provider}.{edge.service}: {error}") from None
+            raise RunStoppingError(f"{where}: {CUT_SHORT}") from None
         except (TimeoutError, LookupError, RuntimeError, CodecError) as exc:
-            error = str(exc)
-            where = f"{self.name} -> {edge.provider}.{edge.service}"
             if self._stop_event.is_set():  # a call that failed while the run stops: the stop's doing
                 raise RunStoppingError(f"{where}: {exc} (the run is stopping)") from None
             if isinstance(exc, TimeoutError):
                 raise ServiceTimeoutError(f"{where}: {exc}") from None
             raise ServiceError(f"{where}: {exc}") from None
-        finally:
-            if self._observers:
-                elapsed = perf_counter() - t0
-                done = ServiceCall(self.name, client, edge, payload, att, reply_payload, reply_att, error, elapsed)
-                for obs in self._observers:
-                    obs.on_service(done)
         if not isinstance(reply, spec.reply):
             raise ServiceError(
                 f"{edge.provider}.{edge.service} replied {type(reply).__name__}, expected {spec.reply.TYPE}"

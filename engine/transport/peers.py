@@ -60,7 +60,12 @@ def members_digest(epochs: dict[str, str]) -> str:
 
 
 class ForgedReply(Exception):  # noqa: N818 - a refusal, not a program error
-    """A service answered from a session that does not own the stage, or answered twice."""
+    """A service answered from a session that does not own the stage, or answered twice; ``repliers``
+    names the sessions that answered."""
+
+    def __init__(self, message: str, repliers: list[str]) -> None:
+        super().__init__(message)
+        self.repliers = repliers
 
 
 @dataclass
@@ -81,14 +86,16 @@ def owners_answer(answers: list[Answer], owner: str | None, where: str) -> Answe
     answered: the caller then gets no result, so nothing moves on it."""
     if not answers:
         raise LookupError(f"{where}: no answer")
+    repliers = sorted({a.replier or "unknown" for a in answers})
     strangers = sorted({a.replier or "unknown" for a in answers if owner is None or a.replier != owner})
     if strangers:
         raise ForgedReply(
             f"{where}: refused a reply from zenoh session {', '.join(strangers)}, "
-            f"which does not own the stage (owner: {owner or 'unknown'})"
+            f"which does not own the stage (owner: {owner or 'unknown'})",
+            repliers,
         )
     if len(answers) > 1:
-        raise ForgedReply(f"{where}: {len(answers)} replies to one request; none is taken")
+        raise ForgedReply(f"{where}: {len(answers)} replies to one request; none is taken", repliers)
     return answers[0]
 
 

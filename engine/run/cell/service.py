@@ -42,16 +42,17 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from engine.graph import ServiceEdge
-from engine.messages import CellReply, Request, codec
+from engine.messages import CellReply, Request
 from engine.recipe.model import ServeSettings
 from engine.run.cell import protocol
 from engine.run.cell.codes import Status
 from engine.run.cell.takt import TaktTimes
 from engine.run.runner import Observer, Runner
+from engine.run.service_call import exchange
 from engine.run.stage_host import ServiceCall
 from engine.stage import PLAYBACK_ROLES, stage_rng
-from engine.transport.bus import StopMarker, service_key
-from engine.transport.peers import owners_answer
+from engine.transport.bus import StopMarker
+from engine.transport.peers import ForgedReply
 
 log = logging.getLogger("vgr.cell")
 CALLER = "_cell"  # the caller name of the service's requests in recordings
@@ -380,39 +381,27 @@ class CellService(Observer):
         request = Request(command=command, args=doc)
         request.stamp_ns = self.runner.clock.now_ns()
         request.seq = cycle.number
-        payload, att = codec.encode(request)
-        reply_payload, reply_att, error = b"", b"", ""
         timeout = self.settings.cycle_timeout_s
-        t0 = time.perf_counter()
+        where = f"{provider}.{service}"
+        observers = [obs for obs in self.runner.observers if obs is not self]
         try:
-            answers = self.runner.bus.request(
-                service_key(self.runner.run_id, provider, service), payload, att, timeout, self.runner.calls_token
+            reply = exchange(
+                self.runner, CALLER, ServiceEdge(CALLER, command, provider, service), request, timeout, observers
             )
-            answer = owners_answer(answers, self.runner.service_owner(provider), f"{CALLER} -> {provider}.{service}")
-            if answer.error is not None:
-                error = answer.error
-                return "fault", f"{provider}.{service} failed: {answer.error}", {}
-            reply_payload, reply_att = answer.payload, answer.attachment
-            reply = codec.decode(reply_payload, codec.decode_envelope(reply_att))
-            if not isinstance(reply, CellReply):
-                return "fault", f"{provider}.{service} replied {type(reply).__name__}, not CellReply", {}
-            status = reply.status if reply.status in Status.__members__ else "fault"
-            return status, reply.message, dict(reply.result)
         except TimeoutError:
-            error = f"no reply within {timeout:g} s"
-            return "fault", f"{provider}.{service}: {error} (serve.cycle_timeout_s)", {}
-        except Exception as exc:  # cancelled by a stop, the provider gone, a forged reply, ...
-            error = f"{type(exc).__name__}: {exc}"
+            return "fault", f"{where}: no reply within {timeout:g} s (serve.cycle_timeout_s)", {}
+        except RuntimeError as exc:  # the job stage's error reply
+            return "fault", f"{where} failed: {exc}", {}
+        except ForgedReply as exc:  # nothing is taken from it: no result, no motion
+            self.runner.run_event("alarm", "forged_reply", "", str(exc), service=where, repliers=exc.repliers)
+            return "fault", str(exc), {}
+        except Exception as exc:  # cancelled by a stop, the provider gone, a reply that does not decode, ...
             status = "stopping" if self.runner.stop_event.is_set() else "fault"
-            return status, f"{provider}.{service}: {error}", {}
-        finally:
-            edge = ServiceEdge(CALLER, command, provider, service)
-            done = ServiceCall(
-                CALLER, command, edge, payload, att, reply_payload, reply_att, error, time.perf_counter() - t0
-            )
-            for obs in self.runner.observers:
-                if obs is not self:
-                    obs.on_service(done)
+            return status, f"{where}: {type(exc).__name__}: {exc}", {}
+        if not isinstance(reply, CellReply):
+            return "fault", f"{where} replied {type(reply).__name__}, not CellReply", {}
+        status = reply.status if reply.status in Status.__members__ else "fault"
+        return status, reply.message, dict(reply.result)
 
     def on_service(self, call: ServiceCall) -> None:
         """A call the job made during the cycle: its time goes to the cycle's part ``provider.service``."""
