@@ -143,7 +143,7 @@ class SimRobotController:
         payload_kg: float = 0.0,
         warmup_start_s: float | None = None,
         initial_direction: ArrayLike | float = 1.0,
-        keep_moves: int = 2000,
+        keep_moves: int = 200,
     ) -> None:
         self.nominal = nominal
         self.true_robot = true_robot if true_robot is not None else RobotWithEffects(nominal)

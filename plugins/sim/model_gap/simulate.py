@@ -266,7 +266,9 @@ def _move(true_model: RobotModel, nominal: RobotModel, n_samples: int, rng: np.r
     and speed per move, one sample at a random time of each move; from a cold start, the i-th sample
     near ``CAMPAIGN_S (i / n)^2``."""
     clock = SimClock()
-    ctl = SimRobotController(true_model, clock, warmup_start_s=0.0)
+    ctl = SimRobotController(
+        true_model, clock, warmup_start_s=0.0, keep_moves=max(2, n_samples)
+    )  # all: read back below
     lo, hi = np.maximum(nominal.lower, -np.pi), np.minimum(nominal.upper, np.pi)
     q, qd, d, t, pay = [], [], [], [], []
     for i in range(n_samples):
