@@ -16,6 +16,7 @@ def vgr_stage_types() -> list[type]:
     from plugins.actions.stages.guidance_report import GuidanceReport
     from plugins.calibration.stages.board_pose import BoardPose
     from plugins.calibration.stages.hand_eye import HandEyeCalibration
+    from plugins.calibration.stages.hand_eye_board import HandEyeBoardCalibration
     from plugins.calibration.stages.kinematic import KinematicCalibrationStage
     from plugins.calibration.stages.result_file import CalibrationFile
     from plugins.calibration.stages.target_pose import TargetPose
@@ -45,6 +46,7 @@ def vgr_stage_types() -> list[type]:
         TargetPose,
         BoardPose,
         HandEyeCalibration,
+        HandEyeBoardCalibration,
         ViveDeskCalibration,
         ViveToDesktop,
         TcpCalibration,

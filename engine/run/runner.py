@@ -184,7 +184,8 @@ class Runner:
         # end-of-run detection, incremental: the driven stages of this process not yet settled, and
         # for each, its inputs fed by driven stages (see _settle); done_checks counts the evaluations
         self._open_driven: set[str] = set()
-        self._driven_ports: dict[str, frozenset[str]] = {}
+        self._driven_ports: dict[str, dict[str, frozenset[str]]] = {}  # port -> the driven stages feeding it
+        self._consumers: dict[str, set[str]] = {}  # driven stage -> the driven stages of this process it feeds
         self._open_lock = threading.Lock()
         self.done_checks = 0
 
@@ -223,17 +224,31 @@ class Runner:
         """Re-evaluate one driven stage of this process (a change came from it): it is settled when
         it has handled all its data, or when every input still open comes from a stage nothing drives
         (a device's truth stream, say: it ends only when the run ends, so it must not hold the run
-        open). O(its ports) per change: the run's end is never found by walking the whole graph."""
+        open) or from a stage of this process settled so (a solver fed by the camera's images, whose
+        result feeds an evaluator: the images end when the run's data ends, and so then does the
+        solver). A stage newly settled re-evaluates its consumers. O(its ports) per change: the run's
+        end is never found by walking the whole graph."""
         rt = self.runtimes.get(stage)
         if rt is None or stage not in self._driven_ports:
             return
         self.done_checks += 1
-        pending = rt.pending_inputs
-        settled = rt.data_done.is_set() or (bool(pending) and not (pending & self._driven_ports[stage]))
-        if settled:
-            with self._open_lock:
+        driven_ports = self._driven_ports[stage]
+        with self._open_lock:
+            if stage not in self._open_driven:
+                return
+            pending = set(rt.pending_inputs)  # (a copy: the stage's threads change it)
+            live = [
+                port
+                for port in pending
+                if any(src in self._open_driven or src not in self.runtimes for src in driven_ports.get(port, ()))
+            ]
+            settled = rt.data_done.is_set() or (bool(pending) and not live)
+            if settled:
                 self._open_driven.discard(stage)
         self._progress.set()
+        if settled:
+            for consumer in self._consumers.get(stage, ()):
+                self._settle(consumer)
 
     # -- who is who (the membership answers; engine.run.stage_host.StageHost) --------------------
     def service_owner(self, stage: str) -> str | None:
@@ -382,8 +397,13 @@ class Runner:
         """Before the stages start: every driven stage of this process is open until :meth:`_settle`."""
         for name in self.runtimes:
             if name in self.driven:
-                ports = frozenset(e.dst_port for e in self.graph.inputs_of(name) if e.src in self.driven)
-                self._driven_ports[name] = ports
+                ports: dict[str, set[str]] = {}
+                for e in self.graph.inputs_of(name):
+                    if e.src in self.driven:
+                        ports.setdefault(e.dst_port, set()).add(e.src)
+                        if e.src in self.runtimes:
+                            self._consumers.setdefault(e.src, set()).add(name)
+                self._driven_ports[name] = {port: frozenset(srcs) for port, srcs in ports.items()}
                 self._open_driven.add(name)
 
     def _wait_until_done(self) -> None:

@@ -314,10 +314,11 @@ def _judge(
     fig: _Figures,
     x_name: str,
 ) -> tuple[Any, list[str], list[str]]:
-    """Step 7's verdict, reasons and advice: the pose solver's (its uncertainty check replaced by the
-    pixel refinement's), the views left out, then the estimate ``ref``'s uncertainty, convergence,
-    reprojection RMS and held-out RMS."""
-    ml_reasons = [r for r in ml.reasons if "uncertainty" not in r]
+    """Step 7's verdict, reasons and advice: the pose solver's (its uncertainty and outlier checks
+    replaced by the pixel refinement's: a pose pair the pose solver down-weights is judged again by
+    how its corners fit, step 6 (b)), the views left out, then the estimate ``ref``'s uncertainty,
+    convergence, reprojection RMS and held-out RMS."""
+    ml_reasons = [r for r in ml.reasons if "uncertainty" not in r and " outlier sample(s) " not in r]
     if not ml.usable:
         ml_reasons = [
             f"the pose solver alone gave verdict {ml.verdict} ({'; '.join(ml_reasons[-2:])}); the pixel "
@@ -331,14 +332,21 @@ def _judge(
             f"{len(left_out)} view(s) left out, their corners do not fit through their robot poses like the others' "
             f"do (the board moved, the robot pose is not the image's, or a poor detection): {', '.join(left_out)}",
         )
-    advice = [a for a in ml.advice if a != _STD_ADVICE]
+    advice = [a for a in ml.advice if a != _STD_ADVICE and not a.startswith("inspect the outlier samples")]
     std_t, std_r = fig.std_t, fig.std_r
-    if std_t > ACCURACY.max_std_trans_m or std_r > ACCURACY.max_std_rot_rad:
-        verdict = "warning"
-        reasons.append(
-            f"{x_name} uncertainty {std_t * 1e3:.3f} mm / {np.degrees(std_r):.4f} deg (1 sigma) exceeds the "
-            f"target {ACCURACY.max_std_trans_m * 1e3:.2f} mm / {np.degrees(ACCURACY.max_std_rot_rad):.3f} deg"
+    over = []
+    if std_t > ACCURACY.max_std_trans_m:
+        over.append(
+            f"translation {std_t * 1e3:.3f} mm (1 sigma) exceeds the target {ACCURACY.max_std_trans_m * 1e3:.2f} mm"
         )
+    if std_r > ACCURACY.max_std_rot_rad:
+        over.append(
+            f"rotation {np.degrees(std_r):.4f} deg (1 sigma) exceeds the target "
+            f"{np.degrees(ACCURACY.max_std_rot_rad):.3f} deg"
+        )
+    if over:
+        verdict = "warning"
+        reasons.append(f"{x_name} uncertainty: " + "; ".join(over))
         advice.append(_STD_ADVICE)
     if not ref.converged:
         verdict = "warning"

@@ -17,6 +17,7 @@ listed and their robot poses dropped, as for a folder of images. What follows is
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,7 +31,7 @@ from plugins.calibration.inputs import CalibrationInputError, PairingOptions, pa
 from plugins.camera.board_spec import BoardSpec
 from plugins.camera.pinhole import CameraModel
 
-__all__ = ["DEFAULT_IMAGE_TOPICS", "RecordedViews", "recorded_views"]
+__all__ = ["DEFAULT_IMAGE_TOPICS", "RecordedViews", "paired_views", "recorded_views"]
 
 #: the sim camera's ports in recipes/calibrate_handeye_board_sim.yaml
 DEFAULT_IMAGE_TOPICS = {"image": "/camera/image", "camera_info": "/camera/image_info"}
@@ -48,7 +49,8 @@ class RecordedViews:
     notes: list[str] = field(default_factory=list)
 
 
-def _camera(infos: list[CameraInfo], first_stamp: int) -> CameraModel:
+def camera_at(infos: Sequence[CameraInfo], first_stamp: int) -> CameraModel:
+    """The camera model stamped at or before *first_stamp* (the first image), else the first one."""
     before = [i for i in infos if i.stamp_ns <= first_stamp]
     return CameraModel.from_camera_info(before[-1] if before else infos[0])
 
@@ -67,14 +69,34 @@ def recorded_views(
     rec = load(path)
     images = read_topic(rec, image_topic, Image)
     robot = read_topic(rec, robot_topic, PoseStamped)
+    if not images:
+        raise CalibrationInputError(f"{path}: no images on {image_topic}")
     camera = None
     if camera_info_topic is not None:
-        camera = _camera(read_topic(rec, camera_info_topic, CameraInfo), images[0].stamp_ns)
+        camera = camera_at(read_topic(rec, camera_info_topic, CameraInfo), images[0].stamp_ns)
+    rv = paired_views(
+        images, robot, board, pairing, names=(f"images on {image_topic}", f"robot poses on {robot_topic}")
+    )
+    rv.camera = camera
+    return rv
+
+
+def paired_views(
+    images: Sequence[Image],
+    robot: Sequence[PoseStamped],
+    board: BoardSpec,
+    pairing: PairingOptions | None = None,
+    *,
+    names: tuple[str, str] = ("images", "robot poses"),
+) -> RecordedViews:
+    """Each image paired with the robot pose of the nearest stamp (or in order: *pairing*), the board
+    searched in each paired image; views where it was not found are listed and their poses dropped.
+    A recording's messages (:func:`recorded_views`) or a stage's (``handeye_board_calibration``)."""
     p = pair_by_stamp_or_order(
-        [m.stamp_ns for m in images], [m.stamp_ns for m in robot], names=("images", "robot poses"), **(pairing or {})
+        [m.stamp_ns for m in images], [m.stamp_ns for m in robot], names=names, **(pairing or {})
     )
     if not p.pairs:
-        raise CalibrationInputError(f"{path}: no image could be paired with a robot pose")
+        raise CalibrationInputError(f"no image could be paired with a robot pose ({names[0]}, {names[1]})")
     views: list[Detection] = []
     poses: list[NDArray[np.float64]] = []
     rejected: list[Rejection] = []
@@ -88,7 +110,7 @@ def recorded_views(
         poses.append(np.asarray(robot[j].T, dtype=float))
     sizes = {v.image_size for v in views}
     if len(sizes) > 1:
-        raise CalibrationInputError(f"{path}: images of different sizes on {image_topic}: {sorted(sizes)}")
+        raise CalibrationInputError(f"images of different sizes ({names[0]}): {sorted(sizes)}")
     M = np.stack(poses) if poses else np.zeros((0, 4, 4))
-    notes = [f"{len(p.pairs)} image(s) on {image_topic} paired with robot poses on {robot_topic}", *p.notes]
-    return RecordedViews(views, M, rejected, camera, notes)
+    notes = [f"{len(p.pairs)} {names[0]} paired with {names[1]}", *p.notes]
+    return RecordedViews(views, M, rejected, None, notes)

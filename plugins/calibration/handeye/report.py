@@ -56,6 +56,8 @@ def residual_table(result: CalibrationResult, max_rows: int = 200) -> list[str]:
         return []
     R = np.asarray(result.residuals)
     col = {n: i for i, n in enumerate(result.residual_names)}
+    if "chain_tx" not in col:  # from images: per view, in pixels
+        return _pixel_table(result, R, max_rows)
 
     def norm(prefix: str, part: str) -> np.ndarray:
         names = [f"{prefix}_{part}{a}" for a in "xyz"]
@@ -76,6 +78,21 @@ def residual_table(result: CalibrationResult, max_rows: int = 200) -> list[str]:
             f"{norm('camera', 'r')[k] * _DEG:10.4f} {R[k, col['mahalanobis2']]:7.2f} "
             f"{R[k, col['weight']]:7.3f}{'  OUTLIER' if out[k] else ''}"
         )
+    if len(R) > max_rows:
+        lines.append(f"  ... {len(R) - max_rows} more")
+    return lines
+
+
+def _pixel_table(result: CalibrationResult, R: np.ndarray, max_rows: int) -> list[str]:
+    """One line per view of an image-based calibration: its residual columns (pixels), outlier flag."""
+    out = np.zeros(len(R), dtype=bool) if result.outliers is None else np.asarray(result.outliers)
+    labels = [str(x) for x in result.estimate.get("sample_labels", [])]
+    labels = labels if len(labels) == len(R) else [str(k) for k in range(len(R))]
+    w = max(6, *(len(x) for x in labels))
+    lines = ["  " + f"{'view':>{w}}" + "".join(f" {n:>15}" for n in result.residual_names)]
+    for k in range(min(len(R), max_rows)):
+        cells = "".join(f" {v:15.3f}" for v in R[k])
+        lines.append(f"  {labels[k]:>{w}}{cells}{'  LEFT OUT' if out[k] else ''}")
     if len(R) > max_rows:
         lines.append(f"  ... {len(R) - max_rows} more")
     return lines

@@ -5,7 +5,9 @@ plus the ``solve`` trigger port every solver has), and implements :meth:`Calibra
 (messages -> CalibrationResult, notes) and :meth:`CalibrationStage.transforms` (which estimated
 transforms go downstream, with frame names).
 
-* Messages of the data ports are kept in arrival order (per port: publication order).
+* Messages of the data ports are kept in arrival order (per port: publication order); so are those of
+  the side ports (``SIDE_PORTS``: what the samples are read with, such as a camera model), which are
+  not samples and not counted as such.
 * A message on ``solve`` calibrates from everything received so far; so does the end of all inputs
   (``finish``) when ``solve_on_finish`` and samples arrived since the last solve (or none was made).
   The engine orders messages within a port, not across ports, so a ``solve`` whose ``args`` carry
@@ -83,15 +85,17 @@ class CalibrationStage(Stage):
     role = "solver"
     KIND: ClassVar[str] = ""
     DATA_PORTS: ClassVar[dict[str, type[Message]]] = {}
+    SIDE_PORTS: ClassVar[dict[str, type[Message]]] = {}
     outputs: ClassVar = {"result": CalibrationResultMsg, "transform": Transform}
     Params: ClassVar[type[StageParams]] = PairingParams
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
-        cls.inputs = {**cls.DATA_PORTS, SOLVE_PORT: Request}
+        cls.inputs = {**cls.DATA_PORTS, **cls.SIDE_PORTS, SOLVE_PORT: Request}
 
     def setup(self) -> None:
         self.buffers: dict[str, list[Any]] = {p: [] for p in self.DATA_PORTS}
+        self.side: dict[str, list[Any]] = {p: [] for p in self.SIDE_PORTS}
         self._new_samples = False
         self._waiting: tuple[int, str] | None = None  # a solve waiting for (samples per port, why)
         self.solves = 0
@@ -105,6 +109,9 @@ class CalibrationStage(Stage):
                 self._waiting = (total, why)
             else:
                 self._solve(why)
+            return
+        if port in self.side:
+            self.side[port].append(msg)
             return
         self.buffers[port].append(msg)
         self._new_samples = True
