@@ -37,6 +37,18 @@ from plugins.camera.board_spec import BoardSpec, parse_board
 from plugins.camera.pinhole import CameraModel
 
 
+class BoardParams(StageParams):
+    """The ``board`` parameter of the stages that look for a board, checked when the recipe loads."""
+
+    board: str = Field(description="board spec (e.g. chessboard:9x6:25mm, charuco:...) or a board file")
+
+    @field_validator("board")
+    @classmethod
+    def _parses(cls, v: str) -> str:
+        parse_board(v)  # a BoardSpecError (a ValueError) names what is wrong
+        return v
+
+
 class BoardPose(Stage):
     """Pose of a calibration board in each image (T_cam_target with its 6x6 covariance)."""
 
@@ -45,18 +57,11 @@ class BoardPose(Stage):
     inputs: ClassVar = {"image": Image, "camera_info": CameraInfo}
     outputs: ClassVar = {"pose": PoseWithCovarianceStamped}
 
-    class Params(StageParams):
-        board: str = Field(description="board spec (e.g. chessboard:9x6:25mm, charuco:...) or a board file")
+    class Params(BoardParams):
         sigma_px: float | None = Field(
             None, gt=0.0, description="corner noise per pixel coordinate; None: from each view's residuals"
         )
         allow_ambiguous: bool = Field(False, description="accept a board whose origin the image cannot tell")
-
-        @field_validator("board")
-        @classmethod
-        def _parses(cls, v: str) -> str:
-            parse_board(v)  # a BoardSpecError (a ValueError) names what is wrong
-            return v
 
     def setup(self) -> None:
         p: BoardPose.Params = self.params  # type: ignore[assignment]

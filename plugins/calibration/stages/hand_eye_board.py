@@ -29,7 +29,7 @@ from __future__ import annotations
 from typing import ClassVar, Literal
 
 import numpy as np
-from pydantic import Field, field_validator
+from pydantic import Field
 
 from engine.messages import CameraInfo, Image, PoseStamped
 from plugins.calibration.boards.handeye_images import calibrate_handeye_images
@@ -37,6 +37,7 @@ from plugins.calibration.boards.recording import camera_at, paired_views
 from plugins.calibration.inputs import CalibrationInputError
 from plugins.calibration.result import CalibrationResult
 from plugins.calibration.stages.base import CalibrationStage, PairingParams, calibrated
+from plugins.calibration.stages.board_pose import BoardParams
 from plugins.camera.board_spec import parse_board
 
 
@@ -48,8 +49,7 @@ class HandEyeBoardCalibration(CalibrationStage):
     DATA_PORTS: ClassVar = {"robot_pose": PoseStamped, "image": Image}
     SIDE_PORTS: ClassVar = {"camera_info": CameraInfo}
 
-    class Params(PairingParams):
-        board: str = Field(description="board spec (e.g. chessboard:9x6:25mm, charuco:...) or a board file")
+    class Params(PairingParams, BoardParams):
         setup: Literal["eye_in_hand", "eye_to_hand"] = "eye_in_hand"
         kind: Literal["hand_eye", "robot_world"] = Field("hand_eye", description="AX=XB or AX=ZB")
         refine_intrinsics: bool = Field(False, description="refine the camera model with the poses")
@@ -57,12 +57,6 @@ class HandEyeBoardCalibration(CalibrationStage):
         tcp_frame: str = "tcp"
         target_frame: str = "target"
         camera_frame: str | None = Field(None, description="the estimated camera frame (default: <camera>_calibrated)")
-
-        @field_validator("board")
-        @classmethod
-        def _parses(cls, v: str) -> str:
-            parse_board(v)  # a BoardSpecError (a ValueError) names what is wrong
-            return v
 
     def calibrate(self) -> tuple[CalibrationResult, list[str]]:
         p: HandEyeBoardCalibration.Params = self.params  # type: ignore[assignment]
