@@ -70,6 +70,25 @@ def _print_list(run: Any, as_json: bool) -> int:
     return ExitCode.OK
 
 
+def play_document(
+    run_id: str, played: int, topics: list[str], rate: float, listen: list[str], code: ExitCode
+) -> dict[str, Any]:
+    """``vgr play --json``'s document (engine/cli/schemas/play.schema.json)."""
+    outcome = "interrupted" if code == ExitCode.INTERRUPTED else "ok"
+    return {
+        "format": "vgr.play/1",
+        "verb": "play",
+        "ok": code == ExitCode.OK,
+        "outcome": outcome,
+        "exit_code": int(code),
+        "run_id": run_id,
+        "messages_played": played,
+        "topics": topics,
+        "rate": rate,
+        "listen": listen,
+    }
+
+
 def cmd_play(args: argparse.Namespace) -> int:
     from engine.recipe.endpoint_syntax import PRIVATE
     from engine.recipe.model import ZenohSettings
@@ -99,8 +118,12 @@ def cmd_play(args: argparse.Namespace) -> int:
             if args.wait_subscribers and not player.wait_for_subscribers(args.wait_subscribers):
                 err.print(f"not every topic had a subscriber after {args.wait_subscribers:g} s; playing anyway")
             n = player.play(args.loop)
-    out.print(f"played {n} messages", highlight=False)
-    return ExitCode.INTERRUPTED if player.stopped else ExitCode.OK
+    code = ExitCode.INTERRUPTED if player.stopped else ExitCode.OK
+    if args.json:
+        print(json.dumps(play_document(run_id, n, topics, args.rate, listen, code)))
+    else:
+        out.print(f"played {n} messages", highlight=False)
+    return code
 
 
 def _add_connect_option(p: argparse.ArgumentParser, default: str) -> None:
@@ -150,6 +173,7 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg
         help="wait up to S seconds for a subscriber on every played topic before the first message (default 0)",
     )  # fmt: skip
     _add_connect_option(p, "default: none")
+    p.add_argument("--json", action="store_true", help="print the outcome as one JSON document (vgr.play/1)")
     p.set_defaults(func=cmd_play)
 
 

@@ -12,12 +12,14 @@ import threading
 import time
 from pathlib import Path
 
+import jsonschema
 import pytest
 import zenoh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from process_helpers import ROOT, env, free_port, vgr
 
+from engine.cli.json_output import schema
 from engine.cli.main import main
 from engine.recording.play import PlayError, Selection, data_messages, select
 from engine.recording.reader import load
@@ -104,6 +106,23 @@ def test_start_and_end_select_a_time_slice(listener):
     t0 = data_messages(load(DEMO))[0].log_time
     want = [m.seq for m in load(DEMO).messages("/source/cloud") if 0.1e9 <= m.log_time - t0 <= 0.2e9]
     assert [seq for _, _, kind, seq in listener.samples if kind == 0] == want and len(want) == 3
+
+
+def test_the_json_document_says_what_was_played_and_validates(listener):
+    r = listener.play("--topics", "/source/cloud", "--json")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)  # strict: the whole of stdout is one document
+    jsonschema.validate(doc, schema("play"))
+    assert (doc["run_id"], doc["topics"], doc["exit_code"]) == ("demo", ["/source/cloud"], 0)
+    assert doc["messages_played"] == len(list(RECORDING.messages("/source/cloud")))
+
+
+def test_a_refused_play_prints_the_invalid_document(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))
+    assert main(["play", str(DEMO), "--rate", "0", "--json"]) == 2
+    doc = json.loads(capsys.readouterr().out)
+    jsonschema.validate(doc, schema("invalid"))
+    assert doc["verb"] == "play" and "rate" in doc["error"]
 
 
 def test_refusals_exit_2(tmp_path, capsys, monkeypatch):
