@@ -44,9 +44,12 @@ from collections.abc import Callable
 from functools import partial
 from typing import Any, Protocol
 
+import zenoh
+
 from engine.graph import Graph
 from engine.run.summary import RunError
 from engine.transport.bus import Bus, LiveSet, active_key, control_key, ready_key, started_key
+from engine.transport.link_identity import ACCEPT, LinkIdentity, Verdict, session_links
 from engine.transport.peers import PeerWatch, members_digest, new_epoch, peer_key, peer_process, sender_zid
 
 # the runner's log: what the membership logs is part of the runner's account of the run
@@ -72,9 +75,20 @@ class Membership:
     """One process's membership of the run *run_id* of *graph* (see the module docstring)."""
 
     def __init__(
-        self, graph: Graph, process: str, run_id: str, ready_timeout_s: float, run: RunControl, bus: Bus | None
+        self,
+        graph: Graph,
+        process: str,
+        run_id: str,
+        ready_timeout_s: float,
+        run: RunControl,
+        bus: Bus | None,
+        *,
+        secured: bool = False,
+        dialled: dict[str, str] | None = None,
     ) -> None:
         self.graph = graph
+        self.secured = secured  # the run has `security:`: sessions are known by their certificates
+        self.dialled = dialled or {}  # endpoint this process connects to -> the process there
         self.process = process
         self.run_id = run_id
         self.ready_timeout_s = ready_timeout_s
@@ -89,6 +103,8 @@ class Membership:
         self.lost_peer: str | None = None  # why a peer process was lost (crashed, lease lost): the run failed
         self._lost: set[tuple[str, str]] = set()  # (process, zid) already reported lost
         self._lost_lock = threading.Lock()
+        self.links: LinkIdentity | None = None  # who is who by this session's links (multi-process runs)
+        self._impostors: set[str] = set()  # zenoh sessions already named as impostors
 
     def _bus(self) -> Bus:
         assert self.bus is not None, "bus not open"
@@ -126,9 +142,21 @@ class Membership:
         """Watch the run's processes and declare this one (its session and epoch), before its stages'
         ready tokens: whoever sees a stage ready has its owner's token already (engine.transport.peers)."""
         bus = self._bus()
-        peers = self.peers = PeerWatch(
-            self.run_id, self.graph.recipe.rejoin, on_lost=self._peer_lost, on_restart=self._peer_restarted
+        self.links = LinkIdentity(
+            partial(session_links, bus.session), self.process, secured=self.secured, dialled=self.dialled
         )
+        peers = self.peers = PeerWatch(
+            self.run_id,
+            self.graph.recipe.rejoin,
+            on_lost=self._peer_lost,
+            on_restart=self._peer_restarted,
+            verify=self._verify_claim,
+            on_refused=self._impostor,
+        )
+        if self.secured:  # a second session with a certificate of the run is seen as its link comes up
+            self._tokens["links"] = bus.session.info.declare_link_events_listener(
+                zenoh.handlers.Callback(self._on_link, indirect=True), history=True
+            )
         peers.start(bus)
         self._peer_key = peer_key(self.run_id, self.process, bus.zid, self.epoch)
         self._tokens["peer"] = bus.token(self._peer_key)
@@ -151,7 +179,7 @@ class Membership:
         procs = set(self.graph.processes())
         missing = self.peers.wait_for(procs, self.ready_timeout_s)
         if missing:
-            raise RunError(f"processes {', '.join(sorted(missing))} did not say who they are (engine.transport.peers)")
+            raise RunError(self._unconfirmed(missing))
         digest = members_digest({**self.peers.epochs(), self.process: self.epoch})
         self._tokens["peer_started"] = self._bus().token(f"{self._peer_key}/started/{digest}")
         self.peers.wait_for(procs - {self.process}, self.ready_timeout_s, "started")
@@ -217,6 +245,52 @@ class Membership:
                 live.wait(version, min(left, 0.5))  # (0.5 s: notice a stop without a token change)
         finally:
             live.close()
+
+    # -- who may claim to be whom (engine.transport.link_identity) ------------------------------------
+    def _verify_claim(self, process: str, zid: str) -> Verdict:
+        """Is session *zid* the run's *process*? (Another session in this process's own name is an
+        earlier or later start of it: the epochs say which, see _check_epochs.)"""
+        if process == self.process or self.links is None:
+            return ACCEPT
+        return self.links.verdict(process, zid)
+
+    def _unconfirmed(self, missing: set[str]) -> str:
+        """Why *missing* processes are not members after the wait: no claim, or one the links never confirmed."""
+        assert self.peers is not None
+        held = self.peers.held()
+        why = []
+        for process in sorted(missing):
+            ends = [e for e, p in self.dialled.items() if p == process]
+            if process in held and ends:
+                why.append(
+                    f"process {process} is claimed by zenoh session {', '.join(held[process])}, but nothing "
+                    f"answers on its endpoint {ends[0]}: not taken for it (engine.transport.link_identity)"
+                )
+            else:
+                why.append(f"process {process} did not say who it is (engine.transport.peers)")
+        return "; ".join(why) + f" after {self.ready_timeout_s:g} s"
+
+    def _on_link(self, _event: Any) -> None:
+        """A link came or went (``security:`` runs): a certificate of the run held by two sessions
+        is a copied key, and the run stops."""
+        if self.links is None or self.bus is None:
+            return
+        for process, zids in sorted(self.links.shared_certificates(self.graph.processes(), self.bus.zid).items()):
+            taken = self.bus.zid if process == self.process else self.peers.owner(process) if self.peers else None
+            others = ", ".join(sorted(zids - {taken}))
+            self._impostor(process, others, f"sessions {', '.join(sorted(zids))} hold its certificate")
+
+    def _impostor(self, process: str, zid: str, why: str) -> None:
+        """A session claims a process of the run that this session's links say it is not: an alarm,
+        and the run stops (motion first): someone else may answer as that process."""
+        if zid in self._impostors:
+            return
+        self._impostors.add(zid)
+        code = "identity_shared" if self.secured else "peer_impostor"
+        msg = f"refused zenoh session {zid} as process {process!r}: {why}"
+        self.run.run_event("alarm", code, "", msg, process=process, zid=zid)
+        self.lost_peer = self.lost_peer or msg  # the run failed
+        self.run.stop(msg)
 
     # -- during the run --------------------------------------------------------------------------
     def ended_everywhere(self) -> bool:

@@ -180,7 +180,17 @@ class Runner:
         self._progress = threading.Event()
         self.started_at = datetime.now(UTC)
         # this process in the run: tokens, barriers, peers, control messages, who owns what
-        self.members = Membership(graph, process, self.run_id, ready_timeout_s, self, bus)
+        plan = self.session
+        self.members = Membership(
+            graph,
+            process,
+            self.run_id,
+            ready_timeout_s,
+            self,
+            bus,
+            secured=plan is not None and plan.secured,
+            dialled=plan.dialled if plan is not None else None,
+        )
         # end-of-run detection, incremental: the driven stages of this process not yet settled, and
         # for each, its inputs fed by driven stages (see _settle); done_checks counts the evaluations
         self._open_driven: set[str] = set()

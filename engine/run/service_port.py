@@ -6,6 +6,10 @@ whose callback only appends each query to an unbounded queue (engine.transport.b
 never wait for Python). The service's pump thread (:meth:`ServicePort.pump`) takes the queries in
 arrival order and, for each one:
 
+* a request from a session that is not a process the recipe wires to the service (a stage of it
+  ``uses`` the service, or it is this stage's own process), or that does not say who it is, is
+  refused: a warning ``caller_refused`` naming the session, and an error reply (which process a
+  session is: engine.transport.peers, checked against the links by engine.transport.link_identity);
 * a STOP envelope sent as a request is refused, never acted on (no query of a run carries STOP): a
   warning ``stop_refused`` naming the caller, and an error reply;
 * a request that cannot be decoded, or is not of the service's request type, gets an error reply;
@@ -49,6 +53,16 @@ class ServicePort:
         self.svc = svc
         self.queryable = queryable
         self.serve = serve
+        graph = rt.host.graph
+        # the processes that may call: those of the stages that use this service, and this stage's own
+        self.callers = frozenset(
+            {rt.node.spec.process}
+            | {
+                graph.nodes[e.client].spec.process
+                for e in graph.service_edges
+                if e.provider == rt.name and e.service == svc
+            }
+        )
 
     def wake(self) -> None:
         """End the pump (the run is stopping): a marker it takes as its cue, after what is queued."""
@@ -69,10 +83,14 @@ class ServicePort:
                     return
                 att = query.attachment
                 caller_zid = sender_zid(query)
+                caller = rt.host.process_of(caller_zid)
                 try:
                     env = codec.decode_envelope(att.to_bytes() if att is not None else b"")
                     if env.kind == _STOP:  # no zenoh query of a run carries STOP: refused, never acted on
                         self._refuse_stop(caller_zid, query)
+                        continue
+                    if caller not in self.callers:
+                        self._refuse_caller(caller, caller_zid, query)
                         continue
                     payload = query.payload.to_bytes() if query.payload is not None else b""
                     request = codec.decode(payload, env)
@@ -88,11 +106,21 @@ class ServicePort:
                     query.reply_err(f"{rt.name}.{svc}: {why}")
                     continue
                 reply_bytes, error = self.serve(svc, spec.reply, request)
-                self._served(caller_zid, request, error)
+                self._served(caller, caller_zid, request, error)
                 if reply_bytes is not None:
                     query.reply(query.key_expr, reply_bytes[0], attachment=reply_bytes[1])
                 else:
                     query.reply_err(f"{rt.name}.{svc} failed: {error}")
+
+    def _refuse_caller(self, caller: str | None, caller_zid: str | None, query: Any) -> None:
+        rt, svc = self.rt, self.svc
+        who = f"process {caller!r}" if caller else f"zenoh session {caller_zid}" if caller_zid else "an unnamed session"
+        msg = (
+            f"{svc}: refused a request from {who}: the recipe wires this service to "
+            f"{', '.join(sorted(self.callers))} only"
+        )
+        rt.event("warning", "caller_refused", msg, service=svc, caller_zid=caller_zid or "")
+        query.reply_err(f"{rt.name}.{svc}: not a caller of this service")
 
     def _refuse_stop(self, caller_zid: str | None, query: Any) -> None:
         rt, svc = self.rt, self.svc
@@ -101,11 +129,12 @@ class ServicePort:
         rt.event("warning", "stop_refused", msg, service=svc, caller_zid=caller_zid or "")
         query.reply_err(f"{rt.name}.{svc}: a STOP envelope is not a request")
 
-    def _served(self, caller_zid: str | None, request: Message, error: str) -> None:
+    def _served(self, caller: str | None, caller_zid: str | None, request: Message, error: str) -> None:
         """Tell the observers (the recorder) who called: the caller's process and session."""
         observers = self.rt.host.observers
         if observers:
-            caller = self.rt.host.process_of(caller_zid) or ""
-            served = ServedCall(self.rt.name, self.svc, caller, caller_zid or "", request.TYPE, request.seq, error)
+            served = ServedCall(
+                self.rt.name, self.svc, caller or "", caller_zid or "", request.TYPE, request.seq, error
+            )
             for obs in observers:
                 obs.on_served(served)

@@ -19,11 +19,14 @@ One liveliness subscriber watches ``vgr/<run>/_peer/**``, so one process's token
 order it declared them: its ``done`` before the removal of its tokens when it closes. A process
 whose token vanishes without ``done`` crashed or lost its zenoh lease (:attr:`PeerWatch.on_lost`).
 
-What this does not do: zenoh lets a session put any ``source_info`` it likes, and a session may declare
-any token. A peer that copies a member's ZenohId into its puts, or declares tokens for a process it
-is not, gets past these checks; only zenoh's authentication and access control (the recipe's
-``security:`` block) stop it. Replies are different: ``replier_id`` is set by zenoh, so a forged
-reply is told apart from the owner's.
+A token is a claim anyone connected may make, so it is taken only when this session's own links
+agree (engine.transport.link_identity: the session on the process's endpoint, or the holder of its
+certificate); a claim they contradict is refused and named (the alarm ``peer_impostor``,
+engine.run.membership). What this does not do: zenoh lets a session put any ``source_info`` it likes.
+A peer that copies a member's ZenohId into its puts gets past the control and caller checks without
+``security:``; with it, a second session of one identity is seen on the links and stops the run.
+Replies are different: ``replier_id`` is set by zenoh, so a forged reply is told apart from the
+owner's.
 """
 
 from __future__ import annotations
@@ -32,11 +35,16 @@ import contextlib
 import hashlib
 import secrets
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import zenoh
+
+from engine.transport.link_identity import ACCEPT, Verdict
+
+RECHECK_S = 0.05  # how often a wait verifies again the claims held (a link coming up is no token change)
 
 
 def new_epoch() -> str:
@@ -116,21 +124,38 @@ class _Member:
     gone: bool = False
 
 
+def _mark(m: _Member, rest: list[str], put: bool) -> None:
+    """Apply one token change of *m*'s session: its ``done``, its ``started/<digest>``, its removal."""
+    if rest == ["done"] and put:
+        m.done = True
+    elif len(rest) == 2 and rest[0] == "started" and put:
+        m.started = rest[1]
+    elif not rest and not put:
+        m.gone = True
+
+
 @dataclass
 class PeerWatch:
     """The run's processes as their ``_peer`` tokens show them (one liveliness subscriber).
 
-    The first epoch seen of a process is the one accepted; a later one is accepted only when
-    *rejoin* is True (:attr:`on_restart` is told either way). :attr:`on_lost` is called with a
-    process whose accepted token vanished without its ``done`` marker. Callbacks run on zenoh's
-    callback thread: keep them short."""
+    A token is a claim; *verify* (engine.transport.link_identity: this session's links) decides
+    whether its session is that process: accepted, refused (:attr:`on_refused` is told why) or not
+    known yet (held, and checked again by :meth:`recheck`, which :meth:`wait_for` and
+    :meth:`owner` call while claims are held). The first accepted epoch of a process is the run's;
+    a later one is accepted only when *rejoin* is True (:attr:`on_restart` is told either way).
+    :attr:`on_lost` is called with a process whose accepted token vanished without its ``done``
+    marker. Callbacks run on zenoh's callback thread: keep them short."""
 
     run: str
     rejoin: bool = False
     on_lost: Callable[[str, str], None] = lambda process, zid: None
     on_restart: Callable[[str, str, str, bool], None] = lambda process, old, new, accepted: None
+    verify: Callable[[str, str], Verdict] = lambda process, zid: ACCEPT
+    on_refused: Callable[[str, str, str], None] = lambda process, zid, why: None
     _members: dict[str, _Member] = field(default_factory=dict)
     _others: dict[tuple[str, str], _Member] = field(default_factory=dict)  # refused epochs
+    _held: dict[tuple[str, str], tuple[str, _Member]] = field(default_factory=dict)  # (zid, epoch) -> unverified
+    _impostors: set[tuple[str, str]] = field(default_factory=set)  # (zid, epoch) refused by verify
     _cv: threading.Condition = field(default_factory=lambda: threading.Condition(threading.Lock()))
     decl: Any = None
 
@@ -140,38 +165,84 @@ class PeerWatch:
             return
         process, zid, epoch, rest = parts[3], parts[4], parts[5], parts[6:]
         put = sample.kind != zenoh.SampleKind.DELETE
-        lost = restart = None
         with self._cv:
-            m = self._members.get(process)
-            if m is None or (m.gone and self.rejoin and put and (m.zid, m.epoch) != (zid, epoch)):
-                old = m
-                m = self._members[process] = _Member(zid, epoch)
-                if old is not None:
-                    restart = (process, old.epoch, epoch, True)
-            elif (m.zid, m.epoch) != (zid, epoch):
-                if put and not rest and (process, epoch) not in self._others:
-                    self._others[(process, epoch)] = _Member(zid, epoch)
-                    restart = (process, m.epoch, epoch, False)
-                self._cv.notify_all()
-                m = None
-            if m is not None:
-                if rest == ["done"] and put:
-                    m.done = True
-                elif len(rest) == 2 and rest[0] == "started" and put:
-                    m.started = rest[1]
-                elif not rest and not put:
-                    m.gone = True
-                    if not m.done:
-                        lost = (process, zid)
-                self._cv.notify_all()
+            if (zid, epoch) in self._impostors:
+                return
+            held = self._held.get((zid, epoch))
+            if held is not None:  # not verified yet: its markers wait with it
+                _mark(held[1], rest, put)
+                if not rest and not put:
+                    del self._held[(zid, epoch)]
+                return
+            known = self._members.get(process)
+            seen = (known is not None and (known.zid, known.epoch) == (zid, epoch)) or (process, epoch) in self._others
+        if seen or not put:
+            self._update(process, zid, epoch, rest, put)
+            return
+        # a session not seen before (its markers may come before its token: history is unordered)
+        claim = _Member(zid, epoch)
+        _mark(claim, rest, put)
+        self._admit(process, claim, fresh=True)
+
+    def _admit(self, process: str, claim: _Member, *, fresh: bool) -> None:
+        """A claim: verified (outside the lock: it asks the session), then held, refused or taken
+        as the process. Not *fresh*: a held one checked again, unless its token went meanwhile."""
+        verdict = self.verify(process, claim.zid)
+        restart = None
+        with self._cv:
+            key = (claim.zid, claim.epoch)
+            if not fresh and key not in self._held:
+                return  # its token went while it was checked
+            if verdict.pending:
+                self._held[key] = (process, claim)
+                return
+            self._held.pop(key, None)
+            if not verdict.accepted:
+                self._impostors.add(key)
+            else:
+                restart = self._take(process, claim)
+            self._cv.notify_all()
+        if verdict.refusal:
+            self.on_refused(process, claim.zid, verdict.refusal)
         if restart is not None:
             self.on_restart(*restart)
+
+    def _take(self, process: str, claim: _Member) -> tuple[str, str, str, bool] | None:
+        """A verified token (the lock held): the process's member, a rejoin, or a refused epoch."""
+        m = self._members.get(process)
+        if m is None or (m.gone and self.rejoin and (m.zid, m.epoch) != (claim.zid, claim.epoch)):
+            self._members[process] = claim
+            return None if m is None else (process, m.epoch, claim.epoch, True)
+        if (m.zid, m.epoch) != (claim.zid, claim.epoch) and (process, claim.epoch) not in self._others:
+            self._others[(process, claim.epoch)] = claim
+            return (process, m.epoch, claim.epoch, False)
+        return None
+
+    def _update(self, process: str, zid: str, epoch: str, rest: list[str], put: bool) -> None:
+        """A marker of, or the removal of, a token already seen."""
+        lost = None
+        with self._cv:
+            m = self._members.get(process)
+            if m is not None and (m.zid, m.epoch) == (zid, epoch):
+                _mark(m, rest, put)
+                if not rest and not put and not m.done:
+                    lost = (process, zid)
+            self._cv.notify_all()
         if lost is not None:
             self.on_lost(*lost)
 
+    def recheck(self) -> None:
+        """Verify again the claims held until this session's links could say (see :meth:`_admit`)."""
+        with self._cv:
+            held = list(self._held.values())
+        for process, claim in held:
+            self._admit(process, claim, fresh=False)
+
     # -- questions ---------------------------------------------------------------------------
     def owner(self, process: str) -> str | None:
-        """The ZenohId accepted for *process* (None until its token is seen)."""
+        """The ZenohId accepted for *process* (None until its token is seen and verified)."""
+        if self._held:
+            self.recheck()
         with self._cv:
             m = self._members.get(process)
             return m.zid if m is not None and not m.gone else None
@@ -204,7 +275,8 @@ class PeerWatch:
 
     def wait_for(self, processes: set[str], deadline_s: float, what: str = "") -> set[str]:
         """Wait up to *deadline_s* seconds until every one of *processes* is seen (with its
-        ``started`` marker when *what* is ``"started"``); returns those still missing."""
+        ``started`` marker when *what* is ``"started"``); returns those still missing. A process
+        whose claim is held (not verified yet) is missing."""
 
         def missing() -> set[str]:
             return {
@@ -213,9 +285,22 @@ class PeerWatch:
                 if p not in self._members or (what == "started" and self._members[p].started is None)
             }
 
+        deadline = time.monotonic() + deadline_s
+        while True:
+            self.recheck()
+            with self._cv:
+                left = deadline - time.monotonic()
+                # (held claims are verified again every RECHECK_S: a link coming up is no token change)
+                if self._cv.wait_for(lambda: not missing(), min(left, RECHECK_S)) or left <= 0:
+                    return missing()
+
+    def held(self) -> dict[str, list[str]]:
+        """The claims not verified yet: process -> the sessions claiming it."""
         with self._cv:
-            self._cv.wait_for(lambda: not missing(), deadline_s)
-            return missing()
+            out: dict[str, list[str]] = {}
+            for process, claim in self._held.values():
+                out.setdefault(process, []).append(claim.zid)
+            return out
 
     def restarted_under_way(self, process: str, epoch: str) -> list[str]:
         """The other processes that passed their barrier with other members than those seen now, with

@@ -41,6 +41,30 @@ class SessionPlan:
     settings: ZenohSettings
     extra: dict[str, Any] = field(default_factory=dict)  # zenoh config path -> value
     secured: bool = False
+    # endpoint this process connects to -> the process of the run listening there (where the
+    # recipe says; engine.transport.link_identity checks the sessions' claims against these)
+    dialled: dict[str, str] = field(default_factory=dict)
+
+
+# how a session retries an endpoint not up yet: soon and often, since a process's claim to be a
+# member waits for the link to its endpoint (engine.transport.link_identity); zenoh's default backs
+# off to 4 s, which a process started a moment after another would wait for
+CONNECT_RETRY = {"period_init_ms": 50, "period_max_ms": 500, "period_increase_factor": 2}
+
+
+def _listen_endpoints(graph: Graph, process: str, run: str) -> list[str]:
+    """Where *process* of run *run* listens: the recipe's ``listen``, else (several processes, no
+    ``security:``) its private socket, else nowhere."""
+    listen = graph.recipe.zenoh_for(process).listen
+    if listen is None:
+        listen = [PRIVATE] if len(graph.processes()) > 1 and graph.recipe.security is None else []
+    return [private_socket(run, process) if e == PRIVATE else e for e in listen]
+
+
+def _dialled(graph: Graph, process: str, run: str, connect: list[str]) -> dict[str, str]:
+    """Which of *connect* is an endpoint another process of the run listens on, and which one."""
+    listening = {e: p for p in graph.processes() if p != process for e in _listen_endpoints(graph, p, run)}
+    return {e: listening[e] for e in connect if e in listening}
 
 
 def plan_session(
@@ -51,16 +75,13 @@ def plan_session(
     settings = recipe.zenoh_for(process)
     multi = len(graph.processes()) > 1
     sec = recipe.security
-    if settings.listen is None:
-        if multi and sec is None:
-            settings.listen = [PRIVATE]
-            if not settings.connect:
-                settings.connect = [private_socket(run, p) for p in graph.processes() if p != process]
-        else:
-            settings.listen = []
-    settings.listen = [private_socket(run, process) if e == PRIVATE else e for e in settings.listen]
+    if settings.listen is None and multi and sec is None and not settings.connect:
+        settings.connect = [private_socket(run, p) for p in graph.processes() if p != process]
+    settings.listen = _listen_endpoints(graph, process, run)
+    dialled = _dialled(graph, process, run, settings.connect)
+    retry = {"connect/retry": CONNECT_RETRY}
     if sec is None:
-        return SessionPlan(settings)
+        return SessionPlan(settings, retry, dialled=dialled)
     plain = insecure_endpoints([*settings.listen, *settings.connect])
     if plain:
         raise SessionConfigError(
@@ -69,8 +90,8 @@ def plan_session(
         )
     ident = identity(sec, process, base or Path.cwd(), certs_dir)
     acl = acl_for(graph, process, run, sec.observers, sec.controllers)
-    extra: dict[str, Any] = {**tls_entries(ident), "access_control": acl}
-    return SessionPlan(settings, extra, secured=True)
+    extra: dict[str, Any] = {**retry, **tls_entries(ident), "access_control": acl}
+    return SessionPlan(settings, extra, secured=True, dialled=dialled)
 
 
 def security_problems(graph: Graph, *, base: Path | None = None, certs_dir: str | None = None) -> list[str]:
