@@ -163,7 +163,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         freeze_gc=args.own_process,  # the command's own process (not a caller's, e.g. a test): see Runner
     )
     # the live view before the folder: a taken port is refused before anything is made
-    view = cli_recording.add_live_view(args, runner.observers, console)
+    view = cli_recording.add_live_view(args, runner.observers, console, secured=recipe.security is not None)
     # a recording the user named (--record, record.path) does not depend on the run folder: it is
     # resolved, and refused if it exists, before anything is created
     named = bool(args.record or recipe.record.path)

@@ -66,25 +66,66 @@ def add_view_options(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="keep the live view up after the end, with each topic's last message, until Ctrl-C",
     )
+    p.add_argument(
+        "--view-token-file",
+        metavar="FILE",
+        help="serve only viewers whose URL carries the token in FILE (?token=...); FILE must be yours, "
+        "mode 600; needed for --view when the recipe has security:",
+    )
 
 
-def start_view(args: argparse.Namespace, console: Console) -> LiveView | None:
-    """The live view ``--view`` asks for (None without it); ValueError when its port cannot be had."""
+MIN_TOKEN_CHARS = 16
+
+
+def read_view_token(path: str) -> str:
+    """The token in *path* (its first line); ValueError when the file is another user's, others may
+    read or write it, or the token is shorter than MIN_TOKEN_CHARS."""
+    from engine.security.tls import foreign_write_access
+
+    file = Path(path)
+    if not file.is_file():
+        raise ValueError(f"--view-token-file {path}: no such file")
+    problems = foreign_write_access(file)
+    if file.stat().st_mode & 0o044:
+        problems.append(f"{path} can be read by its group or by others (chmod 600 it)")
+    if problems:
+        raise ValueError(f"--view-token-file: {'; '.join(problems)}")
+    token = (file.read_text(errors="replace").splitlines() or [""])[0].strip()
+    if len(token) < MIN_TOKEN_CHARS:
+        raise ValueError(f"--view-token-file {path}: the token must be at least {MIN_TOKEN_CHARS} characters")
+    return token
+
+
+def start_view(args: argparse.Namespace, console: Console, secured: bool = False) -> LiveView | None:
+    """The live view ``--view`` asks for (None without it); ValueError when its port cannot be had,
+    or when *secured* (the recipe has ``security:``) and no ``--view-token-file`` is given: the view
+    has no authentication of its own (docs/security.md)."""
     if getattr(args, "view", None) is None:
         return None
     from engine.recording.live_view import LiveView
 
     if not 0 <= args.view <= 65535:
         raise ValueError(f"--view {args.view}: a port is 0..65535")
-    view = LiveView(args.view_host, args.view)
-    console.print(f"live view: {view.url} (Foxglove: Open connection, Foxglove WebSocket)", highlight=False)
+    token_file = getattr(args, "view_token_file", None)
+    if secured and token_file is None:
+        raise ValueError(
+            "--view: the recipe has security:, and the live view would serve every topic to whoever "
+            "connects; give --view-token-file FILE (a token of 16+ characters, mode 600), or watch with "
+            "vgr topics and an observer certificate (docs/security.md)"
+        )
+    token = read_view_token(token_file) if token_file is not None else None
+    view = LiveView(args.view_host, args.view, token=token)
+    shown = f"{view.url}/?token=<the token in {token_file}>" if token else view.url
+    console.print(f"live view: {shown} (Foxglove: Open connection, Foxglove WebSocket)", highlight=False)
     return view
 
 
-def add_live_view(args: argparse.Namespace, observers: list[Any], console: Console) -> LiveView | None:
+def add_live_view(
+    args: argparse.Namespace, observers: list[Any], console: Console, *, secured: bool
+) -> LiveView | None:
     """``vgr run --view``: a :class:`~engine.recording.live_view.ViewObserver` among the run's observers; the
-    view, which :func:`end_view` closes after the run."""
-    view = start_view(args, console)
+    view, which :func:`end_view` closes after the run (*secured*: see :func:`start_view`)."""
+    view = start_view(args, console, secured=secured)
     if view is not None:
         from engine.recording.live_view import ViewObserver
 

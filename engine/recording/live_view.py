@@ -45,7 +45,9 @@ DEFAULT_PORT = 8765
 class LiveView:
     """One Foxglove WebSocket server with a channel per topic (its own SDK context)."""
 
-    def __init__(self, host: str = "127.0.0.1", port: int = DEFAULT_PORT, name: str = "vgr") -> None:
+    def __init__(
+        self, host: str = "127.0.0.1", port: int = DEFAULT_PORT, name: str = "vgr", token: str | None = None
+    ) -> None:
         import foxglove
 
         self._foxglove = foxglove
@@ -57,7 +59,7 @@ class LiveView:
             self.server = foxglove.start_server(
                 name=name, host="127.0.0.1", port=0, context=self._context, server_listener=_latch(self)
             )
-            self._proxy = ProtocolNameProxy(host, port, int(self.server.port))
+            self._proxy = ProtocolNameProxy(host, port, int(self.server.port), token)
         except Exception as exc:  # port taken, address not on this host
             with contextlib.suppress(Exception):
                 self.server.stop()

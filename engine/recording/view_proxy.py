@@ -10,15 +10,21 @@ its own and this proxy listens where the user asked: it reads the client's HTTP 
 of ``foxglove.websocket.v1`` when only the old name is offered, gives the old name back in the
 server's answer, and from then on copies the bytes both ways unchanged. A request that does not
 end its headers in time or in size is closed.
+
+With a *token* (``vgr run --view-token-file``), the proxy serves only a request whose URL carries it
+(``ws://HOST:PORT/?token=TOKEN``, compared in constant time); any other gets ``401 Unauthorized``
+and is closed before it reaches the server.
 """
 
 from __future__ import annotations
 
 import contextlib
+import hmac
 import logging
 import re
 import socket
 import threading
+from urllib.parse import parse_qs, urlsplit
 
 log = logging.getLogger("vgr.view")
 
@@ -44,6 +50,19 @@ def answer_old_name(response: bytes) -> bytes:
     return response[: m.start(2)] + m.group(2).replace(NEW, OLD) + response[m.end(2) :]
 
 
+UNAUTHORIZED = b"HTTP/1.1 401 Unauthorized\r\nContent-Length: 0\r\nConnection: close\r\n\r\n"
+
+
+def carries_token(request: bytes, token: str) -> bool:
+    """Does the request line's URL carry ``token=<token>`` in its query?"""
+    line = request.split(b"\r\n", 1)[0].decode("latin-1")
+    parts = line.split(" ")
+    if len(parts) != 3:
+        return False
+    given = parse_qs(urlsplit(parts[1]).query).get("token", [])
+    return len(given) == 1 and hmac.compare_digest(given[0].encode(), token.encode())
+
+
 def _read_headers(sock: socket.socket) -> bytes | None:
     """Bytes up to and including the first blank line (and any that came with them), or None."""
     data = b""
@@ -67,9 +86,11 @@ def _pump(src: socket.socket, dst: socket.socket) -> None:
 
 class ProtocolNameProxy:
     """Listens on *host*:*port* (0: a free one, then ``port`` says which) and forwards each
-    connection to the SDK server on 127.0.0.1:*upstream_port* (see the module docstring)."""
+    connection to the SDK server on 127.0.0.1:*upstream_port* (see the module docstring); with
+    *token*, only the requests that carry it."""
 
-    def __init__(self, host: str, port: int, upstream_port: int) -> None:
+    def __init__(self, host: str, port: int, upstream_port: int, token: str | None = None) -> None:
+        self._token = token
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
         self._listener = socket.socket(family, socket.SOCK_STREAM)
         self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -100,6 +121,10 @@ class ProtocolNameProxy:
             client.settimeout(HANDSHAKE_TIMEOUT_S)
             request = _read_headers(client)
             if request is None:
+                return
+            if self._token is not None and not carries_token(request, self._token):
+                log.warning("live view: refused a viewer without the token (%s)", client.getpeername())
+                client.sendall(UNAUTHORIZED)
                 return
             request, renamed = offer_new_name(request)
             upstream = socket.create_connection(("127.0.0.1", self._upstream), timeout=HANDSHAKE_TIMEOUT_S)

@@ -351,3 +351,18 @@ def test_certificates_another_user_could_replace_are_refused(tmp_path):
         write_bundle(theirs, [Identity("producer")], ca_name="test CA")
     os.chown(certs / "ca.pem", 65534, 65534)
     assert "belongs to user 65534" in " ".join(foreign_write_access(certs / "ca.pem"))
+
+
+def test_the_live_view_of_a_secured_run_needs_its_own_token(tmp_path):
+    recipe = secured_recipe(tmp_path, observers=())
+    write_bundle(tmp_path / "certs", [Identity("producer"), Identity("consumer")], ca_name="test CA")
+    r = subprocess.run(
+        vgr("run", str(recipe), "--process", "producer", "--view", "0", "--json"),
+        env=env(),
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode == 2 and "--view-token-file" in r.stderr + r.stdout, r.stdout + r.stderr
+    assert json.loads(r.stdout.strip().splitlines()[-1])["outcome"] == "invalid"
+    assert not (tmp_path / "runs").exists()  # refused before anything was made

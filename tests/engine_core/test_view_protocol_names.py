@@ -9,6 +9,7 @@ import json
 import socket
 
 import pytest
+from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
 from engine.recording.live_view import LiveView
@@ -49,3 +50,35 @@ def test_a_request_whose_headers_never_end_is_closed(view):
         s.settimeout(10)
         with contextlib.suppress(ConnectionResetError):  # (closed with our bytes unread: a reset)
             assert s.recv(100) == b""  # closed, nothing forwarded
+
+
+def test_with_a_token_only_a_viewer_whose_url_carries_it_is_served():
+    token = "k3y-0f-the-v1ew-2f9a"
+    v = LiveView(port=0, name="test", token=token)
+    try:
+        with connect(f"{v.url}/?token={token}", subprotocols=["foxglove.sdk.v1"], open_timeout=5) as ws:
+            assert json.loads(ws.recv(timeout=5))["op"] == "serverInfo"
+        for url in (v.url, f"{v.url}/?token=k3y", f"{v.url}/?token={token}x", f"{v.url}/?token={token}&token=a"):
+            with pytest.raises(InvalidStatus) as refused:
+                connect(url, subprotocols=["foxglove.sdk.v1"], open_timeout=5)
+            assert refused.value.response.status_code == 401, url
+    finally:
+        v.close()
+
+
+def test_the_token_file_must_be_private_and_long_enough(tmp_path):
+    from engine.cli.recording import read_view_token
+
+    f = tmp_path / "view.token"
+    f.write_text("0123456789abcdef-long-enough\n")
+    f.chmod(0o600)
+    assert read_view_token(str(f)) == "0123456789abcdef-long-enough"
+    f.chmod(0o644)
+    with pytest.raises(ValueError, match="can be read by its group or by others"):
+        read_view_token(str(f))
+    f.chmod(0o600)
+    f.write_text("short\n")
+    with pytest.raises(ValueError, match="at least 16 characters"):
+        read_view_token(str(f))
+    with pytest.raises(ValueError, match="no such file"):
+        read_view_token(str(tmp_path / "none"))
