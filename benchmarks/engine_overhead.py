@@ -322,7 +322,7 @@ def vgr_in_process(size: int, count: int, interval_s: float) -> dict[str, float]
         text, out, src_out = recipe(tmp, ("main", "main"), size, count, interval_s)
         text = text.replace("processes:", "unused_processes:")
         text = "\n".join(x for x in text.splitlines() if not x.strip().startswith(("unused", "pub:", "sub:")))
-        loaded = load_recipe("bench.yaml", text=text)
+        loaded = load_recipe(HERE / "bench.yaml", text=text)  # (bench_stages.py is found next to it)
         # freeze_gc as `vgr run` does in its own process (the cyclic collector's full passes over this
         # process's heap would otherwise pause the stages now and then)
         summary = Runner(build_graph(loaded, load_registry(loaded.recipe.plugins)), freeze_gc=True).run()
@@ -366,6 +366,7 @@ def vgr_cross_process(
     size: int, count: int, interval_s: float, certs: Path | None = None, shm: bool = True
 ) -> dict[str, float]:
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(HERE), str(ROOT), os.environ.get("PYTHONPATH", "")]))
+    env["VGR_PLUGIN_PATH"] = str(HERE)  # the recipe names bench_stages, which lives here
     with tempfile.TemporaryDirectory() as tmp:
         text, out, src_out = recipe(tmp, ("pub", "sub"), size, count, interval_s, certs, shm)
         recipe_file = Path(tmp) / "bench.yaml"

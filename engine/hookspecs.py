@@ -2,7 +2,8 @@
 
 A plugin is a module (or object) with functions marked ``@hookimpl``; it is found through the
 entry-point group ``vgr`` (``[project.entry-points.vgr] myplugin = "my_package.vgr_plugin"``) or
-named in a recipe's ``plugins:`` list. vgr's own stages (plugins.builtin) load the same way.
+a plugin file named in a recipe's ``plugins:`` list (engine.recipe.plugin_entries). vgr's own
+stages (plugins.builtin) load the same way.
 """
 
 from __future__ import annotations

@@ -2,22 +2,26 @@
 and the verbs plugins add to the ``vgr`` command (:func:`plugin_verbs`).
 
 ``load_registry()`` builds a pluggy PluginManager, loads every entry point of group ``vgr``
-(including vgr's own ``plugins.builtin``) plus any extra modules a recipe names, and collects what
-the hooks return. Two plugins claiming one stage type name, or one model-effect name, is an error
-that names both.
+(including vgr's own ``plugins.builtin``) plus the plugin files a recipe names (what an entry may
+name: engine.recipe.plugin_entries), and collects what the hooks return. Two plugins claiming one
+stage type name, or one model-effect name, is an error that names both.
 """
 
 from __future__ import annotations
 
-import importlib
+import importlib.util
+import sys
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import pluggy
 
 from engine.hookspecs import PROJECT, CliVerb, VgrSpecs
 from engine.messages import Message, codec
+from engine.recipe.plugin_entries import PluginEntryError, is_file_entry, resolve_plugin
 from engine.stage import EVENTS_PORT, Stage
 
 
@@ -52,19 +56,48 @@ def _check_stage(cls: Any, origin: str) -> None:
                 raise PluginError(f"stage {cls.type_name}: {kind} port {port!r} type {mtype!r} is not a Message")
 
 
-def _plugin_manager(extra_modules: Iterable[str], entry_points: bool) -> pluggy.PluginManager:
-    """A PluginManager with the entry points of group ``vgr`` (vgr's own included) and *extra_modules*."""
+def load_plugin_file(file: Path) -> ModuleType:
+    """The module of plugin file *file* (absolute, checked by engine.recipe.plugin_entries), loaded
+    once under its file's name."""
+    name = file.stem
+    loaded = sys.modules.get(name)
+    if loaded is not None:
+        if Path(getattr(loaded, "__file__", "") or "").resolve() == file:
+            return loaded
+        raise PluginError(f"plugin file {file}: a module named {name!r} is already loaded from {loaded.__file__}")
+    spec = importlib.util.spec_from_file_location(name, file)
+    if spec is None or spec.loader is None:
+        raise PluginError(f"plugin file {file} cannot be loaded as a module")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[name] = mod  # (its stages' classes are found by module name, as any module's)
+    try:
+        spec.loader.exec_module(mod)
+    except Exception as exc:
+        del sys.modules[name]
+        raise PluginError(f"cannot load plugin file {file}: {exc}") from exc
+    return mod
+
+
+def _plugin_manager(extra: Iterable[str], entry_points: bool) -> pluggy.PluginManager:
+    """A PluginManager with the entry points of group ``vgr`` (vgr's own included) and the *extra*
+    plugins, each an installed plugin's name or a plugin file (engine.recipe.plugin_entries; a
+    relative file from the current folder)."""
     pm = pluggy.PluginManager(PROJECT)
     pm.add_hookspecs(VgrSpecs)
     if entry_points:
         pm.load_setuptools_entrypoints(PROJECT)
-    for mod_name in extra_modules:
+    for entry in extra:
         try:
-            mod = importlib.import_module(mod_name)
-        except Exception as exc:
-            raise PluginError(f"cannot import plugin module {mod_name!r}: {exc}") from exc
+            resolved = resolve_plugin(entry, Path.cwd())
+        except PluginEntryError as exc:
+            raise PluginError(str(exc)) from None
+        if not is_file_entry(resolved):
+            if not entry_points:
+                pm.load_setuptools_entrypoints(PROJECT, name=resolved)
+            continue
+        mod = load_plugin_file(Path(resolved))
         if not pm.is_registered(mod):
-            pm.register(mod, name=mod_name)
+            pm.register(mod, name=mod.__name__)
     if entry_points and "builtin" not in {name for name, _ in pm.list_name_plugin()}:
         raise PluginError(
             "vgr's built-in plugins are not registered: install vgr (`make install` or `pip install -e .`)"
@@ -103,9 +136,10 @@ def cell_gateways() -> dict[str, str]:
     return found
 
 
-def load_registry(extra_modules: Iterable[str] = (), *, entry_points: bool = True) -> Registry:
-    """Load plugins (entry points of group ``vgr`` + *extra_modules*) and build the registry."""
-    pm = _plugin_manager(extra_modules, entry_points)
+def load_registry(extra: Iterable[str] = (), *, entry_points: bool = True) -> Registry:
+    """Load plugins (entry points of group ``vgr`` + *extra*: installed plugins' names or plugin
+    files, as a recipe's ``plugins:`` lists them) and build the registry."""
+    pm = _plugin_manager(extra, entry_points)
     reg = Registry(plugins=sorted(name for name, _ in pm.list_name_plugin() if name))
     for impl in pm.hook.vgr_message_types.get_hookimpls():
         for mtype in impl.function() or []:

@@ -380,7 +380,12 @@ def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
 
     p = sub.add_parser("plugins", help="list every stage type with its ports and parameters")
     p.add_argument("--json", action="store_true")
-    p.add_argument("--plugin", action="append", metavar="MODULE", help="also load this plugin module")
+    p.add_argument(
+        "--plugin",
+        action="append",
+        metavar="PLUGIN",
+        help="also load this plugin: an installed one's name, or a plugin file (path, or name in VGR_PLUGIN_PATH)",
+    )
     p.set_defaults(func=cmd_plugins)
 
     p = sub.add_parser("schemas", help="print the protobuf schema of every message type")

@@ -381,10 +381,14 @@ def _short(v: Any) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
-def load_recipe(source: str | Path, overrides: list[str] | None = None, *, text: str | None = None) -> LoadedRecipe:
+def load_recipe(
+    source: str | Path, overrides: list[str] | None = None, *, text: str | None = None, base: Path | None = None
+) -> LoadedRecipe:
     """Read, override, substitute and validate a recipe file (or *text*, named *source*).
 
-    Raises RecipeError listing every problem with its location.
+    Each ``plugins:`` entry is resolved (engine.recipe.plugin_entries: an installed plugin's name or
+    a plugin file's absolute path), files relative to *base* (default: the folder of *source*; a
+    recording's recipe passes the folder it was run from). Raises RecipeError listing every problem with its location.
     """
     overrides = list(overrides or [])
     file = str(source)
@@ -411,4 +415,21 @@ def load_recipe(source: str | Path, overrides: list[str] | None = None, *, text:
         recipe = Recipe.model_validate(data)
     except ValidationError as exc:
         raise RecipeError(pydantic_problems(exc, Recipe, (), locations, file, overridden)) from None
-    return LoadedRecipe(recipe, text, file, locations, overrides, data, overridden)
+    loaded = LoadedRecipe(recipe, text, file, locations, overrides, data, overridden)
+    _check_plugins(loaded, base if base is not None else Path(file).resolve().parent)
+    return loaded
+
+
+def _check_plugins(loaded: LoadedRecipe, base: Path) -> None:
+    """Every ``plugins:`` entry resolved to an installed plugin or a usable file, else RecipeError."""
+    from engine.recipe.plugin_entries import PluginEntryError, resolve_plugin
+
+    resolved, problems = [], []
+    for i, entry in enumerate(loaded.recipe.plugins):
+        try:
+            resolved.append(resolve_plugin(entry, base))
+        except PluginEntryError as exc:
+            problems.append(loaded.problem(("plugins", i), str(exc)))
+    if problems:
+        raise RecipeError(problems)
+    loaded.recipe.plugins = resolved

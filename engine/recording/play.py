@@ -50,7 +50,9 @@ def load_recorded_types(rec: Recording) -> None:
 
     plugins: list[str] = []
     if rec.recipe_text:
-        plugins = load_recipe(f"{rec.path}#recipe", rec.overrides, text=rec.recipe_text).recipe.plugins
+        plugins = load_recipe(
+            f"{rec.path}#recipe", rec.overrides, text=rec.recipe_text, base=rec.recipe_dir or rec.path.parent
+        ).recipe.plugins
     load_registry(plugins)
 
 

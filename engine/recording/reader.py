@@ -72,6 +72,12 @@ class Recording:
         return self.metadata.get("vgr.recipe", {}).get("text", "")
 
     @property
+    def recipe_dir(self) -> Path | None:
+        """The folder of the recorded recipe file, where its relative paths (templates, plugin
+        files) start: see :func:`find_recipe_dir`. None when it is not found."""
+        return find_recipe_dir(self.metadata.get("vgr.run", {}).get("recipe_file", ""), self.path)
+
+    @property
     def overrides(self) -> list[str]:
         return json.loads(self.metadata.get("vgr.recipe", {}).get("overrides", "[]"))
 
@@ -134,6 +140,21 @@ class RecordingDamagedError(RecordingError):
 
 _FOOTER = struct.Struct("<BQQQI")  # opcode, record length, summary_start, summary_offset_start, summary_crc
 _DATA_END = 13  # opcode, record length, data_section_crc
+
+
+def find_recipe_dir(recipe_file: str, recording: Path) -> Path | None:
+    """Folder of the recorded recipe file *recipe_file* (as the run named it) of *recording*.
+
+    A relative path is tried from the working directory, then from each folder above the recording
+    (a golden recording in ``recordings/`` finds ``recipes/...`` of its checkout, wherever it is)."""
+    if not recipe_file:
+        return None
+    rel = Path(recipe_file)
+    candidates = [rel] if rel.is_absolute() else [rel, *(d / rel for d in Path(recording).resolve().parents)]
+    for c in candidates:
+        if c.is_file():
+            return c.resolve().parent
+    return None
 
 
 def check_checksums(path: Path, data: bytes | memoryview) -> None:

@@ -80,25 +80,9 @@ class ReplayReport:
         return "ok" if self.ok else "different"
 
 
-def _find_recipe_dir(recipe_file: str, recording: Path) -> Path | None:
-    """Folder of the recorded recipe file (relative parameter paths such as templates start there).
-
-    A relative path is tried from the working directory, then from each folder above the recording
-    (a golden recording in ``recordings/`` finds ``recipes/...`` of its checkout, wherever it is)."""
-    if not recipe_file:
-        return None
-    rel = Path(recipe_file)
-    candidates = [rel] if rel.is_absolute() else [rel, *(d / rel for d in Path(recording).resolve().parents)]
-    for c in candidates:
-        if c.is_file():
-            return c.resolve().parent
-    return None
-
-
 class _ReplayContext(StageContext):
     def __init__(self, replayer: Replayer, node: StageNode) -> None:
-        recipe_file = replayer.rec.metadata.get("vgr.run", {}).get("recipe_file", "")
-        recipe_dir = _find_recipe_dir(recipe_file, replayer.rec.path)
+        recipe_dir = replayer.rec.recipe_dir
         log = logging.getLogger(f"vgr.replay.{node.name}")
         super().__init__(node.name, replayer.run_id, replayer.graph.recipe.seed, replayer.clock, log, recipe_dir)
         self.run_dir = replayer.run_dir  # the replay's own folder: what a stage writes never lands in the run's
@@ -425,7 +409,12 @@ def replay(
     if recipe is not None:
         loaded = load_recipe(recipe, overrides)
     else:
-        loaded = load_recipe(f"{rec.path}#recipe", [*rec.overrides, *(overrides or [])], text=rec.recipe_text)
+        loaded = load_recipe(
+            f"{rec.path}#recipe",
+            [*rec.overrides, *(overrides or [])],
+            text=rec.recipe_text,
+            base=rec.recipe_dir or rec.path.parent,
+        )
     registry = registry or load_registry(loaded.recipe.plugins)
     graph = build_graph(loaded, registry)
     process = rec.metadata.get("vgr.run", {}).get("process", "main")

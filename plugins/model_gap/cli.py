@@ -81,7 +81,12 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--sensor", default="sensor", help="CSV: the name of the measuring sensor (where latency acts)")
     p.add_argument("--json", action="store_true", help="print gap_report.json to stdout instead of tables")
-    p.add_argument("--plugin", action="append", metavar="MODULE", help="also load effects from this plugin module")
+    p.add_argument(
+        "--plugin",
+        action="append",
+        metavar="PLUGIN",
+        help="also load effects from this plugin: an installed one's name, or a plugin file (as a recipe's plugins:)",
+    )
     p.add_argument(
         "--refit",
         default=None,

@@ -53,7 +53,9 @@ class ModelGap(Stage):
         cv_folds: int = Field(5, ge=2, le=20)
         payload_kg: float | None = Field(None, ge=0.0, description="mass at the TCP during the campaign (kg)")
         effect_plugins: list[str] = Field(
-            [], description="extra plugin modules whose vgr_model_effects join the catalog (like vgr gap --plugin)"
+            [],
+            description="extra plugins (installed names or plugin files, as plugins:) whose vgr_model_effects "
+            "join the catalog",
         )
 
     def __init__(self, ctx, params) -> None:  # buffers exist before setup: a device may publish from its setup
