@@ -1,4 +1,5 @@
-"""Stages used only by benchmarks/engine_overhead.py (loaded through a recipe's ``plugins:`` list).
+"""Stages used only by benchmarks/engine_overhead.py and benchmarks/stage_scaling.py (loaded through a
+recipe's ``plugins:`` list).
 
 ``bench_source`` stamps each Blob's first 8 bytes with ``time.monotonic_ns()`` (one clock for every
 process on the machine) just before building and publishing it; ``bench_sink`` records the one-way
@@ -103,6 +104,31 @@ class BenchSink(Stage):
         )
 
 
+class BenchRelay(Stage):
+    """Forwards each Blob as a new Blob with the same bytes (the message does not grow along a chain)."""
+
+    type_name = "bench_relay"
+    inputs: ClassVar = {"in": Blob}
+    outputs: ClassVar = {"out": Blob}
+
+    def on_message(self, port: str, msg: Blob) -> None:  # type: ignore[override]
+        self.ctx.publish("out", Blob(data=msg.data))
+
+
+class BenchTally(Stage):
+    """Counts the Blobs it gets (no file: a fan-out has hundreds of these)."""
+
+    type_name = "bench_tally"
+    role = "sink"
+    inputs: ClassVar = {"in": Blob}
+
+    def setup(self) -> None:
+        self.n = 0
+
+    def on_message(self, port: str, msg: Blob) -> None:  # type: ignore[override]
+        self.n += 1
+
+
 @hookimpl
 def vgr_stage_types() -> list[type]:
-    return [BenchSource, BenchSink]
+    return [BenchSource, BenchSink, BenchRelay, BenchTally]

@@ -15,6 +15,8 @@ from __future__ import annotations
 import threading
 from typing import TYPE_CHECKING, Any
 
+import zenoh
+
 from engine.messages import codec
 from engine.transport.bus import data_key, wire_key
 from engine.transport.wire import WireSender
@@ -56,7 +58,11 @@ class OutputPort:
         self.external = bool(self.publisher.matching_status.matching)
         self.observed = bool(host.observers)  # observers are fixed before a run starts
         self._update()
-        self._listener = self.publisher.declare_matching_listener(self._on_matching)
+        # (run on zenoh's own thread: it only sets two flags. A plain function would get a Python
+        # thread of its own from zenoh-python, two per stage with its events port)
+        self._listener = self.publisher.declare_matching_listener(
+            zenoh.handlers.Callback(self._on_matching, indirect=False)
+        )
 
     def _on_matching(self, status: Any) -> None:
         self.external = bool(status.matching)
