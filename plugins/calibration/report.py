@@ -157,7 +157,7 @@ def write_report_dir(
     is replaced atomically (never left half-written)."""
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
-    replace_text(d / "result.json", json.dumps(result.to_dict(), indent=1) + "\n")
+    replace_text(d / "result.json", result.to_json(indent=1) + "\n")
     replace_text(d / "report.txt", text + "\n")
     replace_text(d / "summary.md", summary_markdown(result, extra_sections))
     return d

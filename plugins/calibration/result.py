@@ -65,6 +65,17 @@ def _is_point(v: Any) -> bool:
         return False
 
 
+def _numbers(x: list[Any]) -> np.ndarray:
+    """A JSON list as an array, ``null`` among numbers (written for NaN) NaN again."""
+    a = np.asarray(x)
+    if a.dtype == object:
+        try:
+            return np.asarray(x, dtype=float)
+        except (TypeError, ValueError):  # documents, not numbers
+            return a
+    return a
+
+
 @dataclass
 class CalibrationResult:
     """Estimate + uncertainty + diagnostics of one calibration.
@@ -206,20 +217,23 @@ class CalibrationResult:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary (numpy arrays become nested lists), format ``vgr.calibration_result/1``
-        (its JSON Schema: plugins/calibration/schemas/result.schema.json)."""
-        return {"format": RESULT_FORMAT, **plain({name: getattr(self, name) for name in _JSON_FIELDS})}
+        (its JSON Schema: plugins/calibration/schemas/result.schema.json). A value that is not a
+        number (NaN: not measured, e.g. no held-out figure with ``--no-holdout``; an infinite one) is
+        ``null``: strict JSON parsers refuse a bare ``NaN``."""
+        fields = {name: getattr(self, name) for name in _JSON_FIELDS}
+        return {"format": RESULT_FORMAT, **plain(fields, nan_as_none=True)}
 
     def to_json(self, **kwargs: Any) -> str:
-        return json.dumps(self.to_dict(), **kwargs)
+        return json.dumps(self.to_dict(), allow_nan=False, **kwargs)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> CalibrationResult:
         """Inverse of :meth:`to_dict` (lists that were arrays become arrays again)."""
 
         def arr(x: Any) -> np.ndarray | None:
-            return None if x is None else np.asarray(x)
+            return None if x is None else _numbers(x)
 
-        estimate = {k: (np.asarray(v) if isinstance(v, list) else v) for k, v in d.get("estimate", {}).items()}
+        estimate = {k: (_numbers(v) if isinstance(v, list) else v) for k, v in d.get("estimate", {}).items()}
         return cls(
             kind=d["kind"],
             verdict=d["verdict"],
@@ -231,7 +245,7 @@ class CalibrationResult:
             outliers=None if d.get("outliers") is None else np.asarray(d["outliers"], dtype=bool),
             reasons=list(d.get("reasons", [])),
             advice=list(d.get("advice", [])),
-            metrics=dict(d.get("metrics", {})),
+            metrics={k: (float("nan") if v is None else v) for k, v in d.get("metrics", {}).items()},
             method=d.get("method", ""),
             iterations=int(d.get("iterations", 0)),
         )

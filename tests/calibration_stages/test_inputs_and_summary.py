@@ -96,3 +96,29 @@ def test_summary_rows_in_mm_and_degrees_with_one_sigma():
     )
     assert rows["joint3.theta (change)"].unit == "deg"
     assert rows["joint3.theta (change)"].sigma == pytest.approx(np.degrees(2e-4))
+
+
+def test_a_result_with_values_not_measured_is_strict_json_and_reads_back_as_nan():
+    """``--no-holdout`` leaves the held-out figure NaN: written as null (strict parsers refuse a bare
+    NaN), read back as NaN, in metrics and inside arrays alike."""
+    import json
+
+    res = CalibrationResult(
+        kind="handeye",
+        verdict="ok",
+        estimate={"T_tcp_cam": np.eye(4), "per_view_px": np.array([0.4, np.nan])},
+        param_names=["x", "y"],
+        covariance=np.array([[1e-8, np.nan], [np.nan, 1e-8]]),
+        metrics={"holdout_rms_px": float("nan"), "rms_px": 0.3},
+    )
+    text = res.to_json()
+
+    def refuse(name: str) -> None:
+        raise ValueError(f"not strict JSON: {name}")
+
+    doc = json.loads(text, parse_constant=refuse)
+    assert doc["metrics"]["holdout_rms_px"] is None and doc["covariance"][0][1] is None
+    back = CalibrationResult.from_dict(doc)
+    assert np.isnan(back.metrics["holdout_rms_px"]) and back.metrics["rms_px"] == 0.3
+    assert np.isnan(back.covariance[0, 1]) and back.covariance.dtype == float
+    assert np.isnan(back.estimate["per_view_px"][1]) and back.estimate["per_view_px"][0] == 0.4
