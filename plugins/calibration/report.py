@@ -11,7 +11,6 @@ before/after table); callers add their own files (e.g. the kinematic convergence
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
