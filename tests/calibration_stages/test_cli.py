@@ -230,9 +230,6 @@ def bad_inputs(tmp_path: Path, rec: Path) -> list[tuple[list[object], str]]:
     write_pose_pairs_json(
         tmp_path / "two.json", *[load_pose_pairs(MOVEIT).T_base_tcp[:2], load_pose_pairs(MOVEIT).T_cam_target[:2]]
     )
-    nan = json.loads(MOVEIT.read_text())
-    nan[4][0][1][3] = float("nan")
-    (tmp_path / "nan.json").write_text(json.dumps(nan))
     header = "q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm\n"
     rows = "".join(f"{10 * k},{-20 + k},{30},{k},{5 * k},{-k},{400 + k},{100 - k},{300 + 2 * k}\n" for k in range(5))
     metres = "".join(f"{10 * k},{-20 + k},30,{k},{5 * k},{-k},0.4{k},0.1{k},0.3{k}\n" for k in range(12))
@@ -242,7 +239,6 @@ def bad_inputs(tmp_path: Path, rec: Path) -> list[tuple[list[object], str]]:
         (["handeye", _write(tmp_path, "poses.txt", "1 2 3")], "unsupported file type '.txt'"),
         (["handeye", _write(tmp_path, "wrong.json", '{"format": "something/9"}')], "unknown JSON format"),
         (["handeye", _write(tmp_path, "cols.csv", "id,x,y\n1,2,3\n")], "missing columns"),
-        (["handeye", tmp_path / "nan.json"], "NaN"),
         (["handeye", tmp_path / "two.json"], "2 pose pair(s): hand-eye calibration needs at least 3"),
         (["handeye", MOVEIT, "--setup", "eye_to_hand", "--mm"], "millimetres"),
         (["vive-desk", tmp_path / "two_points.json"], "at least 3 distinct contact points"),
@@ -284,3 +280,42 @@ def test_nan_or_infinity_anywhere_in_a_file_is_bad_input(tmp_path, capsys, data)
     path.write_text(json.dumps(doc))
     assert calibrate("tcp", path) == 2
     assert "bad input" in capsys.readouterr().err
+
+
+def test_samples_with_a_pose_missing_are_dropped_and_named(tmp_path, capsys):
+    """A view where the target was not detected is stored as NaN (JSON) or empty cells (CSV): the
+    sample is left out with a note naming it, not refused as bad input; an infinity still is."""
+    pairs = json.loads(MOVEIT.read_text())
+    n = len(pairs)
+    pairs[4][1] = [[float("nan")] * 4 for _ in range(4)]  # no detection in view 4
+    pairs[7][0][1][3] = float("nan")  # a robot pose not read in view 7
+    (tmp_path / "nan.json").write_text(json.dumps(pairs))
+    capsys.readouterr()
+    code = calibrate("handeye", tmp_path / "nan.json", "--setup", "eye_to_hand", "--json", tmp_path / "r.json")
+    out = capsys.readouterr().out
+    assert code in (0, 3), out
+    assert "dropped 2 sample(s) with a pose missing: 4 (camera pose missing), 7 (robot pose missing)" in out
+    res = json.loads((tmp_path / "r.json").read_text())
+    assert within_one_percent(np.asarray(res["estimate"]["T_base_cam"])[:3, 3])
+    samples = load_pose_pairs(tmp_path / "nan.json")
+    assert len(samples.T_base_tcp) == n - 2 and "4" not in samples.ids and "7" not in samples.ids
+    # CSV: empty cells for the camera pose of one row
+    from scipy.spatial.transform import Rotation
+
+    both = load_pose_pairs(MOVEIT)
+    cols = [f"{side}_{c}" for side in ("base_tcp", "cam_target") for c in ("x", "y", "z", "rx", "ry", "rz")]
+    rows = []
+    for k, (M, B) in enumerate(zip(both.T_base_tcp, both.T_cam_target, strict=True)):
+        vals = [
+            *M[:3, 3],
+            *Rotation.from_matrix(M[:3, :3]).as_rotvec(),
+            *B[:3, 3],
+            *Rotation.from_matrix(B[:3, :3]).as_rotvec(),
+        ]
+        rows.append(",".join("" if (k == 2 and i >= 6) else repr(float(v)) for i, v in enumerate(vals)))
+    (tmp_path / "p.csv").write_text(",".join(cols) + "\n" + "\n".join(rows) + "\n")
+    csv_samples = load_pose_pairs(tmp_path / "p.csv")
+    assert len(csv_samples.T_base_tcp) == n - 1 and csv_samples.dropped == ["line 4 (camera pose missing)"]
+    pairs[4][1] = [[float("inf")] * 4 for _ in range(4)]
+    (tmp_path / "inf.json").write_text(json.dumps(pairs))
+    assert calibrate("handeye", tmp_path / "inf.json", "--setup", "eye_to_hand") == 2

@@ -18,6 +18,10 @@ Formats (details and examples in docs/handeye.md):
   ``T_cam_target``), each a 4x4 ``!!opencv-matrix`` in metres (row-major ``data``). Read with
   OpenCV's own parser (``cv2.FileStorage``). Sample ids: ``i``.
 
+A sample whose robot or camera pose is missing (NaN in any of its numbers, or, in CSV, empty
+cells: a view where the target was not detected) is dropped, and named in ``PoseSamples.dropped``;
+an infinity is an error, as other impossible values are.
+
 ``length_unit`` is ``"m"`` or ``"mm"``; translations are converted to metres. Quaternions must be
 unit within 1e-3 (else the columns are probably mixed up); rotation vectors longer than 2 pi are
 degrees, not radians (error).
@@ -64,6 +68,7 @@ class PoseSamples:
     ids: list[str] = field(default_factory=list)
     setup: str | None = None
     source: str = ""
+    dropped: list[str] = field(default_factory=list)  # samples left out: "<id> (<which pose> missing)"
 
 
 def _scale(unit: str | None) -> float:
@@ -74,8 +79,14 @@ def _scale(unit: str | None) -> float:
     return _UNITS[unit]
 
 
+MISSING = np.full((4, 4), np.nan)  # a pose the file does not have (e.g. no detection in that view)
+
+
 def _pose(position: Any, quat: Any = None, rotvec: Any = None, *, where: str) -> F64:
     p = np.asarray(position, dtype=float).reshape(3)
+    rot = np.asarray(quat if quat is not None else rotvec, dtype=float)
+    if np.isnan(p).any() or np.isnan(rot).any():
+        return MISSING
     if quat is not None:
         q = np.asarray(quat, dtype=float).reshape(4)
         norm = float(np.linalg.norm(q))
@@ -113,9 +124,20 @@ def _in_metres(
         raise HandEyeInputError(f"{path}: no samples")
     s = _scale(length_unit)
     Ma, Ba = np.array(M), np.array(B)
+    robot_ok = ~np.isnan(Ma).any(axis=(1, 2))  # (an infinity is no missing pose: the checks refuse it)
+    camera_ok = ~np.isnan(Ba).any(axis=(1, 2))
+    dropped = []
+    for k, (robot, camera) in enumerate(zip(robot_ok, camera_ok, strict=True)):
+        if not (robot and camera):
+            which = " and ".join(w for w, ok in (("robot pose", robot), ("camera pose", camera)) if not ok)
+            dropped.append(f"{ids[k]} ({which} missing)")
+    keep = robot_ok & camera_ok
+    if not keep.any():
+        raise HandEyeInputError(f"{path}: no sample has both poses ({len(ids)} samples, every one with a pose missing)")
+    Ma, Ba = Ma[keep], Ba[keep]
     Ma[:, :3, 3] *= s
     Ba[:, :3, 3] *= s
-    return PoseSamples(Ma, Ba, ids, setup, str(path))
+    return PoseSamples(Ma, Ba, [i for i, k in zip(ids, keep, strict=True) if k], setup, str(path), dropped)
 
 
 def load_pose_pairs_json(path: str | Path, *, length_unit: str | None = None) -> PoseSamples:
@@ -151,8 +173,11 @@ def load_pose_pairs_json(path: str | Path, *, length_unit: str | None = None) ->
 
 def _csv_pose(row: dict[str, str], prefix: str, where: str) -> F64:
     def get(name: str) -> float:
+        cell = (row[prefix + name] or "").strip()
+        if not cell:  # an empty cell: the pose is missing
+            return float("nan")
         try:
-            return float(row[prefix + name])
+            return float(cell)
         except ValueError as exc:
             raise HandEyeInputError(f"{where}: column {prefix + name} is not a number ({exc})") from exc
 
