@@ -24,7 +24,7 @@ import logging
 import re
 import socket
 import threading
-from urllib.parse import parse_qs, urlsplit
+from urllib.parse import unquote, urlsplit
 
 log = logging.getLogger("vgr.view")
 
@@ -54,13 +54,17 @@ UNAUTHORIZED = b"HTTP/1.1 401 Unauthorized\r\nContent-Length: 0\r\nConnection: c
 
 
 def carries_token(request: bytes, token: str) -> bool:
-    """Does the request line's URL carry ``token=<token>`` in its query?"""
+    """Does the request line's URL carry ``token=<token>`` (once) in its query? The value is taken
+    as written or percent-decoded (a ``+`` of a base64 token is a ``+``, not a space)."""
     line = request.split(b"\r\n", 1)[0].decode("latin-1")
     parts = line.split(" ")
     if len(parts) != 3:
         return False
-    given = parse_qs(urlsplit(parts[1]).query).get("token", [])
-    return len(given) == 1 and hmac.compare_digest(given[0].encode(), token.encode())
+    given = [v for k, _, v in (f.partition("=") for f in urlsplit(parts[1]).query.split("&")) if k == "token"]
+    if len(given) != 1:
+        return False
+    want = token.encode()
+    return hmac.compare_digest(given[0].encode(), want) | hmac.compare_digest(unquote(given[0]).encode(), want)
 
 
 def _read_headers(sock: socket.socket) -> bytes | None:

@@ -152,6 +152,7 @@ class Membership:
             on_restart=self._peer_restarted,
             verify=self._verify_claim,
             on_refused=self._impostor,
+            own=(self.process, bus.zid),
         )
         if self.secured:  # a second session with a certificate of the run is seen as its link comes up
             self._tokens["links"] = bus.session.info.declare_link_events_listener(
@@ -177,7 +178,9 @@ class Membership:
         another epoch of it (it was restarted mid-run) is refused unless the recipe says ``rejoin: true``."""
         assert self.peers is not None
         procs = set(self.graph.processes())
-        missing = self.peers.wait_for(procs, self.ready_timeout_s)
+        missing = self.peers.wait_for(procs, self.ready_timeout_s, stop=self.run.stop_event)
+        if missing and self.run.stop_event.is_set():
+            raise RunError(f"run stopped while waiting for the processes: {self.run.stop_reason}")
         if missing:
             raise RunError(self._unconfirmed(missing))
         digest = members_digest({**self.peers.epochs(), self.process: self.epoch})
@@ -248,8 +251,8 @@ class Membership:
 
     # -- who may claim to be whom (engine.transport.link_identity) ------------------------------------
     def _verify_claim(self, process: str, zid: str) -> Verdict:
-        """Is session *zid* the run's *process*? (Another session in this process's own name is an
-        earlier or later start of it: the epochs say which, see _check_epochs.)"""
+        """Is session *zid* the run's *process*? (This process's own name comes only from its own
+        session: the peer watch ignores the others.)"""
         if process == self.process or self.links is None:
             return ACCEPT
         return self.links.verdict(process, zid)
@@ -283,9 +286,10 @@ class Membership:
     def _impostor(self, process: str, zid: str, why: str) -> None:
         """A session claims a process of the run that this session's links say it is not: an alarm,
         and the run stops (motion first): someone else may answer as that process."""
-        if zid in self._impostors:
-            return
-        self._impostors.add(zid)
+        with self._lost_lock:
+            if zid in self._impostors:
+                return
+            self._impostors.add(zid)
         code = "identity_shared" if self.secured else "peer_impostor"
         msg = f"refused zenoh session {zid} as process {process!r}: {why}"
         self.run.run_event("alarm", code, "", msg, process=process, zid=zid)

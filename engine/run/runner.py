@@ -181,6 +181,7 @@ class Runner:
         self.started_at = datetime.now(UTC)
         # this process in the run: tokens, barriers, peers, control messages, who owns what
         plan = self.session
+        self.secured = plan is not None and plan.secured
         self.members = Membership(
             graph,
             process,
@@ -188,7 +189,7 @@ class Runner:
             ready_timeout_s,
             self,
             bus,
-            secured=plan is not None and plan.secured,
+            secured=self.secured,
             dialled=plan.dialled if plan is not None else None,
         )
         # end-of-run detection, incremental: the driven stages of this process not yet settled, and

@@ -6,10 +6,13 @@ whose callback only appends each query to an unbounded queue (engine.transport.b
 never wait for Python). The service's pump thread (:meth:`ServicePort.pump`) takes the queries in
 arrival order and, for each one:
 
-* a request from a session that is not a process the recipe wires to the service (a stage of it
-  ``uses`` the service, or it is this stage's own process), or that does not say who it is, is
-  refused: a warning ``caller_refused`` naming the session, and an error reply (which process a
-  session is: engine.transport.peers, checked against the links by engine.transport.link_identity);
+* with ``security:``, a request from a session that is not a process the recipe wires to the
+  service (a stage of it ``uses`` the service, or it is this stage's own process), or that does not
+  say who it is, is refused: a warning ``caller_refused`` naming the session, and an error reply
+  (which process a session is: engine.transport.peers, checked against the links by
+  engine.transport.link_identity). Without it, anyone who reaches the run is its own user (private
+  sockets; tools such as plugins/sim/cell_controller.py drive the simulated devices so) or came over
+  an endpoint the recipe left unauthenticated: the request is served and recorded with its caller;
 * a STOP envelope sent as a request is refused, never acted on (no query of a run carries STOP): a
   warning ``stop_refused`` naming the caller, and an error reply;
 * a request that cannot be decoded, or is not of the service's request type, gets an error reply;
@@ -74,6 +77,7 @@ class ServicePort:
         rt, svc = self.rt, self.svc
         stop = rt.host.stop_event
         spec = rt.node.cls.services[svc]
+        secured = rt.host.secured
         while True:
             arrived_ns, query = self.queryable.recv_timed()
             with query:
@@ -89,7 +93,7 @@ class ServicePort:
                     if env.kind == _STOP:  # no zenoh query of a run carries STOP: refused, never acted on
                         self._refuse_stop(caller_zid, query)
                         continue
-                    if caller not in self.callers:
+                    if secured and caller not in self.callers:
                         self._refuse_caller(caller, caller_zid, query)
                         continue
                     payload = query.payload.to_bytes() if query.payload is not None else b""

@@ -90,6 +90,7 @@ class StageHost(Protocol):
     stop_event: threading.Event  # set once the run stops
     calls_token: CancelToken  # cancelled once the run stops: its stages' calls end at once
     started: bool  # every stage of the process has been set up
+    secured: bool  # the recipe has `security:`: a service serves only the processes wired to it
 
     @property
     def bus(self) -> Bus: ...

@@ -17,8 +17,11 @@ against them:
 * **without** — where this session dials the endpoint *process* listens on (the private unix
   sockets of a multi-process run, engine.transport.endpoints, or a ``listen`` endpoint the recipe
   gives the process), the session at the end of that link is *process*: a claim by any other
-  session is refused, and a claim waits until that link is up. A process this session dials no
-  endpoint of is taken on its claim (engine.transport.peers says what that leaves open).
+  session is refused. Over a unix socket (the path is exact) a claim waits until that link is up;
+  over an IP endpoint it is checked when a link shows one of the addresses the endpoint resolves
+  to and taken otherwise (zenoh may report another spelling of the address, and a run must not wait
+  for a link it cannot recognise; such an endpoint is unauthenticated anyway: docs/security.md). A
+  process this session dials no endpoint of is taken on its claim.
 
 Over the private sockets the remaining gap is a program of the same user that takes a process's
 socket before the process starts: the process then refuses to start (its socket is held, exit 2),
@@ -64,14 +67,18 @@ def session_links(session: Any) -> list[LinkFacts]:
     return [LinkFacts(str(link.zid), str(link.dst), link.auth_identifier or None) for link in session.info.links()]
 
 
+EXACT_PROTOCOLS = ("unixsock-stream",)  # endpoints zenoh reports exactly as they were written
+
+
 def endpoint_addresses(endpoint: str) -> set[str]:
     """The forms *endpoint* can take in ``Link.dst``: itself, and for an IP endpoint every
-    ``<proto>/<address>:<port>`` its host resolves to (zenoh reports the address it reached).
-    Metadata and configuration after ``?`` or ``#`` are not part of the address."""
+    ``<proto>/<address>:<port>`` its host resolves to (zenoh reports the address it reached; an
+    unspecified address, 0.0.0.0 or ::, is reached as loopback). Metadata and configuration after
+    ``?`` or ``#`` are not part of the address."""
     plain = endpoint.split("#", 1)[0].split("?", 1)[0]
     forms = {plain}
     proto, _, rest = plain.partition("/")
-    if proto in ("unixsock-stream", "unixpipe", "vsock") or ":" not in rest:
+    if proto in EXACT_PROTOCOLS or ":" not in rest:
         return forms
     host, _, port = rest.rpartition(":")
     host = host.strip("[]")
@@ -81,6 +88,8 @@ def endpoint_addresses(endpoint: str) -> set[str]:
         return forms
     for info in infos:
         addr = ipaddress.ip_address(str(info[4][0]).split("%", 1)[0])
+        if addr.is_unspecified:
+            addr = ipaddress.ip_address("127.0.0.1" if addr.version == 4 else "::1")
         forms.add(f"{proto}/{addr}:{port}" if addr.version == 4 else f"{proto}/[{addr}]:{port}")
     return forms
 
@@ -131,8 +140,9 @@ class LinkIdentity:
         if not own_ends:
             return ACCEPT  # this session dials no endpoint of that process: nothing to check against
         at_end = {link.zid for link in links if link.dst in own_ends}
-        if not at_end:
-            return PENDING
+        if not at_end:  # (wait only where the link's address is sure to be recognised)
+            exact = any(e.partition("/")[0] in EXACT_PROTOCOLS for e in own_ends)
+            return PENDING if exact else ACCEPT
         if zid in at_end:
             return ACCEPT
         return Verdict(

@@ -152,6 +152,9 @@ class PeerWatch:
     on_restart: Callable[[str, str, str, bool], None] = lambda process, old, new, accepted: None
     verify: Callable[[str, str], Verdict] = lambda process, zid: ACCEPT
     on_refused: Callable[[str, str, str], None] = lambda process, zid, why: None
+    # this process and its session: a token of its name from another session is not taken for it
+    # (an earlier or later start of it, which the others' epochs show, or an impostor)
+    own: tuple[str, str] | None = None
     _members: dict[str, _Member] = field(default_factory=dict)
     _others: dict[tuple[str, str], _Member] = field(default_factory=dict)  # refused epochs
     _held: dict[tuple[str, str], tuple[str, _Member]] = field(default_factory=dict)  # (zid, epoch) -> unverified
@@ -164,6 +167,8 @@ class PeerWatch:
         if len(parts) < 6:
             return
         process, zid, epoch, rest = parts[3], parts[4], parts[5], parts[6:]
+        if self.own is not None and process == self.own[0] and zid != self.own[1]:
+            return
         put = sample.kind != zenoh.SampleKind.DELETE
         with self._cv:
             if (zid, epoch) in self._impostors:
@@ -251,6 +256,8 @@ class PeerWatch:
         """The process whose accepted session is *zid*, or None (not a member of the run)."""
         if zid is None:
             return None
+        if self._held:
+            self.recheck()
         with self._cv:
             return next((p for p, m in self._members.items() if m.zid == zid and not m.gone), None)
 
@@ -273,10 +280,12 @@ class PeerWatch:
         with self._cv:
             return {p: m.epoch for p, m in self._members.items()}
 
-    def wait_for(self, processes: set[str], deadline_s: float, what: str = "") -> set[str]:
+    def wait_for(
+        self, processes: set[str], deadline_s: float, what: str = "", stop: threading.Event | None = None
+    ) -> set[str]:
         """Wait up to *deadline_s* seconds until every one of *processes* is seen (with its
-        ``started`` marker when *what* is ``"started"``); returns those still missing. A process
-        whose claim is held (not verified yet) is missing."""
+        ``started`` marker when *what* is ``"started"``), or *stop* is set; returns those still
+        missing. A process whose claim is held (not verified yet) is missing."""
 
         def missing() -> set[str]:
             return {
@@ -291,7 +300,8 @@ class PeerWatch:
             with self._cv:
                 left = deadline - time.monotonic()
                 # (held claims are verified again every RECHECK_S: a link coming up is no token change)
-                if self._cv.wait_for(lambda: not missing(), min(left, RECHECK_S)) or left <= 0:
+                done = self._cv.wait_for(lambda: not missing(), min(left, RECHECK_S))
+                if done or left <= 0 or (stop is not None and stop.is_set()):
                     return missing()
 
     def held(self) -> dict[str, list[str]]:

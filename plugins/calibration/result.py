@@ -224,7 +224,7 @@ class CalibrationResult:
         return {"format": RESULT_FORMAT, **plain(fields, nan_as_none=True)}
 
     def to_json(self, **kwargs: Any) -> str:
-        return json.dumps(self.to_dict(), allow_nan=False, **kwargs)
+        return json.dumps(self.to_dict(), **{**kwargs, "allow_nan": False})
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> CalibrationResult:

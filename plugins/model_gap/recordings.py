@@ -95,7 +95,8 @@ def recorded_payload_kg(rec: Any, joint_stage: str) -> float | None:
     if not rec.recipe_text:
         return None
     try:
-        loaded = load_recipe(f"{rec.path}#recipe", list(rec.overrides), text=rec.recipe_text)
+        base = rec.recipe_dir or rec.path.parent  # (its plugin files are found from there)
+        loaded = load_recipe(f"{rec.path}#recipe", list(rec.overrides), text=rec.recipe_text, base=base)
     except RecipeError:  # a recipe this version cannot read: the payload is then not known from it
         return None
     stages = loaded.recipe.stages

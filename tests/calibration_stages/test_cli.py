@@ -284,11 +284,12 @@ def test_nan_or_infinity_anywhere_in_a_file_is_bad_input(tmp_path, capsys, data)
 
 def test_samples_with_a_pose_missing_are_dropped_and_named(tmp_path, capsys):
     """A view where the target was not detected is stored as NaN (JSON) or empty cells (CSV): the
-    sample is left out with a note naming it, not refused as bad input; an infinity still is."""
+    sample is left out with a note naming it, not refused as bad input; a pose only partly NaN, or
+    an infinity, still is."""
     pairs = json.loads(MOVEIT.read_text())
     n = len(pairs)
     pairs[4][1] = [[float("nan")] * 4 for _ in range(4)]  # no detection in view 4
-    pairs[7][0][1][3] = float("nan")  # a robot pose not read in view 7
+    pairs[7][0] = [[float("nan")] * 4 for _ in range(3)] + [[0, 0, 0, 1]]  # a robot pose not read in view 7
     (tmp_path / "nan.json").write_text(json.dumps(pairs))
     capsys.readouterr()
     code = calibrate("handeye", tmp_path / "nan.json", "--setup", "eye_to_hand", "--json", tmp_path / "r.json")
@@ -319,3 +320,7 @@ def test_samples_with_a_pose_missing_are_dropped_and_named(tmp_path, capsys):
     pairs[4][1] = [[float("inf")] * 4 for _ in range(4)]
     (tmp_path / "inf.json").write_text(json.dumps(pairs))
     assert calibrate("handeye", tmp_path / "inf.json", "--setup", "eye_to_hand") == 2
+    pairs[4][1] = json.loads(MOVEIT.read_text())[4][1]
+    pairs[4][1][1][3] = float("nan")  # one number of a pose: a damaged row, not a missing view
+    (tmp_path / "part.json").write_text(json.dumps(pairs))
+    assert calibrate("handeye", tmp_path / "part.json", "--setup", "eye_to_hand") == 2

@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import json
 import socket
+from urllib.parse import quote
 
 import pytest
 from websockets.exceptions import InvalidStatus
@@ -53,11 +54,12 @@ def test_a_request_whose_headers_never_end_is_closed(view):
 
 
 def test_with_a_token_only_a_viewer_whose_url_carries_it_is_served():
-    token = "k3y-0f-the-v1ew-2f9a"
+    token = "k3y+0f/the=v1ew-2f9a"  # (base64 characters: '+' is not a space here)
     v = LiveView(port=0, name="test", token=token)
     try:
-        with connect(f"{v.url}/?token={token}", subprotocols=["foxglove.sdk.v1"], open_timeout=5) as ws:
-            assert json.loads(ws.recv(timeout=5))["op"] == "serverInfo"
+        for given in (token, quote(token, safe="")):  # as written, and percent-encoded
+            with connect(f"{v.url}/?token={given}", subprotocols=["foxglove.sdk.v1"], open_timeout=5) as ws:
+                assert json.loads(ws.recv(timeout=5))["op"] == "serverInfo"
         for url in (v.url, f"{v.url}/?token=k3y", f"{v.url}/?token={token}x", f"{v.url}/?token={token}&token=a"):
             with pytest.raises(InvalidStatus) as refused:
                 connect(url, subprotocols=["foxglove.sdk.v1"], open_timeout=5)

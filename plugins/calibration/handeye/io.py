@@ -18,9 +18,10 @@ Formats (details and examples in docs/handeye.md):
   ``T_cam_target``), each a 4x4 ``!!opencv-matrix`` in metres (row-major ``data``). Read with
   OpenCV's own parser (``cv2.FileStorage``). Sample ids: ``i``.
 
-A sample whose robot or camera pose is missing (NaN in any of its numbers, or, in CSV, empty
-cells: a view where the target was not detected) is dropped, and named in ``PoseSamples.dropped``;
-an infinity is an error, as other impossible values are.
+A sample whose robot or camera pose is missing (every number of it NaN, or, in CSV, every cell of
+it empty: a view where the target was not detected) is dropped, and named in
+``PoseSamples.dropped``; a pose with only some numbers missing, or an infinity, is an error, as
+other impossible values are.
 
 ``length_unit`` is ``"m"`` or ``"mm"``; translations are converted to metres. Quaternions must be
 unit within 1e-3 (else the columns are probably mixed up); rotation vectors longer than 2 pi are
@@ -85,7 +86,7 @@ MISSING = np.full((4, 4), np.nan)  # a pose the file does not have (e.g. no dete
 def _pose(position: Any, quat: Any = None, rotvec: Any = None, *, where: str) -> F64:
     p = np.asarray(position, dtype=float).reshape(3)
     rot = np.asarray(quat if quat is not None else rotvec, dtype=float)
-    if np.isnan(p).any() or np.isnan(rot).any():
+    if np.isnan(p).all() and np.isnan(rot).all():
         return MISSING
     if quat is not None:
         q = np.asarray(quat, dtype=float).reshape(4)
@@ -124,8 +125,9 @@ def _in_metres(
         raise HandEyeInputError(f"{path}: no samples")
     s = _scale(length_unit)
     Ma, Ba = np.array(M), np.array(B)
-    robot_ok = ~np.isnan(Ma).any(axis=(1, 2))  # (an infinity is no missing pose: the checks refuse it)
-    camera_ok = ~np.isnan(Ba).any(axis=(1, 2))
+    # missing: every number of the pose's top three rows NaN (a part-NaN pose is refused by the checks)
+    robot_ok = ~np.isnan(Ma[:, :3, :]).all(axis=(1, 2))
+    camera_ok = ~np.isnan(Ba[:, :3, :]).all(axis=(1, 2))
     dropped = []
     for k, (robot, camera) in enumerate(zip(robot_ok, camera_ok, strict=True)):
         if not (robot and camera):

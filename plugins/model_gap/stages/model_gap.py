@@ -14,6 +14,7 @@ insufficient data do not raise: the stage publishes verdict ``failed`` with the 
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import ClassVar
 
 from pydantic import Field
@@ -21,6 +22,7 @@ from pydantic import Field
 from engine.messages import CalibrationResultMsg, JointState, TrackerPose
 from engine.plain_data import plain
 from engine.plugin_manager import PluginError
+from engine.recipe.plugin_entries import resolve_plugin
 from engine.stage import Stage, StageParams
 from plugins.model_gap.analyse import analyse_gap, families_from_registry
 from plugins.model_gap.core import GapConfig, GapInputError, SelectionConfig
@@ -77,7 +79,9 @@ class ModelGap(Stage):
             cfg = GapConfig(
                 SelectionConfig(alpha=p.alpha, cv_folds=p.cv_folds, seed=self.ctx.seed), max_effects=p.max_effects
             )
-            families = families_from_registry(tuple(p.effect_plugins))
+            # (plugin files relative to the recipe's folder, as its plugins: are)
+            base = self.ctx.recipe_dir or Path.cwd()
+            families = families_from_registry(tuple(resolve_plugin(e, base) for e in p.effect_plugins))
             result = analyse_gap(
                 p.model,
                 data,
