@@ -7,8 +7,10 @@ from __future__ import annotations
 import json
 import shutil
 from dataclasses import replace
+from pathlib import Path
 
 import cv2
+import jsonschema
 import numpy as np
 import pytest
 from shared_data import SHARED
@@ -22,6 +24,8 @@ from plugins.calibration.boards.reprojection import view_residuals
 from plugins.calibration.boards.robot_poses import load_robot_poses
 from plugins.calibration.cli import main as calibrate_main
 from plugins.camera.board_spec import parse_board
+
+ROOT = Path(__file__).resolve().parents[2]
 
 SYNTH_DIR, KUKA_DIR = SHARED / "rwhe_synthetic1", SHARED / "rwhe_kuka2"
 SYNTH, KUKA = parse_board("chessboard:10x7:200mm"), parse_board("chessboard:25x18:15mm")
@@ -212,11 +216,22 @@ def test_cli_drops_the_pose_of_an_image_without_board_or_corrupt(tmp_path, capsy
         shutil.copy(f, d / f.name)
     cv2.imwrite(str(d / "im_07.png"), np.full((480, 640), 128, np.uint8))  # no board, other size
     (d / "im_03.png").write_bytes((SYNTH_DIR / "im_03.png").read_bytes()[:300])  # truncated
-    out_json = tmp_path / "he.json"
+    out_json, report = tmp_path / "he.json", tmp_path / "report"
     code, out, err = _run(
-        capsys, "--images", d, "--poses", SYNTH_DIR / "RobotPosesVec.txt", "--board", "chessboard:10x7:200mm",
-        "--refine-intrinsics", "--no-holdout", "--json", out_json, "--no-samples",
-    )  # fmt: skip
+        capsys,
+        "--images",
+        d,
+        "--poses",
+        SYNTH_DIR / "RobotPosesVec.txt",
+        "--board",
+        "chessboard:10x7:200mm",
+        "--refine-intrinsics",
+        "--no-holdout",
+        "--json",
+        out_json,
+        "--report",
+        report,
+    )  # fmt: skip  (per-sample lines on: the default, which crashed on image views once)
     assert code == 0, err
     assert "im_07.png" in out and "robot pose is dropped" in out
     assert "im_03.png: not a readable image (corrupt or truncated?); its robot pose is dropped" in out
@@ -224,6 +239,17 @@ def test_cli_drops_the_pose_of_an_image_without_board_or_corrupt(tmp_path, capsy
     assert doc["metrics"]["n_views"] == 13 and "im_07.png" not in doc["estimate"]["sample_labels"]
     X = np.asarray(doc["estimate"]["T_tcp_cam"])
     assert np.linalg.norm(X[:3, 3]) < 1.5e-3
+    assert doc["metrics"]["holdout_rms_px"] is None  # --no-holdout: not measured, strict JSON (no NaN)
+    # the corners the result rests on, for anyone to check it with (vgr.board_detections/1)
+    det = json.loads((report / "detections.json").read_text())
+    jsonschema.validate(
+        det, json.loads((ROOT / "plugins/calibration/schemas/board_detections.schema.json").read_text())
+    )
+    assert det["board"] == "chessboard:10x7:200mm" and len(det["views"]) == 13
+    assert {r["name"] for r in det["rejected"]} == {"im_07.png", "im_03.png"}
+    assert [r["unreadable"] for r in sorted(det["rejected"], key=lambda r: r["name"])] == [True, False]
+    assert all(len(v["ids"]) == len(v["image_points_px"]) == len(v["object_points_m"]) == 54 for v in det["views"])
+    assert all(v["used"] and v["left_out"] is None for v in det["views"])
 
 
 def test_cli_bad_input_is_exit_2(tmp_path, capsys):

@@ -39,8 +39,15 @@ def test_images_to_a_camera_file(images, tmp_path, capsys):
     assert cam.size == (640, 480) and cam.model == "standard" and cam.extra["rms_px"] < 0.2
     assert set(cam.extra["per_image_rms_px"]) == {f"im_{k:02d}.png" for k in range(10)}
     assert CameraModel.load(report / "camera.json").K.tolist() == cam.K.tolist()
-    for name in ("coverage.png", "result.json", "report.txt", "summary.md"):
+    for name in ("coverage.png", "result.json", "report.txt", "summary.md", "detections.json"):
         assert (report / name).is_file(), name
+    det = json.loads((report / "detections.json").read_text())  # vgr.board_detections/1
+    assert det["format"] == "vgr.board_detections/1" and len(det["views"]) == 10
+    assert det["rejected"] == [
+        {"name": "broken.png", "reason": "not a readable image (corrupt or truncated?)", "unreadable": True}
+    ]
+    view = det["views"][0]
+    assert view["name"] == "im_00.png" and len(view["ids"]) == len(view["image_points_px"]) > 10
     assert cam.to_camera_info().distortion_model == "plumb_bob"
 
 

@@ -5,9 +5,10 @@ poses, :mod:`.recording`): the command-line glue of the board library.
 :mod:`plugins.calibration.cli` owns the verb, the exit codes (0 usable, 1 unusable, 2 bad
 input) and the ``--json`` / ``--report`` files; this module adds the options of the ``intrinsics``
 kind and turns images into an ``Outcome``: detection (every rejected image listed with its reason),
-:func:`calibrate_intrinsics`, the text report, and in the report folder ``coverage.png`` and
+:func:`calibrate_intrinsics`, the text report, and in the report folder ``coverage.png``,
 ``camera.json`` (the camera document alone, which ``--intrinsics FILE`` of later steps reads as
-well as the ``--json`` result).
+well as the ``--json`` result) and ``detections.json`` (every corner found, per view, and the
+views left out or rejected with the reason: :mod:`.detections_file`).
 
 Bad input (exit 2): a board spec that does not parse, no image given, or none of the images readable.
 Images that are readable but show no board are not bad input: they are listed, and with fewer than
@@ -51,6 +52,7 @@ def intrinsics_options(p: argparse.ArgumentParser) -> None:
 def run_intrinsics(args: argparse.Namespace) -> Outcome:
     """Detect, calibrate, and package the result for :func:`plugins.calibration.cli.run_kind`."""
     from plugins.calibration.boards.detect import detect_images, image_files
+    from plugins.calibration.boards.detections_file import detections_document, write_detections
     from plugins.calibration.boards.intrinsics import calibrate_intrinsics, plot_coverage
     from plugins.calibration.inputs import CalibrationInputError
     from plugins.calibration.report import Outcome
@@ -73,6 +75,8 @@ def run_intrinsics(args: argparse.Namespace) -> Outcome:
         if cal.views:
             plot_coverage(cal, detections, d / "coverage.png")
             cal.camera.save(d / "camera.json")
+        left = {v.name: "its reprojection is far above the other views' (an outlier)" for v in cal.views if not v.used}
+        write_detections(d / "detections.json", detections_document(board, detections.found, detections.rejected, left))
 
     text = cal.report_text()
     return Outcome(cal.to_result(), notes, text, {"Images": f"```\n{text}\n```"}, write_files)
@@ -205,8 +209,10 @@ def _outcome(
     notes: list[str],
 ) -> Outcome:
     """The images pipeline on paired views, and its report."""
+    from plugins.calibration.boards.detections_file import detections_document, write_detections
     from plugins.calibration.boards.handeye_images import calibrate_handeye_images
     from plugins.calibration.report import Outcome
+    from plugins.camera.board_spec import parse_board
 
     out = calibrate_handeye_images(
         views,
@@ -231,5 +237,11 @@ def _outcome(
     def write_files(d: Path) -> None:
         if out.refinement is not None:
             out.refinement.camera.save(d / "camera.json")
+        why = (
+            "its corners do not fit through its robot pose like the other views' (the board moved, or a poor detection)"
+        )
+        left = dict.fromkeys(out.outlier_views, why)
+        doc = detections_document(parse_board(args.board), views, rejected, left)
+        write_detections(d / "detections.json", doc)
 
     return Outcome(out.result, notes, text, {"Images": f"```\n{text}\n```"} if text else {}, write_files)
