@@ -143,6 +143,7 @@ def _hand_eye(kind: str) -> Callable[[argparse.Namespace], Outcome]:
             samples, notes = hand_eye_samples(robot, target, **_pairing(args))
         else:
             samples = load_pose_pairs(args.data, length_unit="mm" if args.mm else None)
+            notes += samples.notes
             if samples.dropped:
                 notes.append(
                     f"dropped {len(samples.dropped)} sample(s) with a pose missing: {', '.join(samples.dropped)}"

@@ -12,6 +12,8 @@ Formats (details and examples in docs/handeye.md):
   ``base_tcp_qx, base_tcp_qy, base_tcp_qz, base_tcp_qw`` or ``base_tcp_rx, base_tcp_ry, base_tcp_rz``
   (rotation vector, rad); the same with the prefix ``cam_target_``; optional ``id``. Lines starting
   with ``#`` are comments. Sample ids: the ``id`` column, else ``line N`` (the line in the file).
+* JSON, two stamped streams (``vgr.handeye.streams/1``): robot and camera poses each with its own
+  stamp, paired by interpolation with the clock offset estimated (plugins/calibration/handeye/stream_file.py).
 * OpenCV FileStorage YAML in camodocal's ``TransformPairsInput.yml`` layout (the ROS wrapper
   handeye_calib_camodocal writes and reads it): ``%YAML:1.0``, ``frameCount: N`` and, per sample
   ``i``, ``T1_i`` (robot base -> end effector, ``T_base_tcp``) and ``T2_i`` (camera -> marker,
@@ -45,6 +47,7 @@ from plugins.calibration.handeye.validation import HandEyeInputError
 
 F64 = NDArray[np.float64]
 VGR_FORMAT = "vgr.handeye.samples/1"
+STREAMS_FORMAT = "vgr.handeye.streams/1"  # two stamped streams: plugins/calibration/handeye/stream_file.py
 _UNITS = {"m": 1.0, "mm": 1e-3}
 
 __all__ = [
@@ -70,9 +73,10 @@ class PoseSamples:
     setup: str | None = None
     source: str = ""
     dropped: list[str] = field(default_factory=list)  # samples left out: "<id> (<which pose> missing)"
+    notes: list[str] = field(default_factory=list)  # what the loading did (a stream file's clock offset)
 
 
-def _scale(unit: str | None) -> float:
+def unit_scale(unit: str | None) -> float:
     if unit is None:
         return 1.0
     if unit not in _UNITS:
@@ -102,7 +106,7 @@ def _pose(position: Any, quat: Any = None, rotvec: Any = None, *, where: str) ->
     return T_from_rotvec(r, p)
 
 
-def _pose_from_json(obj: Any, where: str) -> F64:
+def pose_from_json(obj: Any, where: str) -> F64:
     if isinstance(obj, dict):
         if "position" not in obj:
             raise HandEyeInputError(f"{where}: pose object needs 'position' and 'quat_xyzw' or 'rotvec'")
@@ -123,7 +127,7 @@ def _in_metres(
     """The loaded poses as samples, translations converted from *length_unit* to metres."""
     if not M:
         raise HandEyeInputError(f"{path}: no samples")
-    s = _scale(length_unit)
+    s = unit_scale(length_unit)
     Ma, Ba = np.array(M), np.array(B)
     # missing: every number of the pose's top three rows NaN (a part-NaN pose is refused by the checks)
     robot_ok = ~np.isnan(Ma[:, :3, :]).all(axis=(1, 2))
@@ -149,6 +153,10 @@ def load_pose_pairs_json(path: str | Path, *, length_unit: str | None = None) ->
     setup = None
     ids: list[str] = []
     if isinstance(data, dict):
+        if data.get("format") == STREAMS_FORMAT:  # two stamped streams (plugins/calibration/handeye/stream_file.py)
+            from plugins.calibration.handeye.stream_file import load_streams_json
+
+            return load_streams_json(path, data)
         if data.get("format") != VGR_FORMAT:
             raise HandEyeInputError(f"{path}: unknown JSON format {data.get('format')!r}; expected {VGR_FORMAT!r}")
         file_unit = data.get("length_unit", "m")
@@ -157,16 +165,16 @@ def load_pose_pairs_json(path: str | Path, *, length_unit: str | None = None) ->
         length_unit = file_unit
         setup = data.get("setup")
         samples = data.get("samples", [])
-        M = [_pose_from_json(s["T_base_tcp"], f"{path} sample {k} T_base_tcp") for k, s in enumerate(samples)]
-        B = [_pose_from_json(s["T_cam_target"], f"{path} sample {k} T_cam_target") for k, s in enumerate(samples)]
+        M = [pose_from_json(s["T_base_tcp"], f"{path} sample {k} T_base_tcp") for k, s in enumerate(samples)]
+        B = [pose_from_json(s["T_cam_target"], f"{path} sample {k} T_cam_target") for k, s in enumerate(samples)]
         ids = [str(s.get("id", k)) for k, s in enumerate(samples)]
     elif isinstance(data, list):
         M, B = [], []
         for k, pair in enumerate(data):
             if not isinstance(pair, list) or len(pair) != 2:
                 raise HandEyeInputError(f"{path}: entry {k} is not a [T_base_tcp, T_cam_target] pair")
-            M.append(_pose_from_json(pair[0], f"{path} entry {k} T_base_tcp"))
-            B.append(_pose_from_json(pair[1], f"{path} entry {k} T_cam_target"))
+            M.append(pose_from_json(pair[0], f"{path} entry {k} T_base_tcp"))
+            B.append(pose_from_json(pair[1], f"{path} entry {k} T_cam_target"))
         ids = [str(k) for k in range(len(M))]
     else:
         raise HandEyeInputError(f"{path}: JSON must be a list of pose pairs or a {VGR_FORMAT} object")

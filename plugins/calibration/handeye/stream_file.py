@@ -1,0 +1,100 @@
+"""Hand-eye data as two stamped pose streams in one JSON file (``vgr.handeye.streams/1``), paired
+by plugins/calibration/handeye/streams.py with the clock offset estimated (or as the file says)::
+
+    {"format": "vgr.handeye.streams/1", "length_unit": "m", "setup": "eye_in_hand",
+     "clock_offset_s": null,                      # robot time - camera time; null: estimate it
+     "robot":  [{"stamp_s": 12.008, "T_base_tcp": POSE}, ...],
+     "camera": [{"stamp_s": 12.031, "T_cam_target": POSE}, ...]}
+
+POSE as in the samples format (plugins/calibration/handeye/io.py: a 4x4 nested list,
+``{"position", "quat_xyzw"}`` or ``{"position", "rotvec"}``). The two streams need not be paired or
+of one rate; each must be in time order. Up to MAX_STREAM_SAMPLES paired samples, evenly spread in
+time, go to the solver (neighbours of a fast stream say nearly the same). A camera entry whose pose
+is missing (``null``, or every number NaN: no detection in that frame) is dropped and counted.
+Without ``setup`` the offset is estimated for both set-ups and the one whose pose chains agree
+better is taken.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from plugins.calibration.handeye.io import PoseSamples, pose_from_json, unit_scale
+from plugins.calibration.handeye.problem import SETUPS, Setup, check_setup
+from plugins.calibration.handeye.streams import OffsetFit, PoseStream, fit_offset, paired
+from plugins.calibration.handeye.validation import HandEyeInputError
+
+MAX_STREAM_SAMPLES = 200  # samples handed to the solver (its closed forms use every pair of them)
+
+
+def _stream(path: Path, entries: Any, key: str, scale: float) -> tuple[PoseStream, int]:
+    """The stream of *entries* (``stamp_s`` + *key*), translations times *scale*; and how many
+    entries had no pose."""
+    if not isinstance(entries, list) or not entries:
+        raise HandEyeInputError(f"{path}: {key.split('_', 1)[0]} stream: a non-empty list of entries is needed")
+    stamps, poses, missing = [], [], 0
+    for k, e in enumerate(entries):
+        where = f"{path} {key} entry {k}"
+        if not isinstance(e, dict) or "stamp_s" not in e or key not in e:
+            raise HandEyeInputError(f"{where}: needs 'stamp_s' and '{key}'")
+        T = None if e[key] is None else pose_from_json(e[key], where)
+        if T is None or np.isnan(T[:3]).all():
+            missing += 1
+            continue
+        stamps.append(float(e["stamp_s"]))
+        poses.append(T)
+    T = np.array(poses)
+    T[:, :3, 3] *= scale
+    try:
+        return PoseStream(np.array(stamps), T), missing
+    except ValueError as exc:
+        raise HandEyeInputError(f"{path}: {key}: {exc}") from None
+
+
+def load_streams_json(path: str | Path, data: dict[str, Any] | None = None) -> PoseSamples:
+    """The samples of a ``vgr.handeye.streams/1`` file: the camera poses with the robot poses
+    interpolated at their stamps plus the clock offset; ``notes`` say the offset and what was dropped."""
+    path = Path(path)
+    doc = data if data is not None else json.loads(path.read_text())
+    scale = unit_scale(doc.get("length_unit", "m"))
+    robot, _ = _stream(path, doc.get("robot"), "T_base_tcp", scale)
+    camera, missing = _stream(path, doc.get("camera"), "T_cam_target", scale)
+    setup: Setup | None = check_setup(doc["setup"]) if doc.get("setup") else None
+    known = doc.get("clock_offset_s")
+    notes = [f"{missing} camera frame(s) without a pose dropped"] if missing else []
+    if known is not None:
+        offset = float(known)
+        notes.append(f"clock offset {offset * 1e3:.3f} ms (robot - camera), as the file says")
+    else:
+        fit, setup = _estimated(path, setup, robot, camera)
+        offset = fit.offset_s
+        notes.append(
+            f"clock offset {fit.offset_s * 1e3:.3f} ± {fit.sigma_s * 1e3:.3f} ms (robot - camera), estimated "
+            f"(cross-correlation start {fit.coarse_s * 1e3:.1f} ms)"
+        )
+    M, B, ok = paired(robot, camera, offset)
+    if ok.sum() < len(ok):
+        notes.append(f"{int((~ok).sum())} camera pose(s) outside the robot stream (or across a gap in it) dropped")
+    stamps = camera.stamps_s[ok]
+    if len(M) > MAX_STREAM_SAMPLES:  # neighbours of a 30 Hz stream say nearly the same: spread them out
+        take = np.unique(np.linspace(0, len(M) - 1, MAX_STREAM_SAMPLES).round().astype(int))
+        notes.append(f"{len(take)} of the {len(M)} paired camera poses used, evenly spread in time")
+        M, B, stamps = M[take], B[take], stamps[take]
+    ids = [f"t={t:.3f}s" for t in stamps]
+    samples = PoseSamples(M, B, ids, setup, str(path))
+    samples.notes.extend(notes)
+    return samples
+
+
+def _estimated(path: Path, setup: Setup | None, robot: PoseStream, camera: PoseStream) -> tuple[OffsetFit, Setup]:
+    """The offset fit for *setup*, or for the set-up whose pose chains agree better when None."""
+    try:
+        fits = {s: fit_offset(s, robot, camera) for s in ((setup,) if setup else SETUPS)}
+    except ValueError as exc:
+        raise HandEyeInputError(f"{path}: {exc}") from None
+    best = min(fits, key=lambda s: fits[s].chain_rms_m)
+    return fits[best], best
