@@ -229,9 +229,16 @@ def _serve_until_stopped(runner: Any, service: Any) -> Any:
 
 def _report(args: argparse.Namespace, summary: Any, service: Any, run_dir: Path, cycles: Any) -> int:
     summary.artifacts["run folder"] = str(run_dir)
-    # an orderly stop releases the run (outcome ok, 0); a stop that cut a cycle short, or a second stop
-    # signal, stopped it (interrupted, 130: motion halted first); a failed stage or a lost process: 4
-    code = ExitCode.INTERRUPTED if service.cut_short else ExitCode(summary.exit_code)
+    # an orderly stop releases the run (outcome ok, 0), also when some parts were refused (their alarms
+    # are those cycles' answers, in cycles.jsonl: the run's "refused" is not the service's); a stop that
+    # cut a cycle short, or a second stop signal, stopped it (interrupted, 130: motion halted first); a
+    # failed stage or a lost process: 4
+    if service.cut_short:
+        code = ExitCode.INTERRUPTED
+    elif summary.outcome == "refused":
+        code = ExitCode.OK
+    else:
+        code = ExitCode(summary.exit_code)
     doc = {
         "format": "vgr.serve/1",
         "cell": service.cell,

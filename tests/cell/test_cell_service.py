@@ -495,10 +495,13 @@ def test_serve_json_is_one_document_of_its_schema(own_server: Any) -> None:
     server = own_server(unique_cell("json"), "--json")
     c = served(server)
     check(c.locate(request_id="only"), "ok", cycle=1)
+    place(c.sim, shifted(0.08))  # a part refused (its alarm) is that cycle's answer, not the service's outcome
+    check(c.locate(request_id="too-far"), "out_of_limits", cycle=2)
     assert server.stop(signal.SIGINT) == 0, server.output()
     doc = json.loads(server.out().strip().splitlines()[-1])
     jsonschema.validate(doc, schema("serve"))
-    assert (doc["exit_code"], doc["outcome"], doc["cycles"], doc["by_status"]) == (0, "ok", 1, {"ok": 1})
+    counts = {"ok": 1, "out_of_limits": 1}
+    assert (doc["exit_code"], doc["outcome"], doc["cycles"], doc["by_status"]) == (0, "ok", 2, counts)
 
 
 def test_sigterm_with_a_cycle_longer_than_the_grace_cuts_it_short_exit_130(own_server: Any) -> None:
