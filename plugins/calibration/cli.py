@@ -124,10 +124,10 @@ def _hand_eye(kind: str) -> Callable[[argparse.Namespace], Outcome]:
             NoiseModel,
             calibrate_hand_eye,
             calibrate_robot_world,
-            load_pose_pairs,
         )
         from plugins.calibration.handeye.io import YAML_SUFFIXES
         from plugins.calibration.handeye.problem import check_setup
+        from plugins.calibration.handeye.stream_file import load_samples
 
         if args.images is not None or args.data is None or args.board is not None:
             from plugins.calibration.boards.cli import run_handeye_images
@@ -142,7 +142,7 @@ def _hand_eye(kind: str) -> Callable[[argparse.Namespace], Outcome]:
             target = read_topic(rec, args.target_topic, PoseStamped)
             samples, notes = hand_eye_samples(robot, target, **_pairing(args))
         else:
-            samples = load_pose_pairs(args.data, length_unit="mm" if args.mm else None)
+            samples = load_samples(args.data, length_unit="mm" if args.mm else None)
             notes += samples.notes
             if samples.dropped:
                 notes.append(

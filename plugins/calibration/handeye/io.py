@@ -13,7 +13,8 @@ Formats (details and examples in docs/handeye.md):
   (rotation vector, rad); the same with the prefix ``cam_target_``; optional ``id``. Lines starting
   with ``#`` are comments. Sample ids: the ``id`` column, else ``line N`` (the line in the file).
 * JSON, two stamped streams (``vgr.handeye.streams/1``): robot and camera poses each with its own
-  stamp, paired by interpolation with the clock offset estimated (plugins/calibration/handeye/stream_file.py).
+  stamp, paired by interpolation with the clock offset estimated: read by
+  plugins/calibration/handeye/stream_file.py (``load_samples`` reads that and every format here).
 * OpenCV FileStorage YAML in camodocal's ``TransformPairsInput.yml`` layout (the ROS wrapper
   handeye_calib_camodocal writes and reads it): ``%YAML:1.0``, ``frameCount: N`` and, per sample
   ``i``, ``T1_i`` (robot base -> end effector, ``T_base_tcp``) and ``T2_i`` (camera -> marker,
@@ -153,10 +154,11 @@ def load_pose_pairs_json(path: str | Path, *, length_unit: str | None = None) ->
     setup = None
     ids: list[str] = []
     if isinstance(data, dict):
-        if data.get("format") == STREAMS_FORMAT:  # two stamped streams (plugins/calibration/handeye/stream_file.py)
-            from plugins.calibration.handeye.stream_file import load_streams_json
-
-            return load_streams_json(path, data)
+        if data.get("format") == STREAMS_FORMAT:
+            raise HandEyeInputError(
+                f"{path}: {STREAMS_FORMAT} holds two streams, not samples: "
+                "read it with plugins.calibration.handeye.stream_file.load_samples"
+            )
         if data.get("format") != VGR_FORMAT:
             raise HandEyeInputError(f"{path}: unknown JSON format {data.get('format')!r}; expected {VGR_FORMAT!r}")
         file_unit = data.get("length_unit", "m")

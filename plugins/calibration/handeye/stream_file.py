@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from plugins.calibration.handeye.io import PoseSamples, pose_from_json, unit_scale
+from plugins.calibration.handeye.io import STREAMS_FORMAT, PoseSamples, load_pose_pairs, pose_from_json, unit_scale
 from plugins.calibration.handeye.problem import SETUPS, Setup, check_setup
 from plugins.calibration.handeye.streams import OffsetFit, PoseStream, fit_offset, paired
 from plugins.calibration.handeye.validation import HandEyeInputError
@@ -53,6 +53,19 @@ def _stream(path: Path, entries: Any, key: str, scale: float) -> tuple[PoseStrea
         return PoseStream(np.array(stamps), T), missing
     except ValueError as exc:
         raise HandEyeInputError(f"{path}: {key}: {exc}") from None
+
+
+def load_samples(path: str | Path, *, length_unit: str | None = None) -> PoseSamples:
+    """Samples from any hand-eye file: a ``vgr.handeye.streams/1`` file paired here, the others by
+    plugins.calibration.handeye.io.load_pose_pairs."""
+    if Path(path).suffix.lower() == ".json":
+        try:
+            doc = json.loads(Path(path).read_text())
+        except (OSError, ValueError):
+            doc = None  # (load_pose_pairs says what is wrong with it)
+        if isinstance(doc, dict) and doc.get("format") == STREAMS_FORMAT:
+            return load_streams_json(path, doc)
+    return load_pose_pairs(path, length_unit=length_unit)
 
 
 def load_streams_json(path: str | Path, data: dict[str, Any] | None = None) -> PoseSamples:
