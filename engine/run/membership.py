@@ -18,8 +18,9 @@ and 6):
 * :meth:`Membership.ended_everywhere` — this process's driven stages are done (its ``_active``
   token goes): has every other process finished too?
 * :meth:`Membership.broadcast_stop` — tell the other processes the run stops;
-* :meth:`Membership.leave` — its ``done`` marker, then every token removed (engine.transport.peers: a
-  process whose token vanishes without ``done`` crashed).
+* :meth:`Membership.leave` — its ``stopped`` marker if the run stopped (the broadcast again, in a
+  form that is not lost as the session closes), its ``done`` marker, then every token removed
+  (engine.transport.peers: a process whose token vanishes without ``done`` crashed).
 
 A peer whose token vanishes without ``done`` is an alarm ``peer_lost`` and stops the run (with
 ``rejoin: true``: a warning, and the alarm only when it has not rejoined within ``ready_timeout_s``);
@@ -49,7 +50,7 @@ import zenoh
 from engine.graph import Graph
 from engine.run.summary import RunError
 from engine.transport.bus import Bus, LiveSet, active_key, control_key, ready_key, started_key
-from engine.transport.link_identity import ACCEPT, LinkIdentity, Verdict, session_links
+from engine.transport.link_identity import ACCEPT, LinkIdentity, Verdict, link_facts, session_links
 from engine.transport.peers import PeerWatch, members_digest, new_epoch, peer_key, peer_process, sender_zid
 
 # the runner's log: what the membership logs is part of the runner's account of the run
@@ -149,6 +150,7 @@ class Membership:
             self.run_id,
             self.graph.recipe.rejoin,
             on_lost=self._peer_lost,
+            on_stopped=self._peer_stopped,
             on_restart=self._peer_restarted,
             verify=self._verify_claim,
             on_refused=self._impostor,
@@ -273,12 +275,16 @@ class Membership:
                 why.append(f"process {process} did not say who it is (engine.transport.peers)")
         return "; ".join(why) + f" after {self.ready_timeout_s:g} s"
 
-    def _on_link(self, _event: Any) -> None:
+    def _on_link(self, event: Any) -> None:
         """A link came or went (``security:`` runs): a certificate of the run held by two sessions
         is a copied key, and the run stops."""
         if self.links is None or self.bus is None:
             return
-        for process, zids in sorted(self.links.shared_certificates(self.graph.processes(), self.bus.zid).items()):
+        # (the link the event brings is checked with the others: the session's list may not show it yet)
+        link = getattr(event, "link", None)
+        new = [] if link is None or event.kind != zenoh.SampleKind.PUT else [link_facts(link)]
+        shared = self.links.shared_certificates(self.graph.processes(), self.bus.zid, also=new)
+        for process, zids in sorted(shared.items()):
             taken = self.bus.zid if process == self.process else self.peers.owner(process) if self.peers else None
             others = ", ".join(sorted(zids - {taken}))
             self._impostor(process, others, f"sessions {', '.join(sorted(zids))} hold its certificate")
@@ -396,11 +402,18 @@ class Membership:
         except Exception:
             log.exception("could not broadcast the stop")
 
+    def _peer_stopped(self, process: str) -> None:
+        """*process* says, as it leaves, that its run stopped: this one stops too (its broadcast,
+        which says why, may have been lost as its session closed)."""
+        if process != self.process:
+            self.run.stop(f"stopped by process {process!r}", broadcast=False)
+
     def _on_control(self, sample: Any) -> None:
         zid = sender_zid(sample)
         if zid is not None and self.bus is not None and zid == self.bus.zid:
             return  # this process's own message (its own stop, already acted on), delivered back to it
-        sender = self.peers.process_of(zid) if self.peers is not None else None
+        # (a stop said just before its sender left may arrive after the removal of its token)
+        sender = self.peers.process_of(zid, gone=True) if self.peers is not None else None
         try:
             msg = json.loads(sample.payload.to_bytes())
             said = msg.get("process") if isinstance(msg, dict) else None
@@ -426,6 +439,8 @@ class Membership:
         token is removed, in the order it was declared."""
         if self.peers is not None:
             with contextlib.suppress(Exception):
+                if self.run.stop_reason is not None:  # (what the broadcast said, in a form not lost)
+                    self._tokens["peer_stopped"] = self._bus().token(f"{self._peer_key}/stopped")
                 self._tokens["peer_done"] = self._bus().token(f"{self._peer_key}/done")
             self.peers.close()
         if self._active is not None:

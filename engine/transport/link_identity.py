@@ -62,9 +62,14 @@ ACCEPT = Verdict(True)
 PENDING = Verdict(False)
 
 
+def link_facts(link: Any) -> LinkFacts:
+    """What is checked of one ``zenoh.Link``."""
+    return LinkFacts(str(link.zid), str(link.dst), link.auth_identifier or None)
+
+
 def session_links(session: Any) -> list[LinkFacts]:
     """The links of zenoh *session* now."""
-    return [LinkFacts(str(link.zid), str(link.dst), link.auth_identifier or None) for link in session.info.links()]
+    return [link_facts(link) for link in session.info.links()]
 
 
 EXACT_PROTOCOLS = ("unixsock-stream",)  # endpoints zenoh reports exactly as they were written
@@ -151,14 +156,16 @@ class LinkIdentity:
             f"endpoint {own_ends[0]} is {', '.join(sorted(at_end))}",
         )
 
-    def shared_certificates(self, processes: Iterable[str], own_zid: str) -> dict[str, set[str]]:
+    def shared_certificates(
+        self, processes: Iterable[str], own_zid: str, also: Iterable[LinkFacts] = ()
+    ) -> dict[str, set[str]]:
         """With ``security:``: the run's processes whose certificate more than one session holds, with
         the sessions (this process's own certificate shown by any other session counts: two sessions
-        with one identity). Empty without ``security:``."""
+        with one identity); *also*: links to count besides the session's. Empty without ``security:``."""
         if not self.secured:
             return {}
         holders: dict[str, set[str]] = {}
-        for link in self._links():
+        for link in [*self._links(), *also]:
             if link.certificate is not None:
                 holders.setdefault(link.certificate, set()).add(link.zid)
         holders.setdefault(self.own, set()).add(own_zid)

@@ -6,6 +6,7 @@ Every process of a multi-process run declares one liveliness token::
     vgr/<run>/_peer/<process>/<zid>/<epoch>            while the process is in the run
     vgr/<run>/_peer/<process>/<zid>/<epoch>/started/<digest>
                                                        it passed its barrier with these peers
+    vgr/<run>/_peer/<process>/<zid>/<epoch>/stopped    its run stopped (declared before ``done``)
     vgr/<run>/_peer/<process>/<zid>/<epoch>/done       it ended in order (declared before it closes)
 
 ``<zid>`` is its zenoh session's id (what zenoh puts in ``Reply.replier_id`` and, for the engine's
@@ -18,6 +19,8 @@ it is a restart (:meth:`PeerWatch.restarted_under_way`), refused unless the reci
 One liveliness subscriber watches ``vgr/<run>/_peer/**``, so one process's tokens are seen in the
 order it declared them: its ``done`` before the removal of its tokens when it closes. A process
 whose token vanishes without ``done`` crashed or lost its zenoh lease (:attr:`PeerWatch.on_lost`).
+``stopped`` is the token form of the stop a process broadcasts (engine.run.membership): a put sent
+just before its session closes can be lost, a declaration is not (:attr:`PeerWatch.on_stopped`).
 
 A token is a claim anyone connected may make, so it is taken only when this session's own links
 agree (engine.transport.link_identity: the session on the process's endpoint, or the holder of its
@@ -120,14 +123,17 @@ class _Member:
     zid: str
     epoch: str
     done: bool = False
+    stopped: bool = False
     started: str | None = None  # digest it started with
     gone: bool = False
 
 
 def _mark(m: _Member, rest: list[str], put: bool) -> None:
-    """Apply one token change of *m*'s session: its ``done``, its ``started/<digest>``, its removal."""
+    """Apply one token change of *m*'s session: its ``done``, ``stopped``, ``started/<digest>``, its removal."""
     if rest == ["done"] and put:
         m.done = True
+    elif rest == ["stopped"] and put:
+        m.stopped = True
     elif len(rest) == 2 and rest[0] == "started" and put:
         m.started = rest[1]
     elif not rest and not put:
@@ -144,11 +150,13 @@ class PeerWatch:
     :meth:`owner` call while claims are held). The first accepted epoch of a process is the run's;
     a later one is accepted only when *rejoin* is True (:attr:`on_restart` is told either way).
     :attr:`on_lost` is called with a process whose accepted token vanished without its ``done``
-    marker. Callbacks run on zenoh's callback thread: keep them short."""
+    marker; :attr:`on_stopped` with a process whose accepted session says its run stopped.
+    Callbacks run on zenoh's callback thread: keep them short."""
 
     run: str
     rejoin: bool = False
     on_lost: Callable[[str, str], None] = lambda process, zid: None
+    on_stopped: Callable[[str], None] = lambda process: None
     on_restart: Callable[[str, str, str, bool], None] = lambda process, old, new, accepted: None
     verify: Callable[[str, str], Verdict] = lambda process, zid: ACCEPT
     on_refused: Callable[[str, str, str], None] = lambda process, zid, why: None
@@ -225,14 +233,19 @@ class PeerWatch:
 
     def _update(self, process: str, zid: str, epoch: str, rest: list[str], put: bool) -> None:
         """A marker of, or the removal of, a token already seen."""
-        lost = None
+        lost = stopped = None
         with self._cv:
             m = self._members.get(process)
             if m is not None and (m.zid, m.epoch) == (zid, epoch):
+                was_stopped = m.stopped
                 _mark(m, rest, put)
                 if not rest and not put and not m.done:
                     lost = (process, zid)
+                if m.stopped and not was_stopped:
+                    stopped = process
             self._cv.notify_all()
+        if stopped is not None:
+            self.on_stopped(stopped)
         if lost is not None:
             self.on_lost(*lost)
 
@@ -252,14 +265,16 @@ class PeerWatch:
             m = self._members.get(process)
             return m.zid if m is not None and not m.gone else None
 
-    def process_of(self, zid: str | None) -> str | None:
-        """The process whose accepted session is *zid*, or None (not a member of the run)."""
+    def process_of(self, zid: str | None, *, gone: bool = False) -> str | None:
+        """The process whose accepted session is *zid*, or None (not a member of the run). With
+        *gone*, also a session that has left: a message it sent just before may arrive after its
+        token's removal (zenoh sends declarations at a higher priority than data)."""
         if zid is None:
             return None
         if self._held:
             self.recheck()
         with self._cv:
-            return next((p for p, m in self._members.items() if m.zid == zid and not m.gone), None)
+            return next((p for p, m in self._members.items() if m.zid == zid and (gone or not m.gone)), None)
 
     def left_in_order(self, process: str, wait_s: float) -> bool:
         """*process*'s token is gone (a liveliness query said so): did it leave with ``done``? Waits

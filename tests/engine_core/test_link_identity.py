@@ -95,3 +95,28 @@ def test_a_held_claim_keeps_its_markers_is_taken_once_confirmed_and_dropped_when
     watch2.on_sample(Sample(key))
     watch2.on_sample(Sample(key, put=False))
     assert watch2.held() == {} and watch2.owner("cell") is None
+
+
+def test_a_process_that_left_is_still_known_as_the_sender_of_its_last_message():
+    # zenoh sends a token's removal at control priority, ahead of data queued before it: a stop a
+    # process broadcast as it left can arrive after its token went
+    watch = PeerWatch("r1")
+    key = "vgr/r1/_peer/cell/z1/e1"
+    watch.on_sample(Sample(key))
+    watch.on_sample(Sample(f"{key}/done"))
+    watch.on_sample(Sample(key, put=False))
+    assert watch.process_of("z1") is None and watch.owner("cell") is None
+    assert watch.process_of("z1", gone=True) == "cell" and watch.process_of("z9", gone=True) is None
+
+
+def test_a_member_that_says_its_run_stopped_is_named_once_and_a_stranger_never():
+    stopped: list[str] = []
+    watch = PeerWatch("r1", on_stopped=stopped.append)
+    key = "vgr/r1/_peer/cell/z1/e1"
+    watch.on_sample(Sample(key))
+    watch.on_sample(Sample("vgr/r1/_peer/cell/z9/e9/stopped"))  # not the accepted session of cell
+    assert stopped == []
+    watch.on_sample(Sample(f"{key}/stopped"))
+    watch.on_sample(Sample(f"{key}/stopped"))
+    watch.on_sample(Sample(f"{key}/done"))
+    assert stopped == ["cell"]

@@ -132,6 +132,9 @@ def send_over_slow_link(n: int, payload: bytes) -> SlowBatches:
 
 def test_a_slow_link_makes_the_producer_wait_and_loses_nothing(monkeypatch):
     monkeypatch.setattr(wire, "MAX_PENDING", 8)
+    # every send after the first counts as a burst however slowly a loaded machine runs this loop
+    # (an idle port that is not in a burst puts at once, past the queue)
+    monkeypatch.setattr(wire, "BURST_NS", 10**15)
     pub = send_over_slow_link(200, b"y" * 10)
     assert pub.sender is not None and pub.sender.batched > 100  # the burst went through the sender thread's queue
     assert max(n for n, _ in pub.queued) == 8  # which filled up to its bound and no further
@@ -140,6 +143,7 @@ def test_a_slow_link_makes_the_producer_wait_and_loses_nothing(monkeypatch):
 def test_the_queue_is_bounded_in_bytes_too(monkeypatch):
     """Few large messages fill the byte bound long before the count bound: the producer waits."""
     monkeypatch.setattr(wire, "MAX_PENDING_BYTES", 1000)
+    monkeypatch.setattr(wire, "BURST_NS", 10**15)  # (as above: a burst however slow the machine)
     pub = send_over_slow_link(100, b"w" * 100)
     queued_bytes = [b for _, b in pub.queued]
     assert max(queued_bytes) >= 900  # the queue did fill up to the bound ...
