@@ -237,16 +237,25 @@ class Runner:
         (a device's truth stream, say: it ends only when the run ends, so it must not hold the run
         open) or from a stage of this process settled so (a solver fed by the camera's images, whose
         result feeds an evaluator: the images end when the run's data ends, and so then does the
-        solver). A stage newly settled re-evaluates its consumers. O(its ports) per change: the run's
-        end is never found by walking the whole graph."""
+        solver). A stage newly settled re-evaluates its consumers (a work list, not recursion: a chain
+        of a thousand stages settles in one call). O(its ports) per change: the run's end is never
+        found by walking the whole graph."""
+        todo = [stage]
+        while todo:
+            settled = self._settle_one(todo.pop())
+            if settled is not None:
+                todo.extend(self._consumers.get(settled, ()))
+
+    def _settle_one(self, stage: str) -> str | None:
+        """:meth:`_settle` for one stage: *stage* when it is newly settled, else None."""
         rt = self.runtimes.get(stage)
         if rt is None or stage not in self._driven_ports:
-            return
+            return None
         self.done_checks += 1
         driven_ports = self._driven_ports[stage]
         with self._open_lock:
             if stage not in self._open_driven:
-                return
+                return None
             pending = set(rt.pending_inputs)  # (a copy: the stage's threads change it)
             live = [
                 port
@@ -257,9 +266,7 @@ class Runner:
             if settled:
                 self._open_driven.discard(stage)
         self._progress.set()
-        if settled:
-            for consumer in self._consumers.get(stage, ()):
-                self._settle(consumer)
+        return stage if settled else None
 
     # -- who is who (the membership answers; engine.run.stage_host.StageHost) --------------------
     def service_owner(self, stage: str) -> str | None:

@@ -61,6 +61,17 @@ def test_a_chain_of_200_idle_stages_in_one_process_delivers_everything_in_order(
     assert [r["args"]["i"] for r in rows] == list(range(200))
 
 
+@pytest.mark.timeout(180)
+def test_a_chain_of_1000_stages_ends_in_order():
+    """The end settles each stage's consumers in turn; done by recursion, a chain of 1000 stages
+    overflowed the interpreter's stack as the end came down it (RecursionError in the runner)."""
+    from stage_fixtures import COLLECTED
+
+    summary = Runner(graph_from(chain(1000, "chain_1000").replace("n: 200", "n: 5"))).run()
+    assert summary.ok, summary.stop_reason
+    assert [r["args"]["i"] for r in COLLECTED["chain_1000"]["sink"]] == list(range(5))
+
+
 KILL = """
 name: kill
 record: {{enabled: false}}
