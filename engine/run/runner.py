@@ -443,8 +443,13 @@ class Runner:
             if name not in self.driven and not rt.node.cls.inputs:
                 rt.close_outputs()
         deadline = time.monotonic() + DRAIN_TIMEOUT_S
-        while not all(rt.data_done.is_set() for rt in self.runtimes.values()):
-            if self.stop_event.is_set() or time.monotonic() > deadline:
+        # (the stages not done yet, checked from the first one still open: every wake costs O(1) but
+        # for the stages that ended since; all of them at every wake was O(stages^2) for a fan-out)
+        left, first = list(self.runtimes.values()), 0
+        while True:
+            while first < len(left) and left[first].data_done.is_set():
+                first += 1
+            if first == len(left) or self.stop_event.is_set() or time.monotonic() > deadline:
                 break
             self._progress.wait(0.05)
             self._progress.clear()
