@@ -28,6 +28,7 @@ import sys
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -97,6 +98,21 @@ def _hand_eye_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mm", action="store_true", help="translations in the file are millimetres")
     p.add_argument("--robot-noise", nargs=2, type=float, metavar=("DEG", "MM"), help="declared robot pose noise")
     p.add_argument("--camera-noise", nargs=2, type=float, metavar=("DEG", "MM"), help="declared camera pose noise")
+    p.add_argument(
+        "--camera-noise-xyz",
+        nargs=6,
+        type=float,
+        metavar=("RX_DEG", "RY_DEG", "RZ_DEG", "TX_MM", "TY_MM", "TZ_MM"),
+        help="declared camera pose noise per axis of the camera frame (z: the optical axis, where a "
+        "depth camera's or PnP's error is largest); without a declared noise each axis is estimated",
+    )
+    p.add_argument(
+        "--scale",
+        choices=["fixed", "free"],
+        default="fixed",
+        help="free: the camera's translations are in an unknown unit (monocular, visual odometry); "
+        "the scale is solved with its 1-sigma and reported",
+    )
     for who, rot, trans in (
         ("camera", lim.max_camera_noise_rot_rad, lim.max_camera_noise_trans_m),
         ("robot", lim.max_robot_noise_rot_rad, lim.max_robot_noise_trans_m),
@@ -121,7 +137,6 @@ def _hand_eye(kind: str) -> Callable[[argparse.Namespace], Outcome]:
     def run(args: argparse.Namespace) -> Outcome:
         from plugins.calibration.handeye import (
             AccuracyTargets,
-            NoiseModel,
             calibrate_hand_eye,
             calibrate_robot_world,
         )
@@ -131,6 +146,12 @@ def _hand_eye(kind: str) -> Callable[[argparse.Namespace], Outcome]:
 
         if args.images is not None or args.data is None or args.board is not None:
             from plugins.calibration.boards.cli import run_handeye_images
+
+            if args.scale == "free" or args.camera_noise_xyz:
+                raise CalibrationInputError(
+                    "--scale free and --camera-noise-xyz apply to pose files: a board's size fixes the "
+                    "scale, and its views' noise is measured from the corners"
+                )
 
             return run_handeye_images(args, kind)
         notes: list[str] = []
@@ -154,21 +175,37 @@ def _hand_eye(kind: str) -> Callable[[argparse.Namespace], Outcome]:
                 f"{n} pose pair(s): hand-eye calibration needs at least 3 (better 10-15, rotated about different axes)"
             )
         setup = check_setup(args.setup or samples.setup) if args.setup or samples.setup else "auto"
-        noise = None
-        if args.robot_noise or args.camera_noise:
-            if not args.camera_noise:
-                raise CalibrationInputError("--camera-noise is needed when a noise model is declared")
-            robot_noise = args.robot_noise or (0.0, 0.0)
-            noise = NoiseModel.isotropic(robot_noise[0], robot_noise[1], args.camera_noise[0], args.camera_noise[1])
+        noise = _declared_noise(args)
         accuracy = AccuracyTargets(**_noise_limits(args))
         solve = calibrate_robot_world if kind == "robot_world" else calibrate_hand_eye
         result = solve(
             samples.T_base_tcp, samples.T_cam_target, setup=setup, noise=noise, loss=args.loss,
-            accuracy=accuracy, sample_ids=samples.ids or None,
+            accuracy=accuracy, sample_ids=samples.ids or None, scale=args.scale,
         )  # fmt: skip
+        result.metrics.update(getattr(samples, "metrics", {}))  # (a stream file's clock offset, 1-sigma)
         return Outcome(result, notes)
 
     return run
+
+
+def _declared_noise(args: argparse.Namespace) -> Any:
+    """The NoiseModel of ``--robot-noise`` and ``--camera-noise`` / ``--camera-noise-xyz``, or None."""
+    from plugins.calibration.handeye import NoiseModel
+    from plugins.calibration.handeye.noise import PoseNoise
+
+    if not (args.robot_noise or args.camera_noise or args.camera_noise_xyz):
+        return None
+    if args.camera_noise and args.camera_noise_xyz:
+        raise CalibrationInputError("give --camera-noise or --camera-noise-xyz, not both")
+    if not (args.camera_noise or args.camera_noise_xyz):
+        raise CalibrationInputError("--camera-noise (or --camera-noise-xyz) is needed when a noise model is declared")
+    robot = PoseNoise.from_deg_mm(*(args.robot_noise or (0.0, 0.0)))
+    if args.camera_noise_xyz:
+        values = np.asarray(args.camera_noise_xyz, dtype=float)
+        if not (np.all(np.isfinite(values)) and np.all(values > 0)):
+            raise CalibrationInputError(f"--camera-noise-xyz takes six positive numbers, got {args.camera_noise_xyz}")
+        return NoiseModel(robot, PoseNoise.from_deg_mm(values[:3], values[3:]))
+    return NoiseModel(robot, PoseNoise.from_deg_mm(*args.camera_noise))
 
 
 def _noise_limits(args: argparse.Namespace) -> dict[str, float]:

@@ -77,3 +77,30 @@ def test_garbage_yaml_is_bad_input(tmp_path, capsys):
     assert calibrate(["handeye", str(path)]) == 2  # 2 pairs: too few
     assert calibrate(["tcp", str(path)]) == 2  # other kinds do not read YAML
     assert "unsupported file type '.yml'" in capsys.readouterr().err
+
+
+def test_cli_free_scale_and_a_camera_noise_per_axis(tmp_path: Path, capsys):
+    from plugins.calibration.handeye.free_scale import scaled
+
+    rng = np.random.default_rng(77)
+    noise = NoiseModel.isotropic(0.01, 0.1, 0.1, 0.5)
+    s = sim.add_noise(sim.viewing_scene(rng, 25), noise, rng)
+    data = tmp_path / "vo.json"
+    write_pose_pairs_json(data, s.T_base_tcp, scaled(s.T_cam_target, 3.0), setup="eye_in_hand")
+    assert calibrate(["handeye", str(data)]) == 2  # no unit gives 1/3: refused, with the way out
+    assert "--scale free" in capsys.readouterr().err
+    out = tmp_path / "r.json"
+    code = calibrate(["handeye", str(data), "--scale", "free", "--json", str(out)])
+    assert code in (0, 3), capsys.readouterr().out
+    res = json.loads(out.read_text())
+    assert abs(res["metrics"]["camera_scale"] - 1 / 3) < 4 * res["metrics"]["camera_scale_sd"]
+    # a camera noise per axis of the camera frame (deg deg deg mm mm mm), and the bad forms of it
+    xyz = ["--robot-noise", "0.01", "0.1", "--camera-noise-xyz", "0.1", "0.1", "0.05", "0.4", "0.4", "1.2"]
+    metric = tmp_path / "metric.json"
+    write_pose_pairs_json(metric, s.T_base_tcp, s.T_cam_target, setup="eye_in_hand")
+    assert calibrate(["handeye", str(metric), *xyz, "--json", str(out)]) in (0, 3)
+    assert json.loads(out.read_text())["metrics"]["noise_camera_sigma_tz_m"] == 1.2e-3
+    assert calibrate(["handeye", str(metric), *xyz, "--camera-noise", "0.1", "0.5"]) == 2
+    bad = [*xyz[:-1], "-1"]
+    assert calibrate(["handeye", str(metric), *bad]) == 2
+    assert "six positive numbers" in capsys.readouterr().err

@@ -119,7 +119,21 @@ def test_a_streams_file_calibrates_with_the_offset_estimated_and_said(tmp_path, 
     res = json.loads((tmp_path / "r.json").read_text())
     X_hat = np.asarray(res["estimate"]["T_tcp_cam"])
     assert np.linalg.norm(X_hat[:3, 3] - X[:3, 3]) < 1e-3  # (the set-up found: eye in hand)
+    # the offset and its 1-sigma are numbers of the result, not only words
+    m = res["metrics"]
+    assert abs(m["clock_offset_s"] - 0.04) < 1e-3 and 0 < m["clock_offset_sd_s"] < 1e-3
     # a known offset is taken as the file says
     write_streams(tmp_path / "known.json", robot, camera, setup="eye_in_hand", clock_offset_s=0.04)
     assert calibrate_main(["handeye", str(tmp_path / "known.json")]) in (0, 3)
     assert "clock offset 40.000 ms (robot - camera), as the file says" in capsys.readouterr().out
+
+
+def test_two_streams_in_memory_pair_as_a_file_does():
+    from plugins.calibration.handeye.stream_file import pair_streams
+
+    robot, camera = streams(0.02)
+    samples = pair_streams(robot, camera, setup="eye_in_hand")
+    assert abs(samples.metrics["clock_offset_s"] - 0.02) < 1e-3 and samples.setup == "eye_in_hand"
+    assert len(samples.T_base_tcp) == len(samples.ids) <= 200
+    known = pair_streams(robot, camera, setup="eye_in_hand", clock_offset_s=0.02)
+    assert known.metrics == {"clock_offset_s": 0.02} and "as given" in known.notes[0]

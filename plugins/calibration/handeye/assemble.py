@@ -19,10 +19,11 @@ Parameters of the covariance: decoupled perturbations (:mod:`engine.transforms`)
 the parent frame (m) and rotation about parent-frame axes (rad).
 
 Verdict rules (on top of the input and motion checks): ``failed`` when the ML did not converge,
-more than ``max_outlier_fraction`` of the samples are outliers, the residuals exceed the declared
+more than ``max_outlier_fraction`` (half) of the samples are outliers, the residuals exceed the declared
 noise by more than ``sqrt(max_variance_factor)``, or the estimated noise of the robot or of the
 camera exceeds its limit (``max_robot_noise_*``, ``max_camera_noise_*``: the noise a real sensor of
-that kind can have; beyond it the data do not fit one rigid transform); ``warning`` for outliers, a
+that kind can have; beyond it the data do not fit one rigid transform); ``warning`` for outliers
+(more than chance flags on clean data: ``chance_flags_level``), a
 declared noise that does not fit, a camera length scale off 1, or an uncertainty of X above
 ``max_std_*`` (seed 000: hand-eye error below 0.5 mm). Samples are named by the caller's ids
 (``labels``; they also go into ``estimate["sample_labels"]``, one per residual row).
@@ -38,8 +39,9 @@ from numpy.typing import NDArray
 from scipy import stats
 
 from engine.transforms import pose_delta
+from plugins.calibration.handeye.consensus import second_group
 from plugins.calibration.handeye.consistency import estimate_unit_scale
-from plugins.calibration.handeye.ml import Loss, MLFit
+from plugins.calibration.handeye.ml import DOF_PER_SAMPLE, Loss, MLFit
 from plugins.calibration.handeye.problem import Setup, chain_poses
 from plugins.calibration.result import CalibrationResult
 
@@ -75,7 +77,12 @@ class AccuracyTargets:
 
     max_std_trans_m: float = 0.5e-3
     max_std_rot_rad: float = float(np.deg2rad(0.05))
-    max_outlier_fraction: float = 1.0 / 3.0
+    # more outliers than this fraction: no majority of the samples agrees on one calibration, and
+    # the consensus (``consensus``, which tolerates more) cannot say which group is the right one
+    max_outlier_fraction: float = 0.5
+    # outlier flags this likely or likelier by chance alone (binomial, the ML's outlier quantile) on
+    # data without outliers are named but earn no warning
+    chance_flags_level: float = 0.01
     max_variance_factor: float = 25.0  # residuals 5x the declared noise -> failed
     max_camera_noise_rot_rad: float = float(np.deg2rad(5.0))  # estimated noise above these -> failed
     max_camera_noise_trans_m: float = 0.02
@@ -88,6 +95,9 @@ class AccuracyTargets:
             f"robot {np.rad2deg(self.max_robot_noise_rot_rad):.3g} deg / {self.max_robot_noise_trans_m * 1e3:.3g} mm, "
             f"camera {np.rad2deg(self.max_camera_noise_rot_rad):.3g} deg / {self.max_camera_noise_trans_m * 1e3:.3g} mm"
         )
+
+
+_CAMERA_AXES = ("tx_m", "ty_m", "tz_m", "rx_rad", "ry_rad", "rz_rad")
 
 
 def _spread(d: F64) -> tuple[float, float, float, float]:
@@ -221,6 +231,8 @@ def _fit_metrics(
         "noise_robot_rot_rad": float(np.mean(fit.noise.robot.rot_sigma)),
         "noise_camera_trans_m": float(np.mean(fit.noise.camera.trans_sigma)),
         "noise_camera_rot_rad": float(np.mean(fit.noise.camera.rot_sigma)),
+        # per axis of the camera frame (z: the optical axis), as estimated or declared
+        **{f"noise_camera_sigma_{c}": float(v) for c, v in zip(_CAMERA_AXES, fit.noise.camera.sigmas6(), strict=True)},
         "noise_estimated": float(noise_estimated),
         "noise_groups_estimated": float(fit.noise_groups_estimated),
         "threshold_scale": fit.threshold_scale,
@@ -252,16 +264,29 @@ def _check_unit_scale(
     return verdict
 
 
+def _chance_of_flags(fit: MLFit, scale: float) -> float:
+    """How likely flags like *fit*'s are on data without outliers: the smaller of the chance of as
+    many flags (binomial, at the outlier quantile) and of a sample as far out as the farthest flagged
+    one among all (Sidak: ``1 - (1 - p)^n``, ``p`` its chi-square(6) tail at the noise *scale*)."""
+    n, n_out = len(fit.outliers), int(np.count_nonzero(fit.outliers))
+    p_count = float(stats.binom.sf(n_out - 1, n, 1.0 - fit.outlier_quantile))
+    p_worst = float(stats.chi2.sf(float(np.max(fit.s2[fit.outliers])) / scale, DOF_PER_SAMPLE))
+    return min(p_count, float(-np.expm1(n * np.log1p(-min(p_worst, 1.0 - 1e-16)))))
+
+
 def _check_outliers(
     fit: MLFit,
     labels: list[str],
     loss: Loss,
+    scale: float,
     accuracy: AccuracyTargets,
     verdict: str,
     reasons: list[str],
     advice: list[str],
 ) -> str:
-    """Outlier samples named in the reasons: ``warning``, ``failed`` beyond ``max_outlier_fraction``."""
+    """Outlier samples named in the reasons: ``warning``, unless as many flags are likely by chance
+    (``chance_flags_level``); ``failed`` only when the inliers are no majority
+    (``max_outlier_fraction``), never on the count alone below it."""
     n = len(fit.outliers)
     n_out = int(np.count_nonzero(fit.outliers))
     if not n_out:
@@ -269,13 +294,52 @@ def _check_outliers(
     out_ids = [labels[k] for k in np.flatnonzero(fit.outliers)]
     idx = ", ".join(out_ids[:12]) + (f" ... ({n_out} in all)" if n_out > 12 else "")
     fate = "kept in the estimate (loss='linear')" if loss == "linear" else "left out of the estimate"
+    outlier_quantile = fit.outlier_quantile
+    p_chance = _chance_of_flags(fit, scale)
+    if p_chance >= accuracy.chance_flags_level:
+        reasons.append(
+            f"{n_out} sample(s) beyond the {outlier_quantile:.1%} quantile of the noise, {fate}: {idx} "
+            f"(as many are flagged by chance in {n} samples with probability {p_chance:.2g})"
+        )
+        return verdict
     reasons.append(f"{n_out} outlier sample(s) {fate}: {idx}")
     advice.append("inspect the outlier samples (detection, robot/camera time sync, target slipped)")
     verdict = "warning" if verdict == "ok" else verdict
     if n_out > accuracy.max_outlier_fraction * n:
         verdict = "failed"
-        reasons.append(f"too many outliers ({n_out} of {n}): the data are not consistent with one calibration")
+        reasons.append(
+            f"{n_out} of {n} samples are outliers: fewer than half agree on one calibration, so which "
+            "group is right cannot be told"
+        )
     return verdict
+
+
+def _check_second_group(
+    setup: Setup,
+    M: F64,
+    B: F64,
+    fit: MLFit,
+    labels: list[str],
+    metrics: dict[str, float],
+    verdict: str,
+    reasons: list[str],
+    advice: list[str],
+) -> str:
+    """``failed`` when the outliers agree among themselves on another calibration (``consensus``):
+    the data hold two calibrations, and which one is the cell's cannot be told from them."""
+    group = second_group(setup, M, B, fit.outliers, fit.X, fit.Y, fit.noise)
+    k = int(np.count_nonzero(group))
+    metrics["second_group_samples"] = float(k)
+    if not k:
+        return verdict
+    ids = [labels[i] for i in np.flatnonzero(group)]
+    shown = ", ".join(ids[:12]) + (f" ... ({k} in all)" if k > 12 else "")
+    reasons.append(
+        f"{k} of the outlier samples agree among themselves on another calibration ({shown}): the "
+        "target or the camera moved between samples, so the data hold two calibrations"
+    )
+    advice.append("keep the target and the camera mount fixed while sampling, then sample again")
+    return "failed"
 
 
 def _judge(
@@ -296,7 +360,9 @@ def _judge(
     if not fit.converged:
         verdict = "failed"
         reasons.append("the maximum-likelihood refinement did not converge")
-    verdict = _check_outliers(fit, labels, loss, accuracy, verdict, reasons, advice)
+    # (the flags' noise scale: the estimated noise's own, or the robust factor on a declared one)
+    scale = 1.0 if noise_estimated else fit.threshold_scale
+    verdict = _check_outliers(fit, labels, loss, scale, accuracy, verdict, reasons, advice)
     if not noise_estimated and np.isfinite(vf) and vf > accuracy.max_variance_factor:
         verdict = "failed"
         reasons.append(f"residuals are {np.sqrt(vf):.1f}x the declared noise: the model does not fit the data")
@@ -352,6 +418,7 @@ def assemble_result(
     metrics.update(_fit_metrics(M.shape[0], fit, d_chain, cov, noise_estimated, accuracy))
     verdict = _check_unit_scale(setup, M, B, fit, metrics, verdict, reasons)
     verdict = _judge(fit, cov, x_name, labels, loss, noise_estimated, accuracy, metrics, verdict, reasons, advice)
+    verdict = _check_second_group(setup, M, B, fit, labels, metrics, verdict, reasons, advice)
     residuals = np.column_stack([index.astype(float), d_chain, fit.e_robot, fit.e_camera, fit.s2, fit.weights])
     return CalibrationResult(
         kind=kind,

@@ -75,6 +75,7 @@ class PoseSamples:
     source: str = ""
     dropped: list[str] = field(default_factory=list)  # samples left out: "<id> (<which pose> missing)"
     notes: list[str] = field(default_factory=list)  # what the loading did (a stream file's clock offset)
+    metrics: dict[str, float] = field(default_factory=dict)  # what the loading measured (clock_offset_s, ...)
 
 
 def unit_scale(unit: str | None) -> float:

@@ -36,16 +36,16 @@ from scipy import stats
 from scipy.optimize import least_squares
 
 from plugins.calibration.handeye.ml_model import EivModel, EivState
-from plugins.calibration.handeye.noise import NoiseModel
+from plugins.calibration.handeye.noise import NoiseModel, PoseNoise
 from plugins.calibration.handeye.problem import Setup
-from plugins.calibration.handeye.variance import kenward_roger
+from plugins.calibration.handeye.variance import group_rows, kenward_roger
 
 F64 = NDArray[np.float64]
 Loss = Literal["huber", "cauchy", "linear"]
 DOF_PER_SAMPLE = 6
 CHI2_MEDIAN = float(stats.chi2.median(DOF_PER_SAMPLE))
 
-__all__ = ["DOF_PER_SAMPLE", "Loss", "MLFit", "MLOptions", "refine_ml"]
+__all__ = ["DOF_PER_SAMPLE", "Loss", "MLFit", "MLOptions", "chi2_at", "refine_ml"]
 
 
 @dataclass(frozen=True)
@@ -56,6 +56,12 @@ class MLOptions:
     robust_quantile: float = 0.99
     outlier_quantile: float = 0.999
     estimate_noise: bool = False
+    # estimated camera noise: one variance component per axis of the camera frame (a depth camera's
+    # or PnP's noise is largest along the optical axis) instead of one for translation, one for rotation
+    camera_axes: bool = True
+    # with the noise estimated: the outliers flagged again with it, and the noise estimated again
+    # without the ones that changed, at most this many times
+    max_reflag_rounds: int = 3
     max_robust_iterations: int = 15
     max_noise_iterations: int = 30
     dense_max_params: int = 200
@@ -90,6 +96,7 @@ class MLFit:
     f_scale_x: float = 1.0
     f_scale_xy: float = 1.0
     kr_inflation_x: float = 1.0
+    outlier_quantile: float = 0.999  # the quantile of the noise beyond which a sample is flagged
     notes: list[str] = field(default_factory=list)
 
 
@@ -135,12 +142,11 @@ def _per_sample_cost(model: EivModel, st: EivState) -> F64:
 
 
 def _redundancy_groups(model: EivModel, st: EivState, weights: F64) -> tuple[F64, F64]:
-    """Per group (robot t, robot r, camera t, camera r): sum of weighted squared residuals, redundancy."""
+    """Per noise group (``variance.group_rows``): sum of weighted squared residuals, redundancy."""
     use = weights > 0
     h = model.hat_diagonal(st, weights)[use]
     e2 = (model.whitened(st)[use] ** 2) * weights[use][:, None]
-    n_groups = 4 if model.robot_free else 2
-    groups = [slice(3 * g, 3 * g + 3) for g in range(n_groups)]
+    groups = group_rows(model)
     omega = np.array([e2[:, g].sum() for g in groups])
     redund = np.array([(1.0 - h[:, g]).sum() for g in groups])
     return omega, redund
@@ -153,18 +159,20 @@ def _vce_step(model: EivModel, st: EivState, weights: F64, noise: NoiseModel) ->
     omega, redund = _redundancy_groups(model, st, weights)
     factor = np.where(redund >= 1.0, omega / np.maximum(redund, 1e-12), 1.0)
     factor = np.clip(factor, 1e-4, 1e4)
+    cam = noise.camera.sigmas6()  # (tx, ty, tz, rx, ry, rz)
     sig = [noise.robot.trans_sigma, noise.robot.rot_sigma] if model.robot_free else []
-    sig += [noise.camera.trans_sigma, noise.camera.rot_sigma]
+    sig += [(c,) for c in cam] if model.camera_axes else [tuple(cam[:3]), tuple(cam[3:])]
     current = np.array([min(g) for g in sig])
     # a component already at the floor cannot shrink further: report it as converged
     factor = np.maximum(factor, (SIGMA_FLOOR / current) ** 2)
     factor = np.where(current * np.sqrt(factor) <= SIGMA_FLOOR * 1.0001, 1.0, factor)
     f = np.sqrt(factor)
+    robot = noise.robot
     if model.robot_free:
         robot = noise.robot.scaled(rot_factor=f[1], trans_factor=f[0])
-        camera = noise.camera.scaled(rot_factor=f[3], trans_factor=f[2])
-    else:
-        robot, camera = noise.robot, noise.camera.scaled(rot_factor=f[1], trans_factor=f[0])
+        f = f[2:]
+    per_axis = f if model.camera_axes else np.repeat(f, 3)
+    camera = PoseNoise(cam[3:] * per_axis[3:], cam[:3] * per_axis[:3])
     return NoiseModel(robot, camera), factor, redund
 
 
@@ -244,6 +252,28 @@ def _flag_outliers(
     return outliers, inlier_w
 
 
+def _flag_with_estimated_noise(
+    model: EivModel, outliers: NDArray[np.bool_], opts: MLOptions
+) -> tuple[NDArray[np.bool_], F64]:
+    """Phase 3's outlier flags, on the noise just estimated (Pope's tau test, per sample): each
+    sample's cost studentized by its redundancy ``r_i`` (the sum of its residuals' redundancy
+    numbers, at most 6): ``6 s_i^2 / r_i`` for a sample in the fit, ``r_i s_i^2 / 6`` for one left
+    out (its residual is a prediction, wider by ``1 / (1 - h)``), against ``6 F(6, nu)`` at
+    ``outlier_quantile``, ``nu`` the redundancy the noise was estimated from. The flags and the
+    inlier weights; none flagged when fewer than 3 inliers would be left."""
+    st = model.state(np.zeros(model.n_params), jacobian=True)
+    s2 = _per_sample_cost(model, st)
+    h = model.hat_diagonal(st, np.ones(model.n))
+    r = np.clip(np.sum(1.0 - h, axis=1), 0.5, DOF_PER_SAMPLE)
+    stud = np.where(outliers, s2 * r / DOF_PER_SAMPLE, s2 * DOF_PER_SAMPLE / r)
+    nu = max(float(np.sum(r[~outliers])) - 12.0, 1.0)
+    thr = DOF_PER_SAMPLE * float(stats.f.ppf(opts.outlier_quantile, DOF_PER_SAMPLE, nu))
+    flagged = stud > thr
+    if np.count_nonzero(~flagged) < 3:
+        flagged = outliers
+    return flagged, np.ones(model.n) if opts.loss == "linear" else (~flagged).astype(float)
+
+
 def _estimate_noise(
     model: EivModel, inlier_w: F64, noise: NoiseModel, opts: MLOptions
 ) -> tuple[EivModel, NoiseModel, NDArray[np.bool_], int]:
@@ -309,8 +339,8 @@ def refine_ml(
     n = T_base_tcp.shape[0]
     notes: list[str] = []
     estimable = 0
-    estimated_groups = np.zeros(4, dtype=bool)
-    model = EivModel(setup, T_base_tcp, T_cam_target, noise, X0, Y0)
+    model = EivModel(setup, T_base_tcp, T_cam_target, noise, X0, Y0, camera_axes=opts.camera_axes)
+    estimated_groups = np.zeros(len(group_rows(model)), dtype=bool)
     weights = np.ones(n)
     if initial_weights is not None and opts.loss != "linear":
         weights = np.asarray(initial_weights, dtype=float).copy()
@@ -319,8 +349,14 @@ def refine_ml(
     model, nfev_total, converged = robust.model, robust.nfev, robust.converged
     outliers, inlier_w = _flag_outliers(model, n, robust.scale, opts, notes)
     if opts.estimate_noise:
-        model, noise, estimated_groups, nfev = _estimate_noise(model, inlier_w, noise, opts)
-        nfev_total += nfev
+        for _ in range(1 + opts.max_reflag_rounds):
+            model, noise, estimated_groups, nfev = _estimate_noise(model, inlier_w, noise, opts)
+            nfev_total += nfev
+            # the flags of phase 2 rest on the prior's shape of the noise: flagged again with the estimate
+            again, again_w = _flag_with_estimated_noise(model, outliers, opts)
+            if np.array_equal(again, outliers):
+                break
+            outliers, inlier_w = again, again_w
         estimable = int(np.count_nonzero(estimated_groups))
 
     # ---- phase 4: final ML fit on inliers and covariance (phase 1 already is it when nothing changed)
@@ -353,5 +389,17 @@ def refine_ml(
         f_scale_x=cov.f_scale_x,
         f_scale_xy=cov.f_scale_xy,
         kr_inflation_x=cov.kr_inflation_x,
+        outlier_quantile=opts.outlier_quantile,
         notes=notes,
     )
+
+
+def chi2_at(
+    setup: Setup, T_base_tcp: F64, T_cam_target: F64, X0: F64, Y0: F64, noise: NoiseModel, weights: F64
+) -> tuple[float, F64, F64]:
+    """The ML optimum with the noise and the sample weights held (a profile over something outside
+    the model, e.g. the camera's scale in ``free_scale``): its chi-square and (X, Y)."""
+    model = EivModel(setup, T_base_tcp, T_cam_target, noise, X0, Y0)
+    model, _, _ = _solve(model, weights, MLOptions())
+    st = model.state(np.zeros(model.n_params))
+    return float(np.sum(weights * _per_sample_cost(model, st))), st.X, st.Y

@@ -78,8 +78,13 @@ class EivModel:
         X_ref: F64,
         Y_ref: F64,
         M_ref: F64 | None = None,
+        *,
+        camera_axes: bool = False,
     ) -> None:
         self.setup = setup
+        # the camera noise's variance components: one per axis (camera_axes) or one for its
+        # translation and one for its rotation (``variance.group_rows``)
+        self.camera_axes = camera_axes
         self.M_meas = M_meas
         self.B_meas = B_meas
         self.n = int(M_meas.shape[0])
@@ -183,8 +188,16 @@ class EivModel:
 
     def with_noise(self, noise: NoiseModel) -> EivModel:
         """Same data and reference poses, other noise model."""
-        new = EivModel(self.setup, self.M_meas, self.B_meas, noise, self.X_ref[0], self.Y_ref[0], self.M_ref)
-        return new
+        return EivModel(
+            self.setup,
+            self.M_meas,
+            self.B_meas,
+            noise,
+            self.X_ref[0],
+            self.Y_ref[0],
+            self.M_ref,
+            camera_axes=self.camera_axes,
+        )
 
     # ------------------------------------------------------------------ information
     def information_xy(self, st: EivState, weights: F64) -> F64:

@@ -152,14 +152,27 @@ def compare_setups(loglik: Mapping[Setup, F64], *, level: float = SETUP_TEST_LEV
     return SetupTest(chosen, likelier, abs(z), p, abs(total), level)
 
 
-def _misfit_text(c: SetupCandidate, lik: SetupLikelihood, *, taken: bool = False) -> str:
-    """How well one set-up fits: its pose-chain spread and the noise it needs (for the set-up
-    taken, the noise its result reports; for the other, its noise at the profiled scale)."""
-    m = c.result.metrics
-    text = (
-        f"the pose chains spread by {m['chain_spread_trans_rms_m'] * _MM:.2f} mm / "
-        f"{m['chain_spread_rot_rms_rad'] * _DEG:.3f} deg RMS"
+def chain_spread_all(result: CalibrationResult) -> tuple[float, float]:
+    """RMS pose-chain spread (m, rad) over *every* sample of a result, outliers included: a wrong
+    set-up fits a few samples and calls the rest outliers, so its inliers' spread says nothing."""
+    names = result.residual_names
+    if result.residuals is None or "chain_tx" not in names:
+        m = result.metrics
+        return m["chain_spread_trans_rms_m"], m["chain_spread_rot_rms_rad"]
+    k = names.index("chain_tx")
+    d = np.asarray(result.residuals, dtype=float)[:, k : k + 6]
+    return (
+        float(np.sqrt(np.mean(np.sum(d[:, :3] ** 2, axis=1)))),
+        float(np.sqrt(np.mean(np.sum(d[:, 3:] ** 2, axis=1)))),
     )
+
+
+def _misfit_text(c: SetupCandidate, lik: SetupLikelihood, *, taken: bool = False) -> str:
+    """How well one set-up fits: its pose-chain spread over all samples and the noise it needs (for
+    the set-up taken, the noise its result reports; for the other, its noise at the profiled scale)."""
+    m = c.result.metrics
+    t_rms, r_rms = chain_spread_all(c.result)
+    text = f"the pose chains spread by {t_rms * _MM:.2f} mm / {r_rms * _DEG:.3f} deg RMS"
     if lik.declared:
         factor = np.sqrt(m["variance_factor"]) if taken else np.sqrt(lik.scale)
         return text + f" ({factor:.2g}x the declared noise)"
@@ -185,10 +198,10 @@ def _test_metrics(t: SetupTest) -> dict[str, float]:
 
 def _other_metrics(other: SetupCandidate, lik: SetupLikelihood) -> dict[str, float]:
     """The misfit of the set-up that was not taken, ``other_setup_*``."""
-    m = other.result.metrics
+    t_rms, r_rms = chain_spread_all(other.result)
     return {
-        "other_setup_chain_spread_trans_rms_m": m["chain_spread_trans_rms_m"],
-        "other_setup_chain_spread_rot_rms_rad": m["chain_spread_rot_rms_rad"],
+        "other_setup_chain_spread_trans_rms_m": t_rms,
+        "other_setup_chain_spread_rot_rms_rad": r_rms,
         "other_setup_noise_camera_rot_rad": lik.camera_noise[0],
         "other_setup_noise_camera_trans_m": lik.camera_noise[1],
         "other_setup_noise_scale": lik.scale,

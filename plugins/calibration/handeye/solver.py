@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import partial
 from typing import Literal, TypedDict, Unpack
 
 import numpy as np
@@ -32,6 +33,7 @@ from plugins.calibration.handeye.closed_form import CLOSED_FORM_METHODS, closed_
 from plugins.calibration.handeye.consensus import lmeds_consensus, pose_chain_cost
 from plugins.calibration.handeye.consistency import check_setup_consistency, estimate_unit_scale, mirrored_message
 from plugins.calibration.handeye.degeneracy import MotionThresholds, analyse_motions
+from plugins.calibration.handeye.free_scale import SolvedFit, solve_free_scale
 from plugins.calibration.handeye.ml import Loss, MLOptions, refine_ml
 from plugins.calibration.handeye.noise import DEFAULT_PRIOR, NoiseModel
 from plugins.calibration.handeye.problem import SETUPS, Setup, check_setup, frames_of
@@ -41,6 +43,7 @@ from plugins.calibration.result import CalibrationResult
 
 F64 = NDArray[np.float64]
 SetupOrAuto = Setup | Literal["auto"]
+CameraScale = Literal["fixed", "free"]
 
 __all__ = [
     "RESIDUAL_NAMES",
@@ -91,11 +94,21 @@ def _check_units(setup: Setup, M: F64, B: F64) -> None:
         raise HandEyeInputError(mirrored)
     scale, scale_sd = unit
     if not 0.5 <= scale <= 2.0 and abs(scale - 1.0) > 5.0 * scale_sd:
-        side = "camera" if scale < 1 else "robot"
         raise HandEyeInputError(
-            f"mixed length units: robot translations = {scale:.4g} x camera translations; the {side} "
-            "poses are probably in other units (millimetres?). Convert both to metres"
+            f"mixed length units: robot translations = {scale:.4g} x camera translations. " + _unit_hint(scale)
         )
+
+
+def _unit_hint(scale: float) -> str:
+    """What a scale between robot and camera lengths suggests (``_check_units``)."""
+    for factor, unit in ((1e-3, "millimetres"), (1e-2, "centimetres"), (0.0254, "inches")):
+        for side, s in (("camera", scale), ("robot", 1.0 / scale)):
+            if abs(np.log(s / factor)) < 0.1:
+                return f"The {side} poses look like {unit}: convert both to metres"
+    return (
+        "No unit gives that factor: if the camera's translations are in an unknown unit (a monocular "
+        "or visual-odometry camera), solve the scale with scale='free' (vgr calibrate ... --scale free)"
+    )
 
 
 @dataclass
@@ -261,7 +274,40 @@ def _calibrate(
     sample_ids: Sequence[str] | None = None,
     setup_test_level: float = SETUP_TEST_LEVEL,
     seed: int = 0,
+    scale: CameraScale = "fixed",
 ) -> CalibrationResult:
+    if scale not in ("fixed", "free"):
+        raise ValueError(f"scale must be 'fixed' or 'free', got {scale!r}")
+    solve = partial(
+        _calibrate_fit, kind, T_base_tcp, init=init, setup=setup, noise=noise, estimate_noise=estimate_noise,
+        loss=loss, covariance_scale=covariance_scale, motion_thresholds=motion_thresholds, accuracy=accuracy,
+        sample_ids=sample_ids, setup_test_level=setup_test_level, seed=seed,
+    )  # fmt: skip
+    if scale == "free":
+        start = "eye_in_hand" if setup == "auto" else check_setup(setup)  # (the screw invariant is either's)
+        return solve_free_scale(solve, kind, T_base_tcp, T_cam_target, start, accuracy or AccuracyTargets())
+    return solve(T_cam_target)[0]
+
+
+def _calibrate_fit(
+    kind: str,
+    T_base_tcp: Sequence[ArrayLike] | ArrayLike,
+    T_cam_target: Sequence[ArrayLike] | ArrayLike,
+    *,
+    init: str,
+    setup: SetupOrAuto,
+    noise: NoiseModel | None,
+    estimate_noise: bool | None,
+    loss: Loss,
+    covariance_scale: CovarianceScale,
+    motion_thresholds: MotionThresholds | None,
+    accuracy: AccuracyTargets | None,
+    sample_ids: Sequence[str] | None,
+    setup_test_level: float,
+    seed: int,
+) -> tuple[CalibrationResult, SolvedFit | None]:
+    """One calibration at the camera's scale as given: the result, and the ML fit behind it (with
+    its set-up) when there is one."""
     if setup != "auto":
         setup = check_setup(setup)
     if init != "auto" and init not in CLOSED_FORM_METHODS:
@@ -283,17 +329,19 @@ def _calibrate(
         seed=seed,
     )
     if setup != "auto":
-        return _solve(run, setup, data, given=True).result
+        cand = _solve(run, setup, data, given=True)
+        return cand.result, None if cand.fit is None else SolvedFit(setup, cand.fit, data)
     # the unit test's screw invariant is the same for both readings (inverse and conjugate keep it);
     # as for a given set-up, it runs on motions that are not degenerate (tiny noisy rotations bias it)
     motions = [analyse_motions(s, data.T_base_tcp, data.T_cam_target, motion_thresholds) for s in SETUPS]
     if all(m.verdict != "degenerate" for m in motions):
         _check_units("eye_in_hand", data.T_base_tcp, data.T_cam_target)
     candidates = {s: _solve(run, s, data, given=False) for s in SETUPS}
-    result, _ = choose_setup(
+    result, chosen = choose_setup(
         kind, data.T_base_tcp, data.T_cam_target, candidates, declared=not run.estimate_noise, level=setup_test_level
     )
-    return result
+    fit = None if chosen is None else candidates[chosen].fit
+    return result, None if chosen is None or fit is None else SolvedFit(chosen, fit, data)
 
 
 class SolverOptions(TypedDict, total=False):
@@ -309,6 +357,7 @@ class SolverOptions(TypedDict, total=False):
     sample_ids: Sequence[str] | None
     setup_test_level: float
     seed: int
+    scale: CameraScale
 
 
 def calibrate_hand_eye(
@@ -342,6 +391,9 @@ def calibrate_hand_eye(
                 sample is named (input errors, outliers, ``estimate["sample_labels"]``); default 0, 1, ...
             setup_test_level: two-sided level of the set-up test for ``setup="auto"`` (default 0.001).
             seed: seed of the random choice of pose triples in the outlier consensus (``consensus``), 0.
+            scale: ``"fixed"`` (default): camera translations are in metres; ``"free"``: in an unknown
+                unit (a monocular or visual-odometry camera), the scale solved with its 1-sigma
+                (``free_scale``: ``estimate["camera_scale"]``, metrics ``camera_scale``, ``_sd``).
 
     Returns:
         CalibrationResult with estimate ``{x_name, y_name, "setup"}``, 12x12 covariance, per-sample

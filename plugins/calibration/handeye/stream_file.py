@@ -69,8 +69,8 @@ def load_samples(path: str | Path, *, length_unit: str | None = None) -> PoseSam
 
 
 def load_streams_json(path: str | Path, data: dict[str, Any] | None = None) -> PoseSamples:
-    """The samples of a ``vgr.handeye.streams/1`` file: the camera poses with the robot poses
-    interpolated at their stamps plus the clock offset; ``notes`` say the offset and what was dropped."""
+    """The samples of a ``vgr.handeye.streams/1`` file (:func:`pair_streams`); ``notes`` say the
+    offset and what was dropped, ``metrics`` the offset and its 1-sigma in seconds."""
     path = Path(path)
     doc = data if data is not None else json.loads(path.read_text())
     scale = unit_scale(doc.get("length_unit", "m"))
@@ -78,17 +78,40 @@ def load_streams_json(path: str | Path, data: dict[str, Any] | None = None) -> P
     camera, missing = _stream(path, doc.get("camera"), "T_cam_target", scale)
     setup: Setup | None = check_setup(doc["setup"]) if doc.get("setup") else None
     known = doc.get("clock_offset_s")
-    notes = [f"{missing} camera frame(s) without a pose dropped"] if missing else []
-    if known is not None:
-        offset = float(known)
-        notes.append(f"clock offset {offset * 1e3:.3f} ms (robot - camera), as the file says")
+    samples = pair_streams(
+        robot, camera, setup=setup, clock_offset_s=None if known is None else float(known), source=str(path)
+    )
+    if missing:
+        samples.notes.insert(0, f"{missing} camera frame(s) without a pose dropped")
+    return samples
+
+
+def pair_streams(
+    robot: PoseStream,
+    camera: PoseStream,
+    *,
+    setup: Setup | None = None,
+    clock_offset_s: float | None = None,
+    source: str = "",
+) -> PoseSamples:
+    """Hand-eye samples from a robot and a camera stream: the camera poses with the robot's
+    interpolated at their stamps plus the clock offset (``robot_time = camera_time + offset``),
+    estimated when *clock_offset_s* is None (for *setup*, or for the set-up whose pose chains agree
+    better). At most MAX_STREAM_SAMPLES, evenly spread in time. ``metrics``: ``clock_offset_s`` and,
+    when estimated, ``clock_offset_sd_s``; ``notes`` say so and what was dropped."""
+    metrics: dict[str, float] = {}
+    if clock_offset_s is not None:
+        offset = float(clock_offset_s)
+        notes = [f"clock offset {offset * 1e3:.3f} ms (robot - camera), as {'the file says' if source else 'given'}"]
     else:
-        fit, setup = _estimated(path, setup, robot, camera)
+        fit, setup = _estimated(source, setup, robot, camera)
         offset = fit.offset_s
-        notes.append(
+        metrics["clock_offset_sd_s"] = fit.sigma_s
+        notes = [
             f"clock offset {fit.offset_s * 1e3:.3f} ± {fit.sigma_s * 1e3:.3f} ms (robot - camera), estimated "
             f"(cross-correlation start {fit.coarse_s * 1e3:.1f} ms)"
-        )
+        ]
+    metrics["clock_offset_s"] = offset
     M, B, ok = paired(robot, camera, offset)
     if ok.sum() < len(ok):
         notes.append(f"{int((~ok).sum())} camera pose(s) outside the robot stream (or across a gap in it) dropped")
@@ -98,16 +121,17 @@ def load_streams_json(path: str | Path, data: dict[str, Any] | None = None) -> P
         notes.append(f"{len(take)} of the {len(M)} paired camera poses used, evenly spread in time")
         M, B, stamps = M[take], B[take], stamps[take]
     ids = [f"t={t:.3f}s" for t in stamps]
-    samples = PoseSamples(M, B, ids, setup, str(path))
+    samples = PoseSamples(M, B, ids, setup, source)
     samples.notes.extend(notes)
+    samples.metrics.update(metrics)
     return samples
 
 
-def _estimated(path: Path, setup: Setup | None, robot: PoseStream, camera: PoseStream) -> tuple[OffsetFit, Setup]:
+def _estimated(source: str, setup: Setup | None, robot: PoseStream, camera: PoseStream) -> tuple[OffsetFit, Setup]:
     """The offset fit for *setup*, or for the set-up whose pose chains agree better when None."""
     try:
         fits = {s: fit_offset(s, robot, camera) for s in ((setup,) if setup else SETUPS)}
     except ValueError as exc:
-        raise HandEyeInputError(f"{path}: {exc}") from None
+        raise HandEyeInputError(f"{source or 'streams'}: {exc}") from None
     best = min(fits, key=lambda s: fits[s].chain_rms_m)
     return fits[best], best

@@ -107,8 +107,11 @@ def _check_finite_and_rigid(
     return A
 
 
-def _check_units(M: F64, B: F64, max_translation_m: float, min_translation_m: float) -> None:
+def _check_units(M: F64, B: F64 | None, max_translation_m: float, min_translation_m: float) -> None:
+    """Plausible sizes of the translations (metres); *B* None: the camera's unit is not known."""
     for A, name in ((M, "robot poses T_base_tcp"), (B, "camera poses T_cam_target")):
+        if A is None:
+            continue
         size = float(np.median(np.linalg.norm(A[:, :3, 3], axis=1)))
         if size > max_translation_m:
             raise HandEyeInputError(
@@ -159,11 +162,13 @@ def validate_samples(
     max_translation_m: float = 20.0,
     min_translation_m: float = 0.005,
     ids: Sequence[str] | None = None,
+    camera_unit_known: bool = True,
 ) -> ValidatedSamples:
     """Check and normalise robot poses T_base_tcp and camera observations T_cam_target (metres).
 
     *ids* name the samples in messages (one per sample, e.g. the ids of the file they came from);
-    default: their 0-based positions.
+    default: their 0-based positions. *camera_unit_known* False: the camera's translations are in
+    an unknown unit (``free_scale``), and their size is not checked.
     """
     M = _as_stack(T_base_tcp, "robot poses T_base_tcp")
     B = _as_stack(T_cam_target, "camera poses T_cam_target")
@@ -177,7 +182,7 @@ def validate_samples(
     warnings: list[str] = []
     M = _check_finite_and_rigid(M, "robot poses T_base_tcp", names, exact_tol, repair_tol, warnings)
     B = _check_finite_and_rigid(B, "camera poses T_cam_target", names, exact_tol, repair_tol, warnings)
-    _check_units(M, B, max_translation_m, min_translation_m)
+    _check_units(M, B if camera_unit_known else None, max_translation_m, min_translation_m)
     keep = _duplicates(M, B, names, warnings)
     index = np.flatnonzero(keep).astype(np.int64)
     return ValidatedSamples(M[keep], B[keep], index, warnings, [names[i] for i in index], M.shape[0])

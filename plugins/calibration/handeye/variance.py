@@ -51,9 +51,15 @@ __all__ = ["KenwardRoger", "group_rows", "helmert_matrix", "kenward_roger", "ken
 
 
 def group_rows(model: EivModel) -> list[slice]:
-    """Rows of each noise group within a sample's whitened residual (robot t, r, camera t, r)."""
-    n_groups = 4 if model.robot_free else 2
-    return [slice(3 * g, 3 * g + 3) for g in range(n_groups)]
+    """Rows of each noise group within a sample's whitened residual: robot translation and rotation
+    (when the robot is free), then the camera's translation and rotation, or each of its six axes
+    when the model says ``camera_axes`` (a depth camera's or a PnP pose's noise is largest along
+    the optical axis)."""
+    robot = [slice(0, 3), slice(3, 6)] if model.robot_free else []
+    c0 = 6 if model.robot_free else 0
+    if model.camera_axes:
+        return robot + [slice(c0 + k, c0 + k + 1) for k in range(6)]
+    return [*robot, slice(c0, c0 + 3), slice(c0 + 3, c0 + 6)]
 
 
 def _projected_blocks(model: EivModel, st: EivState, weights: F64) -> tuple[list[F64], list[F64], list[int]]:
