@@ -679,7 +679,8 @@ def print_condition(
     table = Table(title=title + (" - QUICK, not results" if quick else ""))
     for col in ("case", "vgr mm", "vgr deg", "verdicts", *(SHORT[m] for m in PEERS), "figures", "vs peers"):
         table.add_column(col, justify="left" if col in ("case", "verdicts", "figures") else "right")
-    beat = {t["case"]: t["passed"] for t in targets if t["target"].startswith("vgr median")}
+    vs_peers = ("vgr median", "vgr refused")  # (beats_peers' two forms)
+    beat = {t["case"]: t["passed"] for t in targets if t["target"].startswith(vs_peers)}
     for rec in cases:
         m = rec["methods"]
         v = m["vgr"]
@@ -690,7 +691,7 @@ def print_condition(
         table.add_row(*row)
     console.print(table)
     for t in targets:
-        if not t["target"].startswith("vgr median"):
+        if not t["target"].startswith("vgr median"):  # (a refusal judged right is said here too)
             verdict = "[green]PASS[/]" if t["passed"] else "[red]FAIL[/]"
             console.print(f"  {verdict} {t['case']}: {t['target']} = {_fmt(t['value'], 3)} (limit {t['limit']:g})")
     n_pass = sum(t["passed"] for t in targets)

@@ -57,8 +57,11 @@ class MLOptions:
     outlier_quantile: float = 0.999
     estimate_noise: bool = False
     # estimated camera noise: one variance component per axis of the camera frame (a depth camera's
-    # or PnP's noise is largest along the optical axis) instead of one for translation, one for rotation
-    camera_axes: bool = True
+    # or PnP's noise is largest along the optical axis) instead of one for translation, one for
+    # rotation; None: per axis when each component would rest on MIN_REDUNDANCY_PER_COMPONENT
+    # redundant residuals or more (8 poses: 4.5 each, and per axis erred 7 % more than pooled on
+    # isotropic noise; benchmarks/handeye_streams.py)
+    camera_axes: bool | None = None
     # with the noise estimated: the outliers flagged again with it, and the noise estimated again
     # without the ones that changed, at most this many times
     max_reflag_rounds: int = 3
@@ -323,6 +326,17 @@ def _covariance(
     return _Covariance(kr.covariance, dof_x, dof_xy, f_scale_x, f_scale_xy, kr_inflation_x)
 
 
+MIN_REDUNDANCY_PER_COMPONENT = 8.0
+
+
+def _camera_axes(opts: MLOptions, n: int, noise: NoiseModel) -> bool:
+    """Whether the camera noise is estimated per axis (``MLOptions.camera_axes``)."""
+    if opts.camera_axes is not None:
+        return opts.camera_axes
+    components = (2 if not noise.robot.is_exact else 0) + 6
+    return DOF_PER_SAMPLE * n - 12 >= MIN_REDUNDANCY_PER_COMPONENT * components
+
+
 def refine_ml(
     setup: Setup,
     T_base_tcp: F64,
@@ -339,7 +353,7 @@ def refine_ml(
     n = T_base_tcp.shape[0]
     notes: list[str] = []
     estimable = 0
-    model = EivModel(setup, T_base_tcp, T_cam_target, noise, X0, Y0, camera_axes=opts.camera_axes)
+    model = EivModel(setup, T_base_tcp, T_cam_target, noise, X0, Y0, camera_axes=_camera_axes(opts, n, noise))
     estimated_groups = np.zeros(len(group_rows(model)), dtype=bool)
     weights = np.ones(n)
     if initial_weights is not None and opts.loss != "linear":
