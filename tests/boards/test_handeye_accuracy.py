@@ -134,3 +134,20 @@ def test_the_outlier_test_never_flags_many_views_or_few(d2, rms):
         assert not flagged.any()
     if flagged.any():  # a flagged view's correction is beyond the median view's
         assert d2[flagged].min() > np.median(d2)
+
+
+def test_a_robot_whose_own_error_limits_the_result_is_a_warning_and_a_moved_board_still_fails():
+    """Robot poses off by 1.5 mm / 0.15 deg (an uncalibrated arm): the corners reproject beyond 2 px
+    through them, but the board's predicted pose spreads only as far as a robot's error can take it:
+    the result is usable, the reason names the robot. Boards far apart are still a failure."""
+    sim = simulate_handeye(
+        BOARD, SIM_CAMERA, 15, np.random.default_rng(21), robot_noise=RobotNoise(1.5e-3, np.radians(0.15))
+    )
+    r = calibrate_handeye_images(sim.views, sim.T_base_tcp, SIM_CAMERA, holdout=False).result
+    assert r.metrics["rms_px"] > 2.0
+    assert r.usable and any("robot's own pose accuracy" in x for x in r.reasons), r.reasons
+    assert any("calibrate its kinematics" in a for a in r.advice)
+    M = sim.T_base_tcp.copy()
+    M[:, :3, 3] += np.random.default_rng(22).normal(scale=0.03, size=(len(M), 3))  # 30 mm per pose: no arm
+    bad = calibrate_handeye_images(sim.views, M, SIM_CAMERA, holdout=False).result
+    assert bad.verdict == "failed" and any("more than any robot's pose error" in x for x in bad.reasons), bad.reasons

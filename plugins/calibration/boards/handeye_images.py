@@ -89,7 +89,7 @@ __all__ = [
 ]
 
 MIN_VIEWS = 3
-MAX_RMS_PX = 2.0  # above: failed (the model does not fit the corners)
+MAX_RMS_PX = 2.0  # above: failed, unless the board's spread is within a robot's pose accuracy (warning)
 ACCURACY = AccuracyTargets()
 _STD_ADVICE = "add poses with larger rotations about different axes, or reduce the measurement noise"
 HOLDOUT_FACTOR = 3.0  # held-out RMS above this times the fit RMS: warning (over-fit or inconsistent views)
@@ -352,11 +352,26 @@ def _judge(
         verdict = "warning"
         reasons.append("the pixel refinement stopped before converging")
     if ref.rms_px > MAX_RMS_PX:
-        verdict = "failed"
-        reasons.append(
-            f"the corners' reprojection RMS is {ref.rms_px:.2f} px through the robot poses: the board moved, the "
-            "robot poses are not the images' (order?), or the set-up is wrong"
-        )
+        spread = f"{fig.spread_t * 1e3:.2f} mm / {np.degrees(fig.spread_r):.3f} deg RMS"
+        if fig.spread_t <= ACCURACY.max_robot_noise_trans_m and fig.spread_r <= ACCURACY.max_robot_noise_rot_rad:
+            # as far as a robot's own pose error can take it: the robot limits the result, the data are not wrong
+            verdict = "failed" if verdict == "failed" else "warning"
+            reasons.append(
+                f"the corners reproject at {ref.rms_px:.2f} px RMS through the robot poses, and the board's pose "
+                f"predicted from each view spreads by {spread}: within what the robot's own pose accuracy gives "
+                f"(a robot's limit: {ACCURACY.noise_limits_text().split(', ')[0]}), so it limits this calibration"
+            )
+            advice.append(
+                "the robot's pose accuracy is the floor here: calibrate its kinematics (vgr calibrate kinematics), "
+                "or model its pose noise (model_robot_noise)"
+            )
+        else:
+            verdict = "failed"
+            reasons.append(
+                f"the corners' reprojection RMS is {ref.rms_px:.2f} px through the robot poses and the board's pose "
+                f"predicted from each view spreads by {spread}, more than any robot's pose error: the board moved, "
+                "the robot poses are not the images' (order?), or the set-up is wrong"
+            )
     held_rms = fig.held_rms
     if np.isfinite(held_rms) and held_rms > HOLDOUT_FACTOR * ref.rms_px and verdict == "ok":
         verdict = "warning"
