@@ -182,7 +182,7 @@ def _hand_eye(kind: str) -> Callable[[argparse.Namespace], Outcome]:
             samples.T_base_tcp, samples.T_cam_target, setup=setup, noise=noise, loss=args.loss,
             accuracy=accuracy, sample_ids=samples.ids or None, scale=args.scale,
         )  # fmt: skip
-        result.metrics.update(getattr(samples, "metrics", {}))  # (a stream file's clock offset, 1-sigma)
+        result.metrics.update(samples.metrics)  # (a stream file's clock offset and its 1-sigma)
         return Outcome(result, notes)
 
     return run

@@ -359,7 +359,8 @@ def _judge(
             reasons.append(
                 f"the corners reproject at {ref.rms_px:.2f} px RMS through the robot poses, and the board's pose "
                 f"predicted from each view spreads by {spread}: within what the robot's own pose accuracy gives "
-                f"(a robot's limit: {ACCURACY.noise_limits_text().split(', ')[0]}), so it limits this calibration"
+                f"(a robot's limit: robot {np.degrees(ACCURACY.max_robot_noise_rot_rad):.3g} deg / "
+                f"{ACCURACY.max_robot_noise_trans_m * 1e3:.3g} mm), so it limits this calibration"
             )
             advice.append(
                 "the robot's pose accuracy is the floor here: calibrate its kinematics (vgr calibrate kinematics), "

@@ -100,6 +100,21 @@ class AccuracyTargets:
 _CAMERA_AXES = ("tx_m", "ty_m", "tz_m", "rx_rad", "ry_rad", "rz_rad")
 
 
+def std_metrics(covariance: F64) -> dict[str, float]:
+    """The 1-sigma of X and of Y from their 12 x 12 covariance, translation and rotation each the
+    root sum of its three axes' variances: ``std_x_trans_m``, ``std_x_rot_rad``, ``std_y_*``."""
+    std = np.sqrt(np.clip(np.diag(covariance)[:12], 0.0, None))
+    return {
+        f"std_{name}": float(np.sqrt(np.sum(std[k : k + 3] ** 2)))
+        for name, k in (("x_trans_m", 0), ("x_rot_rad", 3), ("y_trans_m", 6), ("y_rot_rad", 9))
+    }
+
+
+def _listed(ids: list[str]) -> str:
+    """Sample ids for a reason: the first 12, and how many in all beyond that."""
+    return ", ".join(ids[:12]) + (f" ... ({len(ids)} in all)" if len(ids) > 12 else "")
+
+
 def _spread(d: F64) -> tuple[float, float, float, float]:
     t = np.linalg.norm(d[:, :3], axis=1)
     r = np.linalg.norm(d[:, 3:], axis=1)
@@ -205,7 +220,6 @@ def _fit_metrics(
     chi-square, covariance scaling, the estimate's 1-sigma, the noise and its limits."""
     inl = ~fit.outliers
     t_rms, t_max, r_rms, r_max = _spread(d_chain[inl])
-    std = np.sqrt(np.clip(np.diag(cov.matrix), 0.0, None))
     return {
         "n_samples": float(n),
         "n_inliers": float(np.count_nonzero(inl)),
@@ -223,10 +237,7 @@ def _fit_metrics(
         "variance_factor": cov.variance_factor,
         "covariance_factor": cov.factor,
         **cov.dof_metrics,
-        "std_x_trans_m": float(np.sqrt(np.sum(std[0:3] ** 2))),
-        "std_x_rot_rad": float(np.sqrt(np.sum(std[3:6] ** 2))),
-        "std_y_trans_m": float(np.sqrt(np.sum(std[6:9] ** 2))),
-        "std_y_rot_rad": float(np.sqrt(np.sum(std[9:12] ** 2))),
+        **std_metrics(cov.matrix),
         "noise_robot_trans_m": float(np.mean(fit.noise.robot.trans_sigma)),
         "noise_robot_rot_rad": float(np.mean(fit.noise.robot.rot_sigma)),
         "noise_camera_trans_m": float(np.mean(fit.noise.camera.trans_sigma)),
@@ -291,8 +302,7 @@ def _check_outliers(
     n_out = int(np.count_nonzero(fit.outliers))
     if not n_out:
         return verdict
-    out_ids = [labels[k] for k in np.flatnonzero(fit.outliers)]
-    idx = ", ".join(out_ids[:12]) + (f" ... ({n_out} in all)" if n_out > 12 else "")
+    idx = _listed([labels[k] for k in np.flatnonzero(fit.outliers)])
     fate = "kept in the estimate (loss='linear')" if loss == "linear" else "left out of the estimate"
     outlier_quantile = fit.outlier_quantile
     p_chance = _chance_of_flags(fit, scale)
@@ -332,8 +342,7 @@ def _check_second_group(
     metrics["second_group_samples"] = float(k)
     if not k:
         return verdict
-    ids = [labels[i] for i in np.flatnonzero(group)]
-    shown = ", ".join(ids[:12]) + (f" ... ({k} in all)" if k > 12 else "")
+    shown = _listed([labels[i] for i in np.flatnonzero(group)])
     reasons.append(
         f"{k} of the outlier samples agree among themselves on another calibration ({shown}): the "
         "target or the camera moved between samples, so the data hold two calibrations"

@@ -88,8 +88,9 @@ def lmeds_consensus(
     n = M.shape[0]
     if n < min_samples:
         return None
+    triples = _triples(n, max_subsets, seed)
     best: tuple[float, F64, F64] | None = None
-    for t in _triples(n, max_subsets, seed):
+    for t in triples:
         idx = np.array(t)
         with np.errstate(all="ignore"):
             X, Y = closed_form(setup, M[idx], B[idx], "park_martin")
@@ -103,8 +104,7 @@ def lmeds_consensus(
     q, X, Y = best
     cost = pose_chain_cost(setup, M, B, X, Y, noise)
     scale = float(np.median(cost[cost <= 3.0 * q]))
-    n_tried = min(max_subsets, n * (n - 1) * (n - 2) // 6)
-    return Consensus(X, Y, cost > 3.0 * scale, scale, n_tried)
+    return Consensus(X, Y, cost > 3.0 * scale, scale, len(triples))
 
 
 MIN_GROUP = 5  # samples that must agree among themselves to be a second calibration
@@ -115,7 +115,7 @@ def second_group(
 ) -> NDArray[np.bool_]:
     """The outliers that agree among themselves on one other calibration (the target or the camera
     moved between samples): started from the consensus of the outliers alone, refitted (Park-Martin)
-    on those of them within 3x the inliers' cost scale under (X, Y), twice; a group when at least
+    on those of them within 3x the inliers' cost scale under (X, Y), three times; a group when at least
     ``MIN_GROUP`` remain. All False when there is no such group."""
     none = np.zeros(len(outliers), dtype=bool)
     out = np.flatnonzero(outliers)

@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import minimize_scalar
 
 from engine.transforms import pose_delta
-from plugins.calibration.handeye.assemble import AccuracyTargets
+from plugins.calibration.handeye.assemble import AccuracyTargets, std_metrics
 from plugins.calibration.handeye.consistency import estimate_unit_scale
 from plugins.calibration.handeye.ml import MLFit, chi2_at
 from plugins.calibration.handeye.problem import Setup
@@ -51,7 +51,7 @@ class SolvedFit:
 Solve = Callable[[F64], tuple[CalibrationResult, SolvedFit | None]]
 
 
-def scaled(B: F64, k: float) -> F64:
+def scaled(B: ArrayLike, k: float) -> F64:
     """Camera poses with their translations multiplied by *k*."""
     out = np.array(B, dtype=float, copy=True)
     out[:, :3, 3] *= k
@@ -68,13 +68,13 @@ def _unobservable(kind: str, why: str) -> CalibrationResult:
     )
 
 
-def _profile(sf: SolvedFit, B: F64, k0: float, bound: float) -> tuple[float, float]:
-    """Step 3: ``u*`` and ``sigma_u`` (inf when the profile is flat)."""
-    fit, M = sf.fit, sf.data.T_base_tcp
+def _profile(sf: SolvedFit, bound: float) -> tuple[float, float]:
+    """Step 3 around the scale *sf* was solved at: ``u*`` and ``sigma_u`` (inf when the profile is flat)."""
+    fit, M, B = sf.fit, sf.data.T_base_tcp, sf.data.T_cam_target
     weights = (~fit.outliers).astype(float)
 
     def cost(u: float) -> float:
-        return chi2_at(sf.setup, M, scaled(B, k0 * np.exp(u)), fit.X, fit.Y, fit.noise, weights)[0]
+        return chi2_at(sf.setup, M, scaled(B, np.exp(u)), fit.X, fit.Y, fit.noise, weights)[0]
 
     best = minimize_scalar(cost, bounds=(-bound, bound), method="bounded", options={"xatol": 1e-7})
     u, f0 = float(best.x), float(best.fun)
@@ -89,13 +89,14 @@ def _profile(sf: SolvedFit, B: F64, k0: float, bound: float) -> tuple[float, flo
     return u, sigma
 
 
-def _scale_share(sf: SolvedFit, B: F64, k: float, sigma_u: float) -> F64:
-    """Step 4: ``g g^T`` (12 x 12), the change of (X, Y) over one ``sigma_u`` either way."""
-    fit, M = sf.fit, sf.data.T_base_tcp
+def _scale_share(sf: SolvedFit, sigma_u: float) -> F64:
+    """Step 4: ``g g^T`` (12 x 12), the change of (X, Y) over one ``sigma_u`` either way of the
+    scale *sf* was solved at."""
+    fit, M, B = sf.fit, sf.data.T_base_tcp, sf.data.T_cam_target
     weights = (~fit.outliers).astype(float)
     ends = []
     for u in (sigma_u, -sigma_u):
-        _, X, Y = chi2_at(sf.setup, M, scaled(B, k * np.exp(u)), fit.X, fit.Y, fit.noise, weights)
+        _, X, Y = chi2_at(sf.setup, M, scaled(B, np.exp(u)), fit.X, fit.Y, fit.noise, weights)
         ends.append(np.concatenate([pose_delta(X, fit.X)[0], pose_delta(Y, fit.Y)[0]]))
     g = 0.5 * (ends[0] - ends[1])
     return np.outer(g, g)
@@ -113,23 +114,20 @@ def solve_free_scale(
     k0, k0_sd = unit
     if k0 <= 0.0:
         return _unobservable(kind, f"the camera moves mirrored to the robot (scale {k0:.3g})")
-    res0, sf0 = solve(scaled(_raw(T_cam_target), k0))
+    res0, sf0 = solve(scaled(T_cam_target, k0))
     if sf0 is None or not res0.usable:
         res0.reasons.insert(0, f"camera translations scaled by {k0:.6g} (the screw invariant's start)")
         return res0
     bound = float(min(1.0, max(0.1, 6.0 * k0_sd / k0)))
-    u, sigma_u = _profile(sf0, sf0.data.T_cam_target, 1.0, bound)
+    u, sigma_u = _profile(sf0, bound)
     k = k0 * float(np.exp(u))
-    res, sf = solve(scaled(_raw(T_cam_target), k))
+    res, sf = solve(scaled(T_cam_target, k))
     if sf is None or not res.usable:
         res.reasons.insert(0, f"camera translations scaled by {k:.6g} (profiled)")
         return res
     if np.isfinite(sigma_u) and res.covariance is not None:
-        share = _scale_share(sf, sf.data.T_cam_target, 1.0, sigma_u)
-        res.covariance = res.covariance + share
-        std = np.sqrt(np.clip(np.diag(res.covariance), 0.0, None))
-        for name, blk in (("x_trans_m", 0), ("x_rot_rad", 3), ("y_trans_m", 6), ("y_rot_rad", 9)):
-            res.metrics[f"std_{name}"] = float(np.sqrt(np.sum(std[blk : blk + 3] ** 2)))
+        res.covariance = res.covariance + _scale_share(sf, sigma_u)
+        res.metrics.update(std_metrics(res.covariance))
         over = (
             res.metrics["std_x_trans_m"] > accuracy.max_std_trans_m
             or res.metrics["std_x_rot_rad"] > accuracy.max_std_rot_rad
@@ -147,7 +145,3 @@ def solve_free_scale(
         "uncertainty of X includes the scale's",
     )
     return res
-
-
-def _raw(T_cam_target: ArrayLike) -> F64:
-    return np.asarray(T_cam_target, dtype=float)
