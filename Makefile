@@ -9,22 +9,25 @@ STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | sha1sum | cut -c1-12)
 
 install: $(STAMP)
 
-# Debian libraries that the open3d-cpu wheel needs at import time (libusb) and OpenMP (libgomp).
+# Debian libraries that the open3d-cpu wheel needs at import time (libusb) and OpenMP (libgomp), and
+# the C compiler tools/build_tf2_msgs.py builds ROS 2's tf2_msgs with (build-essential).
 sysdeps:
-	@if ! ldconfig -p | grep -q 'libusb-1.0.so.0' || ! ldconfig -p | grep -q 'libgomp.so.1'; then \
+	@if ! ldconfig -p | grep -q 'libusb-1.0.so.0' || ! ldconfig -p | grep -q 'libgomp.so.1' \
+	    || ! command -v gcc >/dev/null || ! command -v g++ >/dev/null; then \
 	  if [ "$$(id -u)" = 0 ]; then \
-	    echo "installing Debian packages libusb-1.0-0 libgomp1"; \
+	    echo "installing Debian packages libusb-1.0-0 libgomp1 build-essential"; \
 	    export DEBIAN_FRONTEND=noninteractive; \
-	    apt-get update -qq && apt-get install -y -qq --no-install-recommends libusb-1.0-0 libgomp1 >/dev/null; \
+	    apt-get update -qq && apt-get install -y -qq --no-install-recommends libusb-1.0-0 libgomp1 build-essential >/dev/null; \
 	  else \
-	    echo "please run: sudo apt-get install libusb-1.0-0 libgomp1" >&2; exit 1; \
+	    echo "please run: sudo apt-get install libusb-1.0-0 libgomp1 build-essential" >&2; exit 1; \
 	  fi; \
 	fi
 
 $(STAMP): pyproject.toml | sysdeps
 	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e ".[dev,realsense]"
+	$(BIN)/python -m pip install -q -e ".[dev,realsense,ros2]"
+	$(BIN)/python tools/build_tf2_msgs.py  # /tf's message type, which has no wheel (nothing to do in a ROS 2 install)
 	@rm -f $(VENV)/.installed-* && touch $@
 
 demo: install

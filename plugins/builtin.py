@@ -29,6 +29,9 @@ def vgr_stage_types() -> list[type]:
     from plugins.model_gap.stages.measurement_campaign import MeasurementCampaign
     from plugins.model_gap.stages.model_gap import ModelGap
     from plugins.registration.stages.matcher import Matcher
+    from plugins.ros2.camera_stage import Ros2Camera
+    from plugins.ros2.publisher_stage import Ros2Publish
+    from plugins.ros2.subscriber_stage import Ros2Subscribe
     from plugins.sim.stages.calibration_evaluation import CalibrationEvaluator
     from plugins.sim.stages.camera import SimCamera
     from plugins.sim.stages.evaluation import DockingEvaluator
@@ -39,7 +42,7 @@ def vgr_stage_types() -> list[type]:
     from plugins.util.stages.trigger import Trigger
 
     sim = [SimRobot, SimCamera, SimTracker, DockingEvaluator, CalibrationEvaluator]
-    devices = [URRobot, ViveTracker, RealSenseCamera, FileCamera]
+    devices = [URRobot, ViveTracker, RealSenseCamera, FileCamera, Ros2Camera, Ros2Publish, Ros2Subscribe]
     calibration = [  # data collection in the simulated cell, solver stages, saved results
         SimPointTracker,
         CalibrationPoses,
@@ -99,9 +102,10 @@ def vgr_cli_verbs() -> list[CliVerb]:
         CliVerb(
             "gap", "compare a robot model with measurements, name the missing effect, add it", "plugins.model_gap.cli"
         ),
+        CliVerb("bag", "import a rosbag2 as a vgr recording, export a recording as a rosbag2", "plugins.ros2.bag"),
     ]
 
 
 @hookimpl
 def vgr_cell_gateways() -> list[CellGateway]:
-    return [CellGateway("tcp", "plugins.actions.cell.tcp_gateway")]
+    return [CellGateway("tcp", "plugins.actions.cell.tcp_gateway"), CellGateway("ros2", "plugins.ros2.gateway")]

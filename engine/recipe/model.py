@@ -13,7 +13,8 @@ clock, and its zenoh settings. Example::
       move:   {type: transform_cloud, inputs: {cloud: source.cloud}, params: {translation_m: [0.01, 0, 0]}}
       stats:  {type: cloud_stats, inputs: {cloud: move.cloud}}
 
-``${name}`` in a string is replaced by ``vars.name`` (the whole string keeps the var's type).
+``${name}`` in a string of ``stages`` or ``serve.gateways`` is replaced by ``vars.name`` (the whole
+string keeps the var's type).
 Command-line overrides (``-p stage.param=value``, ``-p vars.name=value``, ``-p seed=7``) are applied
 before validation; values are parsed as YAML scalars. Stage parameters are validated against the
 stage type's own model by engine.graph, which also checks wiring, types and cycles.
@@ -409,6 +410,10 @@ def load_recipe(
     variables = data.get("vars") if isinstance(data.get("vars"), dict) else {}
     if isinstance(data.get("stages"), dict):
         data["stages"] = substitute_vars(data["stages"], variables, ("stages",), locations, file, problems)
+    serve = data.get("serve")
+    if isinstance(serve, dict) and isinstance(serve.get("gateways"), dict):  # e.g. a port or a ROS domain
+        path = ("serve", "gateways")
+        serve["gateways"] = substitute_vars(serve["gateways"], variables, path, locations, file, problems)
     if problems:
         raise RecipeError(problems)
     try:
