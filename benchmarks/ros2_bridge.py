@@ -215,7 +215,7 @@ def trial(pub: Publisher, order: tuple[str, ...], domain: int, qos: str, count: 
 
 
 def median_of(rows: list[dict[str, float]]) -> dict[str, float]:
-    return {k: float(np.median([r[k] for r in rows])) for k in rows[0]}
+    return {k: float(np.nanmedian([r[k] for r in rows])) for k in rows[0]}  # (a trial may have no figure)
 
 
 def main() -> None:

@@ -17,9 +17,10 @@ Ports: ``cloud`` (PointCloud2), ``image`` (Image), ``camera_info`` (CameraInfo),
 (JointState), ``pose`` (PoseStamped), ``frames`` (TFMessage, for ``/tf`` and ``/tf_static``).
 A message keeps its header's stamp (ROS time, nanoseconds). Each message is converted and
 published on the ROS 2 executor's thread as it arrives (the node's single-threaded executor: one
-at a time, in arrival order), with no hand-over to another thread: measured with
-benchmarks/ros2_bridge.py, a hand-over to the stage's thread cost a 1.2 MB cloud stream about half
-its rate on a loaded 2-core machine. ``run`` only waits for the end (``max_messages``,
+at a time, in arrival order), with no hand-over to another thread: in one
+trial of benchmarks/ros2_bridge.py (1.2 MB clouds, publisher flat out, loaded 2-core machine) a
+hand-over to the stage's own thread took 51.8 clouds a second against a plain rclpy subscriber's
+106 (docs/ros2.md has the full run). ``run`` only waits for the end (``max_messages``,
 ``duration_s``, the run's stop); the topics are subscribed when ``run`` starts, and a message
 arriving after it ends is not published. A message that does not convert is an ``error`` event
 naming the topic and the field, and the stream goes on; the DDS reader's history (the topic's QoS
