@@ -23,6 +23,14 @@ the answers known: an advantage vgr's fixed rule does not get).
 Before either method sees a case's data its a-priori class is computed from the truth alone
 (``plugins/sim/model_gap/detectability.py``): ``identifiable`` / ``confounded`` / ``undetectable``.
 
+vgr runs through :func:`plugins.model_gap.analyse.analyse_gap` (what ``vgr gap`` runs: the gross-error
+screen, the workflow, the end test and the share rule). The second round's cases
+(:func:`plugins.sim.model_gap.suite.robust_suite`: gross outliers of 1-10 %, out-of-catalog effects,
+40-pose campaigns) are summarised apart (``summary.robust``): per group what was named, the verdicts,
+the outliers found and the good samples lost, and for the out-of-catalog effects what was added and
+what the share rule took out. The good samples lost on every campaign without injected outliers give
+the screen's realised false-flag rate.
+
 Run: ``PYTHONPATH=. python benchmarks/gap.py [--quick] [--jobs 2]`` -> benchmarks/results/gap.json
 """
 
@@ -41,14 +49,15 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks.gap_robust_summary import robust_summary, screen_record
 from plugins.model_gap import families_from_registry
-from plugins.model_gap.analyse import build_problem
-from plugins.model_gap.core import GapConfig, run_gap
+from plugins.model_gap.analyse import analyse_gap, build_problem
+from plugins.model_gap.core import GapConfig, GapInputError
 from plugins.model_gap.core.sparse import sparse_library, stlsq_named
 from plugins.model_gap.core.workflow import VERDICTS, collect_candidates
 from plugins.sim.model_gap.detectability import CLASSES, classify
 from plugins.sim.model_gap.simulate import HiddenCase, make_case
-from plugins.sim.model_gap.suite import suite
+from plugins.sim.model_gap.suite import N_POSES, robust_suite, suite
 
 THRESHOLDS = (2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 12.0)
 RIDGE = 0.05
@@ -87,6 +96,18 @@ def _vgr(res, case: HiddenCase, expected: list[str]) -> dict:
         # backlash named against reversed dir columns carries the note; with vgr's convention it does not
         "convention_ok": all(bool(notes.get(lab)) == case.flip_dir for lab in backlash) if backlash else None,
         "decision": res.iterations[-1].decision.reason,
+        "reason": res.reason,
+        "share": None
+        if res.share is None
+        else {
+            "shares": res.share.shares,
+            "dropped": [lab for lab, _ in res.share.dropped],
+            "reference": res.share.reference,
+        },
+        "advice": res.advice,
+        "where_left": [f.design for f in res.iterations[-1].structure.significant[:3]]
+        if res.iterations[-1].structure
+        else [],
     }
 
 
@@ -95,10 +116,13 @@ def run_case(case: HiddenCase) -> dict:
     camp = make_case(case)
     t_sim = time.perf_counter() - t0
     t_a = time.perf_counter()
-    apriori = classify(case, camp).to_dict()  # from the truth alone, before either method sees the data
+    try:  # from the truth alone, before either method sees the data
+        apriori = classify(case, camp).to_dict()
+    except (ValueError, KeyError, StopIteration) as e:  # an out-of-catalog effect has no catalog design
+        apriori = {"cls": "n/a", "why": str(e)}
     t_apriori = time.perf_counter() - t_a
     families = families_from_registry()
-    expected = sorted(f"{e.name}@{e.where}" for e in case.effects)
+    expected = sorted(f"{n}@{w}" for n, w in case.expected)  # the out-of-catalog effects have no name
     out: dict = {}
     seconds = {"simulate": t_sim, "apriori": t_apriori}
     stl: dict = {}
@@ -106,8 +130,8 @@ def run_case(case: HiddenCase) -> dict:
     for mode in MODES:
         t1 = time.perf_counter()
         noise_mm = case.noise_m * 1e3 if mode == "given" else None
-        problem = build_problem(camp.model, camp.data, noise_mm=noise_mm, families=families)  # the defaults
-        if mode == "given":  # the baseline: STLSQ on the same calibrated residuals and regressors
+        if mode == "given":  # the baseline: STLSQ on the same calibrated residuals and regressors (no screen)
+            problem = build_problem(camp.model, camp.data, noise_mm=noise_mm, families=families)  # the defaults
             t_s = time.perf_counter()
             lin = problem.linearise()
             Theta, y, owner = sparse_library(lin, collect_candidates(problem, families), problem)
@@ -115,14 +139,22 @@ def run_case(case: HiddenCase) -> dict:
             seconds["stlsq_all_thresholds"] = time.perf_counter() - t_s
             cal = problem.describe()["calibration"]
             calibration = {"levels": cal["levels"], "n_parameters": len(cal["parameters"]), "notes": cal["notes"]}
-        res = run_gap(problem, families, GapConfig())
+        try:
+            res = analyse_gap(camp.model, camp.data, noise_mm=noise_mm, families=families, config=GapConfig())
+        except GapInputError as e:  # refused (e.g. too few samples to estimate the noise): recorded as such
+            out[mode] = {"refused": str(e), "named": [], "correct": False, "wrong_name": False, "verdict": "refused"}
+            seconds[f"vgr_{mode}"] = time.perf_counter() - t1
+            continue
         seconds[f"vgr_{mode}"] = time.perf_counter() - t1
-        out[mode] = _vgr(res, case, expected)
+        out[mode] = _vgr(res, case, expected) | screen_record(res, camp)
     return {
         "case": case.case_id,
         "kind": case.kind,
         "level": case.level,
         "seed": case.seed,
+        "n_samples": camp.data.n_samples,
+        "outliers_injected": case.outliers,
+        "off_catalog": case.off_catalog,
         "flip_dir": case.flip_dir,
         "temperature": case.temperature,
         "expected": expected,
@@ -246,7 +278,11 @@ def _by_class(eff: list[dict], named) -> dict:
     return out
 
 
-def summarise(rows: list[dict]) -> dict:
+ORIGINAL_KINDS = ("single", "pair", "noise")
+
+
+def summarise(rows_all: list[dict]) -> dict:
+    rows = [r for r in rows_all if r["kind"] in ORIGINAL_KINDS]
     eff = [r for r in rows if r["kind"] != "noise" and r["level"] != "faint"]
     noise = [r for r in rows if r["kind"] == "noise"]
     sweep = {
@@ -285,10 +321,14 @@ def summarise(rows: list[dict]) -> dict:
             k: float(np.median([r["seconds"][k] for r in rows]))
             for k in ("simulate", "apriori", "stlsq_all_thresholds", "vgr_given", "vgr_estimated")
         },
+        "robust": robust_summary(rows_all, MODES),
     }
 
 
 def _print(s: dict) -> None:
+    if "cases" not in s:  # --robust-only
+        print("robust suite:", json.dumps(s["robust"], indent=1))
+        return
     print(
         f"{s['cases']} cases ({s['effect_cases']} with hidden effects, {s['noise_controls']} noise-only, "
         f"{s['faint_cases']} faint singles apart)"
@@ -316,6 +356,7 @@ def _print(s: dict) -> None:
         f"false positives on noise {b['false_positive_rate_noise']:.3f}, wrong names {b['wrong_name_cases']}"
     )
     print("a priori classes:", s["per_class"])
+    print("robust suite:", json.dumps(s["robust"], indent=1))
 
 
 def main() -> None:
@@ -324,18 +365,22 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--seeds-per-single", type=int, default=5)
     ap.add_argument("--seeds-per-pair", type=int, default=2)
+    ap.add_argument("--no-robust", action="store_true", help="leave out the second round's cases")
+    ap.add_argument("--robust-only", action="store_true", help="only the second round's cases (not the benchmark)")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "gap.json"))
     args = ap.parse_args()
-    cases = suite(
+    ap_cases = suite(
         full=not args.quick, seed=SEED, seeds_per_single=args.seeds_per_single, seeds_per_pair=args.seeds_per_pair
     )
+    extra = robust_suite(SEED + 1, full=not args.quick) if not args.no_robust else []
+    cases = extra + ([] if args.robust_only else ap_cases)
     t0 = time.perf_counter()
     if args.jobs > 1:
         with ProcessPoolExecutor(args.jobs) as ex:
             rows = list(ex.map(run_case, cases, chunksize=1))
     else:
         rows = [run_case(c) for c in cases]
-    summary = summarise(rows)
+    summary = {"robust": robust_summary(rows, MODES)} if args.robust_only else summarise(rows)
     out = {
         "benchmark": "model-gap workflow at its defaults on realistic cells vs STLSQ sparse regression",
         "machine": {
@@ -347,9 +392,10 @@ def main() -> None:
         "seed": SEED,
         "parameters": {
             "robot": "ur5e",
-            "n_poses": cases[0].n_samples,
+            "n_poses": N_POSES,
+            "robust_cases": len(extra),
             "noise_mm_per_axis": cases[0].noise_m * 1e3,
-            "suite": "quick" if args.quick else "full",
+            "suite": "quick" if args.quick else ("robust only" if args.robust_only else "full"),
             "seeds_per_single": args.seeds_per_single,
             "seeds_per_pair": args.seeds_per_pair,
             "stlsq_thresholds": THRESHOLDS,

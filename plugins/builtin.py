@@ -26,6 +26,7 @@ def vgr_stage_types() -> list[type]:
     from plugins.devices.stages.realsense_camera import RealSenseCamera
     from plugins.devices.stages.ur_robot import URRobot
     from plugins.devices.stages.vive_tracker import ViveTracker
+    from plugins.model_gap.stages.camera_gap import CameraGap
     from plugins.model_gap.stages.measurement_campaign import MeasurementCampaign
     from plugins.model_gap.stages.model_gap import ModelGap
     from plugins.registration.stages.matcher import Matcher
@@ -57,7 +58,7 @@ def vgr_stage_types() -> list[type]:
         CalibrationFile,
     ]
     actions = [CaptureAtPose, Guidance, Docking, DualDocking, GuidanceReport, CellLocator]
-    model_gap = [MeasurementCampaign, ModelGap]  # model-gap workflow
+    model_gap = [MeasurementCampaign, ModelGap, CameraGap]  # model-gap workflow (robot; camera)
     return [
         SyntheticCloud,
         TransformCloud,

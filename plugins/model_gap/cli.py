@@ -25,6 +25,7 @@ from rich.console import Console
 
 from engine import run_folder
 from engine.exit_codes import ExitCode
+from plugins.model_gap.camera.cli import add_camera_arguments, cmd_camera_gap
 
 #: the exit code of each workflow verdict (engine.exit_codes)
 EXIT_CODES = {
@@ -53,8 +54,8 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:
         help="check: score a stored model (augmented_model.yaml, a vgr calibrate kinematics result) on new data, "
         "refitting nothing (exit 0 it predicts them, 1 a systematic gap is left, 2 bad input)",
     )
-    p.add_argument("--model", required=True, help="shipped robot name, robot model file or augmented model file")
-    p.add_argument("--data", required=True, help="CSV (q1_deg.., x_mm, y_mm, z_mm, ...) or a .mcap recording")
+    p.add_argument("--model", help="shipped robot name, robot model file or augmented model file (required)")
+    p.add_argument("--data", help="CSV (q1_deg.., x_mm, y_mm, z_mm, ...) or a .mcap recording (required)")
     p.add_argument("--report", metavar="DIR", help="write gap_report.json, figures and model files to DIR")
     p.add_argument(
         "--noise-mm",
@@ -71,6 +72,26 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--alpha", type=float, default=1e-3, help="family-wise false-positive rate per round (1e-3)")
     p.add_argument("--folds", type=int, default=5, help="cross-validation folds (5)")
     p.add_argument("--seed", type=int, default=0, help="seed of the cross-validation folds")
+    p.add_argument(
+        "--outlier-alpha",
+        type=float,
+        default=0.01,
+        help="gross-error screen: probability that a campaign of Gaussian noise loses any good sample (0.01); "
+        "0 keeps every sample",
+    )
+    p.add_argument(
+        "--min-share",
+        type=float,
+        default=0.3,
+        help="when structure is left, a catalog effect stays only if it explains this share of what the model "
+        "without it leaves (0.3)",
+    )
+    p.add_argument(
+        "--noise-trust",
+        type=float,
+        default=2.0,
+        help="a stated noise is believed to this factor: residuals beyond it are a gap (2)",
+    )
     p.add_argument("--joint-topic", help="recordings: the JointState topic (default: the only one)")
     p.add_argument("--measurement-topic", help="recordings: the TrackerPose/PoseStamped topic of the measurements")
     p.add_argument(
@@ -93,6 +114,7 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:
         help="check: what to refit on the new data: tool (the measured point on the flange, for a new tool); "
         "default nothing",
     )
+    add_camera_arguments(p)  # vgr gap --camera IMAGES --board SPEC: the camera model (plugins/model_gap/camera)
     p.set_defaults(func=cmd_gap)
 
 
@@ -109,6 +131,10 @@ def cmd_gap(args: argparse.Namespace) -> int:
     from plugins.model_gap.core import GapConfig, SelectionConfig
     from plugins.model_gap.core.report import report_dict
 
+    if args.camera is not None:
+        return cmd_camera_gap(args)
+    if args.model is None or args.data is None:
+        raise ValueError("vgr gap needs --model and --data (or --camera IMAGES --board SPEC for the camera model)")
     if args.action == "check":
         return cmd_check(args)
     if args.refit is not None:
@@ -118,13 +144,28 @@ def cmd_gap(args: argparse.Namespace) -> int:
         raise ValueError(f"--folds must be >= 2, got {args.folds}")
     if args.max_effects < 0:
         raise ValueError("--max-effects must be >= 0")
+    _check_end_options(args)
     cfg = GapConfig(
-        SelectionConfig(alpha=args.alpha, cv_folds=args.folds, seed=args.seed), max_effects=args.max_effects
+        SelectionConfig(alpha=args.alpha, cv_folds=args.folds, seed=args.seed),
+        max_effects=args.max_effects,
+        noise_trust=args.noise_trust,
+        min_share=args.min_share,
+        outlier_alpha=args.outlier_alpha,
     )
     result = analyse_gap(args.model, args.data, calibrate=_levels(args.calibrate), config=cfg, **_common(args))
     if args.json:
         _print_json(report_dict(result))
     return EXIT_CODES[result.verdict]
+
+
+def _check_end_options(args: argparse.Namespace) -> None:
+    """--outlier-alpha in [0, 0.5), --min-share in [0, 1], --noise-trust >= 1."""
+    if not (0 <= args.outlier_alpha < 0.5):
+        raise ValueError(f"--outlier-alpha must be in [0, 0.5) (0: no screen), got {args.outlier_alpha}")
+    if not (0 <= args.min_share <= 1):
+        raise ValueError(f"--min-share must be in [0, 1], got {args.min_share}")
+    if not (args.noise_trust >= 1):
+        raise ValueError(f"--noise-trust must be >= 1, got {args.noise_trust}")
 
 
 def _check_alpha(alpha: float) -> None:

@@ -4,7 +4,9 @@ A mixin of :class:`.problem.KinematicGapProblem`: the current state (the joints 
 measurement shows, the actual joints and chain values with the accepted effects and the measured
 points), the whitened derivative of the measurements with respect to a robot candidate's values or a
 measurement-side effect, the joint Jacobian at the measured point, and the gravity torque. Range
-effects already in the model turn every column by their output Jacobian.
+effects already in the model turn every column by their output Jacobian. For the end test
+(:mod:`plugins.model_gap.core.end_test`): each joint's error direction (an out-of-catalog joint error
+is that direction times some function of a feature) and the groups of replicate measurements.
 """
 
 from __future__ import annotations
@@ -82,6 +84,34 @@ class CandidateColumns:
         _, qa, va = self.current_state()
         _, Jq = self.model.chain.screw_jacobian(qa, va)
         return self._output_jacobian() @ Jq[:, :3, :]
+
+    @property
+    def noise_source(self) -> str:
+        """given | data column | estimated (:class:`.problem.ProblemConfig`)."""
+        return str(self.cfg.noise_source)  # type: ignore[attr-defined]
+
+    def error_directions(self) -> list[tuple[str, str, F64]]:
+        """``(name, label, (N, 3) SI)`` per joint: the measured point's displacement per radian of that joint's
+        angle error, where an error the catalog lacks would act (a cable pulling on the wrist)."""
+        J = self.joint_position_jacobian()
+        return [(f"joint{j + 1}", f"joint {j + 1} angle error", J[:, :, j]) for j in range(J.shape[2])]
+
+    def replicate_groups(self) -> list[np.ndarray]:
+        """Row indices of the replicate measurements: the same commanded joints (to 1e-6 rad), approach
+        directions, payload and measured point, measured within the same minute; groups of >= 2 rows."""
+        s = self.data.samples  # type: ignore[attr-defined]
+        parts = [np.round(self.q / 1e-6).astype(np.int64)]
+        for extra in (s.direction, s.payload_kg, None if s.t_s is None else np.floor(np.asarray(s.t_s) / 60.0)):
+            if extra is not None:
+                parts.append(
+                    np.round(np.asarray(extra, dtype=float).reshape(self.n_samples, -1) * 1e6).astype(np.int64)
+                )
+        key = np.concatenate(parts, axis=1)
+        names = s.point if s.point is not None else np.full(self.n_samples, "")
+        groups: dict[tuple, list[int]] = {}
+        for i in range(self.n_samples):
+            groups.setdefault((str(names[i]), *key[i].tolist()), []).append(i)
+        return [np.array(g) for g in groups.values() if len(g) >= 2]
 
     def gravity_torque(self) -> F64 | None:
         if self.model.links is None:

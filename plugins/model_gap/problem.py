@@ -287,9 +287,11 @@ class KinematicGapProblem(CandidateColumns):
             k += val.size
         return model, accepted, points
 
-    def refit(self, *, effects: bool = True) -> tuple[F64, float, int]:
+    def refit(self, *, effects: bool = True, loss: str = "linear", f_scale: float = 1.0) -> tuple[F64, float, int]:
         """Nonlinear least squares of the baseline parameters and every accepted effect together
-        (``effects=False``: the baseline parameters alone, the effects held at their values).
+        (``effects=False``: the baseline parameters alone, the effects held at their values). ``loss`` /
+        ``f_scale``: scipy's robust loss and its scale in whitened units (the outlier screen's refit,
+        :mod:`.robust_fit`); the default is plain least squares.
 
         Returns ``(covariance of the full state, a-posteriori variance factor, dof)``.
         """
@@ -317,7 +319,15 @@ class KinematicGapProblem(CandidateColumns):
 
         if x0.size:
             sol = least_squares(
-                fun, x0, jac=jac, bounds=(lo, hi), x_scale="jac", method="trf", max_nfev=self.cfg.max_nfev
+                fun,
+                x0,
+                jac=jac,
+                bounds=(lo, hi),
+                x_scale="jac",
+                method="trf",
+                max_nfev=self.cfg.max_nfev,
+                loss=loss,
+                f_scale=f_scale,
             )
             x = sol.x
         else:

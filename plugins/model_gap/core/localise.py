@@ -58,7 +58,10 @@ def _wilson_hilferty(x: float, k: int) -> float:
 
 
 def _bins(f: Feature, n_bins: int) -> list[tuple[str, np.ndarray]]:
-    v = f.values
+    v = np.asarray(f.values, dtype=float)
+    scale = float(np.max(np.abs(v))) if v.size else 0.0
+    if scale > 0 and not f.categorical:  # equal up to rounding (rows of one pose) must share a bin
+        v = np.round(v / scale, 9) * scale
     if f.categorical:
         return [(f"{val:g}", v == val) for val in np.unique(v)]
     edges = np.unique(np.quantile(v, np.linspace(0, 1, n_bins + 1)))

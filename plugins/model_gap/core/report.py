@@ -38,7 +38,9 @@ JSON (``format: vgr.gap_report/1``), lengths in the problem's report unit (mm fo
   later ones explained them (``delta_bic_given_others < 0``);
 * ``iterations``: per round the comparison, where the gap concentrates, every candidate's scores and
   the decision; ``absorbed`` and ``not_testable`` candidates with the reason; ``decision_rule``;
-  ``problem`` (model, data, baseline calibration); ``files`` (plots, model files).
+  ``problem`` (model, data, baseline calibration); ``files`` (plots, model files);
+* ``outliers`` (the samples left out as gross errors) and ``end_test`` (structure left after the last
+  named effect, where it concentrates, the share rule, the campaign to measure): :mod:`.report_end`.
 """
 
 from __future__ import annotations
@@ -56,6 +58,7 @@ from engine.plain_data import plain
 from plugins.model_gap.core.interfaces import FittedEffect
 from plugins.model_gap.core.iteration import Comparison, Iteration
 from plugins.model_gap.core.localise import FeatureGap
+from plugins.model_gap.core.report_end import end_dict, outliers_dict, print_end
 from plugins.model_gap.core.selection import CandidateScore
 from plugins.model_gap.core.structure import StructureTest
 from plugins.model_gap.core.workflow import GapResult
@@ -165,6 +168,8 @@ def report_dict(result: GapResult) -> dict[str, Any]:
         "problem": result.problem,
         "iterations": [_iteration(it, s) for it in result.iterations],
         "files": result.files,
+        "outliers": outliers_dict(result),
+        "end_test": end_dict(result),
     }
 
 
@@ -326,6 +331,7 @@ def render(result: GapResult, console: Console, *, top: int = 8) -> None:
         _print_round(it, result, console, top)
     _print_ties(result, console)
     _print_effects(result, console)
+    print_end(result, console)
     first = result.iterations[0]
     absorbed = [c.label for c in first.scores if c.absorbed]
     if absorbed:

@@ -17,6 +17,11 @@ The designs (none is a catalog effect: they look for what the catalog does not h
   (where the tool is in the workspace, :attr:`Feature.spatial`): a distortion of the measuring
   instrument or a deformation of the cell over the workspace.
 
+* **the end test's designs** (:mod:`.end_test`, when the problem gives them): each joint's error
+  direction times smooth functions of every feature (an error driven by another joint's angle), the
+  lack-of-fit test against replicate measurements, and the residuals against the instrument's stated
+  noise (trusted to a factor ``noise_trust``).
+
 Bonferroni over the designs at the family-wise level ``alpha`` (the workflow's ``chi2_alpha``).
 A stated noise that is wrong changes none of these numbers; it changes the chi-square test of the
 residuals against it, which the workflow reports as the *noise check* (:mod:`.workflow`).
@@ -30,6 +35,7 @@ from itertools import combinations_with_replacement
 import numpy as np
 from scipy import stats
 
+from plugins.model_gap.core.end_test import direction_designs, replicate_finding, stated_noise_finding
 from plugins.model_gap.core.interfaces import F64, Feature, Linearisation
 from plugins.model_gap.core.localise import _bins
 from plugins.model_gap.core.selection import _basis, _perp
@@ -55,6 +61,10 @@ class StructureTest:
     alpha: float
     n_tests: int
     findings: list[StructureFinding] = field(default_factory=list)  # every design, strongest first
+    rss: float = 0.0  # whitened residual sum of squares with the model's span projected out
+    dof: int = 0  # M - rank A
+    pure_error_variance: float | None = None  # whitened, from replicate measurements (None: no replicates)
+    noise_trust: float | None = None  # the stated noise was tested, trusted to this factor (None: estimated)
 
     @property
     def found(self) -> bool:
@@ -99,25 +109,30 @@ def _bin_design(f: Feature, m: int, n_bins: int, min_bin: int) -> F64 | None:
 
 
 def residual_structure(
-    lin: Linearisation, features: list[Feature], alpha: float, *, n_bins: int = 4, min_bin: int = 5
+    lin: Linearisation,
+    features: list[Feature],
+    alpha: float,
+    *,
+    n_bins: int = 4,
+    min_bin: int = 5,
+    directions: list[tuple[str, str, F64]] | None = None,
+    replicates: list[np.ndarray] | None = None,
+    noise_trust: float | None = None,
 ) -> StructureTest:
-    """F-test every design of the module docstring against the residuals of ``lin``'s model."""
+    """F-test every design of the module docstring against the residuals of ``lin``'s model.
+
+    ``directions``: the problem's error directions (:mod:`.end_test`); ``replicates``: groups of rows
+    measured at the same pose; ``noise_trust``: test the residuals against the stated noise (given, not
+    estimated) trusted to this factor."""
     N, m = lin.residual.shape
     M = N * m
     w = lin.residual.reshape(-1)
     Q = _basis(lin.jacobian.reshape(M, -1))
     w_perp = _perp(Q, w)
     rss0 = float(w_perp @ w_perp)
-    designs: list[tuple[str, str, F64]] = []
-    for f in features:
-        if f.values.shape != (N,) or not np.all(np.isfinite(f.values)):
-            continue
-        X = _bin_design(f, m, n_bins, min_bin)
-        if X is not None:
-            designs.append((f"feature:{f.name}", f"the mean residual changes along {f.label}", X))
-    X = _field_design([f for f in features if f.spatial and f.values.shape == (N,)], m)
-    if X is not None:
-        designs.append(("field", "a smooth field over the workspace (quadratic in x, y, z)", X))
+    designs = _designs(lin, features, m, n_bins, min_bin)
+    if directions:
+        designs += direction_designs(lin, directions, features)
     findings = []
     for key, label, X in designs:
         Xp = _basis(_perp(Q, X), rtol=1e-8)
@@ -128,8 +143,39 @@ def residual_structure(
         rss = max(rss0 - float(np.sum((Xp.T @ w_perp) ** 2)), 1e-300)
         F = ((rss0 - rss) / k) / (rss / dof)
         findings.append(StructureFinding(key, label, k, dof, float(F), float(stats.f.sf(F, k, dof)), 1.0))
+    dof0 = M - Q.shape[1]
+    pure = None
+    rep = replicate_finding(w_perp, m, replicates, dof0) if replicates else None
+    if rep is not None:
+        F, df_pe, pure = rep
+        lab = f"the residuals exceed the replicate measurements' scatter ({np.sqrt(F):.2f}x its sigma)"
+        findings.append(
+            StructureFinding("replicates", lab, dof0 - df_pe, df_pe, F, float(stats.f.sf(F, dof0 - df_pe, df_pe)), 1.0)
+        )
+    if noise_trust is not None and rss0 > 0:
+        ratio2, p = stated_noise_finding(rss0, dof0, noise_trust)
+        lab = f"the residuals exceed {noise_trust:g}x the stated noise ({np.sqrt(rss0 / max(dof0, 1)):.2f}x it)"
+        findings.append(StructureFinding("stated_noise", lab, dof0, dof0, ratio2, p, 1.0))
     n = len(findings)
     for f in findings:
         f.p_corrected = min(1.0, f.p_value * n)
     findings.sort(key=lambda f: (f.p_value, -f.f_stat))
-    return StructureTest(alpha, n, findings)
+    return StructureTest(alpha, n, findings, rss0, dof0, pure, noise_trust)
+
+
+def _designs(
+    lin: Linearisation, features: list[Feature], m: int, n_bins: int, min_bin: int
+) -> list[tuple[str, str, F64]]:
+    """The per-feature bin designs and the smooth field over the spatial features."""
+    N = lin.residual.shape[0]
+    designs: list[tuple[str, str, F64]] = []
+    for f in features:
+        if f.values.shape != (N,) or not np.all(np.isfinite(f.values)):
+            continue
+        X = _bin_design(f, m, n_bins, min_bin)
+        if X is not None:
+            designs.append((f"feature:{f.name}", f"the mean residual changes along {f.label}", X))
+    X = _field_design([f for f in features if f.spatial and f.values.shape == (N,)], m)
+    if X is not None:
+        designs.append(("field", "a smooth field over the workspace (quadratic in x, y, z)", X))
+    return designs

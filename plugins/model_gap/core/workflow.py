@@ -26,8 +26,14 @@
    robot has them all): the loop stops when no eligible candidate is left. The chi-square test does
    not stop the loop.
 
-The verdict (:mod:`.verdict`) does not depend on the stated noise: whether a gap is left is decided
-by noise-independent F-tests of the final residuals (:mod:`.structure`), and the chi-square test
+7. **The honest end** (:mod:`.end_test`, :mod:`.share`, :mod:`.ending`): the final residuals are
+   tested for structure against references the residuals did not produce (each joint's error as a
+   smooth function of every feature, replicate measurements, the stated noise within
+   ``noise_trust``); when structure is left, a term that explains less than ``min_share`` of what
+   the model without it leaves is taken out again, and the result says what to measure next.
+
+The verdict (:mod:`.verdict`) does not depend on the stated noise (within ``noise_trust``): whether a
+gap is left is decided by noise-independent F-tests of the final residuals (:mod:`.structure`), and the chi-square test
 against the stated noise is reported as the *noise check* (which of the two to believe when they
 disagree). ``no_gap``: nothing added and no structure left; ``explained``: effects added, every one
 named, no structure left; ``explained_up_to_tie``: the same with a tie term among them;
@@ -43,6 +49,8 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from plugins.model_gap.core.end_test import DEFAULT_NOISE_TRUST
+from plugins.model_gap.core.ending import advice_for, apply_share_rule, end_inputs, stated
 from plugins.model_gap.core.interfaces import (
     Candidate,
     EffectFamily,
@@ -54,6 +62,7 @@ from plugins.model_gap.core.interfaces import (
 )
 from plugins.model_gap.core.iteration import Comparison, Iteration
 from plugins.model_gap.core.localise import localise
+from plugins.model_gap.core.robust import DEFAULT_OUTLIER_ALPHA, OutlierScreen
 from plugins.model_gap.core.selection import (
     BaselineScore,
     CandidateScore,
@@ -66,6 +75,7 @@ from plugins.model_gap.core.selection import (
     gain_given_others,
     score_all,
 )
+from plugins.model_gap.core.share import DEFAULT_MIN_SHARE, ShareCheck
 from plugins.model_gap.core.structure import residual_structure
 from plugins.model_gap.core.verdict import NoiseCheck, decide_verdict, noise_check
 
@@ -81,6 +91,9 @@ class GapConfig:
     max_effects: int = 4
     chi2_alpha: float = 1e-3  # residuals consistent with the noise unless p < chi2_alpha
     min_residual_dof: int = 20  # residual degrees of freedom left after the largest candidate
+    noise_trust: float = DEFAULT_NOISE_TRUST  # a stated noise is believed to this factor (end test)
+    min_share: float = DEFAULT_MIN_SHARE  # structure left: a term must explain this share of what is left
+    outlier_alpha: float = DEFAULT_OUTLIER_ALPHA  # P(a Gaussian campaign loses any good sample); 0: no screen
 
 
 @dataclass
@@ -95,6 +108,9 @@ class GapResult:
     report_scale: float
     files: dict[str, str] = field(default_factory=dict)
     noise: NoiseCheck | None = None  # the final residuals against the stated (or estimated) noise
+    share: ShareCheck | None = None  # structure left at the end: each term's share of it (None: none left)
+    advice: list[str] = field(default_factory=list)  # unexplained: what to measure next
+    outliers: OutlierScreen | None = None  # the samples left out as gross errors (set by the caller's screen)
 
     @property
     def before(self) -> Comparison:
@@ -244,7 +260,21 @@ def run_gap(
             tie_members[w.label] = [by_label[lab] for lab in sorted({w.label, *tied_with})]
         if out_dir is not None:
             it.model_file = str(problem.save_model(out_dir / f"model_{index + 1}_{added.file_stem}.yaml"))
-    return _result(problem, iterations, effects, cfg, files)
+
+    def examine(index: int) -> Iteration:
+        return _examine(problem, problem.linearise(), [], index, cfg)[0]
+
+    margin = cfg.selection.bic_margin
+    share = apply_share_rule(problem, iterations, effects, cfg.min_share, margin, is_geometric, examine)
+    result = _result(problem, iterations, effects, cfg, files)
+    result.share = share
+    if share is not None and share.dropped:
+        out = ", ".join(share.why(lab) for lab, _ in share.dropped)
+        result.reason += f"; taken out again by the share rule (noise reference: the {share.reference}): {out}"
+    result.advice = advice_for(iterations) if result.verdict == "unexplained" else []
+    if result.advice:
+        result.reason += "; to find what is missing: " + "; ".join(result.advice)
+    return result
 
 
 def _checked_candidates(problem: GapProblem, families: list[EffectFamily], cfg: GapConfig) -> list[Candidate]:
@@ -266,6 +296,7 @@ def _examine(
     scorer, baseline, scores = score_all(lin, active, problem, cfg.selection)
     decision = decide(scorer, scores, cfg.selection)
     feats = problem.features()
+    trust = cfg.noise_trust if stated(problem) else None
     it = Iteration(
         index,
         compare(lin, baseline, cfg.chi2_alpha),
@@ -274,7 +305,7 @@ def _examine(
         decision,
         lin.physical_residual(),
         lin.residual.copy(),
-        structure=residual_structure(lin, feats, cfg.chi2_alpha),
+        structure=residual_structure(lin, feats, cfg.chi2_alpha, noise_trust=trust, **end_inputs(problem)),
     )
     return it, scorer
 

@@ -22,6 +22,13 @@ and a temperature (``temperature``: a ``temp_c`` column that rises as the motors
 link's thermal growth then follows it linearly), and measure several reflectors at every pose
 (``points``: one row per pose and reflector, named in a ``point`` column; :data:`REFLECTORS`).
 
+Out-of-catalog effects and gross errors (simulation only, :mod:`.off_catalog`): a hidden effect may be
+one vgr's catalog lacks (a joint error driven by another joint's angle, a twice-per-revolution
+error), which no right answer names; a case can add gross errors to a few rows (``outliers``: a
+tracker losing its line of sight, 1-5 mm) and measure some poses again (``replicates``: each of the
+first poses measured twice more, back to back), from their own random stream, so the rest of the
+campaign is the same as without them.
+
 The benchmark's suite of cases is :func:`.suite.suite`. :attr:`SimulatedCampaign.gap_m` is the gap all hidden
 effects leave together (two can partly cancel); the campaign also carries the truth (noise-free
 displacement of each hidden effect, the calibration's span, the true frames) from which
@@ -47,6 +54,7 @@ from plugins.robot.with_effects import RobotWithEffects
 from plugins.sim.camera import look_at
 from plugins.sim.clock import SimClock
 from plugins.sim.controller import SimRobotController
+from plugins.sim.model_gap.off_catalog import OFF_CATALOG, add_gross_errors, unit_effect
 from plugins.sim.sensor_effects import CameraEffects, TrackerEffects
 
 NOISE_M = 5e-5  # 0.05 mm per axis (laser-tracker class)
@@ -98,6 +106,14 @@ class HiddenCase:
     flip_dir: bool = False  # the data's dir columns count the approach direction the other way round
     temperature: bool = False  # the data log a temp_c column (a link's thermal growth follows it)
     points: int = 1  # reflectors measured at every pose (REFLECTORS; one row each, a point column)
+    outliers: int = 0  # rows with a gross error (off_catalog.add_gross_errors)
+    outlier_m: tuple[float, float] = (1e-3, 5e-3)  # their size range (m)
+    replicates: int = 0  # the first poses measured twice more each (single point only)
+
+    @property
+    def off_catalog(self) -> list[str]:
+        """The hidden effects vgr's catalog does not have (simulation only): none of them has a right name."""
+        return [f"{e.name}@{e.where}" for e in self.effects if e.name in OFF_CATALOG]
 
     @property
     def calibrate(self) -> tuple[str, ...] | None:
@@ -106,7 +122,8 @@ class HiddenCase:
 
     @property
     def expected(self) -> set[tuple[str, str]]:
-        return {(e.name, e.where) for e in self.effects}
+        """The hidden effects the workflow should name (the out-of-catalog ones have no name)."""
+        return {(e.name, e.where) for e in self.effects if e.name not in OFF_CATALOG}
 
 
 @dataclass
@@ -127,6 +144,7 @@ class SimulatedCampaign:
     calibration_m: np.ndarray | None = None  # (3N, k) position columns of the scenario's baseline calibration
     truth_model: RobotModel | None = None  # true geometry (``full``: with its errors), sensor frame, tool
     truth_data: GapData | None = None  # the campaign's inputs with noise-free, effect-free measurements
+    outlier_rows: np.ndarray | None = None  # rows of ``data`` given a gross error (ascending)
 
 
 def _random_unit(rng: np.random.Generator, n: int = 3) -> np.ndarray:
@@ -143,6 +161,8 @@ def _unit_effect(
         if e.name not in _SIGNED or len(e.direction) != 1:
             raise ValueError(f"{e.name}: give the sign of a scalar effect ({', '.join(_SIGNED)}) or a tool direction")
         sign = float(np.sign(e.direction[0]))
+    if e.name in OFF_CATALOG:  # simulation only: effects vgr's catalog does not have
+        return unit_effect(e.name, e.where, rng), {}
     j = int(e.where[5:]) if e.where.startswith("joint") else 0
     u = 1e-4
     if e.name == "joint_offset":
@@ -204,6 +224,9 @@ def simulate_campaign(
     flip_dir: bool = False,
     temperature: bool = False,
     points: int = 1,
+    outliers: int = 0,
+    outlier_m: tuple[float, float] = (1e-3, 5e-3),
+    replicates: int = 0,
 ) -> SimulatedCampaign:
     """Run a measurement campaign on the simulated cell with the given hidden effects."""
     if scenario not in SCENARIO_CALIBRATION:
@@ -236,15 +259,20 @@ def simulate_campaign(
     # 3. what the sensor reports: the truth at t - L (the controller's state then), ranged, noisy
     logged_dir = -np.array(mo.d) if flip_dir else np.array(mo.d)  # what the controller logs
     data = _sensor_data(
-        mo, truth, camera, latency, T_meas_world, TEMP, logged_dir, points=points, noise_m=noise_m, rng=rng
-    )
+        mo, truth, camera, latency, T_meas_world, TEMP, logged_dir, points=points, noise_m=noise_m, rng=rng,
+        replicates=(replicates, np.random.default_rng([seed, 6])),
+    )  # fmt: skip
+    moved, rows = add_gross_errors(data.samples.positions, outliers, outlier_m, np.random.default_rng([seed, 5]))
+    if outliers:
+        data.samples.positions = moved
+        data.range_m = np.linalg.norm(moved, axis=1)
     # the true frames (the sensor frame as the model's world: so is its gravity vector)
     known = _with_gravity(true_model.with_base(T_meas_world), T_meas_world[:3, :3] @ nominal.gravity_world)
     model = known if scenario == "known" else nominal.with_tool(_translation(TOOL_GUESS))
     clean = KinematicSamples(Q, base, None, T_s, logged_dir, TEMP, PAY)
     truth_data = GapData(clean, qd=QD, range_m=np.linalg.norm(base, axis=1), sensor=SENSOR, source="simulated truth")
     return SimulatedCampaign(
-        data, model, truth, camera, tracker, combined_gap, tuple(signals), signal, C, known, truth_data
+        data, model, truth, camera, tracker, combined_gap, tuple(signals), signal, C, known, truth_data, rows
     )
 
 
@@ -358,6 +386,7 @@ def _sensor_data(
     points: int,
     noise_m: float,
     rng: np.random.Generator,
+    replicates: tuple[int, np.random.Generator] = (0, np.random.default_rng(0)),
 ) -> GapData:
     """Step 3: what the campaign logs: per pose and reflector (one row each) the sensor's reading -- the
     true robot at ``t - L`` (the controller's state then), ranged, noisy -- and the controller's logs."""
@@ -374,6 +403,14 @@ def _sensor_data(
     p_true = p_world @ T_meas_world[:3, :3].T + T_meas_world[:3, 3]
     p = apply_range_distortion(p_true, camera.depth_scale - 1.0, camera.depth_bias_m)
     p = p + rng.normal(0.0, noise_m, p.shape)
+    n_rep, rep_rng = replicates
+    if n_rep:  # the first poses measured twice more, back to back: the same reading, fresh noise
+        if k > 1:
+            raise ValueError("replicates need a single measured point per pose")
+        again = np.repeat(np.arange(min(n_rep, len(Q))), 2)
+        clean = apply_range_distortion(p_true[again], camera.depth_scale - 1.0, camera.depth_bias_m)
+        p = np.concatenate([p, clean + rep_rng.normal(0.0, noise_m, clean.shape)])
+        rows = np.concatenate([rows, again])
     names = np.array([f"R{i + 1}" for i in range(k)])[np.tile(np.arange(k), len(Q))] if k > 1 else None
     temp = None if TEMP is None else TEMP[rows]
     samples = KinematicSamples(Q[rows], p, None, T_s[rows], logged_dir[rows], temp, PAY[rows], names)
@@ -438,4 +475,7 @@ def make_case(case: HiddenCase) -> SimulatedCampaign:
         flip_dir=case.flip_dir,
         temperature=case.temperature,
         points=case.points,
+        outliers=case.outliers,
+        outlier_m=case.outlier_m,
+        replicates=case.replicates,
     )

@@ -21,6 +21,18 @@ Under that geometry:
   ``base`` and the four links) at the ``faint`` magnitude, +4 % over the noise: near what 200 poses
   can detect at all, where naming nothing is right and a wrong name is not.
 
+The second round (:func:`robust_suite`, reported apart from the 146 effect cases above):
+
+* **gross outliers**: 1 %, 3 % and 10 % of the rows moved by 1-5 mm (a tracker losing its line of
+  sight) on noise-only campaigns, under a joint compliance (high and low), a backlash, a thermal drift
+  and a pair;
+* **out-of-catalog effects** (simulation only, :mod:`.off_catalog`): joint 6's error following
+  ``sin q5`` (the wrist cable), joint 3's following ``sin q2``, joint 5's proportional to ``q4``, a
+  twice-per-revolution error of joint 3 and of joint 2, and the wrist cable next to an in-catalog joint
+  compliance: nothing (or only the in-catalog effect) has a right name, the right verdict is
+  ``unexplained``;
+* **40-pose campaigns**: each effect family alone (high), two pairs and noise-only controls.
+
 The geometric catalog effects (a joint zero, a link length, the base frame, the tool offset, a
 uniform robot scale, and a range scale once the frame is fitted) are part of every case's geometry:
 the default calibration absorbs them, so they are not hidden effects to name.
@@ -91,4 +103,66 @@ def suite(
         for name, places in PLACES.items():
             for where in (*places, *LINKS) if name == "thermal_drift" else places:
                 add(f"{name}@{where}-faint", "single", "faint", (HiddenEffect(name, where, LEVELS["faint"]),))
+    return cases
+
+
+#: gross-error fractions of the robust suite (of the rows)
+OUTLIER_FRACTIONS = (0.01, 0.03, 0.10)
+SMALL_POSES = 40
+
+
+def robust_suite(seed: int = 1, full: bool = True) -> list[HiddenCase]:
+    """The second round's cases (module docstring); ``full=False``: one of each group."""
+    rng = np.random.default_rng(seed)
+    cases: list[HiddenCase] = []
+
+    def add(case_id: str, kind: str, level: str, effects: tuple[HiddenEffect, ...], **kw) -> None:
+        n = kw.pop("n_samples", N_POSES)
+        cases.append(HiddenCase(case_id, kind, level, "full", effects, int(rng.integers(1 << 31)), n, **kw))
+
+    def eff(name: str, where: str, level: str) -> HiddenEffect:
+        return HiddenEffect(name, where, LEVELS[level])
+
+    hidden = [
+        ("noise", "none", ()),
+        ("noise", "none", ()),
+        ("noise", "none", ()),
+        ("single", "high", (eff("joint_compliance", "joint2", "high"),)),
+        ("single", "high", (eff("joint_compliance", "joint3", "high"),)),
+        ("single", "low", (eff("joint_compliance", "joint2", "low"),)),
+        ("single", "high", (eff("backlash", "joint3", "high"),)),
+        ("single", "high", (eff("thermal_drift", "robot", "high"),)),
+        ("pair", "high", (eff("joint_compliance", "joint2", "high"), eff("depth_bias", SENSOR, "high"))),
+    ]
+    for frac in OUTLIER_FRACTIONS if full else OUTLIER_FRACTIONS[1:2]:
+        for i, (kind, level, effects) in enumerate(hidden if full else hidden[2:4]):
+            label = "+".join(f"{e.name}@{e.where}" for e in effects) or "noise"
+            n_out = round(frac * N_POSES)
+            add(f"outliers{frac:.0%}-{label}-{level}-{i}", f"outlier_{kind}", level, effects, outliers=n_out)
+    off = [
+        ("high", (eff("cross_joint_sin", "joint6~q5", "high"),)),
+        ("high", (eff("cross_joint_sin", "joint6~q5", "high"),)),
+        ("low", (eff("cross_joint_sin", "joint6~q5", "low"),)),
+        ("high", (eff("cross_joint_sin", "joint3~q2", "high"),)),
+        ("high", (eff("cross_joint_linear", "joint5~q4", "high"),)),
+        ("low", (eff("cross_joint_linear", "joint5~q4", "low"),)),
+        ("high", (eff("second_harmonic", "joint3", "high"),)),
+        ("high", (eff("second_harmonic", "joint2", "high"),)),
+        ("high", (eff("cross_joint_sin", "joint6~q5", "high"), eff("joint_compliance", "joint2", "high"))),
+        ("high", (eff("cross_joint_sin", "joint6~q5", "high"), eff("joint_compliance", "joint2", "high"))),
+    ]
+    for i, (level, effects) in enumerate(off if full else off[:1]):
+        label = "+".join(f"{e.name}@{e.where}" for e in effects)
+        add(f"offcatalog-{label}-{level}-{i}", "off_catalog", level, effects)
+    small: list[tuple[str, str, tuple[HiddenEffect, ...]]] = [
+        ("single", "high", (eff(name, str(rng.choice(places)), "high"),)) for name, places in PLACES.items()
+    ]
+    small += [
+        ("pair", "high", (eff("joint_compliance", "joint2", "high"), eff("backlash", "joint3", "high"))),
+        ("pair", "high", (eff("thermal_drift", "robot", "high"), eff("depth_bias", SENSOR, "high"))),
+    ]
+    small += [("noise", "none", ())] * 4
+    for i, (kind, level, effects) in enumerate(small if full else small[:1] + small[-1:]):
+        label = "+".join(f"{e.name}@{e.where}" for e in effects) or "noise"
+        add(f"poses{SMALL_POSES}-{label}-{i}", f"small_{kind}", level, effects, n_samples=SMALL_POSES)
     return cases
