@@ -18,8 +18,9 @@ frame, plugins/calibration/handeye/noise.py) unless a condition says otherwise. 
    paired with the robot interpolated at its stamps plus the offset, at most
    ``MAX_STREAM_SAMPLES`` pairs evenly spread in time), then the solver. Peers: each camera pose
    paired with the robot pose of the nearest stamp (no offset known), as many pairs as vgr's solver
-   gets, evenly spread. Reported: the offset's error (ms), its stated 1-sigma and the RMS of
-   error / sigma (near 1 when the sigma is honest).
+   gets, evenly spread. Reported: the offset's error (ms), its stated 1-sigma, the RMS of
+   error / sigma (near 1 when the sigma is honest) and the fractions of the trials whose error is
+   within 1 and 2 sigma (68.3 % and 95.4 % when honest).
 2. ``outliers`` - 40 poses of ``simulate.viewing_scene``; 0, 10, 20, 35 or 50 % of the camera poses
    replaced by: ``random_pose`` (a uniformly random rotation, the translation the true one plus
    30 mm sd per axis), ``planar_flip`` (the planar target's PnP ambiguity: the pose's rotation
@@ -447,6 +448,9 @@ def run_clock_offset(trials: int, seed: int) -> tuple[list[dict[str, Any]], list
             rec = case_record(label, {"camera_hz": rate, "offset_ms": offset_ms}, tally)
             z = np.asarray(tally.extra.get("offset_z", [np.nan]))
             rec["figures"]["offset_z_rms"] = float(np.sqrt(np.mean(z**2)))
+            # coverage of the stated 1-sigma: 68.3 % / 95.4 % of the trials within 1 / 2 sigma when honest
+            rec["figures"]["offset_within_1sd"] = float(np.mean(np.abs(z) <= 1.0))
+            rec["figures"]["offset_within_2sd"] = float(np.mean(np.abs(z) <= 2.0))
             targets.append(beats_peers("clock_offset", rec))
             if rate == OFFSET_TARGET_HZ:
                 worst = rec["figures"].get("offset_error_ms", {}).get("max_abs", float("nan"))
@@ -658,6 +662,8 @@ def case_note(rec: dict[str, Any]) -> str:
         e, s = fig["offset_error_ms"], fig["offset_sigma_ms"]
         parts.append(f"dt {_fmt(e['median'])} (max {_fmt(e['max_abs'])}) ms, sd {_fmt(s['median'])}")
         parts.append(f"z {_fmt(fig['offset_z_rms'], 1)}")
+        if "offset_within_1sd" in fig:
+            parts.append(f"in 1/2 sd {100 * fig['offset_within_1sd']:.0f}/{100 * fig['offset_within_2sd']:.0f}%")
     if "false_flag_rate" in vgr:
         parts.append(f"ff {100 * vgr['false_flag_rate']:.1f}%")
         if np.isfinite(vgr["missed_outlier_rate"]):

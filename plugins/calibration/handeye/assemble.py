@@ -247,6 +247,8 @@ def _fit_metrics(
         "noise_estimated": float(noise_estimated),
         "noise_groups_estimated": float(fit.noise_groups_estimated),
         "threshold_scale": fit.threshold_scale,
+        # the outlier test's tail (``tails``): 1 when the costs showed a t tail, its dof and bound
+        **_tail_metrics(fit),
         "nfev": float(fit.nfev),
         "noise_limit_robot_rot_rad": accuracy.max_robot_noise_rot_rad,
         "noise_limit_robot_trans_m": accuracy.max_robot_noise_trans_m,
@@ -275,13 +277,30 @@ def _check_unit_scale(
     return verdict
 
 
+def _tail_metrics(fit: MLFit) -> dict[str, float]:
+    """``noise_heavy_tail`` (1: the outlier bound rests on a t tail of the costs, ``tails``) and,
+    then, ``noise_tail_dof`` and ``outlier_bound`` (studentized cost)."""
+    if fit.tail is None:
+        return {}
+    out = {"noise_heavy_tail": float(fit.tail.heavy), "outlier_bound": fit.tail.threshold}
+    if fit.tail.heavy:
+        out["noise_tail_dof"] = fit.tail.nu
+    return out
+
+
 def _chance_of_flags(fit: MLFit, scale: float) -> float:
     """How likely flags like *fit*'s are on data without outliers: the smaller of the chance of as
     many flags (binomial, at the outlier quantile) and of a sample as far out as the farthest flagged
-    one among all (Sidak: ``1 - (1 - p)^n``, ``p`` its chi-square(6) tail at the noise *scale*)."""
+    one among all (Sidak: ``1 - (1 - p)^n``, ``p`` its chi-square(6) tail at the noise *scale*, or
+    its tail under the costs' t model when the outlier test found one)."""
     n, n_out = len(fit.outliers), int(np.count_nonzero(fit.outliers))
     p_count = float(stats.binom.sf(n_out - 1, n, 1.0 - fit.outlier_quantile))
-    p_worst = float(stats.chi2.sf(float(np.max(fit.s2[fit.outliers])) / scale, DOF_PER_SAMPLE))
+    worst = float(np.max(fit.s2[fit.outliers]))
+    tail = getattr(fit, "tail", None)  # (None for a fit without an outlier test on estimated noise)
+    if tail is not None and tail.heavy:  # the costs' own t tail (``tails``)
+        p_worst = float(stats.f.sf(worst / (tail.tau * DOF_PER_SAMPLE), DOF_PER_SAMPLE, tail.nu))
+    else:
+        p_worst = float(stats.chi2.sf(worst / scale, DOF_PER_SAMPLE))
     return min(p_count, float(-np.expm1(n * np.log1p(-min(p_worst, 1.0 - 1e-16)))))
 
 

@@ -16,7 +16,12 @@ Runs :class:`ml_model.EivModel` through ``scipy.optimize.least_squares`` in four
    factors are within 1 % of 1 or the update moves the estimated translations by less than 1 % of
    their sigma. Groups whose redundancy is below 1 are not estimable and keep their prior. Robot
    and camera translation noise are hardly separable (both add isotropically to the pose chain);
-   then only their sum is determined, which is also all the estimate depends on.
+   then only their sum is determined, which is also all the estimate depends on. The outliers are
+   then flagged again on the estimated noise (Pope's tau test, ``6 F(6, nu)``), with the bound
+   moved out when the studentized costs show a heavy tail (``tails``: a multivariate-t model,
+   Lange, Little & Taylor 1989, chosen over Gaussian noise by a likelihood-ratio test, fitted on
+   the costs up to 3x Pope's bound and never extrapolated beyond them), and the noise estimated
+   again without the samples that changed.
 4. **Final ML fit** on the inliers with the final noise; the covariance of (X, Y) is the inverse
    Fisher information at the optimum (Gauss-Newton, nuisance robot poses eliminated exactly by the
    Schur complement). It is *unscaled* here; ``solver`` decides on the a-posteriori scaling. With
@@ -38,6 +43,7 @@ from scipy.optimize import least_squares
 from plugins.calibration.handeye.ml_model import EivModel, EivState
 from plugins.calibration.handeye.noise import NoiseModel, PoseNoise
 from plugins.calibration.handeye.problem import Setup
+from plugins.calibration.handeye.tails import TailFit, fit_tail
 from plugins.calibration.handeye.variance import group_rows, kenward_roger
 
 F64 = NDArray[np.float64]
@@ -65,6 +71,9 @@ class MLOptions:
     # with the noise estimated: the outliers flagged again with it, and the noise estimated again
     # without the ones that changed, at most this many times
     max_reflag_rounds: int = 3
+    # with the noise estimated: the outlier bound moved out when the costs show a heavy (t) tail
+    # (``tails``); False: Pope's Gaussian bound always
+    heavy_tails: bool = True
     max_robust_iterations: int = 15
     max_noise_iterations: int = 30
     dense_max_params: int = 200
@@ -100,6 +109,8 @@ class MLFit:
     f_scale_xy: float = 1.0
     kr_inflation_x: float = 1.0
     outlier_quantile: float = 0.999  # the quantile of the noise beyond which a sample is flagged
+    # with the noise estimated: the last outlier test's tail fit (``tails``; heavy False: Gaussian)
+    tail: TailFit | None = None
     notes: list[str] = field(default_factory=list)
 
 
@@ -257,13 +268,16 @@ def _flag_outliers(
 
 def _flag_with_estimated_noise(
     model: EivModel, outliers: NDArray[np.bool_], opts: MLOptions
-) -> tuple[NDArray[np.bool_], F64]:
+) -> tuple[NDArray[np.bool_], F64, TailFit]:
     """Phase 3's outlier flags, on the noise just estimated (Pope's tau test, per sample): each
     sample's cost studentized by its redundancy ``r_i`` (the sum of its residuals' redundancy
     numbers, at most 6): ``6 s_i^2 / r_i`` for a sample in the fit, ``r_i s_i^2 / 6`` for one left
     out (its residual is a prediction, wider by ``1 / (1 - h)``), against ``6 F(6, nu)`` at
     ``outlier_quantile``, ``nu`` the redundancy the noise was estimated from. The flags and the
-    inlier weights; none flagged when fewer than 3 inliers would be left."""
+    inlier weights; none flagged when fewer than 3 inliers would be left. With
+    ``MLOptions.heavy_tails`` the bound moves out when the costs show a heavier tail than Gaussian
+    noise gives (``tails.fit_tail``: a multivariate-t tail, Lange, Little & Taylor 1989); the fit
+    is returned too."""
     st = model.state(np.zeros(model.n_params), jacobian=True)
     s2 = _per_sample_cost(model, st)
     h = model.hat_diagonal(st, np.ones(model.n))
@@ -271,10 +285,11 @@ def _flag_with_estimated_noise(
     stud = np.where(outliers, s2 * r / DOF_PER_SAMPLE, s2 * DOF_PER_SAMPLE / r)
     nu = max(float(np.sum(r[~outliers])) - 12.0, 1.0)
     thr = DOF_PER_SAMPLE * float(stats.f.ppf(opts.outlier_quantile, DOF_PER_SAMPLE, nu))
-    flagged = stud > thr
+    tail = fit_tail(stud, thr, opts.outlier_quantile) if opts.heavy_tails else TailFit(thr, False)
+    flagged = stud > tail.threshold
     if np.count_nonzero(~flagged) < 3:
         flagged = outliers
-    return flagged, np.ones(model.n) if opts.loss == "linear" else (~flagged).astype(float)
+    return flagged, np.ones(model.n) if opts.loss == "linear" else (~flagged).astype(float), tail
 
 
 def _estimate_noise(
@@ -362,12 +377,13 @@ def refine_ml(
     robust = _robust_fit(model, weights, opts)
     model, nfev_total, converged = robust.model, robust.nfev, robust.converged
     outliers, inlier_w = _flag_outliers(model, n, robust.scale, opts, notes)
+    tail: TailFit | None = None
     if opts.estimate_noise:
         for _ in range(1 + opts.max_reflag_rounds):
             model, noise, estimated_groups, nfev = _estimate_noise(model, inlier_w, noise, opts)
             nfev_total += nfev
             # the flags of phase 2 rest on the prior's shape of the noise: flagged again with the estimate
-            again, again_w = _flag_with_estimated_noise(model, outliers, opts)
+            again, again_w, tail = _flag_with_estimated_noise(model, outliers, opts)
             if np.array_equal(again, outliers):
                 break
             outliers, inlier_w = again, again_w
@@ -404,6 +420,7 @@ def refine_ml(
         f_scale_xy=cov.f_scale_xy,
         kr_inflation_x=cov.kr_inflation_x,
         outlier_quantile=opts.outlier_quantile,
+        tail=tail,
         notes=notes,
     )
 

@@ -142,6 +142,11 @@ def format_report(result: CalibrationResult, *, per_sample: bool = True) -> str:
                 for who in ("robot", "camera")
             ]
             lines.append(f"noise limits (an estimated noise above one fails): {', '.join(limits)}")
+        if m.get("noise_heavy_tail"):
+            lines.append(
+                f"heavy-tailed noise: the samples' costs fit a t tail ({m['noise_tail_dof']:.3g} dof); "
+                f"outlier bound {m['outlier_bound']:.1f} (studentized cost) instead of the Gaussian one"
+            )
     if result.covariance is not None and result.param_names:
         x = result.param_names[0].split(".")[0]
         thr = result.confidence_threshold(6)

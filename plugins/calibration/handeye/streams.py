@@ -16,10 +16,14 @@ estimated:
    closed-form hand-eye transform (Park & Martin 1994, ``closed_form.park_martin``) is fitted and
    the pose chains' disagreement (``chain_poses``, each sample's own view of the other unknown,
    rotation and translation each in units of its own spread at the coarse offset) is the cost; a
-   bounded scalar search (Brent) finds the minimum. The cost is a Gaussian negative log-likelihood
-   up to scale once its scale is set so that the minimum equals the residual degrees of freedom,
-   which gives the offset's 1-sigma from the curvature at the minimum (the profile likelihood's
-   Fisher information).
+   bounded scalar search (Brent) finds the minimum. Its 1-sigma is the sandwich (Huber 1967;
+   White 1982, *Maximum likelihood estimation of misspecified models*) of this M-estimate: the
+   spread of the per-sample scores (each sample's cost derivative at the minimum, the closed form
+   held) over the squared curvature of the profile cost, ``sum g_i^2 / C''^2``. It needs no
+   model of the residuals' sizes: stamp jitter makes a sample's pose error grow with the speed of
+   the motion, i.e. largest where the offset's information is, and the profile likelihood's
+   Fisher information (the curvature alone, as if every sample were equally noisy) stated a 1-sigma
+   about 1.4x too small (``benchmarks/handeye_streams.py``, 1 ms jitter).
 
 Convention: ``robot_time = camera_time + offset_s``.
 """
@@ -28,6 +32,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 from numpy.typing import NDArray
@@ -122,15 +127,29 @@ def paired(robot: PoseStream, camera: PoseStream, offset_s: float) -> tuple[F64,
     return M[ok], camera.T[ok], ok
 
 
-def _chain_residuals(setup: Setup, M: F64, B: F64) -> tuple[F64, F64]:
+def _chain_residuals(setup: Setup, M: F64, B: F64, held: tuple[F64, F64] | None = None) -> tuple[F64, F64]:
     """Each sample's disagreement with the others on the second unknown: rotation (rad) and
-    translation (m) of ``Y_i`` from their mean, after the closed-form X of these pairs."""
+    translation (m) of ``Y_i`` from their mean, after the closed-form X of these pairs; with
+    *held* ``(X, Y_mean)`` from elsewhere instead (a sample's score at fixed X and Y)."""
+    X = park_martin(relative_motions(setup, M, B)) if held is None else held[0]
+    Y = chain_poses(setup, M, X, B)
+    if held is None:
+        R_mean, t_mean = Rotation.from_matrix(Y[:, :3, :3]).mean(), Y[:, :3, 3].mean(axis=0)
+    else:
+        R_mean, t_mean = Rotation.from_matrix(held[1][:3, :3]), held[1][:3, 3]
+    rot = (R_mean.inv() * Rotation.from_matrix(Y[:, :3, :3])).as_rotvec()
+    return rot, Y[:, :3, 3] - t_mean
+
+
+def _held(setup: Setup, M: F64, B: F64) -> tuple[F64, F64]:
+    """The closed-form X of these pairs and the mean of the samples' Y (rotation mean, translation
+    mean) as one pose."""
     X = park_martin(relative_motions(setup, M, B))
     Y = chain_poses(setup, M, X, B)
-    R_mean = Rotation.from_matrix(Y[:, :3, :3]).mean()
-    rot = (R_mean.inv() * Rotation.from_matrix(Y[:, :3, :3])).as_rotvec()
-    trans = Y[:, :3, 3] - Y[:, :3, 3].mean(axis=0)
-    return rot, trans
+    Y_mean = np.eye(4)
+    Y_mean[:3, :3] = Rotation.from_matrix(Y[:, :3, :3]).mean().as_matrix()
+    Y_mean[:3, 3] = Y[:, :3, 3].mean(axis=0)
+    return X, Y_mean
 
 
 @dataclass(frozen=True)
@@ -166,29 +185,30 @@ def fit_offset(setup: Setup, robot: PoseStream, camera: PoseStream, *, max_offse
     s_rot = max(float(np.sqrt(np.mean(rot**2))), 1e-9)
     s_trans = max(float(np.sqrt(np.mean(trans**2))), 1e-12)
 
-    def cost(offset: float) -> float:
+    def per_sample(offset: float, held: tuple[F64, F64] | None = None) -> F64:
         Mo, Bo, ok = paired(robot, cams, offset)
         if not ok.all():  # (cannot happen inside the bracket; outside it the cost is not defined)
-            return np.inf
-        r, t = _chain_residuals(setup, Mo, Bo)
-        return float(np.sum(r**2) / s_rot**2 + np.sum(t**2) / s_trans**2)
+            return np.full(len(cams.stamps_s), np.inf)
+        r, t = _chain_residuals(setup, Mo, Bo, held)
+        return np.sum(r**2, axis=1) / s_rot**2 + np.sum(t**2, axis=1) / s_trans**2
+
+    def cost(offset: float) -> float:
+        return float(np.sum(per_sample(offset)))
 
     res = minimize_scalar(cost, bounds=(coarse - half, coarse + half), method="bounded", options={"xatol": 1e-6})
     best = float(res.x)
     n_paired = int(paired(robot, camera, best)[2].sum())
     spread = float(np.sqrt(np.mean(_chain_residuals(setup, *paired(robot, cams, best)[:2])[1] ** 2)))
-    return OffsetFit(best, _profile_sigma(cost, best, len(take)), coarse, n_paired, spread)
+    held = _held(setup, *paired(robot, cams, best)[:2])
+    return OffsetFit(best, _sandwich_sigma(cost, partial(per_sample, held=held), best), coarse, n_paired, spread)
 
 
-def _profile_sigma(cost: Callable[[float], float], best: float, n: int) -> float:
-    """1-sigma of the offset from the cost's curvature at *best*: the cost scaled so that its
-    minimum equals the residual degrees of freedom (6 per sample, less the 12 of X and Y) is twice
-    a negative log-likelihood."""
-    c0 = cost(best)
-    dof = max(6 * n - 12, 1)
+def _sandwich_sigma(cost: Callable[[float], float], per_sample: Callable[[float], F64], best: float) -> float:
+    """1-sigma of the offset (module docstring): ``sqrt(sum g_i^2) / C''`` with ``g_i`` the samples'
+    cost derivatives at *best* (X and Y held) and ``C''`` the profile cost's curvature there."""
     h = 1e-4
-    curv = (cost(best + h) - 2.0 * c0 + cost(best - h)) / h**2
-    if not np.isfinite(curv) or curv <= 0 or c0 <= 0:
+    curv = (cost(best + h) - 2.0 * cost(best) + cost(best - h)) / h**2
+    g = (per_sample(best + h) - per_sample(best - h)) / (2.0 * h)
+    if not np.isfinite(curv) or curv <= 0 or not np.all(np.isfinite(g)):
         return float("nan")
-    scale = dof / c0  # the cost in units of the residuals' own variance at the minimum
-    return float(np.sqrt(2.0 / (curv * scale)))
+    return float(np.sqrt(np.sum(g**2)) / curv)
