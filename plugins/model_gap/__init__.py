@@ -17,7 +17,7 @@ from typing import Any
 
 _EXPORTS = {
     "analyse_gap": "analyse",
-    "families_from_registry": "analyse",
+    "families_from_registry": "families",
     "load_gap_model": "stored_model",
     "GapData": "data",
     "GapDataError": "data",

@@ -15,20 +15,12 @@ from plugins.model_gap.core.report import render
 from plugins.model_gap.core.robust import robust_scale
 from plugins.model_gap.core.workflow import collect_candidates, samples_needed
 from plugins.model_gap.data import GapData
+from plugins.model_gap.families import families_from_registry
 from plugins.model_gap.inputs import load_gap_data
 from plugins.model_gap.problem import DEFAULT_CALIBRATION, KinematicGapProblem, ProblemConfig
 from plugins.model_gap.robust_fit import run_screened
 from plugins.model_gap.stored_model import load_stored_model
 from plugins.robot.kinematics import RobotModel
-
-
-def families_from_registry(extra_modules: tuple[str, ...] = ()) -> list[Any]:
-    """The effect families every loaded plugin contributes through ``vgr_model_effects``."""
-    from engine.plugin_manager import load_registry
-
-    registry = load_registry(extra_modules)
-    return [f() if isinstance(f, type) else f for _, f in sorted(registry.effects.items())]
-
 
 PROVISIONAL_NOISE_M = 1e-3  # whitening scale while the noise is still to be estimated (the fit does not use it)
 

@@ -25,6 +25,7 @@ from plugins.model_gap.core.check import ModelCheck, check_residuals, render_che
 from plugins.model_gap.core.interfaces import GapInputError, Linearisation
 from plugins.model_gap.core.workflow import collect_candidates
 from plugins.model_gap.data import GapData
+from plugins.model_gap.families import families_from_registry
 from plugins.model_gap.inputs import load_gap_data
 from plugins.model_gap.problem import KinematicGapProblem, ProblemConfig
 from plugins.model_gap.stored_model import StoredModel, load_stored_model
@@ -37,8 +38,6 @@ def stored_problem(
     stored: StoredModel, data: GapData, *, noise_mm: float | None = None, families: list[Any] | None = None
 ) -> tuple[KinematicGapProblem, str]:
     """The gap problem of ``stored`` on ``data`` with its effects as stored (no refit), and the noise source."""
-    from plugins.model_gap.analyse import families_from_registry
-
     if noise_mm is not None:
         noise_m, source = float(noise_mm) / 1e3, "given"
     elif data.sigma_m is not None:

@@ -177,7 +177,7 @@ def _common(args: argparse.Namespace) -> dict[str, Any]:
     """The arguments ``vgr gap`` and ``vgr gap check`` give their library function alike: the noise,
     the report folder, the console (none with --json), the effect families (with --plugin's) and the
     options that say how to read the data file (those given)."""
-    from plugins.model_gap.analyse import families_from_registry
+    from plugins.model_gap.families import families_from_registry
 
     data_options = {k: getattr(args, k) for k in ("joint_topic", "measurement_topic", "sensor", "payload_kg")}
     return {

@@ -24,10 +24,11 @@ from engine.plain_data import plain
 from engine.plugin_manager import PluginError
 from engine.recipe.plugin_entries import resolve_plugin
 from engine.stage import Stage, StageParams
-from plugins.model_gap.analyse import analyse_gap, families_from_registry
+from plugins.model_gap.analyse import analyse_gap
 from plugins.model_gap.core import GapConfig, GapInputError, SelectionConfig
 from plugins.model_gap.core.report import display, report_dict
 from plugins.model_gap.data import GapDataError, with_payload
+from plugins.model_gap.families import families_from_registry
 from plugins.model_gap.recordings import pair_streams
 
 
