@@ -94,7 +94,7 @@ def test_rotations_about_one_axis_are_degenerate_with_advice():
     assert res.verdict == "degenerate" and not res.usable
     assert res.metrics["design_rank"] == 8
     msg = next(r for r in res.reasons if "degenerate" in r)
-    assert "TCP component along flange axis" in msg and "-1.00]" in msg  # base z = flange -z here
+    assert "TCP component along flange axis" in msg and "+1.00]" in msg  # the flange z axis, sign fixed
     assert any("second, different axis" in a for a in res.advice)
     # the components perpendicular to the axis are still right
     assert np.linalg.norm((res.estimate["p_flange_tcp"] - sim.p_flange_tcp)[:2]) < 2e-3

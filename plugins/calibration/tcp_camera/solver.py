@@ -210,6 +210,13 @@ def _flag_outliers(data: TcpCameraData, problem: _Problem, th: TcpThresholds) ->
     return flagged, factor
 
 
+def _axis(v: F64) -> F64:
+    """``v`` as a unit axis with its sign fixed (largest component positive): a null-space vector has no
+    sign of its own, and LAPACK builds differ in the one they return."""
+    d = v / np.linalg.norm(v)
+    return d if d[int(np.argmax(np.abs(d)))] > 0 else -d
+
+
 def _null_space_issue(ident: Identifiability) -> Issue:
     msgs, advice = [], []
     null = np.atleast_2d(ident.null_space)
@@ -227,14 +234,14 @@ def _null_space_issue(ident: Identifiability) -> Issue:
         if np.linalg.norm(tcp) > 0.5:
             if n_tcp == 3:
                 continue
-            d = tcp / np.linalg.norm(tcp)
+            d = _axis(tcp)
             msgs.append(
                 "the TCP component along flange axis "
                 f"[{d[0]:+.2f}, {d[1]:+.2f}, {d[2]:+.2f}] (all orientation changes were about one axis)"
             )
             advice.append("add poses rotated about a second, different axis (>= 20 deg)")
         elif np.linalg.norm(rot) > 0.5:
-            d = rot / np.linalg.norm(rot)
+            d = _axis(rot)
             msgs.append(
                 f"the camera-to-base rotation about camera axis [{d[0]:+.2f}, {d[1]:+.2f}, {d[2]:+.2f}] "
                 "(the TCP positions are collinear)"
