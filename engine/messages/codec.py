@@ -14,7 +14,9 @@ Envelope (zenoh attachment; in MCAP the same values are the channel's schema, th
     followed by the UTF-8 message type name (e.g. "PointCloud")
 
 ``kind`` is DATA for messages, EOS when a port ends, STOP for local control, BATCH for a sample
-holding several messages (only on the internal stage-to-stage key, see engine.transport.wire). Documented in
+holding several messages (only on the internal stage-to-stage key, see engine.transport.wire), VIEW for
+a sample whose payload names a block of the sender's shared memory (same key, same host only:
+engine.transport.shm_views). Documented in
 docs/messages.md.
 """
 
@@ -50,6 +52,7 @@ class Kind(IntEnum):
     EOS = 1
     STOP = 2
     BATCH = 3  # several messages in one sample, between vgr processes (engine.transport.wire)
+    VIEW = 4  # a descriptor of a payload in the sender's shared memory, same host (engine.transport.shm_views)
 
 
 class Envelope(NamedTuple):

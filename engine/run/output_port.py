@@ -3,7 +3,8 @@
 Consumers in this process are offer functions of their input queues (``local``, see
 engine.run.runtime.StageRuntime._offerer). Consumers in other vgr processes get the port's messages
 through ``wire`` (engine.transport.wire.WireSender, on the internal key ``vgr/<run>/_wire/<stage>/<port>``;
-large payloads from the bus's shared-memory pool, engine.transport.shm);
+large payloads as read-only views of the port's own pool when every consumer process is on this
+host, engine.transport.shm_views, else from the bus's zenoh shared-memory pool, engine.transport.shm);
 the public key ``vgr/<run>/<stage>/<port>`` is put to, one message per sample, only while a foreign
 subscriber (a robot controller, a viewer) listens there — zenoh's matching status says when. The
 publish path itself is the stage runtime's (engine.run.runtime.StageRuntime.publish); the port sees that
@@ -19,6 +20,7 @@ import zenoh
 
 from engine.messages import codec
 from engine.transport.bus import data_key, wire_key
+from engine.transport.shm_views import VIEW_MIN_BYTES, ViewPool, consumer_order
 from engine.transport.wire import WireSender
 
 if TYPE_CHECKING:
@@ -39,21 +41,31 @@ class OutputPort:
         self.local: list[Any] = []  # offer functions of the consumers' inputs in this process
         host = rt.host
         graph = host.graph
-        self.remote_consumers = any(
-            graph.nodes[e.dst].spec.process != rt.node.spec.process for e in graph.consumers_of(rt.name, port)
-        )
+        here = rt.node.spec.process
+        remote = [
+            (graph.nodes[e.dst].spec.process, e.dst, e.dst_port)
+            for e in graph.consumers_of(rt.name, port)
+            if graph.nodes[e.dst].spec.process != here
+        ]
+        self.remote_consumers = bool(remote)
         self.publisher = host.bus.remote_publisher(data_key(host.run_id, rt.name, port))
         self.put = self.publisher.put
         shm = getattr(host.bus, "shm", None)  # large payloads through shared memory (engine.transport.shm)
+        self.views = None  # ... or as views of this port's own pool (engine.transport.shm_views)
+        if remote and shm is not None:
+            self.views = ViewPool(host.bus.host_peers(host.run_id, here), consumer_order(remote))
+            host.bus.view_pools.append(self.views)
         self.wire = (
-            WireSender(host.bus.remote_publisher(wire_key(host.run_id, rt.name, port)), f"{rt.name}.{port}", shm)
+            WireSender(
+                host.bus.remote_publisher(wire_key(host.run_id, rt.name, port)), f"{rt.name}.{port}", shm, self.views
+            )
             if self.remote_consumers
             else None
         )
         self.send = self.wire.send if self.wire is not None else None
-        # the encoded message's two parts written straight into a shared-memory buffer, when the
-        # wire is the only taker of its bytes (see _update)
-        self._wrap_parts = shm.wrap_parts if shm is not None and self.wire is not None else None
+        # the encoded message's two parts written straight into shared memory, when the wire is the
+        # only taker of its bytes (see _update)
+        self._wrap_parts = self._parts_into_shared_memory(shm) if shm is not None and self.wire is not None else None
         self.wrap_parts = None
         self.external = bool(self.publisher.matching_status.matching)
         self.observed = bool(host.observers)  # observers are fixed before a run starts
@@ -63,6 +75,23 @@ class OutputPort:
         self._listener = self.publisher.declare_matching_listener(
             zenoh.handlers.Callback(self._on_matching, indirect=False)
         )
+
+    def _parts_into_shared_memory(self, shm: Any) -> Any:
+        """``wrap_parts(head, bulk)``: into a block of the port's pool of views when its consumers
+        can map it, else into a zenoh shared-memory buffer (engine.transport.shm.ShmPool.wrap_parts)."""
+        place, zenoh_parts = self.views.place if self.views is not None else None, shm.wrap_parts
+        small = min(VIEW_MIN_BYTES, shm.min_bytes)  # below both pools' thresholds
+
+        def wrap_parts(head: bytes, bulk: Any) -> Any:
+            if len(head) + len(bulk) < small:  # (the common case: joined here, no further call)
+                return b"".join((head, bulk))
+            if place is not None:
+                placed = place(head, bulk)
+                if placed is not None:
+                    return placed
+            return zenoh_parts(head, bulk)
+
+        return wrap_parts
 
     def _on_matching(self, status: Any) -> None:
         self.external = bool(status.matching)

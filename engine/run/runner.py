@@ -356,7 +356,12 @@ class Runner:
 
     def _shared_memory_counts(self) -> dict[str, int]:
         pool = getattr(self._bus, "shm", None)
-        return {} if pool is None else {"payloads": pool.shared, "fallbacks": pool.fallbacks}
+        if pool is None:
+            return {}
+        # payloads that went through shared memory: as views of a port's pool (engine.transport.shm_views)
+        # or through zenoh's; fallbacks: large payloads sent as bytes
+        views = sum(v.shared for v in getattr(self._bus, "view_pools", ()))
+        return {"payloads": pool.shared + views, "fallbacks": pool.fallbacks}
 
     def _start(self) -> None:
         if self._bus is None:

@@ -17,8 +17,10 @@ Data path of ``publish(port, msg)``:
   only while one listens there.
 
 An input fed by a stage of another process is a :class:`~engine.run.remote_input.RemoteInput`: a zenoh
-subscriber with a FIFO channel whose pump thread decodes the messages and hands them to
-:meth:`StageRuntime._deliverer`'s function for the port, as local inputs do. A service the stage
+subscriber whose messages are decoded (a large one of this host as a read-only view of the
+producer's shared memory) and handed to :meth:`StageRuntime._deliverer`'s function for the port, as
+local inputs do: on zenoh's receive thread for a stage that calls no service and whose outputs stay
+in this process (engine.run.remote_input.receive_thread_safe), else by the port's pump thread. A service the stage
 serves is a :class:`~engine.run.service_port.ServicePort`: its pump thread takes the queries, refuses
 what must not be served and replies; the runtime's serve function (``_serve``) runs the stage's
 handler under the stage's lock.
@@ -52,7 +54,7 @@ from engine.messages import Event, Message, canonical, codec, detach, freeze_arr
 from engine.messages.codec import CodecError, Envelope, Kind
 from engine.run.inbox import END, STOP, PortInbox
 from engine.run.output_port import OutputPort
-from engine.run.remote_input import RemoteInput
+from engine.run.remote_input import RemoteInput, receive_thread_safe
 from engine.run.service_call import CUT_SHORT, exchange
 from engine.run.service_port import ServicePort
 from engine.run.stage_host import StageHost
@@ -264,7 +266,9 @@ class StageRuntime(StageContext):
                 producer.outputs[edge.src_port].local.append(self._offerer(edge.dst_port))
             else:
                 key = wire_key(self.run_id, edge.src, edge.src_port)
-                self.inboxes[edge.dst_port] = RemoteInput(self, edge.dst_port, key, deliver)
+                # handed over on zenoh's receive thread when nothing of this stage can wait there
+                rx = receive_thread_safe(self.host.graph, self.name)
+                self.inboxes[edge.dst_port] = RemoteInput(self, edge.dst_port, key, deliver, on_receive_thread=rx)
 
     def start_threads(self) -> None:
         """Start the threads that read inputs and serve requests (not a source's run())."""

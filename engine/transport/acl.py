@@ -16,7 +16,8 @@ engine.transport.bus):
   replies to Q's queries of its own services the same way; nobody else may declare or answer them;
 - ``_control`` (the run-wide stop) between the run's processes;
 - liveliness: Q may declare only its own tokens (``_ready/<its stages>``, ``_started/Q``,
-  ``_active/Q``, ``_peer/Q/**``); any process may watch the run's tokens.
+  ``_active/Q``, ``_peer/Q/**``, ``_shmhost/Q/**``: it maps this host's shared memory,
+  engine.transport.shm_views); any process may watch the run's tokens.
 
 Controllers (``security.controllers``, robot controllers of a cell service, engine.run.cell) may query
 the API of the cell (``vgr/<cell>/api/<command>``; the cell is the run) and see its serving token
@@ -65,11 +66,13 @@ class _Rules:
 
 def process_token_keys(run: str, graph: Graph, process: str) -> list[str]:
     """The liveliness tokens *process* declares in a run (engine.run.membership; its membership, epoch and
-    end under ``_peer/<process>/``, engine.transport.peers)."""
+    end under ``_peer/<process>/``, engine.transport.peers; the host whose shared memory it maps,
+    engine.transport.shm_views)."""
     return [
         started_key(run, process),
         active_key(run, process),
         f"vgr/{run}/_peer/{process}/**",
+        f"vgr/{run}/_shmhost/{process}/**",
         *(ready_key(run, s) for s in graph.stages_in(process)),
     ]
 

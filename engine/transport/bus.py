@@ -11,6 +11,9 @@ Key expressions (``<run>`` is the run id)::
     vgr/<run>/_control                run-wide control (stop), published by any process
     vgr/<run>/_info/<process>         queryable: the process's topics, types and schemas (engine.transport.discovery)
 
+Large payloads to the processes of this host go as descriptors of the sending port's own shared
+memory (engine.transport.shm_views); :meth:`Bus.host_peers` says which processes of a run map it.
+
 The default session is the embedded set-up: peer mode, multicast scouting off, and no listener
 unless the run's processes need one (engine.transport.session_config; TLS and access control come from
 there too). Stages of one process exchange message objects in-process
@@ -20,11 +23,14 @@ congestion control BLOCK: nothing is dropped.
 
 Nothing may block zenoh's receive thread: it also delivers service replies, so a reader blocked
 there would deadlock a stage waiting for a reply. A remote input's samples therefore go to a FIFO
-channel of very large capacity, read by the port's pump thread (engine.run.remote_input.RemoteInput), and
-service queries to a callback that only appends to an unbounded queue. (zenoh-python 1.10 runs a
-Python callback on a thread of its own, but feeds that thread through a bounded channel: measured
-here, a callback blocked while a few hundred samples arrive stalls the session's receive thread,
-service replies included. So no callback of ours ever blocks.)
+channel of very large capacity, read by the port's pump thread (engine.run.remote_input.RemoteInput),
+or, for a stage that can never wait there (it calls no service, its outputs stay in its process:
+engine.run.remote_input.receive_thread_safe), to a callback on the receive thread itself
+(:meth:`Bus.subscribe_direct`) that hands a message over only while the stage is idle and quick,
+and queues it otherwise; service queries go to a callback that only appends to an unbounded queue.
+(zenoh-python 1.10 runs a Python callback on a thread of its own, but feeds that thread through a
+bounded channel: measured here, a callback blocked while a few hundred samples arrive stalls the
+session's receive thread, service replies included. So no callback of ours ever blocks.)
 
 A request may carry a :class:`CancelToken` (one per run): cancelling it (the run stops) ends every
 request of the run still waiting for its reply at once, raising :class:`RequestCancelled` in its
@@ -51,6 +57,7 @@ from engine.recipe.model import ZenohSettings
 from engine.transport.peers import Answer
 from engine.transport.shm import ShmPool
 from engine.transport.shm import session_entries as shm_entries
+from engine.transport.shm_views import HostPeers
 
 _open_buses: weakref.WeakSet[Bus] = weakref.WeakSet()
 
@@ -275,7 +282,21 @@ class Bus:
         self.closed = False
         # the pool large payloads to other processes of this host are put from (engine.transport.shm)
         self.shm: ShmPool | None = ShmPool() if self.settings.shared_memory else None
+        self._host_peers: dict[tuple[str, str], HostPeers] = {}  # (run, process) -> (engine.transport.shm_views)
+        self.view_pools: list[Any] = []  # the ports' pools of views (engine.transport.shm_views.ViewPool)
         _open_buses.add(self)
+
+    def host_peers(self, run: str, process: str) -> HostPeers:
+        """Which processes of *run* map this host's shared memory (engine.transport.shm_views); made
+        once per run and process, and *process* says it does when this session has shared memory on."""
+        with self._lock:
+            peers = self._host_peers.get((run, process))
+            if peers is None:
+                declare = self.settings.shared_memory
+                peers = self._host_peers[(run, process)] = HostPeers(
+                    self.session, run, process, self.zid, declare=declare
+                )
+            return peers
 
     # -- declarations ----------------------------------------------------------------------
     def _keep(self, decl: Any) -> Any:
@@ -311,6 +332,14 @@ class Bus:
             )
         )
         return sub, sub.handler
+
+    def subscribe_direct(self, key: str, callback: Callable[[zenoh.Sample], None]) -> zenoh.Subscriber:
+        """Subscriber to other sessions' publications whose *callback* runs on zenoh's receive
+        thread itself (no hand-over): it must never block, nor wait for anything zenoh delivers
+        (a service reply), nor take long (every other message of that link waits meanwhile). Only
+        engine.run.remote_input uses it, for the stages where that holds."""
+        handler = zenoh.handlers.Callback(callback, indirect=False)
+        return self._keep(self.session.declare_subscriber(key, handler, allowed_origin=zenoh.Locality.REMOTE))
 
     def subscribe(self, key: str, callback: Callable[[zenoh.Sample], None]) -> zenoh.Subscriber:
         """Subscriber calling *callback* on zenoh's thread (keep it short: observers, control)."""
@@ -432,6 +461,12 @@ class Bus:
         self.closed = True
         with self._lock:
             decls, self._decls = self._decls, []
+            peers, self._host_peers = list(self._host_peers.values()), {}
+            pools = list(self.view_pools)  # (their counters stay readable for the run's summary)
+        for pool in pools:
+            pool.close()
+        for p in peers:
+            p.close()
         for d in reversed(decls):
             # already undeclared, or a reader still holds it: the session close below frees it
             with contextlib.suppress(Exception):

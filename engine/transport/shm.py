@@ -37,13 +37,14 @@ Below 64 KiB the socket is as fast or faster, at 64 KiB the two are within the n
 shared memory wins (2-4x at 1.2 MB). Batches of small messages (at most engine.transport.wire.BATCH_BYTES,
 60 KiB) stay on the socket.
 
-The receiving side (engine.run.remote_input) reads a shared-memory payload with ``ZBytes.to_bytes()``
-like any other: zenoh-python 1.10's ``ZBytes`` and ``ZShm`` expose no Python buffer protocol (asked
-for upstream in eclipse-zenoh/zenoh-python issue 730), so one copy out of the segment is the least
-a Python reader can do (65-85 us for 1.2 MB here); the codec then decodes the bulk array as a numpy
-view of those bytes (engine.messages.codec.decode_payload), no further copy. dora-rs hands its Python nodes
-an Arrow view of its shared memory instead, which is why its 1.2 MB latency can stay ahead of vgr's
-(benchmarks/results/engine_overhead.json).
+This is the route of a large payload when the port's consumers are not all on this host (or its
+pool of views is full): engine.transport.shm_views, which hands a consumer of this host a read-only
+view of the sender's own memory with no copy on receive, comes first (engine.transport.wire). The
+receiving side (engine.run.remote_input) reads a payload of zenoh's shared memory with
+``ZBytes.to_bytes()`` like any other: zenoh-python 1.10.2's ``ZBytes`` and ``ZShm`` expose no Python
+buffer protocol (``ZShm`` has ``is_valid`` only; asked for upstream in eclipse-zenoh/zenoh-python
+issue 730), so one copy out of the segment is the least a Python reader can do here (65-85 us for
+1.2 MB); the codec then decodes the bulk array as a numpy view of those bytes.
 
 A recipe turns it off with ``zenoh: {shared_memory: false}`` (zenoh's
 ``transport/shared_memory/enabled``): every payload then travels through the socket.

@@ -24,9 +24,11 @@ once per batch.
   keeps going while the producer keeps adding. The queue is bounded (``MAX_PENDING`` messages,
   ``MAX_PENDING_BYTES`` of payload): a producer that outruns the network waits, nothing is dropped.
 
-A payload of at least engine.transport.shm.SHM_MIN_BYTES is put from a shared-memory buffer when the sender
-has a pool (engine.transport.shm.ShmPool: the session has shared memory on): consumers on this host map it,
-others get the bytes through the network.
+A payload of at least engine.transport.shm.SHM_MIN_BYTES goes, in this order of preference: as a
+read-only view of the port's own pool (engine.transport.shm_views.ViewPool: a descriptor with kind
+VIEW, while every consumer process maps this host's memory), or put from a zenoh shared-memory
+buffer when the sender has a pool (engine.transport.shm.ShmPool: the session has shared memory on;
+consumers on this host map it, others get the bytes through the network), or as bytes.
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ from typing import Any
 
 from engine.messages.codec import CodecError, Envelope, Kind, encode_envelope
 from engine.transport.shm import ShmPool
+from engine.transport.shm_views import ViewPayload, ViewPool, view_envelope
 
 BATCH_ENVELOPE = encode_envelope(Envelope(Kind.BATCH, 0, 0, ""))
 SMALL_BYTES = 16 * 1024  # payloads up to this size may share a sample
@@ -51,6 +54,7 @@ MAX_PENDING = 4096  # messages a port may have waiting for its sender thread
 # bound, 118k with 128 KiB or 512 KiB of bytes; 64 B messages unchanged (the count bounds them).
 MAX_PENDING_BYTES = 256 * 1024
 _RECORD = struct.Struct("<II")
+_monotonic_ns = time.monotonic_ns
 
 
 def _as_is(payload: bytes) -> bytes:
@@ -88,13 +92,15 @@ class WireSender:
     """Sends one output port's messages to its consumers in other processes (see the module
     docstring). :meth:`send` is called in publication order (the port's lock held)."""
 
-    def __init__(self, publisher: Any, name: str, shm: ShmPool | None = None) -> None:
+    def __init__(self, publisher: Any, name: str, shm: ShmPool | None = None, views: ViewPool | None = None) -> None:
         self._put = publisher.put
         self._wrap = shm.wrap if shm is not None else _as_is  # large payloads into shared memory
+        self._place = views.place if views is not None else None  # ... or as views of the port's pool
         self._name = name
         self._pending: list[tuple[bytes, bytes]] = []
         self._pending_bytes = 0  # payload bytes in _pending
-        self._cv = threading.Condition(threading.Lock())
+        self._lock = threading.Lock()  # (entered directly on the hot path: a C context manager)
+        self._cv = threading.Condition(self._lock)
         self._busy = False  # the sender thread is putting messages taken from the queue
         self._closed = False
         self._last_ns = 0
@@ -105,15 +111,18 @@ class WireSender:
 
     def send(self, payload: bytes, envelope: bytes) -> None:
         """Send one message (raises, as a put would, once a put of the sender thread has failed)."""
-        now = time.monotonic_ns()
-        with self._cv:
+        now = _monotonic_ns()
+        with self._lock:
             if self._error is not None:
                 raise self._failure()
             burst = now - self._last_ns < BURST_NS
             self._last_ns = now
             idle = not self._pending and not self._busy
             if self._closed or (idle and (not burst or len(payload) > SMALL_BYTES)):
-                self._put(self._wrap(payload), attachment=envelope)  # idle port: no hand-over, no wait
+                if len(payload) <= SMALL_BYTES:  # idle port: no hand-over, no wait
+                    self._put(payload, attachment=envelope)
+                else:
+                    self._put_one(payload, envelope)
                 self.samples += 1
                 return
             while (
@@ -177,7 +186,7 @@ class WireSender:
             if len(payload) > SMALL_BYTES:
                 self._put_run(run)
                 run, size = [], 0
-                self._put(self._wrap(payload), attachment=env)
+                self._put_one(payload, env)
                 self.samples += 1
                 continue
             run.append((env, payload))
@@ -186,6 +195,16 @@ class WireSender:
                 self._put_run(run)
                 run, size = [], 0
         self._put_run(run)
+
+    def _put_one(self, payload: Any, envelope: bytes) -> None:
+        """One message in a sample of its own: a large one as a view of the port's pool when it
+        can be, else from zenoh's shared memory or as bytes."""
+        if type(payload) is not ViewPayload and self._place is not None and len(payload) > SMALL_BYTES:
+            payload = self._place(payload) or payload
+        if type(payload) is ViewPayload:
+            self._put(payload.descriptor, attachment=view_envelope(envelope))
+        else:
+            self._put(self._wrap(payload), attachment=envelope)
 
     def _put_run(self, run: list[tuple[bytes, bytes]]) -> None:
         if not run:
