@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
+import threading
 import time
 from datetime import UTC, datetime
 from pathlib import Path
@@ -19,6 +21,8 @@ from engine import run_folder
 from engine.cli.json_output import REPLAY_FORMAT
 from engine.exit_codes import ExitCode
 from engine.graph import Graph
+
+log = logging.getLogger("vgr.cli")
 
 if TYPE_CHECKING:
     from engine.recording.live_view import LiveView
@@ -160,7 +164,20 @@ def end_view(view: LiveView | None, args: argparse.Namespace, console: Console, 
     except KeyboardInterrupt:
         pass
     finally:
-        view.close()
+        close_within(view, CLOSE_WAIT_S)
+
+
+CLOSE_WAIT_S = 5.0  # Ctrl-C ends the command within this even if the view's server is slow to stop
+
+
+def close_within(view: LiveView, wait_s: float) -> None:
+    """Close *view* on a daemon thread and wait for it at most *wait_s*: a websocket client that does
+    not answer the close handshake must not keep the command from ending after Ctrl-C."""
+    closer = threading.Thread(target=view.close, name="live-view-close", daemon=True)
+    closer.start()
+    closer.join(wait_s)
+    if closer.is_alive():
+        log.warning("live view: the server did not stop within %.0f s; ending without it", wait_s)
 
 
 def add_runs_dir_option(p: argparse.ArgumentParser, folder: str) -> None:
