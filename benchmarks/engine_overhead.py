@@ -69,7 +69,6 @@ import contextlib
 import json
 import os
 import platform
-import socket
 import statistics
 import subprocess
 import sys
@@ -88,6 +87,7 @@ sys.path[:0] = [str(HERE), str(ROOT)]
 
 import dora_peer  # noqa: E402
 from bench_stages import make_payload, pace  # noqa: E402
+from bench_zenoh import free_port, peer_session  # noqa: E402
 from overhead_ratios import dora_ratios, paired, print_ratios, raw_ratios  # noqa: E402
 from wire_floor import BATCH, floor_subscriber_main, send_batched  # noqa: E402
 
@@ -100,19 +100,8 @@ FLOOR_MAX_SIZE = 4096  # the typed floor row is measured for the small payloads 
 WARMUP = 20
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def session(listen: list[str] | None = None, connect: list[str] | None = None) -> zenoh.Session:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("listen/endpoints", json.dumps(listen or []))
-    conf.insert_json5("connect/endpoints", json.dumps(connect or []))
-    return zenoh.open(conf)
+    return peer_session(listen, connect)
 
 
 def summarize(

@@ -32,6 +32,7 @@ sys.path[:0] = [str(HERE), str(HERE.parent)]
 
 from bench_results import machine, write_result  # noqa: E402
 from bench_stages import make_payload, pace  # noqa: E402
+from bench_zenoh import peer_session  # noqa: E402
 
 from engine.transport.shm import ShmPool, session_entries  # noqa: E402
 
@@ -41,14 +42,7 @@ COUNT, WARMUP, INTERVAL_S = 200, 20, 0.005
 
 
 def session(shm: bool, listen: list[str] | None = None, connect: list[str] | None = None) -> zenoh.Session:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("listen/endpoints", json.dumps(listen or []))
-    conf.insert_json5("connect/endpoints", json.dumps(connect or []))
-    for path, value in session_entries(shm).items():
-        conf.insert_json5(path, json.dumps(value))
-    return zenoh.open(conf)
+    return peer_session(listen, connect, session_entries(shm))
 
 
 def receiver_main(endpoint: str, shm: bool, total: int) -> None:

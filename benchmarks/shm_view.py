@@ -44,7 +44,6 @@ import argparse
 import json
 import mmap
 import os
-import socket
 import statistics
 import struct
 import subprocess
@@ -57,6 +56,7 @@ from typing import Any
 import numpy as np
 import zenoh
 import zenoh.shm
+from bench_zenoh import free_port, peer_session
 
 HERE = Path(__file__).resolve().parent
 KEY = "bench/view"
@@ -66,20 +66,8 @@ POOL = 64 * 1024 * 1024
 HEADER = 4096
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def session(listen: list[str] | None = None, connect: list[str] | None = None) -> zenoh.Session:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("listen/endpoints", json.dumps(listen or []))
-    conf.insert_json5("connect/endpoints", json.dumps(connect or []))
-    conf.insert_json5("transport/shared_memory/enabled", "true")  # (as a vgr session has it)
-    return zenoh.open(conf)
+    return peer_session(listen, connect, {"transport/shared_memory/enabled": True})  # (as a vgr session has it)
 
 
 def pace(slot: float, interval_s: float) -> float:

@@ -9,12 +9,12 @@ message arrives once, in order, with its seq."""
 from __future__ import annotations
 
 import json
-import socket
 import threading
 import time
 
 import pytest
 import zenoh
+from process_helpers import free_port
 from recipe_helpers import graph_from
 from stage_fixtures import COLLECTED
 
@@ -38,12 +38,6 @@ stages:
   src:  {{type: t_counter, process: a, params: {{n: 1}}}}
   sink: {{type: t_collector, process: b, inputs: {{in: src.out}}}}
 """
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def test_remote_input_delivers_fast_path_general_path_and_end_of_stream_in_order():

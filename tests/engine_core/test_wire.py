@@ -5,7 +5,6 @@ subscriber of the public key still gets one message per sample."""
 from __future__ import annotations
 
 import json
-import socket
 import threading
 import time
 
@@ -13,6 +12,7 @@ import pytest
 import zenoh
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from process_helpers import free_port
 from recipe_helpers import graph_from
 from stage_fixtures import COLLECTED
 
@@ -162,12 +162,6 @@ def test_a_failed_put_of_the_sender_thread_fails_the_next_send():
         for seq in range(1, 10_000):  # a burst: queued for the sender thread, whose second put fails
             sender.send(b"z", env_of(seq))
     sender.close()
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 RECIPE = """
