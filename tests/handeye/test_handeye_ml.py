@@ -149,7 +149,7 @@ def test_result_round_trips_through_json():
     assert back.residual_names == res.residual_names and back.residuals.shape == (12, 21)
 
 
-# up to half the samples may be outliers (the consensus tolerates more); beyond, no majority agrees
+# up to half the samples may be outliers and are removed; beyond, refused only on other evidence
 @pytest.mark.parametrize(("fraction", "usable"), [(0.2, True), (0.35, True), (0.5, True), (0.6, False)])
 def test_heavy_contamination_is_either_removed_or_refused(fraction, usable):
     rng = np.random.default_rng(28)
@@ -168,6 +168,24 @@ def test_heavy_contamination_is_either_removed_or_refused(fraction, usable):
         assert res.metrics["second_group_samples"] == 0.0
     else:
         assert res.verdict == "failed"  # (here: no consensus among 40 % inliers, the residuals far off)
+
+
+def test_a_minority_that_agrees_among_random_outliers_is_the_calibration_not_refused_on_the_count():
+    """16 of 30 samples are each their own gross error: the 14 that agree are the calibration, and
+    nothing but the count says otherwise, so the result is a warning naming every outlier."""
+    rng = np.random.default_rng(0)
+    truth = sim.viewing_scene(rng, 30, "eye_in_hand")
+    meas = sim.add_noise(truth, NOISE, rng)
+    bad = rng.choice(30, 16, replace=False)
+    B = meas.T_cam_target.copy()
+    for i in bad:
+        B[i] = B[i] @ tf.T_from_rotvec(rng.normal(size=3) * 0.2, rng.normal(size=3) * 0.05)
+    res = calibrate_hand_eye(meas.T_base_tcp, B, setup="eye_in_hand", noise=NOISE)
+    assert res.verdict == "warning", res.reasons
+    assert sorted(np.flatnonzero(res.outliers)) == sorted(bad)
+    assert any("rests on the 14 that agree" in r for r in res.reasons), res.reasons
+    d = pose_delta(res.estimate["T_tcp_cam"], truth.X)[0]
+    assert d @ np.linalg.solve(res.covariance[:6, :6], d) < stats.chi2.ppf(0.999, 6)
 
 
 @pytest.mark.parametrize("fraction", [0.3, 0.6])

@@ -19,7 +19,8 @@ Parameters of the covariance: decoupled perturbations (:mod:`engine.transforms`)
 the parent frame (m) and rotation about parent-frame axes (rad).
 
 Verdict rules (on top of the input and motion checks): ``failed`` when the ML did not converge,
-more than ``max_outlier_fraction`` (half) of the samples are outliers, the residuals exceed the declared
+the outliers agree among themselves on another calibration (never on their count alone: a minority
+that agrees among random outliers is still the calibration), the residuals exceed the declared
 noise by more than ``sqrt(max_variance_factor)``, or the estimated noise of the robot or of the
 camera exceeds its limit (``max_robot_noise_*``, ``max_camera_noise_*``: the noise a real sensor of
 that kind can have; beyond it the data do not fit one rigid transform); ``warning`` for outliers
@@ -77,8 +78,8 @@ class AccuracyTargets:
 
     max_std_trans_m: float = 0.5e-3
     max_std_rot_rad: float = float(np.deg2rad(0.05))
-    # more outliers than this fraction: no majority of the samples agrees on one calibration, and
-    # the consensus (``consensus``, which tolerates more) cannot say which group is the right one
+    # more outliers than this fraction: the reasons say the estimate rests on a minority (the
+    # consensus, ``consensus``, tolerates more; a second group that agrees is what refuses it)
     max_outlier_fraction: float = 0.5
     # outlier flags this likely or likelier by chance alone (binomial, the ML's outlier quantile) on
     # data without outliers are named but earn no warning
@@ -244,6 +245,12 @@ def _fit_metrics(
         "noise_camera_rot_rad": float(np.mean(fit.noise.camera.rot_sigma)),
         # per axis of the camera frame (z: the optical axis), as estimated or declared
         **{f"noise_camera_sigma_{c}": float(v) for c, v in zip(_CAMERA_AXES, fit.noise.camera.sigmas6(), strict=True)},
+        # per-sample camera covariances (the sigmas above: their median per axis) and their factor
+        **(
+            {"camera_covariances_given": 1.0, "noise_camera_covariance_factor": fit.camera_covariance_factor}
+            if fit.noise.camera_covariances is not None
+            else {}
+        ),
         "noise_estimated": float(noise_estimated),
         "noise_groups_estimated": float(fit.noise_groups_estimated),
         "threshold_scale": fit.threshold_scale,
@@ -315,8 +322,9 @@ def _check_outliers(
     advice: list[str],
 ) -> str:
     """Outlier samples named in the reasons: ``warning``, unless as many flags are likely by chance
-    (``chance_flags_level``); ``failed`` only when the inliers are no majority
-    (``max_outlier_fraction``), never on the count alone below it."""
+    (``chance_flags_level``); never ``failed`` on the count alone. Beyond ``max_outlier_fraction``
+    the reasons say the estimate rests on a minority; only evidence that the outliers hold another
+    calibration (:func:`_check_second_group`) refuses it."""
     n = len(fit.outliers)
     n_out = int(np.count_nonzero(fit.outliers))
     if not n_out:
@@ -335,10 +343,9 @@ def _check_outliers(
     advice.append("inspect the outlier samples (detection, robot/camera time sync, target slipped)")
     verdict = "warning" if verdict == "ok" else verdict
     if n_out > accuracy.max_outlier_fraction * n:
-        verdict = "failed"
         reasons.append(
-            f"{n_out} of {n} samples are outliers: fewer than half agree on one calibration, so which "
-            "group is right cannot be told"
+            f"{n_out} of {n} samples are outliers: the estimate rests on the {n - n_out} that agree; it is "
+            "refused only if the outliers agree among themselves on another calibration (checked next)"
         )
     return verdict
 
