@@ -39,8 +39,10 @@ delivered (``delivered_paced``, ``delivered_burst``: received / sent, the lowest
 dora's throughput is the measured messages it received over the time from the first measured send
 to the last arrival (a rate over its arrivals alone would count the few messages left in its queue
 at the end, which arrive back to back).
-Across processes, vgr's 1.2 MB payloads reach the sink's handler as read-only numpy views of the
-source's shared memory (engine.transport.shm_views: a descriptor over zenoh, no copy on receive),
+Across processes, vgr's 1.2 MB payloads are built by the source in an array of ``ctx.loan`` (already in
+its port's pool: sent without a copy; the same stamp, then the same body copy as ``make_payload``)
+and reach the sink's handler as read-only numpy views of that memory (engine.transport.shm_views: a
+descriptor over zenoh, no copy on receive),
 and the sink's input is handed over on zenoh's receive thread (engine.run.remote_input: the sink
 calls no service and publishes nothing to another process), as dora hands its Python nodes an
 Arrow view of its shared memory.
@@ -93,6 +95,7 @@ from wire_floor import BATCH, floor_subscriber_main, send_batched  # noqa: E402
 
 from engine.run.process_memory import keep_freed_memory  # noqa: E402
 from engine.transport.shm import SHM_MIN_BYTES  # noqa: E402
+from engine.transport.shm_views import VIEW_MIN_BYTES  # noqa: E402
 
 BENCH_KEY = "bench/data"  # key of the raw and typed-floor runs
 SIZES = {"64B": 64, "4KiB": 4096, "1.2MB": 1_200_000}
@@ -270,7 +273,7 @@ processes:
   pub: {{listen: ["{proto}/127.0.0.1:{port}"]}}
   sub: {{connect: ["{proto}/127.0.0.1:{port}"], listen: []}}
 stages:
-  src:  {{type: bench_source, process: {p_pub}, params: {{size: {size}, count: {count}, interval_s: {interval}, warmup: {warmup}, output: "{src_out}"}}}}
+  src:  {{type: bench_source, process: {p_pub}, params: {{size: {size}, count: {count}, interval_s: {interval}, warmup: {warmup}, output: "{src_out}", loan: {loan}}}}}
   sink: {{type: bench_sink, process: {p_sub}, inputs: {{in: src.out}}, params: {{output: "{out}", warmup: {warmup}}}}}
 """
 
@@ -300,6 +303,7 @@ def recipe(
         count=count,
         interval=interval_s,
         warmup=WARMUP,
+        loan=str(p_pub != p_sub and size >= VIEW_MIN_BYTES).lower(),  # (across processes: a view of a loan)
         out=out,
         src_out=src_out,
     )

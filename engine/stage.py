@@ -162,6 +162,14 @@ class StageContext:
         """Publish *msg* on output *port* (seq and, if unset, stamp are filled in)."""
         raise NotImplementedError
 
+    def loan(self, port: str, shape: int | tuple[int, ...], dtype: Any = np.uint8) -> np.ndarray:
+        """A writable array to fill and publish on output *port* as a message's bulk array (a point
+        cloud's points, a depth image). Where the port's consumers read it as a view of shared
+        memory (engine.transport.shm_views), the array is already there: the message goes out
+        without a copy. Elsewhere (in this process only, a recording, another host, a replay) it is
+        a plain ``numpy.empty``. Either way, do not write into it after publishing it."""
+        return np.empty(shape, dtype=dtype)
+
     def call(self, client: str, request: Message, timeout_s: float = 10.0) -> Message:
         """Call the service wired to *client* in the recipe's ``uses`` and wait for its reply
         (:class:`ServiceError` if it fails, :class:`RunStoppingError` once the run stops)."""

@@ -49,6 +49,8 @@ from dataclasses import dataclass, field
 from time import perf_counter
 from typing import Any
 
+import numpy as np
+
 from engine.graph import StageNode
 from engine.messages import Event, Message, canonical, codec, detach, freeze_arrays
 from engine.messages.codec import CodecError, Envelope, Kind
@@ -158,6 +160,19 @@ class StageRuntime(StageContext):
     def sleep(self, seconds: float) -> bool:
         return self.clock.sleep(seconds, self._stop_event)
 
+    def loan(self, port: str, shape: int | tuple[int, ...], dtype: Any = np.uint8) -> np.ndarray:
+        out = self.outputs.get(port)
+        if out is None:
+            raise ValueError(f"stage {self.name!r} has no output port {port!r}")
+        dt = np.dtype(dtype)
+        dims = (shape,) if isinstance(shape, int) else tuple(shape)
+        nbytes = int(np.prod(dims, dtype=np.int64)) * dt.itemsize
+        if out.views is not None:  # consumers in other processes: maybe on this host
+            buf = out.views.loan(nbytes)
+            if buf is not None:
+                return buf.view(dt).reshape(dims)
+        return np.empty(dims, dtype=dt)
+
     def publish(self, port: str, msg: Message) -> None:
         out = self.outputs.get(port)
         if out is None:
@@ -182,16 +197,19 @@ class StageRuntime(StageContext):
                 fmt = out.format
                 att = fmt.pack(fmt.head, seq, msg.stamp_ns, fmt.name)
                 head, bulk = _encode_parts(msg)
+                shown = None  # the bytes observers and foreign subscribers get, when payload is a view
                 if bulk is None:
                     payload = head
                 elif out.wrap_parts is not None:
                     payload = out.wrap_parts(head, bulk)  # into shared memory, not joined first (engine.transport.shm)
+                elif out.views is not None and (placed := out.views.place(head, bulk, hold=True)) is not None:
+                    payload, shown = placed, placed.view  # (recorded: the recorder is handed the block's bytes)
                 else:
                     payload = b"".join((head, bulk))
                 for obs in self._observers:
-                    obs.on_publish(self.name, port, payload, att, msg)
+                    obs.on_publish(self.name, port, payload if shown is None else shown, att, msg)
                 if out.external:
-                    out.put(payload, attachment=att)
+                    out.put(payload if shown is None else bytes(shown), attachment=att)
                 if out.send is not None:
                     out.send(payload, att)
             if exact:  # frozen before any consumer here holds it, after the bytes are on their way

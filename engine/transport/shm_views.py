@@ -31,6 +31,12 @@ How it goes:
 * the receiver (:class:`ViewReader`) maps the pool once (``/proc/<pid>/fd/<fd>``: the header
   read-write, the data read-only), checks the nonce (a reused pid is not taken for the sender) and
   hands the codec a view of the block, which decodes the bulk array as a numpy view of it: no copy;
+* a stage may instead fill an array the pool lends it (:meth:`ViewPool.loan`, ``ctx.loan`` in
+  docs/writing_stages.md): a message whose bulk array is that loan is sent with its head written
+  into the :data:`LOAN_HEAD_BYTES` left before the array, so the payload is never copied on the
+  sender either; the block stays the sender's while the stage's array lives (a holder token,
+  taken out by the array's finalizer) and goes back once that and every consumer's view are gone.
+  A recorded port hands its recorder a held view of the placed block, not a joined copy;
 * the block is released when the last Python object that refers to it goes (a ``weakref.finalize``
   on the view's base array): the receiver writes the block's generation into its release word in
   the pool's header, and the sender takes the block back once every consumer of the block did.
@@ -67,7 +73,7 @@ import threading
 import time
 import weakref
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -82,6 +88,7 @@ MAX_CONSUMERS = 16  # consumer inputs of one port in other processes that views 
 POOL_WAIT_S = 0.002  # a full pool is waited for this long (a 1.2 MB payload's time through the socket)
 POOL_RETRY_S = 0.0001
 ALIGN = 64
+LOAN_HEAD_BYTES = 1024  # room before a loaned array for the message's other fields (its protobuf head)
 MAGIC = b"VGRPOOL1"
 TABLE_OFFSET = 4096  # release words: MAX_BLOCKS x MAX_CONSUMERS u64, written by the receivers
 HEADER_BYTES = TABLE_OFFSET + MAX_BLOCKS * MAX_CONSUMERS * 8  # (a multiple of the page size)
@@ -164,10 +171,13 @@ class HostPeers:
 
 @dataclass(frozen=True, slots=True)
 class ViewPayload:
-    """A payload written into a block of a pool: what goes on zenoh is :attr:`descriptor`."""
+    """A payload written into a block of a pool: what goes on zenoh is :attr:`descriptor`; with
+    ``hold``, :attr:`view` is a read-only view of the bytes that keeps the block while it lives (what
+    the port's recorder is handed)."""
 
     descriptor: bytes
     length: int
+    view: memoryview | None = None
 
     def __len__(self) -> int:
         return self.length
@@ -179,6 +189,11 @@ class _Block:
     end: int
     generation: int
     waits_for: tuple[tuple[int, str, frozenset[str]], ...]  # (release word, process, its sessions then)
+    loaned: bool = False  # handed to the stage by :meth:`ViewPool.loan` (its data from LOAN_HEAD_BYTES on)
+    sent: bool = False  # its descriptor went out (the consumers' releases count from then on)
+    # arrays of it alive in this process (the stage's loaned one, the view a recorder was handed):
+    # one token each, taken out by the array's finalizer (set.discard: atomic, no lock needed)
+    holders: set[object] = field(default_factory=set)
 
 
 class ViewPool:
@@ -200,7 +215,10 @@ class ViewPool:
         self._free = list(range(MAX_BLOCKS - 1, -1, -1))
         self._generation = 0
         self._lock = threading.Lock()
+        self._loans: dict[int, int] = {}  # data offset of a loaned array not sent yet -> its block
+        self._base = 0
         self.shared = 0  # payloads sent as views
+        self.loaned_sent = 0  # ... of them, loaned arrays sent without a copy
         self.fallbacks = 0  # large payloads that found the pool full (sent the other way)
 
     def all_here(self) -> bool:
@@ -208,29 +226,89 @@ class ViewPool:
         zids = self.peers.zids
         return self.usable and all(zids(p) for p in self.processes)
 
-    def place(self, head: bytes | bytearray | memoryview, bulk: bytes | memoryview | None = None) -> ViewPayload | None:
-        """``head + bulk`` written into a block, or None: small, a consumer that cannot map this
-        host's memory, no memfd here, or the pool still full after :data:`POOL_WAIT_S`."""
+    def place(
+        self, head: bytes | bytearray | memoryview, bulk: bytes | memoryview | None = None, *, hold: bool = False
+    ) -> ViewPayload | None:
+        """``head + bulk`` written into a block (no copy when *bulk* is a loaned array: :meth:`loan`),
+        or None: small, a consumer that cannot map this host's memory, no memfd here, or the pool still
+        full after :data:`POOL_WAIT_S`. *hold*: the payload's :attr:`ViewPayload.view` too."""
         n = len(head) + (len(bulk) if bulk is not None else 0)
         if n < VIEW_MIN_BYTES or not self.all_here():
             return None
         with self._lock:
             if self._data is None and not self._open(n):
                 return None
-            got = self._alloc(n)
+            placed = self._send_loaned(head, bulk) if bulk is not None and self._loans else None
+            if placed is None:
+                got = self._alloc(n)
+                if got is None:
+                    self.fallbacks += 1
+                    return None
+                index, block = got
+                data = self._data
+                assert data is not None
+                h = len(head)
+                data[block.offset : block.offset + h] = head
+                if bulk is not None:
+                    data[block.offset + h : block.offset + n] = memoryview(bulk).cast("B")
+                self.shared += 1
+                placed = index, block.offset
+            index, start = placed
+            desc = DESC.pack(
+                DESC_MAGIC, os.getpid(), self._fd, self._nonce, index, self._blocks[index].generation, start, n
+            )
+            return ViewPayload(desc, n, self._held(index, start, n, writeable=False) if hold else None)
+
+    def loan(self, nbytes: int) -> np.ndarray | None:
+        """A writable uint8 array of *nbytes* in a block of the pool, for the stage to fill and
+        publish (a message whose bulk field is this array goes out without a copy: its head is
+        written into the :data:`LOAN_HEAD_BYTES` before it); None when views are not the route now
+        (small, a consumer elsewhere, no memfd, the pool full). The block is taken back once the
+        array is gone here and every consumer released what was sent; it is sent as a view once
+        (published again, it is copied like any payload)."""
+        if nbytes + LOAN_HEAD_BYTES < VIEW_MIN_BYTES or not self.all_here():
+            return None
+        with self._lock:
+            if self._data is None and not self._open(nbytes + LOAN_HEAD_BYTES):
+                return None
+            got = self._alloc(nbytes + LOAN_HEAD_BYTES)
             if got is None:
                 self.fallbacks += 1
                 return None
             index, block = got
-            data = self._data
-            assert data is not None
-            h = len(head)
-            data[block.offset : block.offset + h] = head
-            if bulk is not None:
-                data[block.offset + h : block.offset + n] = memoryview(bulk).cast("B")
-            self.shared += 1
-            desc = DESC.pack(DESC_MAGIC, os.getpid(), self._fd, self._nonce, index, block.generation, block.offset, n)
-            return ViewPayload(desc, n)
+            block.loaned = True
+            start = block.offset + LOAN_HEAD_BYTES
+            self._loans[start] = index
+            return np.frombuffer(self._held(index, start, nbytes, writeable=True), dtype=np.uint8)
+
+    def _held(self, index: int, start: int, n: int, *, writeable: bool) -> memoryview:
+        """A view of *n* bytes of block *index* from *start* that keeps the block while it lives."""
+        assert self._data is not None
+        array = np.frombuffer(self._data, dtype=np.uint8, count=n, offset=start)
+        array.flags.writeable = writeable
+        token = object()
+        holders = self._blocks[index].holders
+        holders.add(token)
+        weakref.finalize(array, holders.discard, token)  # (may run on any thread, inside our lock: none taken)
+        return memoryview(array)  # type: ignore[arg-type]  # (an ndarray is a buffer)
+
+    def _send_loaned(self, head: bytes | bytearray | memoryview, bulk: bytes | memoryview) -> tuple[int, int] | None:
+        """(block, start) of the payload when *bulk* is a loaned array not sent yet, its *head* then
+        written just before it; None otherwise (or when the head does not fit)."""
+        view = np.frombuffer(bulk, dtype=np.uint8)
+        start = view.ctypes.data - self._base
+        index = self._loans.get(start)
+        block = self._blocks.get(index) if index is not None else None
+        h = len(head)
+        if index is None or block is None or block.sent or h > LOAN_HEAD_BYTES or start + view.nbytes > block.end:
+            return None
+        del self._loans[start]
+        assert self._data is not None
+        self._data[start - h : start] = head
+        block.sent = True
+        self.shared += 1
+        self.loaned_sent += 1
+        return index, start - h
 
     def _open(self, first: int) -> bool:
         self.size = max(self.size, 8 * first)
@@ -247,6 +325,7 @@ class ViewPool:
         view = memoryview(whole)
         self._table = np.frombuffer(whole, dtype=np.uint64, count=MAX_BLOCKS * MAX_CONSUMERS, offset=TABLE_OFFSET)
         self._data = view[HEADER_BYTES:]
+        self._base = np.frombuffer(self._data, dtype=np.uint8).ctypes.data  # (a loaned array's offset is from here)
         return True
 
     def _alloc(self, n: int) -> tuple[int, _Block] | None:
@@ -270,9 +349,15 @@ class ViewPool:
         assert table is not None
         zids = self.peers.zids
         for index, block in list(self._blocks.items()):
-            if all(table[word] == block.generation or not (zids(p) & then) for word, p, then in block.waits_for):
+            if block.holders:  # an array of it is still alive here (a loaned one, a recorder's view)
+                continue
+            if (block.loaned and not block.sent) or all(
+                table[word] == block.generation or not (zids(p) & then) for word, p, then in block.waits_for
+            ):
                 del self._blocks[index]
                 self._free.append(index)
+                if block.loaned and not block.sent:
+                    self._loans.pop(block.offset + LOAN_HEAD_BYTES, None)
 
     def _fit(self, n: int) -> tuple[int, _Block] | None:
         if not self._free:

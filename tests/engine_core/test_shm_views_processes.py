@@ -1,6 +1,6 @@
 """Large payloads as views of the sender's shared memory between real processes
-(engine.transport.shm_views): a recorded run whose consumer keeps clouds and the replay of its
-recording, a full pool, the same recipe across two network namespaces (treated as two hosts: bytes
+(engine.transport.shm_views): a recorded run whose producer fills loaned arrays and whose consumer
+keeps clouds, and the replay of its recording, a full pool, the same recipe across two network namespaces (treated as two hosts: bytes
 through the network), and a sender or a receiver killed mid-stream.
 """
 
@@ -26,8 +26,10 @@ from process_helpers import free_port, vgr
 from view_child import CONSUMERS, payload
 from view_stages import cloud_points
 
+from engine.messages import PointCloud, codec
 from engine.messages.codec import Kind
 from engine.recipe.model import ZenohSettings
+from engine.recording.reader import load
 from engine.transport.bus import Bus
 from engine.transport.shm_views import ViewPool, ViewReader
 from engine.transport.wire import WireSender
@@ -44,7 +46,7 @@ processes:
   producer: {{listen: ["tcp/{host}:{port}"]}}
   consumer: {{connect: ["tcp/{host}:{port}"], listen: []}}
 stages:
-  src:   {{type: t_cloud_source, process: producer, params: {{n: {n}, points: {points}, interval_s: {interval}}}}}
+  src:   {{type: t_cloud_source, process: producer, params: {{n: {n}, points: {points}, interval_s: {interval}, loan: {loan}, stats: "{stats}"}}}}
   shift: {{type: t_cloud_shift, process: consumer, inputs: {{cloud: src.cloud}}, params: {{output: "{shift_out}"}}}}
   sink:  {{type: t_view_sink, process: consumer, inputs: {{cloud: src.cloud}}, params: {{output: "{out}", keep: {keep}, delay_s: {delay}}}}}
 """
@@ -55,12 +57,19 @@ def env() -> dict[str, str]:
 
 
 def write_recipe(
-    tmp: Path, *, n: int = 6, interval: float = 0.005, keep: int = 0, delay: float = 0.0, host: str = "127.0.0.1"
+    tmp: Path,
+    *,
+    n: int = 6,
+    interval: float = 0.005,
+    keep: int = 0,
+    delay: float = 0.0,
+    host: str = "127.0.0.1",
+    loan: bool = False,
 ) -> Path:
     recipe = tmp / "views.yaml"
     text = RECIPE.format(
         host=host, port=free_port(), n=n, points=POINTS, interval=interval, keep=keep, delay=delay,
-        out=tmp / "views.json", shift_out=tmp / "shift.json",
+        out=tmp / "views.json", shift_out=tmp / "shift.json", loan=str(loan).lower(), stats=tmp / "pool.json",
     )  # fmt: skip
     recipe.write_text(text)
     return recipe
@@ -87,14 +96,21 @@ def expected(n: int) -> list[str]:
 
 
 def test_clouds_reach_the_consumer_as_read_only_views_kept_ones_stay_intact_and_replay_is_identical(tmp_path):
-    recipe = write_recipe(tmp_path, n=12, keep=3)
-    run_pair(recipe)  # recorded: the consumer's recorder is handed each view's bytes
+    recipe = write_recipe(tmp_path, n=12, keep=3, loan=True)
+    run_pair(recipe)  # recorded: each side's recorder is handed the views' bytes
+    assert json.loads((tmp_path / "pool.json").read_text()) == {"loaned_sent": 12, "shared": 12}  # no copy sent
     got = json.loads((tmp_path / "views.json").read_text())
     rows = got["rows"]
     assert [r["seq"] for r in rows] == list(range(1, 13)) and [r["sha"] for r in rows] == expected(12)
     assert all(r["view"] and not r["writeable"] for r in rows)  # no copy on receive, never written through
     assert got["kept_intact"] == [True, True, True]  # kept past the handler, 9 messages later: unchanged
     assert all(json.loads((tmp_path / "shift.json").read_text()))
+    # the producer recorded its loaned clouds from views of their blocks: the bytes each side recorded agree
+    sent = load(next(tmp_path.glob("runs/*-producer/*.mcap"))).messages("/src/cloud")
+    came = load(next(tmp_path.glob("runs/*-consumer/*.mcap"))).messages("/src/cloud")
+    assert len(sent) == 12 and [m.payload for m in sent] == [m.payload for m in came]
+    points = [codec.decode_payload(PointCloud, m.payload).points for m in sent]  # type: ignore[attr-defined]
+    assert [hashlib.sha256(p.tobytes()).hexdigest() for p in points] == expected(12)
     recording = next(tmp_path.glob("runs/*-consumer/*.mcap"))
     replayed = subprocess.run(
         vgr("replay", str(recording)), env=env(), cwd=tmp_path, capture_output=True, text=True, timeout=120

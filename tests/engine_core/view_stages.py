@@ -2,7 +2,7 @@
 recipe's ``plugins: [view_stages]`` with ``VGR_PLUGIN_PATH`` naming this folder.
 
 ``t_cloud_source`` publishes ``n`` point clouds of ``points`` points (cloud *i* is
-:func:`cloud_points`), ``interval_s`` apart. ``t_view_sink`` writes, per cloud, its seq, SHA-256,
+:func:`cloud_points`), ``interval_s`` apart, filled into ``ctx.loan`` arrays with ``loan``. ``t_view_sink`` writes, per cloud, its seq, SHA-256,
 whether it arrived as a view of shared memory (:func:`shared_view`) and whether its array is
 writeable; it keeps the first ``keep`` clouds as they came (no copy) and checks at the end that
 they still hold what they held on arrival (the lifetime rule: a view kept is never overwritten);
@@ -49,13 +49,24 @@ class CloudSource(Stage):
         n: int = 5
         points: int = 50_000
         interval_s: float = 0.0
+        loan: bool = False  # fill arrays from ctx.loan (in the port's pool: sent without a copy)
+        stats: str = ""  # JSON file for the port's pool figures (loaned_sent, shared)
 
     def run(self) -> None:
         p = self.params
         for i in range(p.n):
-            self.ctx.publish("cloud", PointCloud(points=cloud_points(i, p.points), frame_id="grid"))
+            if p.loan:
+                points = self.ctx.loan("cloud", (p.points, 3), np.float64)
+                points[:] = cloud_points(i, p.points)
+            else:
+                points = cloud_points(i, p.points)
+            self.ctx.publish("cloud", PointCloud(points=points, frame_id="grid"))
+            del points  # (a loaned block comes back once nothing here refers to it)
             if p.interval_s:
                 time.sleep(p.interval_s)
+        if p.stats:
+            views = self.ctx.outputs["cloud"].views  # type: ignore[attr-defined]  # (the runtime's port)
+            Path(p.stats).write_text(json.dumps({"loaned_sent": views.loaned_sent, "shared": views.shared}))
 
 
 class ViewSink(Stage):
