@@ -32,7 +32,13 @@ frame, plugins/calibration/handeye/noise.py) unless a condition says otherwise. 
    true inliers, pooled over the trials), missed outliers (unflagged / true outliers), verdicts.
 3. ``anisotropic`` - camera noise per axis of the camera frame (z the optical axis): translation
    (0.3, 0.3, 1.0) mm with rotation (0.2, 0.2, 0.05) deg (``low``) and (1.2, 1.2, 4.0) mm with
-   (0.3, 0.3, 0.1) deg (``high``); 15 and 60 poses.
+   (0.3, 0.3, 0.1) deg (``high``); 15 and 60 poses. And ``per-sample covariance given``: each view's
+   own noise (``simulate.depth_covariances``: 0.3 mm across its line of sight at 0.5 m growing with
+   the distance, 5-10x that along it growing with its square, 0.1 deg tilt / 0.03 deg roll, lateral
+   shift and tilt correlated by 0.6), drawn with it; vgr gets the covariances
+   (``camera_covariances=``, one common factor of them estimated), the peers cannot use them, and
+   vgr without them is recorded beside (``vgr_without_covariances``, the same trials; target: with
+   <= without).
 4. ``unknown_scale`` - 15 poses, the measured camera translations multiplied by 0.1, 0.5, 2 or 10
    (wrong target size or intrinsics). vgr is run with ``scale="free"`` when its ``SolverOptions``
    has a ``scale`` option (then its ``camera_scale`` metric, metres per camera unit, is compared
@@ -58,15 +64,19 @@ peer's median is beyond 10 mm, ``UNUSABLE_MM``: then no method gave a usable res
 trials <= 1 ms at 30 Hz (every offset); vgr's false flags <= 1 % on outlier-free data (fraction 0,
 both noise kinds).
 
-Usage: ``python benchmarks/handeye_streams.py [--trials 30] [--seed 11] [--quick] [--out PATH]``.
-The full run writes handeye_streams.json, ``--quick`` (3 trials per case unless ``--trials`` says
-otherwise) handeye_streams_quick.json, both in benchmarks/results/; a quick result says
-``"quick": true`` and is a smoke test of the script, not a measurement.
+Usage: ``python benchmarks/handeye_streams.py [--trials 30] [--seed 11] [--quick] [--out PATH]
+[--condition NAME ...]``. The full run writes handeye_streams.json, ``--quick`` (3 trials per case
+unless ``--trials`` says otherwise) handeye_streams_quick.json, both in benchmarks/results/; a quick
+result says ``"quick": true`` and is a smoke test of the script, not a measurement. ``--condition``
+runs only the conditions named; their entries (cases, targets) replace those of the result file
+already there (same seed, trials and quick mark; the others are kept, and ``partial_runs`` records
+the run), or start a new file.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import shlex
 import sys
 import time
@@ -138,6 +148,9 @@ ANISOTROPIC = {
     "high": PoseNoise.from_deg_mm((0.3, 0.3, 0.1), (1.2, 1.2, 4.0)),
 }
 ANISOTROPIC_POSES = (15, 60)
+COVARIANCE_CASE = "per-sample covariance given"
+GIVEN = "given"  # vgr option value: the trial's own camera covariances
+VGR_WITH_COVARIANCES: Options = {**VGR_OPTIONS, "camera_covariances": GIVEN}
 SCALES, SCALE_POSES = (0.1, 0.5, 2.0, 10.0), 15
 POSE_COUNTS = (3, 5, 8, 15, 50, 200)
 WEAK_MOTION = ((5, 3.0), (5, 8.0), (15, 3.0), (15, 8.0))  # (poses, max tilt = max roll, deg)
@@ -180,6 +193,7 @@ class Trial:
     peer_B: F64 | None = None
     extra: dict[str, float] = field(default_factory=dict)
     vgr_refusal: str | None = None
+    camera_covariances: F64 | None = None  # (n, 6, 6) each camera pose's noise, when the trial has them
 
 
 @dataclass
@@ -264,7 +278,10 @@ def evaluate(trial: Trial, vgr_options: Options | None, tally: Tally, *, peers: 
     elif vgr_options is None:
         tally.add_vgr(VgrRun(float("nan"), float("nan"), "not_supported"), None)
     else:
-        tally.add_vgr(run_vgr(trial.M, trial.B, trial.X, vgr_options), trial.outliers)
+        options = vgr_options
+        if vgr_options.get("camera_covariances") is GIVEN:
+            options = {**vgr_options, "camera_covariances": trial.camera_covariances}
+        tally.add_vgr(run_vgr(trial.M, trial.B, trial.X, options), trial.outliers)
     for key, value in trial.extra.items():
         tally.extra.setdefault(key, []).append(value)
     if not peers:
@@ -590,13 +607,47 @@ def run_static(
     return cases, targets
 
 
+def covariance_trial(seed: int, trial: int, n: int) -> Trial:
+    """viewing_scene's poses, the robot with ROBOT_NOISE, each camera pose with its own covariance
+    (``simulate.depth_covariances``), which the trial carries."""
+    scene = sim.viewing_scene(_rng(seed, 3, trial, 7), n, SETUP)
+    noise_rng = _rng(seed, 3, trial, 8)
+    C = sim.depth_covariances(scene.T_cam_target, noise_rng)
+    M = sim.perturb_poses(scene.T_base_tcp, ROBOT_NOISE, noise_rng)
+    B = sim.perturb_poses_cov(scene.T_cam_target, C, noise_rng)
+    return Trial(M, B, scene.X, camera_covariances=C)
+
+
+def run_covariance_cases(trials: int, seed: int) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """The anisotropic condition's per-sample covariance cases: vgr with the covariances against the
+    peers, and vgr without them on the same trials."""
+    cases, targets = [], []
+    for n in ANISOTROPIC_POSES:
+        make = partial(covariance_trial, seed, n=n)
+        label = f"{COVARIANCE_CASE}, {n} poses"
+        params = {"camera_noise": "simulate.depth_covariances (per view)", "poses": n, "vgr": "camera_covariances="}
+        rec = case_record(label, params, run_case(make, trials, VGR_WITH_COVARIANCES))
+        probe = case_record("probe", {}, run_case(make, trials, VGR_OPTIONS, peers=False))
+        rec["vgr_without_covariances"] = {"errors": probe["methods"]["vgr"], **probe["vgr"]}
+        targets.append(beats_peers("anisotropic", rec))
+        with_cov = rec["methods"]["vgr"]["trans_median_mm"]
+        without = probe["methods"]["vgr"]["trans_median_mm"]
+        ok = bool(with_cov <= without)
+        target = "vgr with covariances: median trans <= vgr without"
+        targets.append(check("anisotropic", label, target, with_cov, without, ok))
+        cases.append(rec)
+    return cases, targets
+
+
 def run_anisotropic(trials: int, seed: int) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     plan = []
     for name, noise in ANISOTROPIC.items():
         for n in ANISOTROPIC_POSES:
             params = {"camera_noise": noise.describe(), "poses": n}
             plan.append((f"{name}, {n} poses", params, {"n": n, "camera": noise}))
-    return run_static("anisotropic", 3, plan, trials, seed)
+    cases, targets = run_static("anisotropic", 3, plan, trials, seed)
+    more_cases, more_targets = run_covariance_cases(trials, seed)
+    return cases + more_cases, targets + more_targets
 
 
 def vgr_scale_options() -> tuple[Options | None, str]:
@@ -675,6 +726,12 @@ def case_note(rec: dict[str, Any]) -> str:
     probe = rec.get("vgr_without_scale_option")
     if probe:
         parts.append("unscaled call: " + " ".join(f"{k} {v}" for k, v in probe["verdicts"].items()))
+    without = rec.get("vgr_without_covariances")
+    if without:
+        e = without["errors"]
+        parts.append(f"vgr without cov {_fmt(e['trans_median_mm'])} / {_fmt(e['trans_p95_mm'])} mm")
+        if "false_flag_rate" in vgr and "false_flag_rate" in without:
+            parts.append(f"ff without {100 * without['false_flag_rate']:.1f}%")
     return ", ".join(p for p in parts if p)
 
 
@@ -704,13 +761,39 @@ def print_condition(
     console.print(f"  {name}: {n_pass} of {len(targets)} targets pass")
 
 
+def merged(out: Path, part: dict[str, Any]) -> dict[str, Any]:
+    """*part* (a run of some conditions) merged into the result file at *out*: its conditions and their
+    targets replace those there, the rest is kept, and ``partial_runs`` records the run. *part* alone
+    when there is no such file; an error when the file's seed, trials or quick mark differ."""
+    if not out.exists():
+        return part
+    full = json.loads(out.read_text())
+    for key in ("seed", "trials", "quick"):
+        if full.get(key) != part[key]:
+            raise SystemExit(f"{out}: {key} {full.get(key)!r} there, {part[key]!r} here; use --out for another file")
+    names = set(part["conditions"])
+    for name, cond in part["conditions"].items():
+        full["conditions"][name] = cond
+    full["targets"] = [t for t in full["targets"] if t["condition"] not in names] + part["targets"]
+    run = {k: part[k] for k in ("command", "machine", "wall_time_s")}
+    full.setdefault("partial_runs", []).append({"conditions": sorted(names), **run})
+    return full
+
+
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     ap = argparse.ArgumentParser(description=(__doc__ or "").split("\n")[0])
     ap.add_argument("--trials", type=int, default=None, help="trials per case (default 30, --quick 3)")
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--quick", action="store_true", help="3 trials per case; a smoke test, not results")
     ap.add_argument("--out", type=Path, default=None, help="result file (default benchmarks/results/...)")
+    ap.add_argument(
+        "--condition",
+        action="append",
+        choices=list(CONDITIONS),
+        help="run only this condition (repeatable); its entries replace those in the result file",
+    )
     args = ap.parse_args(argv)
+    chosen = {name: CONDITIONS[name] for name in (args.condition or CONDITIONS)}
     trials = args.trials or (3 if args.quick else 30)
     out = args.out or ROOT / "benchmarks" / "results" / f"handeye_streams{'_quick' if args.quick else ''}.json"
     console = Console(width=200)
@@ -734,20 +817,22 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     }
     if args.quick:
         result["note"] = f"quick run ({trials} trials per case): a smoke test of the script, not a measurement"
-    for name, run in CONDITIONS.items():
+    for name, run in chosen.items():
         c0 = time.time()
         cases, targets = run(trials, args.seed)
         result["conditions"][name] = {"cases": cases, "wall_time_s": time.time() - c0}
         result["targets"] += targets
         print_condition(console, name, cases, targets, args.quick)
     result["wall_time_s"] = time.time() - t0
+    if args.condition:
+        result = merged(out, result)
     result["targets_summary"] = {
         name: {"passed": sum(t["passed"] for t in ts), "of": len(ts)}
-        for name in CONDITIONS
+        for name in result["conditions"]
         for ts in [[t for t in result["targets"] if t["condition"] == name]]
     }
     write_result(out, _plain(result))
-    console.print(f"wrote {out} ({result['wall_time_s']:.0f} s)")
+    console.print(f"wrote {out} ({time.time() - t0:.0f} s)")
     return result
 
 

@@ -176,11 +176,16 @@ def _hand_eye(kind: str) -> Callable[[argparse.Namespace], Outcome]:
             )
         setup = check_setup(args.setup or samples.setup) if args.setup or samples.setup else "auto"
         noise = _declared_noise(args)
+        cov = samples.camera_covariances  # (each sample's own camera noise, from the file or the messages)
+        if cov is not None and noise is not None:
+            notes.append("the per-sample camera covariances of the data are not used: the camera noise is declared")
+            cov = None
         accuracy = AccuracyTargets(**_noise_limits(args))
         solve = calibrate_robot_world if kind == "robot_world" else calibrate_hand_eye
         result = solve(
             samples.T_base_tcp, samples.T_cam_target, setup=setup, noise=noise, loss=args.loss,
             accuracy=accuracy, sample_ids=samples.ids or None, scale=args.scale,
+            camera_covariances=cov,
         )  # fmt: skip
         result.metrics.update(samples.metrics)  # (a stream file's clock offset and its 1-sigma)
         return Outcome(result, notes)

@@ -27,9 +27,10 @@ from typing import Literal, TypedDict, TypeVar, Unpack
 
 import numpy as np
 
-from engine.messages import JointState, Message, PoseStamped, TrackerPose, codec
+from engine.messages import JointState, Message, PoseStamped, PoseWithCovarianceStamped, TrackerPose, codec
 from engine.recording.reader import Recording
 from plugins.calibration.handeye.io import PoseSamples
+from plugins.calibration.handeye.noise import check_camera_covariances
 from plugins.calibration.kinematics import KinematicSamples
 from plugins.calibration.tcp_camera import TcpCameraData, TcpNoiseModel
 from plugins.calibration.vive_desk import ViveDeskData, ViveNoiseModel
@@ -156,12 +157,21 @@ def hand_eye_samples(
     target: Sequence[PoseStamped],
     **pairing: Unpack[PairingOptions],
 ) -> tuple[PoseSamples, list[str]]:
-    """Robot poses ``T_base_tcp`` + camera observations ``T_cam_target`` -> hand-eye samples."""
+    """Robot poses ``T_base_tcp`` + camera observations ``T_cam_target`` -> hand-eye samples; when every
+    paired target pose carries a covariance (PoseWithCovarianceStamped), the samples carry them
+    (``PoseSamples.camera_covariances``), unless one is no covariance (then a note says so)."""
     p = _pair(robot, target, ("robot poses", "target poses"), **pairing)
     M = _poses(robot, [i for i, _ in p.pairs])
     B = _poses(target, [j for _, j in p.pairs])
     ids = [f"t={robot[i].stamp_ns / 1e9:.3f}s" for i, _ in p.pairs]
-    return PoseSamples(M, B, ids, None, "messages"), p.notes
+    seen = [target[j] for _, j in p.pairs]
+    cov = None
+    if all(isinstance(m, PoseWithCovarianceStamped) for m in seen):
+        try:
+            cov = check_camera_covariances([m.covariance for m in seen], names=ids)  # type: ignore[attr-defined]
+        except ValueError as exc:
+            p.notes.append(f"the target poses' covariances are not used per sample: {exc}")
+    return PoseSamples(M, B, ids, None, "messages", camera_covariances=cov), p.notes
 
 
 def vive_desk_data(

@@ -8,6 +8,8 @@ import json
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = ROOT / "benchmarks" / "handeye_streams.py"
 
@@ -28,7 +30,7 @@ def test_the_quick_run_writes_every_condition(tmp_path):
     doc = json.loads(out.read_text())
     assert doc["quick"] is True and "not a measurement" in doc["note"]
     assert set(doc["conditions"]) == set(bench.CONDITIONS)
-    n_cases = {"clock_offset": 15, "outliers": 26, "anisotropic": 4, "unknown_scale": 4, "poses": 10}
+    n_cases = {"clock_offset": 15, "outliers": 26, "anisotropic": 6, "unknown_scale": 4, "poses": 10}
     for name, cond in doc["conditions"].items():
         assert len(cond["cases"]) == n_cases[name], name
         for case in cond["cases"]:
@@ -39,3 +41,29 @@ def test_the_quick_run_writes_every_condition(tmp_path):
     clock = doc["conditions"]["clock_offset"]["cases"]
     assert all("offset_error_ms" in c["figures"] for c in clock)
     assert doc["seed"] == 11 and doc["trials"] == 1 and doc["machine"]["opencv"] and doc["wall_time_s"] > 0
+
+
+def test_one_condition_runs_alone_and_replaces_only_its_entries(tmp_path):
+    """``--condition anisotropic``: only that condition runs; into an existing result file its cases
+    and targets replace the old ones and the other conditions stay (``partial_runs`` says so). The
+    per-sample covariance cases carry vgr without the covariances beside it."""
+    bench = _load()
+    out = tmp_path / "r.json"
+    old = {
+        "seed": 11, "trials": 1, "quick": True, "conditions": {"poses": {"cases": ["kept"]}, "anisotropic": {}},
+        "targets": [{"condition": "poses", "passed": True}, {"condition": "anisotropic", "passed": False}],
+    }  # fmt: skip
+    out.write_text(json.dumps(old))
+    bench.main(["--quick", "--trials", "1", "--condition", "anisotropic", "--out", str(out)])
+    doc = json.loads(out.read_text())
+    assert doc["conditions"]["poses"] == {"cases": ["kept"]}
+    cases = doc["conditions"]["anisotropic"]["cases"]
+    assert len(cases) == 6 and {"condition": "anisotropic", "passed": False} not in doc["targets"]
+    cov = [c for c in cases if c["case"].startswith(bench.COVARIANCE_CASE)]
+    assert len(cov) == 2 and all(c["vgr_without_covariances"]["errors"]["n"] == 1 for c in cov)
+    assert doc["targets_summary"]["poses"] == {"passed": 1, "of": 1}
+    assert doc["partial_runs"][0]["conditions"] == ["anisotropic"]
+    old["seed"] = 12
+    out.write_text(json.dumps(old))
+    with pytest.raises(SystemExit, match="seed"):
+        bench.main(["--quick", "--trials", "1", "--condition", "anisotropic", "--out", str(out)])

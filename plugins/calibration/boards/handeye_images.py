@@ -9,11 +9,12 @@ Pipeline of :func:`calibrate_handeye_images`:
 3. Board pose per image with its 6x6 covariance (:func:`.board_pose.board_pose`, the corner noise
    from the intrinsic fit's RMS). A camera that moved mirrored to the robot (robot translations
    = -1 x the camera's: mirrored images, or the wrong set-up) fails here, saying so.
-4. vgr's maximum-likelihood hand-eye solver (:mod:`plugins.calibration.handeye`) on the pose pairs. Its
-   noise model is one per-axis camera noise for all samples: the per-image covariances give it (the
-   median of their per-axis variances; the solver then estimates its variance components), and the
-   solver's checks apply (degenerate motion, wrong set-up, mixed units, scaled camera: a wrong
-   square size is reported as "square size?" with the factor the data ask for, and fails). When the
+4. vgr's maximum-likelihood hand-eye solver (:mod:`plugins.calibration.handeye`) on the pose pairs,
+   each view's camera residual whitened by its own board-pose covariance (``camera_covariances``:
+   a far or oblique view's PnP error is larger, mostly along its line of sight, and correlated; the
+   solver estimates one common factor of them with the robot's noise), and the solver's checks
+   apply (degenerate motion, wrong set-up, mixed units, scaled camera: a wrong square size is
+   reported as "square size?" with the factor the data ask for, and fails). When the
    solver's own result is not usable although it solved (it did not converge, or flagged many views
    on data whose robot poses are nearly exact), the declared-noise solution and the closed forms are
    tried as starts too, and the pixel refinement keeps the one that fits the corners best.
@@ -71,7 +72,7 @@ from plugins.calibration.handeye import (
     closed_form,
 )
 from plugins.calibration.handeye.consistency import estimate_unit_scale, mirrored_message
-from plugins.calibration.handeye.noise import camera_noise_from_covariances
+from plugins.calibration.handeye.noise import camera_noise_from_covariances, check_camera_covariances
 from plugins.calibration.handeye.problem import Setup, check_setup, frames_of
 from plugins.calibration.result import CalibrationResult
 from plugins.camera.pinhole import CameraModel
@@ -86,6 +87,7 @@ __all__ = [
     "camera_noise",
     "moved_views",
     "pair_views",
+    "view_covariances",
 ]
 
 MIN_VIEWS = 3
@@ -137,8 +139,21 @@ def pair_views(
 
 
 def camera_noise(poses: Sequence[BoardPose]) -> NoiseModel:
-    """The hand-eye solver's noise model from the board poses' covariances (module docstring, step 4)."""
+    """A shared per-axis noise model from the board poses' covariances (the median variance per axis):
+    the robot's prior, and the camera's for a solver that cannot take each view's own (step 4 passes
+    them, :func:`view_covariances`)."""
     return camera_noise_from_covariances(np.stack([p.covariance for p in poses]))
+
+
+def view_covariances(poses: Sequence[BoardPose], notes: list[str]) -> F64 | None:
+    """Each view's board-pose covariance ``(n, 6, 6)`` for the solver (module docstring, step 4); None,
+    with a note, when one of them is no covariance (not positive definite: the shared median is used)."""
+    cov = np.stack([p.covariance for p in poses])
+    try:
+        return check_camera_covariances(cov, names=[Path(p.name).name for p in poses])
+    except ValueError as exc:
+        notes.append(f"board-pose covariances not used per view ({exc}); their median per axis is")
+        return None
 
 
 def moved_views(d2: F64, view_rms_px: F64, p: float = OUTLIER_P) -> NDArray[np.bool_]:
@@ -208,12 +223,14 @@ class _Figures(NamedTuple):
 
 
 def _solve_poses(kind: Kind, setup: Setup, M: F64, B: F64, poses: list[BoardPose], notes: list[str]) -> _PoseSolve:
-    """Step 4: vgr's ML solver on the pose pairs, the noise from the board poses' covariances and
-    estimated; a camera length scale off 1 is added to ``notes`` as a wrong square size. A result not
-    usable although solved adds the declared-noise solution and the closed forms as starts."""
+    """Step 4: vgr's ML solver on the pose pairs, each view's camera noise its board pose's covariance
+    (a common factor of them estimated); a camera length scale off 1 is added to ``notes`` as a wrong
+    square size. A result not usable although solved adds the declared-noise solution and the closed
+    forms as starts."""
     frames = frames_of(setup)
     solve = calibrate_robot_world if kind == "robot_world" else calibrate_hand_eye
-    ml = solve(M, B, setup=setup, noise=camera_noise(poses), estimate_noise=True)
+    cov = view_covariances(poses, notes)
+    ml = solve(M, B, setup=setup, noise=camera_noise(poses), estimate_noise=True, camera_covariances=cov)
     scale = ml.metrics.get("unit_scale_robot_per_camera")
     wrong_scale = scale is not None and abs(scale - 1.0) > max(5.0 * ml.metrics.get("unit_scale_std", 0.0), SCALE_TOL)
     if wrong_scale:
@@ -223,7 +240,7 @@ def _solve_poses(kind: Kind, setup: Setup, M: F64, B: F64, poses: list[BoardPose
         )
     starts = _starts(ml, frames.x_name, frames.y_name)
     if not ml.usable and starts:  # solved but not trusted: try the declared noise and the closed forms too
-        ml_declared = solve(M, B, setup=setup, noise=camera_noise(poses), estimate_noise=False)
+        ml_declared = solve(M, B, setup=setup, noise=camera_noise(poses), estimate_noise=False, camera_covariances=cov)
         starts += _starts(ml_declared, frames.x_name, frames.y_name, "pose solver, noise declared")
         starts += [(f"closed form {m}", *closed_form(setup, M, B, m)) for m in CLOSED_FORM_METHODS]
     return _PoseSolve(ml, starts, wrong_scale)

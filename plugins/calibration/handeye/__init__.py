@@ -2,8 +2,9 @@
 
 Entry points: :func:`calibrate_hand_eye`, :func:`calibrate_robot_world` (return
 ``plugins.calibration.result.CalibrationResult``; the set-up is found from the data unless
-given), the loaders :func:`load_pose_pairs` (JSON, CSV, OpenCV YAML), the Cramér–Rao bound
-:func:`crlb_covariance` and the report :func:`format_report`.
+given; each sample's own camera covariance with ``camera_covariances=``), the loaders
+:func:`load_pose_pairs` (JSON, CSV, OpenCV YAML; optional per-sample ``camera_cov``), the Cramér–Rao
+bound :func:`crlb_covariance` and the report :func:`format_report`.
 See docs/handeye.md for the models, conventions and file formats.
 """
 

@@ -6,7 +6,8 @@ closed form leaves a sample more than 3x the median pose-chain cost away, or its
 far above the noise (> 10, about 3x an inlier's), the solver runs:
 
 1. ``pose_chain_cost`` measures each sample against a candidate (X, Y): the deviation of its pose
-   chain ``A_i X B_i`` from Y in noise units (translation and rotation, camera lever arm included);
+   chain ``A_i X B_i`` from Y in noise units (translation and rotation, camera lever arm included;
+   with per-sample camera covariances each sample in its own camera noise's units);
 2. minimal subsets of 3 poses (2 independent motions) give candidates by Park-Martin; the candidate
    with the smallest ``QUANTILE`` (40 %) order statistic of the cost over all samples wins (least
    quantile of squares, Rousseeuw & Leroy 1987, *Robust Regression and Outlier Detection*: with
@@ -39,8 +40,9 @@ __all__ = ["Consensus", "lmeds_consensus", "pose_chain_cost"]
 def pose_chain_cost(setup: Setup, M: F64, B: F64, X: F64, Y: F64, noise: NoiseModel) -> F64:
     """Per-sample pose-chain deviation from Y in noise units (dimensionless, ~3 for inliers)."""
     d = pose_delta(chain_poses(setup, M, X, B), np.broadcast_to(Y, M.shape))
-    s_r = np.hypot(np.mean(noise.camera.rot_sigma), np.mean(noise.robot.rot_sigma))
-    s_t = np.hypot(np.mean(noise.camera.trans_sigma), np.mean(noise.robot.trans_sigma))
+    cam = noise.camera_sigmas_per_sample(M.shape[0])  # (n, 6): (tx, ty, tz, rx, ry, rz)
+    s_r = np.hypot(np.mean(cam[:, 3:], axis=1), np.mean(noise.robot.rot_sigma))
+    s_t = np.hypot(np.mean(cam[:, :3], axis=1), np.mean(noise.robot.trans_sigma))
     lever = float(np.median(np.linalg.norm(B[:, :3, 3], axis=1)))  # camera rotation error * distance
     s_t = np.hypot(s_t, lever * s_r)
     return np.linalg.norm(d[:, :3], axis=1) / s_t + np.linalg.norm(d[:, 3:], axis=1) / s_r
@@ -121,13 +123,14 @@ def second_group(
     out = np.flatnonzero(outliers)
     if len(out) < MIN_GROUP:
         return none
-    inlier_scale = float(np.median(pose_chain_cost(setup, M[~outliers], B[~outliers], X, Y, noise)))
-    c = lmeds_consensus(setup, M[out], B[out], noise, min_samples=MIN_GROUP)
+    inlier_scale = float(np.median(pose_chain_cost(setup, M[~outliers], B[~outliers], X, Y, noise.take(~outliers))))
+    noise_out = noise.take(out)
+    c = lmeds_consensus(setup, M[out], B[out], noise_out, min_samples=MIN_GROUP)
     if c is None:
         return none
     X2, Y2 = c.X, c.Y
     for _ in range(3):
-        grp = pose_chain_cost(setup, M[out], B[out], X2, Y2, noise) <= 3.0 * inlier_scale
+        grp = pose_chain_cost(setup, M[out], B[out], X2, Y2, noise_out) <= 3.0 * inlier_scale
         if np.count_nonzero(grp) < MIN_GROUP:
             return none
         with np.errstate(all="ignore"):

@@ -13,6 +13,9 @@ visual-odometry camera reports its translations up to one factor ``k`` (metres =
    ``g g^T`` (``g`` the change of X and Y per ``sigma_u``, from the profile's fits at ``u* +- sigma_u``),
    so the reported uncertainty includes that of the scale.
 
+Per-sample camera covariances (``noise``) are in the camera's units too: at scale ``k`` their
+translation rows and columns are multiplied by ``k`` (:func:`scaled_covariances`).
+
 The result is the solver's at ``k*`` with ``estimate["camera_scale"]`` = ``k*`` and the metrics
 ``camera_scale``, ``camera_scale_sd`` (and the reason saying so).
 """
@@ -36,7 +39,7 @@ from plugins.calibration.result import CalibrationResult
 
 F64 = NDArray[np.float64]
 
-__all__ = ["SolvedFit", "scaled", "solve_free_scale"]
+__all__ = ["SolvedFit", "scaled", "scaled_covariances", "solve_free_scale"]
 
 
 @dataclass(frozen=True)
@@ -48,7 +51,8 @@ class SolvedFit:
     data: ValidatedSamples
 
 
-Solve = Callable[[F64], tuple[CalibrationResult, SolvedFit | None]]
+# the solver with the camera's translations (and their covariances) multiplied by a scale
+Solve = Callable[[float], tuple[CalibrationResult, SolvedFit | None]]
 
 
 def scaled(B: ArrayLike, k: float) -> F64:
@@ -56,6 +60,18 @@ def scaled(B: ArrayLike, k: float) -> F64:
     out = np.array(B, dtype=float, copy=True)
     out[:, :3, 3] *= k
     return out
+
+
+def scaled_covariances(covariances: ArrayLike | None, k: float) -> F64 | None:
+    """Per-sample camera covariances ``(n, 6, 6)`` of translations multiplied by *k*: ``S C S`` with
+    ``S = diag(k, k, k, 1, 1, 1)`` (None stays None)."""
+    if covariances is None:
+        return None
+    c = np.asarray(covariances, dtype=float)
+    if c.ndim != 3 or c.shape[1:] != (6, 6):
+        return c  # (the solver's check refuses it, saying why)
+    s = np.array([k, k, k, 1.0, 1.0, 1.0])
+    return c * s[:, None] * s[None, :]
 
 
 def _unobservable(kind: str, why: str) -> CalibrationResult:
@@ -105,8 +121,9 @@ def _scale_share(sf: SolvedFit, sigma_u: float) -> F64:
 def solve_free_scale(
     solve: Solve, kind: str, T_base_tcp: ArrayLike, T_cam_target: ArrayLike, setup: Setup, accuracy: AccuracyTargets
 ) -> CalibrationResult:
-    """The calibration with the camera's scale solved (module docstring). *solve* is the solver at
-    the scale as given; *setup* the set-up whose screw invariant gives the start (either does)."""
+    """The calibration with the camera's scale solved (module docstring). *solve* is the solver with
+    the camera's translations times a scale; *setup* the set-up whose screw invariant gives the
+    start (either does)."""
     data = validate_samples(T_base_tcp, T_cam_target, camera_unit_known=False)
     unit = estimate_unit_scale(setup, data.T_base_tcp, data.T_cam_target, signed=True)
     if unit is None:
@@ -114,14 +131,14 @@ def solve_free_scale(
     k0, k0_sd = unit
     if k0 <= 0.0:
         return _unobservable(kind, f"the camera moves mirrored to the robot (scale {k0:.3g})")
-    res0, sf0 = solve(scaled(T_cam_target, k0))
+    res0, sf0 = solve(k0)
     if sf0 is None or not res0.usable:
         res0.reasons.insert(0, f"camera translations scaled by {k0:.6g} (the screw invariant's start)")
         return res0
     bound = float(min(1.0, max(0.1, 6.0 * k0_sd / k0)))
     u, sigma_u = _profile(sf0, bound)
     k = k0 * float(np.exp(u))
-    res, sf = solve(scaled(T_cam_target, k))
+    res, sf = solve(k)
     if sf is None or not res.usable:
         res.reasons.insert(0, f"camera translations scaled by {k:.6g} (profiled)")
         return res

@@ -29,6 +29,16 @@ other impossible values are.
 ``length_unit`` is ``"m"`` or ``"mm"``; translations are converted to metres. Quaternions must be
 unit within 1e-3 (else the columns are probably mixed up); rotation vectors longer than 2 pi are
 degrees, not radians (error).
+
+Per-sample camera covariances (optional, ``PoseSamples.camera_covariances``, what
+``calibrate_hand_eye(..., camera_covariances=)`` takes): in the vgr JSON a sample's ``camera_cov``
+(36 numbers, the 6x6 covariance of the decoupled ``(dt, dphi)`` camera-frame perturbation ordered
+``(tx, ty, tz, rx, ry, rz)``, row-major; length unit^2, rad^2, length unit x rad) or ``camera_sigma``
+(6 numbers: length unit and rad, a diagonal covariance); in CSV the columns ``camera_cov_RC`` (R, C
+= 0..5) or ``camera_sigma_tx`` .. ``camera_sigma_rz``; in OpenCV YAML ``camera_cov_<i>`` (6x6
+``!!opencv-matrix``) or ``camera_sigma_<i>`` (6 values) beside ``T1_<i>`` / ``T2_<i>``. Every sample
+or none; converted to metres with the poses; bad ones refused naming the sample
+(plugins/calibration/handeye/covariance_file.py). MoveIt's list of pairs has none.
 """
 
 from __future__ import annotations
@@ -44,6 +54,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from engine.transforms import T_from_pose7, T_from_rotvec
+from plugins.calibration.handeye.covariance_file import (
+    covariance_entry,
+    covariance_from_csv,
+    covariances_in_metres,
+    csv_covariance_kind,
+    json_covariance,
+)
 from plugins.calibration.handeye.validation import HandEyeInputError
 
 F64 = NDArray[np.float64]
@@ -76,6 +93,8 @@ class PoseSamples:
     dropped: list[str] = field(default_factory=list)  # samples left out: "<id> (<which pose> missing)"
     notes: list[str] = field(default_factory=list)  # what the loading did (a stream file's clock offset)
     metrics: dict[str, float] = field(default_factory=dict)  # what the loading measured (clock_offset_s, ...)
+    # (n, 6, 6) each sample's camera covariance in metres and radians (module docstring), or None
+    camera_covariances: F64 | None = None
 
 
 def unit_scale(unit: str | None) -> float:
@@ -124,9 +143,16 @@ def pose_from_json(obj: Any, where: str) -> F64:
 
 
 def _in_metres(
-    path: Path, M: list[F64], B: list[F64], ids: list[str], setup: str | None, length_unit: str | None
+    path: Path,
+    M: list[F64],
+    B: list[F64],
+    ids: list[str],
+    setup: str | None,
+    length_unit: str | None,
+    covs: list[F64 | None] | None = None,
 ) -> PoseSamples:
-    """The loaded poses as samples, translations converted from *length_unit* to metres."""
+    """The loaded poses as samples, translations (and the camera covariances *covs*, one per sample
+    or None) converted from *length_unit* to metres."""
     if not M:
         raise HandEyeInputError(f"{path}: no samples")
     s = unit_scale(length_unit)
@@ -145,7 +171,10 @@ def _in_metres(
     Ma, Ba = Ma[keep], Ba[keep]
     Ma[:, :3, 3] *= s
     Ba[:, :3, 3] *= s
-    return PoseSamples(Ma, Ba, [i for i, k in zip(ids, keep, strict=True) if k], setup, str(path), dropped)
+    kept = [i for i, k in zip(ids, keep, strict=True) if k]
+    kept_covs = None if covs is None else [covs[k] for k in np.flatnonzero(keep)]
+    cov = None if kept_covs is None else covariances_in_metres(kept_covs, kept, s, path)
+    return PoseSamples(Ma, Ba, kept, setup, str(path), dropped, camera_covariances=cov)
 
 
 def load_pose_pairs_json(path: str | Path, *, length_unit: str | None = None) -> PoseSamples:
@@ -154,6 +183,7 @@ def load_pose_pairs_json(path: str | Path, *, length_unit: str | None = None) ->
     data = json.loads(path.read_text())
     setup = None
     ids: list[str] = []
+    covs: list[F64 | None] | None = None
     if isinstance(data, dict):
         if data.get("format") == STREAMS_FORMAT:
             raise HandEyeInputError(
@@ -171,6 +201,10 @@ def load_pose_pairs_json(path: str | Path, *, length_unit: str | None = None) ->
         M = [pose_from_json(s["T_base_tcp"], f"{path} sample {k} T_base_tcp") for k, s in enumerate(samples)]
         B = [pose_from_json(s["T_cam_target"], f"{path} sample {k} T_cam_target") for k, s in enumerate(samples)]
         ids = [str(s.get("id", k)) for k, s in enumerate(samples)]
+        covs = [
+            covariance_entry(s.get("camera_cov"), s.get("camera_sigma"), f"{path} sample {i}")
+            for i, s in zip(ids, samples, strict=True)
+        ]
     elif isinstance(data, list):
         M, B = [], []
         for k, pair in enumerate(data):
@@ -181,7 +215,7 @@ def load_pose_pairs_json(path: str | Path, *, length_unit: str | None = None) ->
         ids = [str(k) for k in range(len(M))]
     else:
         raise HandEyeInputError(f"{path}: JSON must be a list of pose pairs or a {VGR_FORMAT} object")
-    return _in_metres(path, M, B, ids, setup, length_unit)
+    return _in_metres(path, M, B, ids, setup, length_unit, covs)
 
 
 def _csv_pose(row: dict[str, str], prefix: str, where: str) -> F64:
@@ -216,14 +250,16 @@ def load_pose_pairs_csv(path: str | Path, *, length_unit: str = "m") -> PoseSamp
             raise HandEyeInputError(
                 f"{path}: missing columns for {prefix}*: need {sorted(pos)} and either {sorted(quat)} or {sorted(rvec)}"
             )
-    M, B, ids = [], [], []
+    kind = csv_covariance_kind(cols, path)
+    M, B, ids, covs = [], [], [], []
     for k, row in enumerate(reader):
         line = f"line {line_of[k]}" if k < len(line_of) else f"row {k + 1}"
         where = f"{path} {line}"
         M.append(_csv_pose(row, "base_tcp_", where))
         B.append(_csv_pose(row, "cam_target_", where))
         ids.append((row.get("id") or "").strip() or line)
-    return _in_metres(path, M, B, ids, None, length_unit)
+        covs.append(covariance_from_csv(row, kind, f"{path} sample {ids[-1]}"))
+    return _in_metres(path, M, B, ids, None, length_unit, covs)
 
 
 _PAIR_KEY = re.compile(r"^T([12])_(.+)$")
@@ -251,7 +287,8 @@ def _file_storage_root(path: Path) -> Any:
     return fs
 
 
-def _yaml_matrix(fs: Any, key: str, path: Path) -> F64:
+def _yaml_matrix(fs: Any, key: str, path: Path, shape: tuple[int, int] | None = (4, 4)) -> F64:
+    """The ``!!opencv-matrix`` at *key*, of *shape* (None: any)."""
     import cv2
 
     node = fs.getNode(key)
@@ -262,6 +299,8 @@ def _yaml_matrix(fs: Any, key: str, path: Path) -> F64:
     if mat is None:
         raise HandEyeInputError(f"{path}: {key} is not an opencv-matrix (a 4x4 !!opencv-matrix is expected)")
     A = np.asarray(mat, dtype=float)
+    if shape is None:
+        return A
     if A.shape != (4, 4):
         raise HandEyeInputError(f"{path}: {key} is {A.shape[0]}x{A.shape[1] if A.ndim > 1 else 1}, not 4x4")
     return A
@@ -304,13 +343,23 @@ def load_pose_pairs_yaml(path: str | Path, *, length_unit: str | None = None) ->
             ids.sort(key=int)
         M = [_yaml_matrix(fs, pairs[i]["1"], path) for i in ids]
         B = [_yaml_matrix(fs, pairs[i]["2"], path) for i in ids]
+        covs = [_yaml_covariance(fs, keys, i, path) for i in ids]
     finally:
         fs.release()
-    return _in_metres(path, M, B, ids, None, length_unit or "m")
+    return _in_metres(path, M, B, ids, None, length_unit or "m", covs)
 
 
-def write_pose_pairs_yaml(path: str | Path, T_base_tcp: F64, T_cam_target: F64) -> None:
-    """Write samples (metres) in camodocal's ``TransformPairsInput.yml`` layout (OpenCV FileStorage)."""
+def _yaml_covariance(fs: Any, keys: list[str], i: str, path: Path) -> F64 | None:
+    """Sample *i*'s ``camera_cov_<i>`` / ``camera_sigma_<i>`` matrix as a covariance, or None."""
+    got = {k: _yaml_matrix(fs, f"{k}_{i}", path, None) for k in ("camera_cov", "camera_sigma") if f"{k}_{i}" in keys}
+    return covariance_entry(got.get("camera_cov"), got.get("camera_sigma"), f"{path} sample {i}")
+
+
+def write_pose_pairs_yaml(
+    path: str | Path, T_base_tcp: F64, T_cam_target: F64, *, camera_covariances: F64 | None = None
+) -> None:
+    """Write samples (metres) in camodocal's ``TransformPairsInput.yml`` layout (OpenCV FileStorage),
+    with ``camera_cov_<i>`` when *camera_covariances* ``(n, 6, 6)`` are given."""
     import cv2
 
     n = len(T_base_tcp)
@@ -320,6 +369,8 @@ def write_pose_pairs_yaml(path: str | Path, T_base_tcp: F64, T_cam_target: F64) 
         for k in range(n):
             fs.write(f"T1_{k}", np.asarray(T_base_tcp[k], dtype=float))
             fs.write(f"T2_{k}", np.asarray(T_cam_target[k], dtype=float))
+            if camera_covariances is not None:
+                fs.write(f"camera_cov_{k}", np.asarray(camera_covariances[k], dtype=float))
     finally:
         fs.release()
 
@@ -343,8 +394,10 @@ def write_pose_pairs_json(
     *,
     ids: list[str] | None = None,
     setup: str | None = None,
+    camera_covariances: F64 | None = None,
 ) -> None:
-    """Write samples (metres) in the vgr JSON format, poses as 4x4 nested lists."""
+    """Write samples (metres) in the vgr JSON format, poses as 4x4 nested lists, with ``camera_cov``
+    when *camera_covariances* ``(n, 6, 6)`` are given."""
     n = len(T_base_tcp)
     ids = ids or [str(k) for k in range(n)]
     doc: dict[str, Any] = {"format": VGR_FORMAT, "length_unit": "m"}
@@ -355,6 +408,7 @@ def write_pose_pairs_json(
             "id": ids[k],
             "T_base_tcp": np.asarray(T_base_tcp[k]).tolist(),
             "T_cam_target": np.asarray(T_cam_target[k]).tolist(),
+            **({} if camera_covariances is None else {"camera_cov": json_covariance(camera_covariances[k])}),
         }
         for k in range(n)
     ]

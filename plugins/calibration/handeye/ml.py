@@ -12,7 +12,9 @@ Runs :class:`ml_model.EivModel` through ``scipy.optimize.least_squares`` in four
    scaling) are flagged and left out of the final estimate.
 3. **Noise estimation** (``estimate_noise=True``) - variance-component estimation (Förstner /
    Helmert): each of the groups robot-translation, robot-rotation, camera-translation,
-   camera-rotation gets the factor ``sum of squared whitened residuals / redundancy`` until the
+   camera-rotation (or each camera axis, ``MLOptions.camera_axes``; or, when each sample has its
+   own camera covariance, one common factor of them: their shape and per-sample scale are kept)
+   gets the factor ``sum of squared whitened residuals / redundancy`` until the
    factors are within 1 % of 1 or the update moves the estimated translations by less than 1 % of
    their sigma. Groups whose redundancy is below 1 are not estimable and keep their prior. Robot
    and camera translation noise are hardly separable (both add isotropically to the pose chain);
@@ -100,6 +102,8 @@ class MLFit:
     nfev: int
     converged: bool
     noise_groups_estimated: int = 0  # variance components with redundancy >= 1 (0: noise not estimated)
+    # per-sample camera covariances: the factor the given ones were multiplied by (estimated; 1 declared)
+    camera_covariance_factor: float = 1.0
     # estimated noise (``variance``, Kenward-Roger): F(k, dof) denominator degrees of freedom and scale
     # lambda of the confidence regions of X (6) and of (X, Y) (12), and the factor by which the
     # adjustment widened X's covariance (mean over its 6 whitened directions); inf / 1 when declared
@@ -174,8 +178,11 @@ def _vce_step(model: EivModel, st: EivState, weights: F64, noise: NoiseModel) ->
     factor = np.where(redund >= 1.0, omega / np.maximum(redund, 1e-12), 1.0)
     factor = np.clip(factor, 1e-4, 1e4)
     cam = noise.camera.sigmas6()  # (tx, ty, tz, rx, ry, rz)
-    sig = [noise.robot.trans_sigma, noise.robot.rot_sigma] if model.robot_free else []
-    sig += [(c,) for c in cam] if model.camera_axes else [tuple(cam[:3]), tuple(cam[3:])]
+    sig: list[tuple[float, ...]] = [noise.robot.trans_sigma, noise.robot.rot_sigma] if model.robot_free else []
+    if model.camera_per_sample:  # one common factor of the per-sample covariances (``variance.group_rows``)
+        sig.append(tuple(cam))
+    else:
+        sig += [(c,) for c in cam] if model.camera_axes else [tuple(cam[:3]), tuple(cam[3:])]
     current = np.array([min(g) for g in sig])
     # a component already at the floor cannot shrink further: report it as converged
     factor = np.maximum(factor, (SIGMA_FLOOR / current) ** 2)
@@ -185,6 +192,9 @@ def _vce_step(model: EivModel, st: EivState, weights: F64, noise: NoiseModel) ->
     if model.robot_free:
         robot = noise.robot.scaled(rot_factor=f[1], trans_factor=f[0])
         f = f[2:]
+    if model.camera_per_sample:
+        assert noise.camera_covariances is not None
+        return NoiseModel(robot, noise.camera, noise.camera_covariances * float(f[0]) ** 2), factor, redund
     per_axis = f if model.camera_axes else np.repeat(f, 3)
     camera = PoseNoise(cam[3:] * per_axis[3:], cam[:3] * per_axis[:3])
     return NoiseModel(robot, camera), factor, redund
@@ -367,6 +377,7 @@ def refine_ml(
     opts = options or MLOptions()
     n = T_base_tcp.shape[0]
     notes: list[str] = []
+    prior = noise
     estimable = 0
     model = EivModel(setup, T_base_tcp, T_cam_target, noise, X0, Y0, camera_axes=_camera_axes(opts, n, noise))
     estimated_groups = np.zeros(len(group_rows(model)), dtype=bool)
@@ -414,6 +425,7 @@ def refine_ml(
         nfev=nfev_total,
         converged=converged,
         noise_groups_estimated=estimable,
+        camera_covariance_factor=_covariance_factor(prior, noise),
         dof_x=cov.dof_x,
         dof_xy=cov.dof_xy,
         f_scale_x=cov.f_scale_x,
@@ -423,6 +435,13 @@ def refine_ml(
         tail=tail,
         notes=notes,
     )
+
+
+def _covariance_factor(prior: NoiseModel, noise: NoiseModel) -> float:
+    """The factor per-sample camera covariances were multiplied by from *prior* to *noise* (1 without)."""
+    if prior.camera_covariances is None or noise.camera_covariances is None:
+        return 1.0
+    return float(np.trace(noise.camera_covariances[0]) / np.trace(prior.camera_covariances[0]))
 
 
 def chi2_at(

@@ -7,11 +7,14 @@ therefore estimates X, Y *and* the true robot poses ``M_i`` (nuisance parameters
     robot residual   e_M,i = M~_i  (-)  M_i                       (6, decoupled difference)
     camera residual  e_B,i = B~_i  (-)  X^-1 A_i(M_i)^-1 Y         (6)
 
-each whitened by its noise sigmas. Minimising the sum of squares is the exact ML estimate under
-Gaussian noise of both poses (no linearisation of the noise into the chain); each sample has
-12 residuals and 6 nuisance parameters, so its minimised cost is chi-square with 6 degrees of
-freedom. When the robot is declared exact the M_i are fixed at the measurements and only the
-camera residuals remain (same 6 degrees of freedom per sample).
+each whitened by its noise: the robot's by its per-axis sigmas, the camera's by the shared per-axis
+sigmas or, when the noise gives each sample its own camera covariance ``C_i``
+(``NoiseModel.camera_covariances``), by ``W_i = L_i^-1`` (``C_i = L_i L_i^T``): ``|W_i e|^2 =
+e^T C_i^-1 e``, and the same ``W_i`` whitens the sample's camera Jacobian rows. Minimising the sum
+of squares is the exact ML estimate under Gaussian noise of both poses (no linearisation of the
+noise into the chain); each sample has 12 residuals and 6 nuisance parameters, so its minimised
+cost is chi-square with 6 degrees of freedom. When the robot is declared exact the M_i are fixed
+at the measurements and only the camera residuals remain (same 6 degrees of freedom per sample).
 
 Parameters are decoupled perturbations (:mod:`engine.transforms`) of reference poses: ``x = (dX, dY, dM_1..dM_n)``.
 Jacobians are analytic (chain of ``engine.transforms.d_*`` operators) and carry the exact chart factor
@@ -36,7 +39,7 @@ from engine.transforms import (
     so3_left_jacobian,
     so3_right_jacobian_inv,
 )
-from plugins.calibration.handeye.noise import NoiseModel
+from plugins.calibration.handeye.noise import NoiseModel, camera_whitening
 from plugins.calibration.handeye.problem import Setup
 
 F64 = NDArray[np.float64]
@@ -90,7 +93,13 @@ class EivModel:
         self.n = int(M_meas.shape[0])
         self.robot_free = not noise.robot.is_exact
         self.w_robot = 1.0 / noise.robot.sigmas6() if self.robot_free else np.zeros(6)
-        self.w_camera = 1.0 / noise.camera.sigmas6()
+        # the camera's whitening: per axis, shared (w_camera), or each sample's own W_i = L_i^-1 (W_camera)
+        self.camera_sigmas = noise.camera.sigmas6()
+        self.w_camera = 1.0 / self.camera_sigmas
+        cov = noise.camera_covariances
+        if cov is not None and len(cov) != self.n:
+            raise ValueError(f"{len(cov)} camera covariances for {self.n} samples: one per sample is needed")
+        self.W_camera: F64 | None = None if cov is None else camera_whitening(cov)
         self.X_ref = X_ref.reshape(1, 4, 4)
         self.Y_ref = Y_ref.reshape(1, 4, 4)
         self.M_ref = (M_meas if M_ref is None else M_ref).copy()
@@ -132,8 +141,8 @@ class EivModel:
             K_Y = _blockdiag_I_J(so3_left_jacobian(dY[None, 3:]))[0]
             dB_dX = d_product_left(Xi, D) @ d_inverse(X)[0]
             dB_dY = d_product_right(Xi)[0] @ d_product_right(C)
-            Wc = self.w_camera[None, :, None]
-            Jg_cam = np.concatenate([Wc * (dEB @ dB_dX @ K_X), Wc * (dEB @ dB_dY @ K_Y)], axis=2)
+            wc = self.whiten_camera
+            Jg_cam = np.concatenate([wc(dEB @ dB_dX @ K_X), wc(dEB @ dB_dY @ K_Y)], axis=2)
             if self.robot_free:
                 K_M = _blockdiag_I_J(so3_left_jacobian(dM[:, 3:]))
                 dC_dM = d_inverse(M) if self.setup == "eye_in_hand" else np.broadcast_to(np.eye(6), (self.n, 6, 6))
@@ -141,15 +150,34 @@ class EivModel:
                 dEM = -_blockdiag_I_J(so3_right_jacobian_inv(e_robot[:, 3:]))
                 Wr = self.w_robot[None, :, None]
                 st.J_glob = np.concatenate([np.zeros((self.n, 6, 12)), Jg_cam], axis=1)
-                st.J_nuis = np.concatenate([Wr * (dEM @ K_M), Wc * (dEB @ dB_dM @ K_M)], axis=1)
+                st.J_nuis = np.concatenate([Wr * (dEM @ K_M), wc(dEB @ dB_dM @ K_M)], axis=1)
             else:
                 st.J_glob = Jg_cam
         self._cache_x, self._cache = x.copy(), st
         return st
 
+    @property
+    def camera_per_sample(self) -> bool:
+        """True when each sample's camera residual is whitened by its own covariance."""
+        return self.W_camera is not None
+
+    def whiten_camera(self, A: F64) -> F64:
+        """Camera rows whitened: ``A`` the ``(n, 6)`` residuals or ``(n, 6, k)`` Jacobian blocks."""
+        if self.W_camera is None:
+            return A * (self.w_camera if A.ndim == 2 else self.w_camera[:, None])
+        if A.ndim == 2:
+            return np.einsum("nij,nj->ni", self.W_camera, A)
+        return self.W_camera @ A
+
+    def camera_logdet(self) -> F64:
+        """``(n,)`` log det of each sample's camera covariance."""
+        if self.W_camera is None:
+            return np.full(self.n, 2.0 * float(np.sum(np.log(self.camera_sigmas))))
+        return -2.0 * np.sum(np.log(np.diagonal(self.W_camera, axis1=1, axis2=2)), axis=1)
+
     def whitened(self, st: EivState) -> F64:
         """(n, r) whitened residuals of a state (robot rows first when the robot is free)."""
-        cam = st.e_camera * self.w_camera
+        cam = self.whiten_camera(st.e_camera)
         if not self.robot_free:
             return cam
         return np.concatenate([st.e_robot * self.w_robot, cam], axis=1)

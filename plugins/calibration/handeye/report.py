@@ -134,6 +134,11 @@ def format_report(result: CalibrationResult, *, per_sample: bool = True) -> str:
             f"noise ({'estimated' if m.get('noise_estimated') else 'declared'}): robot "
             f"{m['noise_robot_trans_m'] * _MM:.3f} mm / {m['noise_robot_rot_rad'] * _DEG:.4f} deg, camera "
             f"{m['noise_camera_trans_m'] * _MM:.3f} mm / {m['noise_camera_rot_rad'] * _DEG:.4f} deg"
+            + (
+                f" (the median of per-sample covariances: those given times {m['noise_camera_covariance_factor']:.3g})"
+                if m.get("camera_covariances_given")
+                else ""
+            )
         )
         if m.get("noise_estimated") and "noise_limit_camera_rot_rad" in m:
             limits = [

@@ -31,7 +31,7 @@ likely than one that needs 0.1 deg, even though both whiten to chi-square(6). (T
 likelihood of all 12 residuals would be unbounded as the robot noise goes to zero; the chain
 misfit's is not.) ``log det C_i`` comes from the nuisance Jacobian ``N_i`` of the whitened
 residuals: ``det C = det S_c det S_r det(N^T N) / det(A_r)^2`` with ``A_r`` its unwhitened robot
-rows.
+rows (``det S_c`` each sample's own with per-sample camera covariances).
 """
 
 from __future__ import annotations
@@ -114,7 +114,7 @@ def sample_log_likelihood(
     st = model.state(np.zeros(model.n_params), jacobian=True)
     s2 = np.sum(model.whitened(st) ** 2, axis=1)
     k = max(float(np.median(s2)) / CHI2_MEDIAN, 1e-12)
-    logdet = np.full(model.n, 2.0 * float(np.sum(np.log(fit.noise.camera.sigmas6()))))
+    logdet = model.camera_logdet()
     if model.robot_free:
         assert st.J_nuis is not None
         N = st.J_nuis

@@ -11,6 +11,9 @@
   copy of the gripper pose that is never returned, so its test effectively runs with exact robot
   poses; ``apply_robot_noise=True`` applies it as the protocol describes.
 * :func:`add_noise` - the noise model of ``noise`` (decoupled, parent frame).
+* :func:`depth_covariances` - per-view camera covariances of a depth camera or PnP: largest along
+  each view's line of sight, growing with the distance, translation across the line of sight
+  correlated with the tilt; :func:`perturb_poses_cov` draws poses with them.
 
 Every function takes a ``numpy.random.Generator``; nothing reads global random state.
 """
@@ -29,7 +32,15 @@ from plugins.calibration.handeye.problem import Setup
 
 F64 = NDArray[np.float64]
 
-__all__ = ["Scene", "add_noise", "opencv_protocol", "perturb_poses", "viewing_scene"]
+__all__ = [
+    "Scene",
+    "add_noise",
+    "depth_covariances",
+    "opencv_protocol",
+    "perturb_poses",
+    "perturb_poses_cov",
+    "viewing_scene",
+]
 
 
 @dataclass(frozen=True)
@@ -49,6 +60,55 @@ def perturb_poses(T: F64, noise: PoseNoise, rng: np.random.Generator) -> F64:
         return T.copy()
     delta = rng.normal(size=(T.shape[0], 6)) * noise.sigmas6()
     return retract(T, delta)
+
+
+def perturb_poses_cov(T: F64, covariances: F64, rng: np.random.Generator) -> F64:
+    """Poses with decoupled noise of each pose's own covariance ``(n, 6, 6)`` (``(dt, dphi)``)."""
+    L = np.linalg.cholesky(covariances)
+    return retract(T, np.einsum("nij,nj->ni", L, rng.normal(size=(T.shape[0], 6))))
+
+
+def depth_covariances(
+    T_cam_target: F64,
+    rng: np.random.Generator,
+    *,
+    lateral_mm: float = 0.3,
+    depth_ratio: tuple[float, float] = (5.0, 10.0),
+    tilt_deg: float = 0.1,
+    roll_deg: float = 0.03,
+    correlation: float = 0.6,
+    ref_distance_m: float = 0.5,
+) -> F64:
+    """``(n, 6, 6)`` camera covariances of the views ``T_cam_target`` as a depth camera or PnP has them,
+    in the frame of each view's line of sight ``u`` (camera to target): across it ``lateral_mm`` x
+    ``d / ref_distance_m``, along it a ratio drawn from ``depth_ratio`` times that times
+    ``d / ref_distance_m`` again (depth error grows with the square of the distance), rotation about
+    the axes across it ``tilt_deg`` x ``d / ref``, about it ``roll_deg`` x ``d / ref``; each
+    translation across the line of sight correlated by ``correlation`` with the rotation about the
+    other axis across it (a shifted and a tilted board look alike). Rotated into the camera frame."""
+    p = np.asarray(T_cam_target, dtype=float)[:, :3, 3]
+    n = len(p)
+    d = np.linalg.norm(p, axis=1)
+    u = p / d[:, None]
+    e1 = np.cross(u, np.array([1.0, 0.0, 0.0]))
+    e1 /= np.linalg.norm(e1, axis=1)[:, None]
+    Q = np.stack([e1, np.cross(u, e1), u], axis=2)  # columns: across, across, along the line of sight
+    g = d / ref_distance_m
+    lat = lateral_mm * 1e-3 * g
+    sd = np.column_stack([lat, lat, lat * rng.uniform(*depth_ratio, size=n) * g])
+    sr = np.deg2rad(np.column_stack([tilt_deg * g, tilt_deg * g, roll_deg * g]))
+    cross = np.zeros((n, 3, 3))
+    cross[:, 0, 1] = correlation * sd[:, 0] * sr[:, 1]
+    cross[:, 1, 0] = -correlation * sd[:, 1] * sr[:, 0]
+    R6 = np.zeros((n, 6, 6))
+    R6[:, :3, :3] = R6[:, 3:, 3:] = Q
+    C = np.zeros((n, 6, 6))
+    C[:, [0, 1, 2], [0, 1, 2]] = sd**2
+    C[:, [3, 4, 5], [3, 4, 5]] = sr**2
+    C[:, :3, 3:] = cross
+    C[:, 3:, :3] = np.transpose(cross, (0, 2, 1))
+    out = R6 @ C @ np.transpose(R6, (0, 2, 1))
+    return 0.5 * (out + np.transpose(out, (0, 2, 1)))
 
 
 def add_noise(scene: Scene, noise: NoiseModel, rng: np.random.Generator) -> Scene:

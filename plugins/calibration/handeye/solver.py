@@ -13,7 +13,10 @@ Pipeline of :func:`calibrate_hand_eye` / :func:`calibrate_robot_world`:
    (``closed_form``; all of them for ``init="auto"``, the one with the smallest median pose-chain
    cost wins) run on the consensus set.
 5. ``ml`` - maximum likelihood on SE(3) with both noise models, robust loss, outlier flags,
-   optional noise estimation, covariance.
+   optional noise estimation, covariance. ``camera_covariances`` (each sample's own camera noise,
+   ``noise``) replace the shared camera noise throughout: the ML's whitening, its outlier flags, the
+   consensus' cost scale and the set-up test's likelihood; with the noise estimated, one common
+   factor of them is (their shape and per-sample scale kept).
 6. ``assemble`` - covariance scaling, pose-chain spread, residual table, metrics and verdict.
 """
 
@@ -33,9 +36,9 @@ from plugins.calibration.handeye.closed_form import CLOSED_FORM_METHODS, closed_
 from plugins.calibration.handeye.consensus import lmeds_consensus, pose_chain_cost
 from plugins.calibration.handeye.consistency import check_setup_consistency, estimate_unit_scale, mirrored_message
 from plugins.calibration.handeye.degeneracy import MotionThresholds, analyse_motions
-from plugins.calibration.handeye.free_scale import SolvedFit, solve_free_scale
+from plugins.calibration.handeye.free_scale import SolvedFit, scaled, scaled_covariances, solve_free_scale
 from plugins.calibration.handeye.ml import Loss, MLOptions, refine_ml
-from plugins.calibration.handeye.noise import DEFAULT_PRIOR, NoiseModel
+from plugins.calibration.handeye.noise import DEFAULT_PRIOR, NoiseModel, check_camera_covariances
 from plugins.calibration.handeye.problem import SETUPS, Setup, check_setup, frames_of
 from plugins.calibration.handeye.setup_choice import SETUP_TEST_LEVEL, SetupCandidate, choose_setup
 from plugins.calibration.handeye.validation import HandEyeInputError, ValidatedSamples, validate_samples
@@ -82,6 +85,12 @@ class _Run:
     motion_thresholds: MotionThresholds | None
     accuracy: AccuracyTargets
     seed: int
+    camera_covariances: F64 | None = None  # (n, 6, 6) of the validated samples, or None: the shared noise
+
+    def prior(self) -> NoiseModel:
+        """The noise the ML starts from: declared or DEFAULT_PRIOR, the camera's per sample when given."""
+        noise = self.noise if self.noise is not None else DEFAULT_PRIOR
+        return noise.with_camera_covariances(self.camera_covariances) if self.camera_covariances is not None else noise
 
 
 def _check_units(setup: Setup, M: F64, B: F64) -> None:
@@ -207,7 +216,7 @@ def _initial_estimate(
             keep = ~consensus.outliers
             weights0 = keep.astype(float)
             metrics["consensus_outliers"] = float(np.count_nonzero(consensus.outliers))
-            best, X0, Y0, cands = _initialise(setup, M[keep], B[keep], methods, noise0)
+            best, X0, Y0, cands = _initialise(setup, M[keep], B[keep], methods, noise0.take(keep))
     if len(cands) > 1:
         Xs = [c[0] for c in cands.values()]
         metrics["closed_form_spread_trans_m"] = max(float(np.linalg.norm(a[:3, 3] - b[:3, 3])) for a in Xs for b in Xs)
@@ -229,7 +238,7 @@ def _solve(run: _Run, setup: Setup, data: ValidatedSamples, *, given: bool) -> S
     inconsistent = _check_consistency(run, setup, data, checks, given=given)
     if inconsistent is not None:
         return SetupCandidate(setup, inconsistent, None)
-    noise0 = run.noise if run.noise is not None else DEFAULT_PRIOR
+    noise0 = run.prior()
     start = _initial_estimate(run, setup, data, noise0, checks)
     if isinstance(start, CalibrationResult):
         return SetupCandidate(setup, start, None)
@@ -275,9 +284,14 @@ def _calibrate(
     setup_test_level: float = SETUP_TEST_LEVEL,
     seed: int = 0,
     scale: CameraScale = "fixed",
+    camera_covariances: ArrayLike | None = None,
 ) -> CalibrationResult:
     if scale not in ("fixed", "free"):
         raise ValueError(f"scale must be 'fixed' or 'free', got {scale!r}")
+    if noise is not None and noise.camera_covariances is not None:
+        if camera_covariances is not None:
+            raise ValueError("camera covariances given twice: in noise and as camera_covariances")
+        camera_covariances, noise = noise.camera_covariances, noise.with_camera_covariances(None)
     solve = partial(
         _calibrate_fit, kind, T_base_tcp, init=init, setup=setup, noise=noise, estimate_noise=estimate_noise,
         loss=loss, covariance_scale=covariance_scale, motion_thresholds=motion_thresholds, accuracy=accuracy,
@@ -285,8 +299,13 @@ def _calibrate(
     )  # fmt: skip
     if scale == "free":
         start = "eye_in_hand" if setup == "auto" else check_setup(setup)  # (the screw invariant is either's)
-        return solve_free_scale(solve, kind, T_base_tcp, T_cam_target, start, accuracy or AccuracyTargets())
-    return solve(T_cam_target)[0]
+
+        def at_scale(k: float) -> tuple[CalibrationResult, SolvedFit | None]:
+            B_k = scaled(np.asarray(T_cam_target, dtype=float), k)
+            return solve(B_k, camera_covariances=scaled_covariances(camera_covariances, k))
+
+        return solve_free_scale(at_scale, kind, T_base_tcp, T_cam_target, start, accuracy or AccuracyTargets())
+    return solve(T_cam_target, camera_covariances=camera_covariances)[0]
 
 
 def _calibrate_fit(
@@ -305,6 +324,7 @@ def _calibrate_fit(
     sample_ids: Sequence[str] | None,
     setup_test_level: float,
     seed: int,
+    camera_covariances: ArrayLike | None,
 ) -> tuple[CalibrationResult, SolvedFit | None]:
     """One calibration at the camera's scale as given: the result, and the ML fit behind it (with
     its set-up) when there is one."""
@@ -317,6 +337,7 @@ def _calibrate_fit(
     if not 0.0 < setup_test_level < 1.0:
         raise ValueError(f"setup_test_level must be in (0, 1), got {setup_test_level!r}")
     data = validate_samples(T_base_tcp, T_cam_target, ids=sample_ids)
+    cov = None if camera_covariances is None else _checked_covariances(camera_covariances, data, sample_ids)
     run = _Run(
         kind=kind,
         init=init,
@@ -327,6 +348,7 @@ def _calibrate_fit(
         motion_thresholds=motion_thresholds,
         accuracy=accuracy or AccuracyTargets(),
         seed=seed,
+        camera_covariances=cov,
     )
     if setup != "auto":
         cand = _solve(run, setup, data, given=True)
@@ -344,6 +366,17 @@ def _calibrate_fit(
     return result, None if chosen is None or fit is None else SolvedFit(chosen, fit, data)
 
 
+def _checked_covariances(covariances: ArrayLike, data: ValidatedSamples, ids: Sequence[str] | None) -> F64:
+    """The camera covariances of the validated samples (``noise.check_camera_covariances``, in the
+    caller's order, then the rows kept); a bad one is a HandEyeInputError naming its sample."""
+    names = [str(k) for k in range(data.n_given)] if ids is None else [str(i) for i in ids]
+    try:
+        cov = check_camera_covariances(covariances, data.n_given, names)
+    except ValueError as exc:
+        raise HandEyeInputError(str(exc)) from None
+    return cov[data.index]
+
+
 class SolverOptions(TypedDict, total=False):
     """Keyword options of :func:`calibrate_hand_eye` and :func:`calibrate_robot_world` besides ``init``."""
 
@@ -358,6 +391,7 @@ class SolverOptions(TypedDict, total=False):
     setup_test_level: float
     seed: int
     scale: CameraScale
+    camera_covariances: ArrayLike | None
 
 
 def calibrate_hand_eye(
@@ -394,6 +428,14 @@ def calibrate_hand_eye(
             scale: ``"fixed"`` (default): camera translations are in metres; ``"free"``: in an unknown
                 unit (a monocular or visual-odometry camera), the scale solved with its 1-sigma
                 (``free_scale``: ``estimate["camera_scale"]``, metrics ``camera_scale``, ``_sd``).
+            camera_covariances: ``(n, 6, 6)``, each sample's own camera covariance of the decoupled
+                ``(dt, dphi)`` perturbation in the camera frame, ordered ``(tx, ty, tz, rx, ry, rz)``,
+                m^2 / rad^2 / m rad (``noise``; a depth camera's or PnP's error is largest along its line
+                of sight and grows with the distance). They replace the camera part of ``noise`` (whose
+                robot part is kept); with the noise estimated (``noise=None``), one common factor of
+                them is estimated (metric ``noise_camera_covariance_factor``). With ``scale="free"``
+                they are in the camera's units, like its translations. Non-finite, non-symmetric or
+                non-positive-definite ones raise ``HandEyeInputError`` naming the sample.
 
     Returns:
         CalibrationResult with estimate ``{x_name, y_name, "setup"}``, 12x12 covariance, per-sample

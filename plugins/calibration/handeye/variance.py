@@ -7,8 +7,9 @@ redundant residuals, ``d^T C^-1 d / k`` follows Fisher's ``F(k, nu)`` exactly (l
 model): the region is ``d^T C^-1 d <= k F_{k,nu}(0.95)``, wider than the chi-square one (for
 ``k = 6``: 13.3 at ``nu = 80``, 14.0 at ``nu = 40``, against 12.6).
 
-The hand-eye solver estimates several variance components (robot/camera translation/rotation,
-Förstner-Helmert, see ``ml``): the estimated noise is ``f_g`` times the prior of group ``g``.
+The hand-eye solver estimates several variance components (robot/camera translation/rotation, or
+one common camera factor of per-sample covariances; Förstner-Helmert, see ``ml``): the estimated
+noise is ``f_g`` times the prior of group ``g``.
 Two things then differ from the one-factor case, and Kenward & Roger (1997, Biometrics 53:983) treat
 both for REML-type variance components, of which the converged Helmert estimate is one:
 
@@ -54,9 +55,12 @@ def group_rows(model: EivModel) -> list[slice]:
     """Rows of each noise group within a sample's whitened residual: robot translation and rotation
     (when the robot is free), then the camera's translation and rotation, or each of its six axes
     when the model says ``camera_axes`` (a depth camera's or a PnP pose's noise is largest along
-    the optical axis)."""
+    the optical axis), or all six as one group when each sample has its own camera covariance
+    (``EivModel.camera_per_sample``: one common factor of the given covariances)."""
     robot = [slice(0, 3), slice(3, 6)] if model.robot_free else []
     c0 = 6 if model.robot_free else 0
+    if model.camera_per_sample:
+        return [*robot, slice(c0, c0 + 6)]
     if model.camera_axes:
         return robot + [slice(c0 + k, c0 + k + 1) for k in range(6)]
     return [*robot, slice(c0, c0 + 3), slice(c0 + 3, c0 + 6)]

@@ -4,9 +4,9 @@ Inputs: ``robot_pose`` (PoseStamped ``T_base_tcp`` as the robot reports it), ``t
 (PoseStamped ``T_cam_target``: the calibration target / known object seen by the camera), ``solve``.
 Samples are paired by stamp (see plugins.calibration.stages.base). Target poses that carry a covariance
 (PoseWithCovarianceStamped, e.g. from ``board_pose``) set the camera noise model when none is declared:
-per axis the median of their variances (the solver takes one camera noise for all samples), from which
-the solver still estimates the variance components (``estimate_noise``). Publishes the result and, when
-usable, two transforms (of the set-up declared, or by default the one the data show: see
+each paired sample's own (``camera_covariances``; the solver estimates one common factor of them with
+the robot's noise), or, when one of them is no covariance, the median of their variances per axis.
+Publishes the result and, when usable, two transforms (of the set-up declared, or by default the one the data show: see
 plugins.calibration.handeye.setup_choice): the hand-eye ``X`` (eye in hand: ``tcp -> camera_calibrated``; eye to hand:
 ``base -> camera_calibrated``) and the other unknown ``Y`` (``base -> target`` or ``tcp -> target``).
 Frame names come from the messages (the robot poses' ``frame_id`` for the base, the target poses'
@@ -57,13 +57,17 @@ class HandEyeCalibration(CalibrationStage):
         n = len(samples.T_base_tcp)
         if n < 3:
             raise CalibrationInputError(f"{n} pose pair(s): hand-eye calibration needs at least 3 (better 10-15)")
-        noise, estimate = None, None
+        noise, estimate, cov = None, None, None
         targets = self.buffers["target_pose"]
         if p.camera_noise_deg_mm is not None:
             r = p.robot_noise_deg_mm or (0.0, 0.0)
             noise = NoiseModel.isotropic(r[0], r[1], *p.camera_noise_deg_mm)
         elif p.robot_noise_deg_mm is not None:
             raise CalibrationInputError("camera_noise_deg_mm is needed when a noise model is declared")
+        elif samples.camera_covariances is not None:
+            cov, estimate = samples.camera_covariances, True
+            self.ctx.event("info", "camera_noise", f"camera noise: each of the {n} paired target poses' own covariance "
+                           "(one common factor of them estimated)")  # fmt: skip
         elif targets and all(isinstance(m, PoseWithCovarianceStamped) for m in targets):
             noise, estimate = camera_noise_from_covariances([m.covariance for m in targets]), True
             n = len(targets)
@@ -72,7 +76,7 @@ class HandEyeCalibration(CalibrationStage):
         solve = calibrate_robot_world if p.kind == "robot_world" else calibrate_hand_eye
         result = solve(
             samples.T_base_tcp, samples.T_cam_target, setup=p.setup, noise=noise, estimate_noise=estimate,
-            loss=p.loss, seed=self.ctx.seed,
+            loss=p.loss, seed=self.ctx.seed, camera_covariances=cov,
         )  # fmt: skip
         return result, notes
 
