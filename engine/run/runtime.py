@@ -41,6 +41,7 @@ its traceback, never a silent death.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 import traceback
@@ -64,6 +65,7 @@ from engine.stage import EVENTS_PORT, RunStoppingError, ServiceError, ServiceTim
 from engine.transport.bus import RequestCancelled, service_key, wire_key
 from engine.transport.peers import ForgedReply
 
+_UINT8 = np.dtype(np.uint8)
 log = logging.getLogger("vgr.runtime")
 LOCAL_QUEUE_DEPTH = 64  # messages a local producer may run ahead of its consumer
 _EOS = Kind.EOS  # (an Enum attribute lookup costs more than the test)
@@ -166,11 +168,10 @@ class StageRuntime(StageContext):
             raise ValueError(f"stage {self.name!r} has no output port {port!r}")
         dt = np.dtype(dtype)
         dims = (shape,) if isinstance(shape, int) else tuple(shape)
-        nbytes = int(np.prod(dims, dtype=np.int64)) * dt.itemsize
         if out.views is not None:  # consumers in other processes: maybe on this host
-            buf = out.views.loan(nbytes)
-            if buf is not None:
-                return buf.view(dt).reshape(dims)
+            buf = out.views.loan(math.prod(dims) * dt.itemsize)
+            if buf is not None:  # (a byte buffer as it is: no view to make)
+                return buf if dt == _UINT8 and len(dims) == 1 else buf.view(dt).reshape(dims)
         return np.empty(dims, dtype=dt)
 
     def publish(self, port: str, msg: Message) -> None:

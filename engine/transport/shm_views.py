@@ -215,8 +215,7 @@ class ViewPool:
         self._free = list(range(MAX_BLOCKS - 1, -1, -1))
         self._generation = 0
         self._lock = threading.Lock()
-        self._loans: dict[int, int] = {}  # data offset of a loaned array not sent yet -> its block
-        self._base = 0
+        self._loans: dict[int, tuple[int, int]] = {}  # id of a loaned array not sent yet -> (block, bytes)
         self.shared = 0  # payloads sent as views
         self.loaned_sent = 0  # ... of them, loaned arrays sent without a copy
         self.fallbacks = 0  # large payloads that found the pool full (sent the other way)
@@ -257,7 +256,7 @@ class ViewPool:
             desc = DESC.pack(
                 DESC_MAGIC, os.getpid(), self._fd, self._nonce, index, self._blocks[index].generation, start, n
             )
-            return ViewPayload(desc, n, self._held(index, start, n, writeable=False) if hold else None)
+            return ViewPayload(desc, n, memoryview(self._held(index, start, n, writeable=False)) if hold else None)
 
     def loan(self, nbytes: int) -> np.ndarray | None:
         """A writable uint8 array of *nbytes* in a block of the pool, for the stage to fill and
@@ -277,32 +276,43 @@ class ViewPool:
                 return None
             index, block = got
             block.loaned = True
-            start = block.offset + LOAN_HEAD_BYTES
-            self._loans[start] = index
-            return np.frombuffer(self._held(index, start, nbytes, writeable=True), dtype=np.uint8)
+            array = self._held(index, block.offset + LOAN_HEAD_BYTES, nbytes, writeable=True)
+            self._loans[id(array)] = (index, nbytes)
+            weakref.finalize(array, self._loans.pop, id(array), None)  # (an id is reused once its object is gone)
+            return array
 
-    def _held(self, index: int, start: int, n: int, *, writeable: bool) -> memoryview:
-        """A view of *n* bytes of block *index* from *start* that keeps the block while it lives."""
+    def _held(self, index: int, start: int, n: int, *, writeable: bool) -> np.ndarray:
+        """An array of *n* bytes of block *index* from *start* that keeps the block while it lives."""
         assert self._data is not None
         array = np.frombuffer(self._data, dtype=np.uint8, count=n, offset=start)
-        array.flags.writeable = writeable
+        if not writeable:
+            array.flags.writeable = False
         token = object()
         holders = self._blocks[index].holders
         holders.add(token)
         weakref.finalize(array, holders.discard, token)  # (may run on any thread, inside our lock: none taken)
-        return memoryview(array)  # type: ignore[arg-type]  # (an ndarray is a buffer)
+        return array
 
     def _send_loaned(self, head: bytes | bytearray | memoryview, bulk: bytes | memoryview) -> tuple[int, int] | None:
-        """(block, start) of the payload when *bulk* is a loaned array not sent yet, its *head* then
-        written just before it; None otherwise (or when the head does not fit)."""
-        view = np.frombuffer(bulk, dtype=np.uint8)
-        start = view.ctypes.data - self._base
-        index = self._loans.get(start)
-        block = self._blocks.get(index) if index is not None else None
-        h = len(head)
-        if index is None or block is None or block.sent or h > LOAN_HEAD_BYTES or start + view.nbytes > block.end:
+        """(block, start) of the payload when *bulk* is the whole of a loaned array not sent yet (found
+        by identity along its chain of bases: the message's array may be a view of the loan), its
+        *head* then written just before it; None otherwise (or when the head does not fit)."""
+        loans, obj, found = self._loans, getattr(bulk, "obj", None), None
+        for _ in range(8):  # (memoryview -> the message's array -> ... -> the loaned array)
+            if obj is None:
+                break
+            found = loans.get(id(obj))
+            if found is not None:
+                break
+            obj = obj.obj if isinstance(obj, memoryview) else getattr(obj, "base", None)
+        if found is None:
             return None
-        del self._loans[start]
+        index, nbytes = found
+        block, h = self._blocks.get(index), len(head)
+        if block is None or block.sent or h > LOAN_HEAD_BYTES or len(bulk) != nbytes:  # (a part of it: copied)
+            return None
+        del loans[id(obj)]
+        start = block.offset + LOAN_HEAD_BYTES
         assert self._data is not None
         self._data[start - h : start] = head
         block.sent = True
@@ -325,7 +335,6 @@ class ViewPool:
         view = memoryview(whole)
         self._table = np.frombuffer(whole, dtype=np.uint64, count=MAX_BLOCKS * MAX_CONSUMERS, offset=TABLE_OFFSET)
         self._data = view[HEADER_BYTES:]
-        self._base = np.frombuffer(self._data, dtype=np.uint8).ctypes.data  # (a loaned array's offset is from here)
         return True
 
     def _alloc(self, n: int) -> tuple[int, _Block] | None:
@@ -356,8 +365,6 @@ class ViewPool:
             ):
                 del self._blocks[index]
                 self._free.append(index)
-                if block.loaned and not block.sent:
-                    self._loans.pop(block.offset + LOAN_HEAD_BYTES, None)
 
     def _fit(self, n: int) -> tuple[int, _Block] | None:
         if not self._free:
