@@ -27,6 +27,7 @@ def vgr_stage_types() -> list[type]:
     from plugins.devices.stages.ur_robot import URRobot
     from plugins.devices.stages.vive_tracker import ViveTracker
     from plugins.model_gap.stages.camera_gap import CameraGap
+    from plugins.model_gap.stages.depth_gap import DepthGap
     from plugins.model_gap.stages.measurement_campaign import MeasurementCampaign
     from plugins.model_gap.stages.model_gap import ModelGap
     from plugins.registration.stages.matcher import Matcher
@@ -58,7 +59,7 @@ def vgr_stage_types() -> list[type]:
         CalibrationFile,
     ]
     actions = [CaptureAtPose, Guidance, Docking, DualDocking, GuidanceReport, CellLocator]
-    model_gap = [MeasurementCampaign, ModelGap, CameraGap]  # model-gap workflow (robot; camera)
+    model_gap = [MeasurementCampaign, ModelGap, CameraGap, DepthGap]  # model-gap workflow (robot; camera; depth)
     return [
         SyntheticCloud,
         TransformCloud,

@@ -2,6 +2,8 @@
 
     vgr gap --model MODEL --data DATA [--report DIR] [--noise-mm SIGMA] [--calibrate frame,tool,joints]
     vgr gap check --model STORED --data NEW [--refit tool] [--report DIR] [--noise-mm SIGMA]
+    vgr gap --camera IMAGES --board SPEC [--report DIR]    (the camera model: plugins/model_gap/camera)
+    vgr gap --depth CAPTURES [--target known|fit] [--report DIR]    (a depth camera: plugins/model_gap/depth)
 
 MODEL is a shipped robot (``ur5e``, ``abb_irb120``), a robot model file, or an augmented model a
 previous run wrote; DATA a CSV (docs/model_gap.md) or a vgr recording (.mcap). Exit codes: 0 the
@@ -26,6 +28,7 @@ from rich.console import Console
 from engine import run_folder
 from engine.exit_codes import ExitCode
 from plugins.model_gap.camera.cli import add_camera_arguments, cmd_camera_gap
+from plugins.model_gap.depth.cli import add_depth_arguments, cmd_depth_gap, refuse_depth_options
 
 #: the exit code of each workflow verdict (engine.exit_codes)
 EXIT_CODES = {
@@ -60,7 +63,8 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--noise-mm",
         type=float,
-        help="measurement noise, 1 sigma per axis in mm (default: the CSV's sigma_mm column, else estimated)",
+        help="measurement noise, 1 sigma per axis in mm (default: the CSV's sigma_mm column, else estimated); "
+        "--depth: the stated range noise's constant term, mm",
     )
     p.add_argument(
         "--calibrate",
@@ -115,6 +119,7 @@ def add_verbs(sub: argparse._SubParsersAction) -> None:
         "default nothing",
     )
     add_camera_arguments(p)  # vgr gap --camera IMAGES --board SPEC: the camera model (plugins/model_gap/camera)
+    add_depth_arguments(p)  # vgr gap --depth CAPTURES: a depth camera's range errors (plugins/model_gap/depth)
     p.set_defaults(func=cmd_gap)
 
 
@@ -131,10 +136,16 @@ def cmd_gap(args: argparse.Namespace) -> int:
     from plugins.model_gap.core import GapConfig, SelectionConfig
     from plugins.model_gap.core.report import report_dict
 
+    if args.depth is not None:
+        return cmd_depth_gap(args)
+    refuse_depth_options(args)
     if args.camera is not None:
         return cmd_camera_gap(args)
     if args.model is None or args.data is None:
-        raise ValueError("vgr gap needs --model and --data (or --camera IMAGES --board SPEC for the camera model)")
+        raise ValueError(
+            "vgr gap needs --model and --data (or --camera IMAGES --board SPEC for the camera model, "
+            "--depth CAPTURES for a depth camera)"
+        )
     if args.action == "check":
         return cmd_check(args)
     if args.refit is not None:

@@ -28,7 +28,14 @@ This module owns the sensor model of the simulated 3D camera (structured light /
   :meth:`DepthNoiseModel.kinect_v1`.  Random dropouts with probability ``dropout_prob`` per pixel.
 * **Injectable effects** (off by default): ``depth_scale`` and ``depth_bias_m`` act on the measured
   range along the ray, ``r_meas = depth_scale * (r_true + noise) + depth_bias_m``, so a scale error
-  grows linearly with distance and a bias is a constant shift along each ray.
+  grows linearly with distance and a bias is a constant shift along each ray. Further range errors
+  add to it (each off by default, and then not computed): ``depth_quad_per_m * r_true**2`` (a
+  disparity bias of a triangulating camera); a **per-pixel bias pattern** ``bias_pattern``, terms
+  ``(i, j, c_m)`` of a polynomial ``sum c x**i y**j`` in the pixel's normalised coordinates
+  ``x = (u - cx) / fx``, ``y = (v - cy) / fy`` (a radial pattern ``a rho**2 + b rho**4`` is the terms
+  of ``(x**2 + y**2)``); and a ToF's **wiggling** ``wiggle_amplitude_m * sin(2 pi r_true /
+  wiggle_period_m + wiggle_phase_rad)``. These are the effects of the depth model-gap workflow
+  (plugins/model_gap/depth, docs/depth_gap.md).
 * **Depth units.** Real sensors report z as an integer number of depth units (RealSense: 16 bits of
   1 mm by default, 0.1 mm settable); ``depth_unit_m`` > 0 rounds the measured z to that grid (the
   point moves along its ray). The rounding error is uniform, sigma = unit / sqrt(12) (29 um at 0.1 mm).
@@ -103,6 +110,11 @@ class DepthNoiseModel:
     depth_scale: float = 1.0  # injectable effects (off by default)
     depth_bias_m: float = 0.0
     depth_unit_m: float = 0.0  # reported z is a multiple of this (sensor depth units); 0 = continuous
+    depth_quad_per_m: float = 0.0  # range error quad * r**2 (m per m**2; off by default)
+    bias_pattern: tuple[tuple[int, int, float], ...] = ()  # per-pixel range bias: terms (i, j, c_m) of c x**i y**j
+    wiggle_amplitude_m: float = 0.0  # ToF wiggling amplitude * sin(2 pi r / period + phase); off by default
+    wiggle_period_m: float = 0.1874
+    wiggle_phase_rad: float = 0.0
 
     def __post_init__(self) -> None:
         vals = (
@@ -113,9 +125,18 @@ class DepthNoiseModel:
             self.depth_scale,
             self.depth_bias_m,
             self.depth_unit_m,
+            self.depth_quad_per_m,
+            self.wiggle_amplitude_m,
+            self.wiggle_period_m,
+            self.wiggle_phase_rad,
         )
         if not all(math.isfinite(v) for v in vals):
             raise ValueError(f"depth noise parameters must be finite, got {self}")
+        for term in self.bias_pattern:
+            if len(term) != 3 or not all(isinstance(k, int) and k >= 0 for k in term[:2]) or not math.isfinite(term[2]):
+                raise ValueError(f"bias_pattern terms are (i, j, coefficient_m) with i, j >= 0 integers, got {term}")
+        if self.wiggle_period_m <= 0:
+            raise ValueError(f"wiggle_period_m must be positive, got {self.wiggle_period_m}")
         if self.sigma_const_m < 0 or self.sigma_quad_per_m < 0:
             raise ValueError("depth noise sigmas must be non-negative")
         if not 0.0 < self.grazing_dropout_deg <= 90.0:
@@ -414,6 +435,7 @@ class DepthCameraModel:
         if np.any(sigma > 0):
             range_meas += sigma * rng.standard_normal(len(sub))
         range_meas = noise.depth_scale * range_meas + noise.depth_bias_m
+        range_meas = _range_effects(noise, range_meas, z_true * d_norm, dx, dy)
         z_meas = range_meas / d_norm
         if noise.depth_unit_m > 0.0:  # the sensor reports integer depth units (e.g. 16-bit, 0.1 mm)
             z_meas = np.round(z_meas / noise.depth_unit_m) * noise.depth_unit_m
@@ -462,6 +484,21 @@ class DepthCameraModel:
         cand = np.flatnonzero(mask) + r0 * k.width
         rays = np.compress(mask, self._rays_np[band], axis=0)
         return cand, o3d.core.Tensor.from_numpy(rays), np.compress(mask, self._dir_norm[band])
+
+
+def _range_effects(
+    noise: DepthNoiseModel, range_meas: np.ndarray, range_true: np.ndarray, x: np.ndarray, y: np.ndarray
+) -> np.ndarray:
+    """*range_meas* with the range-quadratic, per-pixel pattern and wiggling effects added (each only
+    when it is on: the default model's output is untouched, bit for bit)."""
+    if noise.depth_quad_per_m != 0.0:
+        range_meas = range_meas + noise.depth_quad_per_m * range_true**2
+    for i, j, c in noise.bias_pattern:
+        range_meas = range_meas + c * x**i * y**j
+    if noise.wiggle_amplitude_m != 0.0:
+        phase = 2.0 * math.pi * range_true / noise.wiggle_period_m + noise.wiggle_phase_rad
+        range_meas = range_meas + noise.wiggle_amplitude_m * np.sin(phase)
+    return range_meas
 
 
 # corner i of a box is (x, y, z) = (lo or hi by bits 2, 1, 0 of i); its 12 edges join corners one bit apart
