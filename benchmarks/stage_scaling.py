@@ -16,7 +16,7 @@ the run (Runner.done_checks). The medians are reported, with ``wall_per_stage_ms
 Targets (PASS/FAIL, in the JSON), each topology: run time linear in the stages, i.e.
 ``wall_per_stage_ms`` at the largest size at most 1.5x the one at 100 stages; end-of-run checks
 linear too (``done_checks`` per stage at most 1.5x the one at 25 stages); threads at most 1.5 per
-stage (one per input port: each waits on its queue).
+stage (a local input has a thread only once a message waits for it: here, nearly none).
 
 Usage: ``python benchmarks/stage_scaling.py`` (sizes 25, 50, 100, 200, 400, 1000; 3 repeats) or
 ``--quick`` (25, 50, 100, 200; 1 repeat; writes ``stage_scaling_quick.json``).

@@ -4,9 +4,10 @@ The producer's ``publish`` offers the message object itself (arrays frozen read-
 serialised — like ROS 2 intra-process communication), and END when its port ends. If the consumer
 is idle (queue empty, nothing in flight, stage lock free) the producer's thread runs the consumer's
 handler at once, saving a thread wake-up; otherwise the message waits in the queue for the port's
-pump thread. The queue is bounded: a producer that outruns its consumer waits (backpressure),
-nothing is dropped. One port's messages are handled in publication order, and the port never has
-two messages in flight.
+pump thread, which the stage starts when the first message has to wait (a port always handed over
+inline never has one: engine.run.runtime.StageRuntime.start_threads). The queue is bounded: a
+producer that outruns its consumer waits (backpressure), nothing is dropped. One port's messages
+are handled in publication order, and the port never has two messages in flight.
 (An input fed by another process has no queue of ours: see engine.run.remote_input.RemoteInput.)
 
 Wake-ups are the expensive part of a hand-over (a thread switch and a GIL transfer each), so the

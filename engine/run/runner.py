@@ -14,7 +14,8 @@ Life of a run (per process):
 2. *membership*: declare liveliness tokens and, when the recipe spans several processes, wait
    until every stage of the recipe is declared (so no message is published before its consumer
    listens);
-3. ``setup()`` each stage, start pump threads; when the recipe spans several processes, wait (a
+3. ``setup()`` each stage, start the remote inputs' and services' pump threads (a local input's
+   starts when a message first waits for it); when the recipe spans several processes, wait (a
    while at most, *membership*) until every process got this far, so sources do not stream into a
    process still setting up; then start the source threads;
 4. wait until every *driven* stage (sources and everything downstream of them) has finished here
@@ -48,6 +49,7 @@ import logging
 import tempfile
 import threading
 import time
+from collections.abc import Iterator
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -97,6 +99,21 @@ def recipe_dir(graph: Graph) -> Path:
     """The recipe's folder (relative paths of its ``security:`` block start there)."""
     path = graph.loaded.path
     return path.resolve().parent if path is not None else Path.cwd()
+
+
+@contextlib.contextmanager
+def _no_cyclic_gc() -> Iterator[None]:
+    """The cyclic collector paused while the run is built: what is made then (the stages, their
+    ports and queues) lives as long as the run, and each full pass walks all of it, so passes
+    triggered by its own allocations made the start quadratic in the stages (1000 stages: 147 ms
+    of 374 ms in the collector). Reference counting frees what it always does."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
 
 
 def _driven_stages(graph: Graph) -> set[str]:
@@ -325,7 +342,8 @@ class Runner:
                 self.run_dir = Path(scratch.enter_context(tempfile.TemporaryDirectory(prefix="vgr-run-")))
             try:
                 try:
-                    self._start()
+                    with _no_cyclic_gc():
+                        self._start()
                     self._wait_until_done()
                 except KeyboardInterrupt:
                     self.stop("interrupted (Ctrl-C)")
@@ -486,7 +504,7 @@ class Runner:
         stopped = self.stop_reason is not None
         running = {name for name, rt in self.runtimes.items() if rt.stats.state == "running"}
         for rt in self.runtimes.values():
-            for t in rt.threads:
+            for t in list(rt.threads):  # (a local input's pump may start late: see StageRuntime.start_threads)
                 t.join(max(0.0, deadline - time.monotonic()))
         ended_by = 0.0  # seconds from the stop to the end of the last stage that ended
         stuck_stages: list[str] = []

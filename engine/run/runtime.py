@@ -146,6 +146,8 @@ class StageRuntime(StageContext):
         self.failed = False
         self.data_done = threading.Event()
         self.threads: list[threading.Thread] = []
+        self._pumped: set[str] = set()  # local inputs whose pump thread is started (see start_threads)
+        self._spawn_lock = threading.Lock()
         self.threads_ended_at = 0.0  # time.monotonic() when the last of its threads ended
         self.stage: Stage | None = None
         self.clients = {e.client_name: e for e in host.graph.service_edges if e.client == node.name}
@@ -290,14 +292,27 @@ class StageRuntime(StageContext):
                 self.inboxes[edge.dst_port] = RemoteInput(self, edge.dst_port, key, deliver, on_receive_thread=rx)
 
     def start_threads(self) -> None:
-        """Start the threads that read inputs and serve requests (not a source's run())."""
+        """Start the threads that read inputs and serve requests (not a source's run()). A local
+        input gets its pump thread only once a message has to wait for it (:meth:`_ensure_pump`):
+        while the stage is idle its producers hand messages over on their own threads, so a stage
+        fed only that way (a fan-out's consumers) costs no thread at all."""
         for port, box in self.inboxes.items():
             if isinstance(box, PortInbox):
-                self._spawn(f"{self.name}.{port}", self._input_pump, port, box)
+                if len(box):  # published during set-up: waiting already
+                    self._ensure_pump(port, box)
             else:
                 self._spawn(f"{self.name}.{port}", box.pump)
         for svc, service in self.service_ports.items():
             self._spawn(f"{self.name}.srv.{svc}", service.pump)
+
+    def _ensure_pump(self, port: str, box: PortInbox) -> None:
+        """Start *port*'s pump thread if it has none yet (before a message is queued for it)."""
+        if port in self._pumped:
+            return
+        with self._spawn_lock:
+            if port not in self._pumped:
+                self._pumped.add(port)
+                self._spawn(f"{self.name}.{port}", self._input_pump, port, box)
 
     def start_source(self) -> None:
         if self.node.cls.is_source():
@@ -327,6 +342,8 @@ class StageRuntime(StageContext):
         claim, done, put = box.claim_idle, box.release, box.put
         acquire, release = self.lock.acquire, self.lock.release
 
+        pumped, ensure_pump = self._pumped, self._ensure_pump
+
         def offer(msg: Message | object) -> None:
             if not host.started:  # published during setup(): delivered once every stage is set up
                 put(msg, block=False)
@@ -342,6 +359,8 @@ class StageRuntime(StageContext):
                         done()
                     return
                 done()
+            if port not in pumped:  # the first message that must wait: its pump starts now
+                ensure_pump(port, box)
             put(msg)
 
         return offer
