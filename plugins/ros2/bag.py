@@ -105,8 +105,26 @@ def _needs_rosbags() -> None:
         raise ValueError(str(exc)) from None
 
 
-def _outcome(written: int) -> tuple[str, ExitCode]:
-    return ("ok", ExitCode.OK) if written else ("empty", ExitCode.NOT_OK)
+def _document(
+    fmt: str, verb: str, where: dict[str, Any], report: Any, **counts: int
+) -> tuple[dict[str, Any], ExitCode]:
+    """The ``--json`` document of an import or export (the README's schema) and its exit code:
+    ok when anything was written, else empty (exit 1)."""
+    code = ExitCode.OK if report.messages_written else ExitCode.NOT_OK
+    doc = {
+        "format": fmt,
+        "verb": verb,
+        "ok": code == ExitCode.OK,
+        "outcome": "ok" if code == ExitCode.OK else "empty",
+        "exit_code": int(code),
+        **where,
+        "messages_written": report.messages_written,
+        **counts,
+        "topics": [vars(t) for t in report.topics],
+        "skipped": report.skipped,
+        "notes": report.notes,
+    }
+    return doc, code
 
 
 def cmd_import(args: argparse.Namespace) -> int:
@@ -124,23 +142,8 @@ def cmd_import(args: argparse.Namespace) -> int:
         )
     except NothingToImportError as exc:
         return _nothing(args, "bag import", str(exc), exc.skipped)
-    outcome, code = _outcome(report.messages_written)
-    doc = {
-        "format": IMPORT_FORMAT,
-        "verb": "bag import",
-        "ok": code == ExitCode.OK,
-        "outcome": outcome,
-        "exit_code": int(code),
-        "bag": report.bag,
-        "output": report.output,
-        "storage": report.storage,
-        "recipe": report.recipe,
-        "messages_written": report.messages_written,
-        "deliveries": report.deliveries,
-        "topics": [vars(t) for t in report.topics],
-        "skipped": report.skipped,
-        "notes": report.notes,
-    }
+    where = {"bag": report.bag, "output": report.output, "storage": report.storage, "recipe": report.recipe}
+    doc, code = _document(IMPORT_FORMAT, "bag import", where, report, deliveries=report.deliveries)
     if args.json:
         print(json.dumps(doc, allow_nan=False))
         return code
@@ -164,21 +167,8 @@ def cmd_export(args: argparse.Namespace) -> int:
         report = export_bag(args.recording, args.output, topics=pairs(args.topic, "--topic"), frames=_frames(args))
     except NothingToExportError as exc:
         return _nothing(args, "bag export", str(exc), exc.skipped)
-    outcome, code = _outcome(report.messages_written)
-    doc = {
-        "format": EXPORT_FORMAT,
-        "verb": "bag export",
-        "ok": code == ExitCode.OK,
-        "outcome": outcome,
-        "exit_code": int(code),
-        "recording": report.recording,
-        "output": report.output,
-        "storage": "mcap",
-        "messages_written": report.messages_written,
-        "topics": [vars(t) for t in report.topics],
-        "skipped": report.skipped,
-        "notes": report.notes,
-    }
+    where = {"recording": report.recording, "output": report.output, "storage": "mcap"}
+    doc, code = _document(EXPORT_FORMAT, "bag export", where, report)
     if args.json:
         print(json.dumps(doc, allow_nan=False))
         return code
