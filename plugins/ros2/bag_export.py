@@ -29,17 +29,13 @@ from engine.messages import WIRE_CACHE, Message, codec
 from engine.recording.format import service_topic
 from engine.recording.reader import RecordedMessage, load
 from plugins.ros2.convert import ConversionError, FrameMap, ros_type_of, to_ros
-from plugins.ros2.convert_common import typestore
+from plugins.ros2.convert_common import NothingConvertedError, typestore
 
 TF_STATIC = "/tf_static"
 
 
-class NothingToExportError(Exception):
+class NothingToExportError(NothingConvertedError):
     """No channel of the recording converts: nothing is written (exit code 1); ``skipped`` says why."""
-
-    def __init__(self, message: str, skipped: list[dict[str, str]]) -> None:
-        super().__init__(message)
-        self.skipped = skipped
 
 
 @dataclass

@@ -45,16 +45,13 @@ from engine.messages import Message, codec
 from engine.messages.schemas import descriptor_set, proto_class
 from engine.recording.format import TOPIC_DELIVERIES, TOPIC_FINISH
 from plugins.ros2.convert import SUPPORTED, ConversionError, decode
+from plugins.ros2.convert_common import NothingConvertedError
 
 DEFAULT_STAGE = "ros"  # the stage of one-level ROS topics (``/joint_states`` -> ``/ros/joint_states``)
 
 
-class NothingToImportError(Exception):
+class NothingToImportError(NothingConvertedError):
     """No topic of the bag converts: nothing is written (exit code 1); ``skipped`` says why."""
-
-    def __init__(self, message: str, skipped: list[dict[str, str]]) -> None:
-        super().__init__(message)
-        self.skipped = skipped
 
 
 @dataclass

@@ -44,6 +44,15 @@ class ConversionError(ValueError):
         super().__init__(f"{self.topic or '(no topic)'}: {field}: {self.problem}")
 
 
+class NothingConvertedError(Exception):
+    """Nothing of a bag or recording converts, so nothing is written (exit code 1); ``skipped`` says
+    which topics were passed over and why."""
+
+    def __init__(self, message: str, skipped: list[dict[str, str]]) -> None:
+        super().__init__(message)
+        self.skipped = skipped
+
+
 class MissingExtraError(ImportError):
     """``rosbags`` (the ``vgr[ros2]`` extra) is not installed."""
 
