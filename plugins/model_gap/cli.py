@@ -29,14 +29,12 @@ from engine import run_folder
 from engine.exit_codes import ExitCode
 from plugins.model_gap.camera.cli import add_camera_arguments, cmd_camera_gap
 from plugins.model_gap.depth.cli import add_depth_arguments, cmd_depth_gap, refuse_depth_options
+from plugins.model_gap.selection_options import check_alpha_arg, check_selection_args
+from plugins.model_gap.verdicts import VERDICT_EXIT_CODES
+from plugins.model_gap.workflow_options import check_end_args
 
-#: the exit code of each workflow verdict (engine.exit_codes)
-EXIT_CODES = {
-    "no_gap": ExitCode.OK,
-    "explained": ExitCode.OK,
-    "explained_up_to_tie": ExitCode.REVIEW,
-    "unexplained": ExitCode.NOT_OK,
-}
+#: the exit code of each workflow verdict (plugins/model_gap/verdicts.py: the table every workflow uses)
+EXIT_CODES = VERDICT_EXIT_CODES
 
 
 def add_verbs(sub: argparse._SubParsersAction) -> None:
@@ -150,12 +148,8 @@ def cmd_gap(args: argparse.Namespace) -> int:
         return cmd_check(args)
     if args.refit is not None:
         raise ValueError("--refit is an option of vgr gap check (the workflow refits everything)")
-    _check_alpha(args.alpha)
-    if args.folds < 2:
-        raise ValueError(f"--folds must be >= 2, got {args.folds}")
-    if args.max_effects < 0:
-        raise ValueError("--max-effects must be >= 0")
-    _check_end_options(args)
+    check_selection_args(args)
+    check_end_args(args)
     cfg = GapConfig(
         SelectionConfig(alpha=args.alpha, cv_folds=args.folds, seed=args.seed),
         max_effects=args.max_effects,
@@ -167,21 +161,6 @@ def cmd_gap(args: argparse.Namespace) -> int:
     if args.json:
         _print_json(report_dict(result))
     return EXIT_CODES[result.verdict]
-
-
-def _check_end_options(args: argparse.Namespace) -> None:
-    """--outlier-alpha in [0, 0.5), --min-share in [0, 1], --noise-trust >= 1."""
-    if not (0 <= args.outlier_alpha < 0.5):
-        raise ValueError(f"--outlier-alpha must be in [0, 0.5) (0: no screen), got {args.outlier_alpha}")
-    if not (0 <= args.min_share <= 1):
-        raise ValueError(f"--min-share must be in [0, 1], got {args.min_share}")
-    if not (args.noise_trust >= 1):
-        raise ValueError(f"--noise-trust must be >= 1, got {args.noise_trust}")
-
-
-def _check_alpha(alpha: float) -> None:
-    if not (0 < alpha < 0.5):
-        raise ValueError(f"--alpha must be in (0, 0.5), got {alpha}")
 
 
 def _common(args: argparse.Namespace) -> dict[str, Any]:
@@ -216,7 +195,7 @@ def cmd_check(args: argparse.Namespace) -> int:
 
     if args.calibrate is not None:
         raise ValueError("--calibrate does not apply to vgr gap check: it refits nothing (or --refit tool)")
-    _check_alpha(args.alpha)
+    check_alpha_arg(args.alpha)
     result = check_model(args.model, args.data, refit=_levels(args.refit) or (), alpha=args.alpha, **_common(args))
     if args.json:
         _print_json(check_report_dict(result))

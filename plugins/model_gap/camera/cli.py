@@ -14,9 +14,11 @@ robot ``vgr gap``'s (plugins/model_gap/cli.py adds these options and hands over 
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 from pathlib import Path
+
+from plugins.model_gap.gap_report_parts import show_report, write_report_file
+from plugins.model_gap.selection_options import check_selection_args
+from plugins.model_gap.workflow_options import refuse_options
 
 __all__ = ["ROBOT_ONLY_OPTIONS", "add_camera_arguments", "cmd_camera_gap"]
 
@@ -40,33 +42,15 @@ def add_camera_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _check_options(args: argparse.Namespace) -> None:
-    given = [
-        f"--{name.replace('_', '-')}"
-        for name in ROBOT_ONLY_OPTIONS
-        if getattr(args, name, None) not in (None, False, [], ())
-    ]
-    if getattr(args, "action", None) is not None:
-        given.insert(0, str(args.action))
-    if given:
-        raise ValueError(
-            f"{', '.join(given)}: options of the robot workflow; the camera gap takes --camera and --board"
-        )
+    refuse_options(args, ROBOT_ONLY_OPTIONS, "options of the robot workflow; the camera gap takes --camera and --board")
     if not args.board:
         raise ValueError("--camera needs --board SPEC (e.g. chessboard:25x18:15mm) or a board file")
-    if not (0 < args.alpha < 0.5):
-        raise ValueError(f"--alpha must be in (0, 0.5), got {args.alpha}")
-    if args.folds < 2:
-        raise ValueError(f"--folds must be >= 2, got {args.folds}")
-    if args.max_effects < 0:
-        raise ValueError("--max-effects must be >= 0")
+    check_selection_args(args)
 
 
 def cmd_camera_gap(args: argparse.Namespace) -> int:
     """Run the camera workflow for ``vgr gap --camera``; returns the exit code of the verdict."""
-    from rich.console import Console
-
     from engine import run_folder
-    from engine.files import replace_text
     from plugins.calibration.boards.detections_file import detections_document, write_detections
     from plugins.model_gap.camera.inputs import load_views
     from plugins.model_gap.camera.report import VERDICT_EXIT_CODES, print_report, report_dict
@@ -84,9 +68,6 @@ def cmd_camera_gap(args: argparse.Namespace) -> int:
     if folder is not None:
         doc["files"] = {"report": str(folder / "camera_gap_report.json"), "detections": str(folder / "detections.json")}
         write_detections(folder / "detections.json", detections_document(dets.board, dets.found, dets.rejected))
-        replace_text(folder / "camera_gap_report.json", json.dumps(doc, indent=2, allow_nan=False) + "\n")
-    if args.json:
-        print(json.dumps(doc, indent=2, allow_nan=False))
-    else:
-        print_report(doc, Console(width=None if sys.stdout.isatty() else 160))
+        write_report_file(folder / "camera_gap_report.json", doc)
+    show_report(doc, args.json, print_report)
     return int(VERDICT_EXIT_CODES[result.verdict])

@@ -10,35 +10,27 @@ as specified, in mm, with the fitted points.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from engine.exit_codes import ExitCode
 from engine.plain_data import plain
+from plugins.model_gap import gap_report_parts as parts
 from plugins.model_gap.camera.catalog import BASELINE, COEFFICIENTS
 from plugins.model_gap.camera.fitting import CameraModelFit
 from plugins.model_gap.camera.workflow import CameraGapResult, GapRound
+from plugins.model_gap.verdicts import VERDICT_EXIT_CODES  # re-exported: the table of every gap workflow
 
 __all__ = ["REPORT_FORMAT", "SCHEMA_PATH", "VERDICT_EXIT_CODES", "print_report", "report_dict", "schema"]
 
 REPORT_FORMAT = "vgr.camera_gap_report/1"
 SCHEMA_PATH = Path(__file__).with_name("camera_gap_report.schema.json")
 
-#: the same verdict -> exit code table as the robot ``vgr gap`` (plugins/model_gap/cli.py)
-VERDICT_EXIT_CODES = {
-    "no_gap": ExitCode.OK,
-    "explained": ExitCode.OK,
-    "explained_up_to_tie": ExitCode.REVIEW,
-    "unexplained": ExitCode.NOT_OK,
-}
-
 
 def schema() -> dict[str, Any]:
     """The JSON Schema of the report document."""
-    return json.loads(SCHEMA_PATH.read_text())
+    return parts.load_schema(SCHEMA_PATH)
 
 
 def _camera(fit: CameraModelFit) -> dict[str, Any]:
@@ -90,14 +82,7 @@ def _round(r: GapRound) -> dict[str, Any]:
             }
             for s in r.scores
         ],
-        "decision": {
-            "named": None if d.named is None else d.named.name,
-            "tied": [e.name for e in d.tie],
-            "representative": None if d.representative is None else d.representative.name,
-            "parsimony_over": [e.name for e in d.parsimony_over],
-            "pair_p_values": d.pair_p_values,
-            "reason": d.reason,
-        },
+        "decision": parts.decision_dict(d, d.reason),
     }
 
 
@@ -108,11 +93,7 @@ def report_dict(
     cfg = result.config
     added = [
         {
-            "name": a.label,
-            "effect": a.effect.name,
-            "tied": bool(a.tied_with),
-            "members": [e.name for e in (a.effect, *a.tied_with)],
-            "parsimony_over": [e.name for e in a.parsimony_over],
+            **parts.term_names(a),
             "coefficients": {c: result.final_fit.coefficients().get(c) for c in a.effect.coefficients},
             "iteration": a.iteration,
             "heldout_rms_before_px": a.heldout_rms_before_px,
@@ -122,11 +103,7 @@ def report_dict(
         for a in result.added
     ]
     doc = {
-        "format": REPORT_FORMAT,
-        "verdict": result.verdict,
-        "exit_code": int(VERDICT_EXIT_CODES[result.verdict]),
-        "reason": result.reason,
-        "notes": list(result.notes),
+        **parts.report_head(REPORT_FORMAT, result),
         "board": board,
         "image_size": list(result.size),
         "n_views": len(result.views),
@@ -143,16 +120,7 @@ def report_dict(
         "camera_after": _camera(result.final_fit),
         "board_shape": _board_shape(result),
         "residual_structure": {"before": result.structure_before.to_dict(), "after": result.structure_after.to_dict()},
-        "decision_rule": {
-            "test": "one-sided Wilcoxon signed-rank over held-out views of MSE_current - MSE_candidate",
-            "alpha": cfg.alpha,
-            "correction": "bonferroni over the round's candidates",
-            "alpha_tie": cfg.alpha_tie,
-            "folds": cfg.folds,
-            "seed": cfg.seed,
-            "max_effects": cfg.max_effects,
-            "catalog": [e.name for e in cfg.catalog],
-        },
+        "decision_rule": parts.decision_rule(cfg, "views"),
         "iterations": [_round(r) for r in result.rounds],
         "files": {},
     }
@@ -161,32 +129,17 @@ def report_dict(
 
 def print_report(doc: dict[str, Any], console: Any) -> None:
     """The terminal view of a report document: each round's candidates, what was added, the verdict."""
-    from rich.table import Table
-
-    for r in doc["iterations"]:
-        t = Table(title=f"round {r['iteration']}: current held-out RMS {r['current_heldout_rms_px']:.4f} px")
-        for col in ("effect", "held-out px", "gain px", "views better", "p (corrected)", "eligible"):
-            t.add_column(col)
-        for c in r["candidates"]:
-            t.add_row(
-                c["effect"], f"{c['heldout_rms_px']:.4f}", f"{c['gain_px']:+.4f}",
-                f"{c['n_views_better']}/{c['n_views']}", f"{c['p_corrected']:.2g}", "yes" if c["eligible"] else "no",
-            )  # fmt: skip
-        console.print(t)
-        console.print(f"  {r['decision']['reason']}", markup=False, highlight=False)
+    parts.print_rounds(doc, console, "px", "views")
     for e in doc["effects_added"]:
         values = ", ".join(f"{k} = {v:.4g}" for k, v in e["coefficients"].items() if v is not None)
         kind = "tie term, not named" if e["tied"] else "named"
         if e["effect"] == "board_shape" and doc.get("board_shape"):
             b = doc["board_shape"]
             values = f"{b['out_of_plane_span_mm']:.3f} mm out of its plane, {b['in_plane_max_mm']:.3f} mm in it (max)"
-        console.print(f"added {e['name']} ({kind}): {values}", markup=False, highlight=False)
-    console.print(
+        parts.say(console, f"added {e['name']} ({kind}): {values}")
+    parts.say(
+        console,
         f"held-out reprojection RMS {doc['heldout_rms_before_px']:.4f} -> {doc['heldout_rms_after_px']:.4f} px "
         f"(in-sample {doc['rms_before_px']:.4f} -> {doc['rms_after_px']:.4f} px, {doc['n_views']} views)",
-        markup=False,
-        highlight=False,
     )
-    console.print(f"verdict: {doc['verdict']}: {doc['reason']}", markup=False, highlight=False)
-    for note in doc["notes"]:
-        console.print(f"note: {note}", markup=False, highlight=False)
+    parts.print_verdict(doc, console)

@@ -11,7 +11,7 @@
    (:mod:`.structure`: sign flips of whole views, no noise estimate): ``no_gap`` (nothing added, no
    structure), ``explained`` (every added term named, no structure), ``explained_up_to_tie`` (a tie
    term added, no structure), ``unexplained`` (structure left, or the effect limit reached with a
-   candidate still eligible): the exit codes of ``vgr gap`` (:data:`plugins.model_gap.cli.EXIT_CODES`).
+   candidate still eligible): the exit codes of ``vgr gap`` (:data:`plugins.model_gap.verdicts.VERDICT_EXIT_CODES`).
 """
 
 from __future__ import annotations
@@ -27,6 +27,8 @@ from plugins.model_gap.camera.crossval import CrossValidation, cross_validate, v
 from plugins.model_gap.camera.fitting import CameraModelFit, fit_nested, fit_views
 from plugins.model_gap.camera.selection import CandidateScore, Decision, decide, score_candidates
 from plugins.model_gap.camera.structure import StructureTest, neighbour_structure, residual_structure
+from plugins.model_gap.naming_loop import LabelledTerm, limit_or_structure, name_effects, named_verdict
+from plugins.model_gap.selection_options import SelectionOptions
 
 __all__ = ["MIN_VIEWS", "AddedTerm", "CameraGapConfig", "CameraGapResult", "GapRound", "Structure", "run_camera_gap"]
 
@@ -34,23 +36,11 @@ MIN_VIEWS = 6
 
 
 @dataclass(frozen=True)
-class CameraGapConfig:
-    """The workflow's options: family-wise level per round, the tie level, folds, seed, effect limit."""
+class CameraGapConfig(SelectionOptions):
+    """The workflow's options: family-wise level per round, the tie level, folds, seed, effect limit
+    (:class:`.SelectionOptions`), the catalog."""
 
-    alpha: float = 1e-3
-    alpha_tie: float = 0.01
-    folds: int = 5
-    seed: int = 0
-    max_effects: int = 4
     catalog: tuple[CameraEffect, ...] = CATALOG
-
-    def __post_init__(self) -> None:
-        if not (0.0 < self.alpha < 0.5) or not (0.0 < self.alpha_tie < 0.5):
-            raise ValueError(f"alpha and alpha_tie must be in (0, 0.5), got {self.alpha}, {self.alpha_tie}")
-        if self.folds < 2:
-            raise ValueError(f"folds must be >= 2, got {self.folds}")
-        if self.max_effects < 0:
-            raise ValueError(f"max_effects must be >= 0, got {self.max_effects}")
 
 
 @dataclass(frozen=True)
@@ -64,7 +54,7 @@ class GapRound:
 
 
 @dataclass(frozen=True)
-class AddedTerm:
+class AddedTerm(LabelledTerm):
     """An effect added to the model: named (``tied_with`` empty) or a tie term fitted as ``effect``."""
 
     effect: CameraEffect
@@ -74,10 +64,6 @@ class AddedTerm:
     heldout_rms_before_px: float
     heldout_rms_after_px: float
     p_corrected: float
-
-    @property
-    def label(self) -> str:
-        return "|".join(e.name for e in (self.effect, *self.tied_with))
 
 
 @dataclass(frozen=True)
@@ -169,18 +155,7 @@ def _round(
 
 def _verdict(added: list[AddedTerm], after: Structure, still_eligible: bool, cfg: CameraGapConfig) -> tuple[str, str]:
     names = ", ".join(a.label for a in added) or "nothing"
-    if still_eligible:
-        return "unexplained", f"--max-effects {cfg.max_effects} reached with a candidate still predicting better"
-    if after.p_value < cfg.alpha:
-        return "unexplained", (
-            f"added {names}; structure is left in the residuals (p = {after.p_value:.2g} < {cfg.alpha:g}): "
-            f"{after.describe()}; an effect outside the catalog or too few views to name it: {after.advice()}"
-        )
-    if not added:
-        return "no_gap", "no catalog effect predicts held-out views better than the noise explains; no structure left"
-    if any(a.tied_with for a in added):
-        return "explained_up_to_tie", f"added {names}; no structure left, but a tie term is in the model"
-    return "explained", f"named {names}; no structure left in the residuals"
+    return limit_or_structure(names, after, still_eligible, cfg, "views") or named_verdict(added, names, "views")
 
 
 def run_camera_gap(
@@ -201,33 +176,12 @@ def run_camera_gap(
     except Exception as exc:  # cv2.error: e.g. every view frontal and coplanar
         msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
         raise ValueError(f"the baseline camera cannot be fitted to these views ({msg}): tilt the board") from None
-    current: CrossValidation = baseline_cv
-    effects: list[CameraEffect] = []
-    added: list[AddedTerm] = []
-    rounds: list[GapRound] = []
-    excluded: set[str] = set()
-    still_eligible = False
-    for iteration in range(1, len(catalog) + 1):
-        candidates = [e for e in catalog if e.name not in excluded]
-        if not candidates:
-            break
-        scores, decision, cvs = _round(views, size, current, candidates, folds, cfg)
-        rounds.append(GapRound(iteration, current.rms_px, scores, decision))
-        chosen = decision.added
-        if chosen is None:
-            break
-        if len(added) >= cfg.max_effects:
-            still_eligible = True
-            break
-        after = cvs[chosen.name]
-        score = next(s for s in scores if s.effect is chosen)
-        tied = tuple(e for e in decision.tie if e is not chosen)
-        added.append(
-            AddedTerm(chosen, tied, decision.parsimony_over, iteration, current.rms_px, after.rms_px, score.p_corrected)
-        )
-        effects.append(chosen)
-        excluded |= {chosen.name, *(e.name for e in decision.tie)}
-        current = after
+    run = name_effects(
+        catalog, baseline_cv, cfg.max_effects,
+        lambda current, _effects, candidates: _round(views, size, current, candidates, folds, cfg),
+        lambda cv: cv.rms_px, GapRound, AddedTerm,
+    )  # fmt: skip
+    rounds, added, effects, current, still_eligible = run.rounds, run.added, run.effects, run.final, run.still_eligible
     baseline_fit = fit_views(views, size, BASELINE)
     free = free_coefficients(effects)
     final_fit = (

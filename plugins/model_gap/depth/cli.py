@@ -18,11 +18,13 @@ writes it as ``depth_gap_report.json`` with the captures the workflow read (``ca
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
+
+from plugins.model_gap.gap_report_parts import show_report, write_report_file
+from plugins.model_gap.selection_options import check_selection_args
+from plugins.model_gap.workflow_options import check_end_args, refuse_options
 
 if TYPE_CHECKING:
     from plugins.model_gap.depth.data import SigmaLaw
@@ -74,29 +76,9 @@ def refuse_depth_options(args: argparse.Namespace) -> None:
 
 
 def _check_options(args: argparse.Namespace) -> None:
-    given = [
-        f"--{name.replace('_', '-')}"
-        for name in OTHER_OPTIONS
-        if getattr(args, name, None) not in (None, False, [], ())
-    ]
-    if getattr(args, "action", None) is not None:
-        given.insert(0, str(args.action))
-    if given:
-        raise ValueError(
-            f"{', '.join(given)}: options of the robot or camera workflow; the depth gap takes --depth CAPTURES"
-        )
-    if not (0 < args.alpha < 0.5):
-        raise ValueError(f"--alpha must be in (0, 0.5), got {args.alpha}")
-    if args.folds < 2:
-        raise ValueError(f"--folds must be >= 2, got {args.folds}")
-    if args.max_effects < 0:
-        raise ValueError("--max-effects must be >= 0")
-    if not (0 <= args.outlier_alpha < 0.5):
-        raise ValueError(f"--outlier-alpha must be in [0, 0.5) (0: no screen), got {args.outlier_alpha}")
-    if not (0 <= args.min_share <= 1):
-        raise ValueError(f"--min-share must be in [0, 1], got {args.min_share}")
-    if not (args.noise_trust >= 1):
-        raise ValueError(f"--noise-trust must be >= 1, got {args.noise_trust}")
+    refuse_options(args, OTHER_OPTIONS, "options of the robot or camera workflow; the depth gap takes --depth CAPTURES")
+    check_selection_args(args)
+    check_end_args(args)
     for name in ("noise_mm", "noise_mm_per_m2"):
         value = getattr(args, name)
         if value is not None and not (math.isfinite(value) and value >= 0):
@@ -116,10 +98,7 @@ def _stated_noise(args: argparse.Namespace) -> SigmaLaw | None:
 
 def cmd_depth_gap(args: argparse.Namespace) -> int:
     """Run the depth workflow for ``vgr gap --depth``; returns the exit code of the verdict."""
-    from rich.console import Console
-
     from engine import run_folder
-    from engine.files import replace_text
     from plugins.model_gap.depth.inputs import load_captures, write_captures
     from plugins.model_gap.depth.report import VERDICT_EXIT_CODES, print_report, report_dict
     from plugins.model_gap.depth.workflow import DepthGapConfig, run_depth_gap
@@ -137,9 +116,6 @@ def cmd_depth_gap(args: argparse.Namespace) -> int:
     if folder is not None:
         doc["files"] = {"report": str(folder / "depth_gap_report.json"), "captures": str(folder / "captures.npz")}
         write_captures(folder / "captures.npz", captures)
-        replace_text(folder / "depth_gap_report.json", json.dumps(doc, indent=2, allow_nan=False) + "\n")
-    if args.json:
-        print(json.dumps(doc, indent=2, allow_nan=False))
-    else:
-        print_report(doc, Console(width=None if sys.stdout.isatty() else 160))
+        write_report_file(folder / "depth_gap_report.json", doc)
+    show_report(doc, args.json, print_report)
     return int(VERDICT_EXIT_CODES[result.verdict])

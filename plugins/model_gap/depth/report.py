@@ -13,29 +13,21 @@ Strict JSON: a value that is not finite is ``null``.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from engine.exit_codes import ExitCode
 from engine.plain_data import plain
+from plugins.model_gap import gap_report_parts as parts
 from plugins.model_gap.depth.catalog import report_values
 from plugins.model_gap.depth.workflow import AddedTerm, DepthGapResult, GapRound
+from plugins.model_gap.verdicts import VERDICT_EXIT_CODES  # re-exported: the table of every gap workflow
 
 __all__ = ["REPORT_FORMAT", "SCHEMA_PATH", "VERDICT_EXIT_CODES", "print_report", "report_dict", "schema"]
 
 REPORT_FORMAT = "vgr.depth_gap_report/1"
 SCHEMA_PATH = Path(__file__).with_name("depth_gap_report.schema.json")
-
-#: the same verdict -> exit code table as the robot ``vgr gap`` and ``vgr gap --camera``
-VERDICT_EXIT_CODES = {
-    "no_gap": ExitCode.OK,
-    "explained": ExitCode.OK,
-    "explained_up_to_tie": ExitCode.REVIEW,
-    "unexplained": ExitCode.NOT_OK,
-}
 
 _BASELINE = {
     "known": "the range each pixel's ray meets the target's known plane at (no free coefficient)",
@@ -45,7 +37,7 @@ _BASELINE = {
 
 def schema() -> dict[str, Any]:
     """The JSON Schema of the report document."""
-    return json.loads(SCHEMA_PATH.read_text())
+    return parts.load_schema(SCHEMA_PATH)
 
 
 def _round(r: GapRound) -> dict[str, Any]:
@@ -68,17 +60,13 @@ def _round(r: GapRound) -> dict[str, Any]:
             }
             for s in r.scores
         ],
-        "decision": {
-            "named": None if d.named is None else d.named.name,
-            "tied": [e.name for e in d.tie],
-            "representative": None if d.representative is None else d.representative.name,
-            "parsimony_over": [e.name for e in d.parsimony_over],
-            "pair_p_values": d.pair_p_values,
-            "reason": d.reason.replace("held-out views", "held-out captures").replace(
+        "decision": parts.decision_dict(
+            d,
+            d.reason.replace("held-out views", "held-out captures").replace(
                 "views near the image corners and strongly tilted separate them",
                 "captures over a wider range of distances and tilts, the target filling the image, separate them",
             ),
-        },
+        ),
     }
 
 
@@ -88,11 +76,7 @@ def _added(a: AddedTerm, result: DepthGapResult) -> dict[str, Any]:
     else:
         coefficients = dict(report_values(a.effect, result.final_fit.theta_of(a.effect)))
     return {
-        "name": a.label,
-        "effect": a.effect.name,
-        "tied": bool(a.tied_with),
-        "members": [e.name for e in (a.effect, *a.tied_with)],
-        "parsimony_over": [e.name for e in a.parsimony_over],
+        **parts.term_names(a),
         "coefficients": coefficients,
         "unit": a.effect.unit,
         "description": a.effect.description,
@@ -134,11 +118,7 @@ def report_dict(
     cfg, sc, px = result.config, result.screen, result.pixels
     noise = {k: v for k, v in result.noise.items() if k != "per_capture"}
     doc = {
-        "format": REPORT_FORMAT,
-        "verdict": result.verdict,
-        "exit_code": int(VERDICT_EXIT_CODES[result.verdict]),
-        "reason": result.reason,
-        "notes": list(result.notes),
+        **parts.report_head(REPORT_FORMAT, result),
         "source": source,
         "target": px.target,
         "image_size": list(px.size),
@@ -162,63 +142,38 @@ def report_dict(
         "rms_after_mm": result.rms_after_mm,
         "captures": _captures(result),
         "residual_structure": {"before": result.structure_before.to_dict(), "after": result.structure_after.to_dict()},
-        "decision_rule": {
-            "test": "one-sided Wilcoxon signed-rank over held-out captures of MSE_current - MSE_candidate",
-            "alpha": cfg.alpha,
-            "correction": "bonferroni over the round's candidates",
-            "alpha_tie": cfg.alpha_tie,
-            "folds": cfg.folds,
-            "seed": cfg.seed,
-            "max_effects": cfg.max_effects,
-            "min_share": cfg.min_share,
-            "noise_trust": cfg.noise_trust,
-            "wiggle_period_mm": 1e3 * cfg.wiggle_period_m,
-            "catalog": [e.name for e in cfg.catalog],
-        },
+        "decision_rule": parts.decision_rule(
+            cfg,
+            "captures",
+            min_share=cfg.min_share,
+            noise_trust=cfg.noise_trust,
+            wiggle_period_mm=1e3 * cfg.wiggle_period_m,
+        ),
         "iterations": [_round(r) for r in result.rounds],
         "files": {},
     }
     return plain(doc, nan_as_none=True)
 
 
-def _say(console: Any, text: str) -> None:
-    console.print(text, markup=False, highlight=False)
-
-
 def print_report(doc: dict[str, Any], console: Any) -> None:
     """The terminal view of a report document: each round's candidates, what was added, the verdict."""
-    from rich.table import Table
-
-    for r in doc["iterations"]:
-        t = Table(title=f"round {r['iteration']}: current held-out RMS {r['current_heldout_rms_mm']:.4f} mm")
-        for col in ("effect", "held-out mm", "gain mm", "captures better", "p (corrected)", "eligible"):
-            t.add_column(col)
-        for c in r["candidates"]:
-            better = f"{c['n_captures_better']}/{c['n_captures']}"
-            t.add_row(
-                c["effect"], f"{c['heldout_rms_mm']:.4f}", f"{c['gain_mm']:+.4f}", better, f"{c['p_corrected']:.2g}",
-                "yes" if c["eligible"] else "no",
-            )  # fmt: skip
-        console.print(t)
-        _say(console, f"  {r['decision']['reason']}")
+    parts.print_rounds(doc, console, "mm", "captures")
     for e in doc["effects_added"]:
         values = ", ".join(f"{k} = {v:.4g}" for k, v in e["coefficients"].items() if v is not None)
         kind = "tie term, not named" if e["tied"] else "named"
         share = "" if e["share"] is None else f", share {e['share']:.0%}"
         gone = "; taken out again" if e["dropped"] else ""
-        _say(console, f"added {e['name']} ({kind}): {values or '-'}{share}{gone}")
+        parts.say(console, f"added {e['name']} ({kind}): {values or '-'}{share}{gone}")
     g = doc["gross_errors"]
     if g["n_flagged"]:
-        _say(
+        parts.say(
             console,
             f"gross errors: {g['n_flagged']} of {g['n_screened']} pixels left out (> {g['threshold_sigma']:.1f} sigma)",
         )
-    _say(
+    parts.say(
         console,
         f"held-out range RMS {doc['heldout_rms_before_mm']:.4f} -> {doc['heldout_rms_after_mm']:.4f} mm "
         f"(in-sample {doc['rms_before_mm']:.4f} -> {doc['rms_after_mm']:.4f} mm, {doc['n_captures']} captures, "
         f"{doc['n_pixels']} pixels, target {doc['target']})",
     )
-    _say(console, f"verdict: {doc['verdict']}: {doc['reason']}")
-    for note in doc["notes"]:
-        _say(console, f"note: {note}")
+    parts.print_verdict(doc, console)

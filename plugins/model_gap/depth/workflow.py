@@ -34,6 +34,8 @@ from plugins.model_gap.depth.crossval import DepthCrossValidation, capture_folds
 from plugins.model_gap.depth.data import DepthCaptures, DepthGapInputError, Pixels, identifiable_share, prepare
 from plugins.model_gap.depth.fitting import DepthFit, Screen, fit_model, residuals_under, screen
 from plugins.model_gap.depth.structure import DepthStructure, structure_of
+from plugins.model_gap.naming_loop import LabelledTerm, limit_or_structure, name_effects, named_verdict
+from plugins.model_gap.selection_options import SelectionOptions
 
 F64 = NDArray[np.float64]
 
@@ -44,14 +46,9 @@ IDENTIFIABLE = 1e-6  # an effect whose columns a plane fit absorbs to within thi
 
 
 @dataclass(frozen=True)
-class DepthGapConfig:
-    """The workflow's options (module docstring)."""
+class DepthGapConfig(SelectionOptions):
+    """The workflow's options (module docstring; the selection's: :class:`.SelectionOptions`)."""
 
-    alpha: float = 1e-3
-    alpha_tie: float = 0.01
-    folds: int = 5
-    seed: int = 0
-    max_effects: int = 4
     target: str = "auto"  # "known" (every capture's pose given), "fit" (a plane per capture), "auto"
     outlier_alpha: float = 0.01
     noise_trust: float = 2.0
@@ -60,12 +57,7 @@ class DepthGapConfig:
     catalog: tuple[DepthEffect, ...] = CATALOG
 
     def __post_init__(self) -> None:
-        if not (0.0 < self.alpha < 0.5) or not (0.0 < self.alpha_tie < 0.5):
-            raise ValueError(f"alpha and alpha_tie must be in (0, 0.5), got {self.alpha}, {self.alpha_tie}")
-        if self.folds < 2:
-            raise ValueError(f"folds must be >= 2, got {self.folds}")
-        if self.max_effects < 0:
-            raise ValueError(f"max_effects must be >= 0, got {self.max_effects}")
+        super().__post_init__()
         if not (0.0 <= self.outlier_alpha < 0.5):
             raise ValueError(f"outlier_alpha must be in [0, 0.5) (0: no screen), got {self.outlier_alpha}")
         if not self.noise_trust >= 1.0:
@@ -87,7 +79,7 @@ class GapRound:
 
 
 @dataclass
-class AddedTerm:
+class AddedTerm(LabelledTerm):
     """An effect added to the model: named (``tied_with`` empty) or a tie term fitted as ``effect``;
     ``share``: of what the model without it leaves beyond the noise, the part it explains."""
 
@@ -100,10 +92,6 @@ class AddedTerm:
     p_corrected: float
     share: float = float("nan")
     dropped: bool = False
-
-    @property
-    def label(self) -> str:
-        return "|".join(e.name for e in (self.effect, *self.tied_with))
 
 
 @dataclass
@@ -162,36 +150,16 @@ def _rms_mm(residual: F64) -> float:
 def _loop(px: Pixels, catalog: list[DepthEffect], w: F64, folds: list, cfg: DepthGapConfig) -> tuple[Any, ...]:
     """Rounds of the module docstring: (rounds, added, effects, baseline cv, final cv, still eligible)."""
     period = cfg.wiggle_period_m
-    baseline_cv = current = cross_validate(px, (), folds, w, period)
-    effects: list[DepthEffect] = []
-    added: list[AddedTerm] = []
-    rounds: list[GapRound] = []
-    excluded: set[str] = set()
-    still_eligible = False
-    for iteration in range(1, len(catalog) + 1):
-        candidates = [e for e in catalog if e.name not in excluded]
-        if not candidates:
-            break
+
+    def evaluate(current: DepthCrossValidation, effects: list[DepthEffect], candidates: list[DepthEffect]) -> Any:
         cvs = {e.name: cross_validate(px, (*effects, e), folds, w, period) for e in candidates}
         pairs = cast(Any, [(e, cvs[e.name]) for e in candidates])  # (the selection reads sse, n_points, rms_px)
         scores = score_candidates(cast(Any, current), pairs, cfg.alpha)
-        decision = decide(scores, cast(Any, cvs), cfg.alpha_tie)
-        rounds.append(GapRound(iteration, current.rms_mm, scores, decision))
-        chosen = cast(DepthEffect | None, decision.added)
-        if chosen is None:
-            break
-        if len(added) >= cfg.max_effects:
-            still_eligible = True
-            break
-        after = cvs[chosen.name]
-        score = next(s for s in scores if s.effect is chosen)
-        tied = tuple(cast(DepthEffect, e) for e in decision.tie if e is not chosen)
-        par = tuple(cast(DepthEffect, e) for e in decision.parsimony_over)
-        added.append(AddedTerm(chosen, tied, par, iteration, current.rms_mm, after.rms_mm, score.p_corrected))
-        effects.append(chosen)
-        excluded |= {chosen.name, *(e.name for e in decision.tie)}
-        current = after
-    return rounds, added, effects, baseline_cv, current, still_eligible
+        return scores, decide(scores, cast(Any, cvs), cfg.alpha_tie), cvs
+
+    baseline_cv = cross_validate(px, (), folds, w, period)
+    run = name_effects(catalog, baseline_cv, cfg.max_effects, evaluate, lambda cv: cv.rms_mm, GapRound, AddedTerm)
+    return run.rounds, run.added, run.effects, run.baseline, run.final, run.still_eligible
 
 
 def _noise(px: Pixels, sc: Screen, residual: F64, captures: DepthCaptures) -> dict[str, Any]:
@@ -233,27 +201,16 @@ def _verdict(
     kept: list[AddedTerm], after: DepthStructure, noise: dict[str, Any], still_eligible: bool, cfg: DepthGapConfig
 ) -> tuple[str, str]:
     names = ", ".join(a.label for a in kept) or "nothing"
-    if still_eligible:
-        return "unexplained", f"--max-effects {cfg.max_effects} reached with a candidate still predicting better"
-    if after.p_value < cfg.alpha:
-        return "unexplained", (
-            f"added {names}; structure is left in the residuals (p = {after.p_value:.2g} < {cfg.alpha:g}): "
-            f"{after.describe()}; an effect outside the catalog or too few captures to name it: {after.advice()}"
-        )
+    left = limit_or_structure(names, after, still_eligible, cfg, "captures")
+    if left is not None:
+        return left
     ratio = noise["rms_over_stated"]
     if ratio is not None and ratio > cfg.noise_trust:
         return "unexplained", (
             f"added {names}; the residuals are {ratio:.2f}x the stated noise (believed to {cfg.noise_trust:g}x): "
             "an effect outside the catalog, or the stated noise is wrong (give none to have it estimated)"
         )
-    if not kept:
-        return (
-            "no_gap",
-            "no catalog effect predicts held-out captures better than the noise explains; no structure left",
-        )
-    if any(a.tied_with for a in kept):
-        return "explained_up_to_tie", f"added {names}; no structure left, but a tie term is in the model"
-    return "explained", f"named {names}; no structure left in the residuals"
+    return named_verdict(kept, names, "captures")
 
 
 def _final(px: Pixels, effects: list[DepthEffect], w: F64, cfg: DepthGapConfig) -> tuple[DepthFit, F64, DepthStructure]:

@@ -13,18 +13,17 @@ failed fit do not raise: the verdict is ``failed`` with the reason and a ``warni
 
 from __future__ import annotations
 
-import json
 from typing import ClassVar
 
 from pydantic import Field, field_validator
 
-from engine.files import replace_text
 from engine.messages import CalibrationResultMsg, Image
 from engine.stage import Stage, StageParams
 from plugins.calibration.boards.detect import BoardNotFoundError, Detection, ImageReadError, detect_board
 from plugins.camera.board_spec import parse_board
 from plugins.model_gap.camera.report import report_dict
 from plugins.model_gap.camera.workflow import CameraGapConfig, run_camera_gap
+from plugins.model_gap.stages.gap_stage_result import publish_failed, publish_verdict, write_report
 
 
 class CameraGap(Stage):
@@ -76,16 +75,10 @@ class CameraGap(Stage):
                 raise ValueError(f"the board was found in none of the {self.refused} image(s)")
             result = run_camera_gap(self.views, self.views[0].image_size, cfg)
         except Exception as exc:  # too few views, an OpenCV fit refusing: a failed result, not a failed run
-            self.ctx.event("warning", "camera_gap_failed", str(exc))
-            self.ctx.publish("result", CalibrationResultMsg(kind="camera_gap", verdict="failed", reasons=[str(exc)]))
+            publish_failed(self.ctx, "camera_gap", exc)
             return
         doc = report_dict(result, board=parse_board(p.board).spec)
-        folder = self.ctx.output_dir(p.report_dir)
-        files = {}
-        if folder is not None:
-            files = {"report": str(folder / "camera_gap_report.json")}
-            doc["files"] = dict(files)
-            replace_text(folder / "camera_gap_report.json", json.dumps(doc, indent=2, allow_nan=False) + "\n")
+        files = write_report(self.ctx, p.report_dir, "camera_gap_report.json", doc)
         metrics = {k: float(doc[k]) for k in ("heldout_rms_before_px", "heldout_rms_after_px", "rms_after_px")}
         metrics["effects_added"] = float(len(doc["effects_added"]))
         metrics["n_views"] = float(doc["n_views"])
@@ -94,15 +87,7 @@ class CameraGap(Stage):
             f"{result.verdict}: added {added}; held-out RMS {metrics['heldout_rms_before_px']:.4f} -> "
             f"{metrics['heldout_rms_after_px']:.4f} px over {len(self.views)} views"
         )
-        self.ctx.event("result", "camera_gap", text, verdict=result.verdict, files=files)
-        self.ctx.publish(
-            "result",
-            CalibrationResultMsg(
-                kind="camera_gap",
-                verdict=result.verdict,
-                method="vgr gap --camera: OpenCV calibrateCamera per catalog effect, Wilcoxon over held-out views",
-                reasons=[result.reason],
-                metrics=metrics,
-                result_json=json.dumps(doc, allow_nan=False),
-            ),
-        )
+        publish_verdict(
+            self.ctx, "camera_gap", result, doc, text=text, metrics=metrics, files=files,
+            method="vgr gap --camera: OpenCV calibrateCamera per catalog effect, Wilcoxon over held-out views",
+        )  # fmt: skip

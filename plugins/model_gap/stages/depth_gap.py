@@ -18,18 +18,17 @@ refused input do not raise: the verdict is ``failed`` with the reason and a ``wa
 
 from __future__ import annotations
 
-import json
 from typing import ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
 
-from engine.files import replace_text
 from engine.messages import CalibrationResultMsg, CameraInfo, Image, PoseStamped
 from engine.stage import Stage, StageParams
 from plugins.model_gap.depth.data import DepthCaptures, DepthFrame, SigmaLaw
 from plugins.model_gap.depth.report import report_dict
 from plugins.model_gap.depth.workflow import DepthGapConfig, run_depth_gap
+from plugins.model_gap.stages.gap_stage_result import publish_failed, publish_verdict, write_report
 
 
 class DepthGap(Stage):
@@ -112,17 +111,11 @@ class DepthGap(Stage):
             captures = self._captures()
             result = run_depth_gap(captures, cfg)
         except Exception as exc:  # too few captures, refused input: a failed result, not a failed run
-            self.ctx.event("warning", "depth_gap_failed", str(exc))
-            self.ctx.publish("result", CalibrationResultMsg(kind="depth_gap", verdict="failed", reasons=[str(exc)]))
+            publish_failed(self.ctx, "depth_gap", exc)
             return
         rejected = [{"name": name, "reason": why} for name, why in captures.rejected]
         doc = report_dict(result, rejected, "depth_gap stage")
-        folder = self.ctx.output_dir(p.report_dir)
-        files = {}
-        if folder is not None:
-            files = {"report": str(folder / "depth_gap_report.json")}
-            doc["files"] = dict(files)
-            replace_text(folder / "depth_gap_report.json", json.dumps(doc, indent=2, allow_nan=False) + "\n")
+        files = write_report(self.ctx, p.report_dir, "depth_gap_report.json", doc)
         metrics = {k: float(doc[k]) for k in ("heldout_rms_before_mm", "heldout_rms_after_mm", "rms_after_mm")}
         metrics["effects_added"] = float(len(doc["effects_added"]))
         metrics["n_captures"] = float(doc["n_captures"])
@@ -132,15 +125,7 @@ class DepthGap(Stage):
             f"{result.verdict}: added {added}; held-out range RMS {metrics['heldout_rms_before_mm']:.4f} -> "
             f"{metrics['heldout_rms_after_mm']:.4f} mm over {doc['n_captures']} captures"
         )
-        self.ctx.event("result", "depth_gap", text, verdict=result.verdict, files=files)
-        self.ctx.publish(
-            "result",
-            CalibrationResultMsg(
-                kind="depth_gap",
-                verdict=result.verdict,
-                method="vgr gap --depth: linear range-error effects, Wilcoxon over held-out captures",
-                reasons=[result.reason],
-                metrics=metrics,
-                result_json=json.dumps(doc, allow_nan=False),
-            ),
-        )
+        publish_verdict(
+            self.ctx, "depth_gap", result, doc, text=text, metrics=metrics, files=files,
+            method="vgr gap --depth: linear range-error effects, Wilcoxon over held-out captures",
+        )  # fmt: skip

@@ -6,14 +6,12 @@ views give a ``failed`` result instead of an exception."""
 from __future__ import annotations
 
 import json
-import logging
 
 import numpy as np
 import pytest
+from gap_stage_helpers import RecordingContext
 
-from engine.clock import WallClock
 from engine.messages import Image
-from engine.stage import StageContext
 from plugins.camera.board_render import render_board, sample_views
 from plugins.camera.board_spec import parse_board
 from plugins.camera.pinhole import CameraModel
@@ -21,22 +19,6 @@ from plugins.model_gap.camera.report import schema
 from plugins.model_gap.stages.camera_gap import CameraGap
 
 BOARD = "chessboard:9x7:20mm"
-
-
-class RecordingContext(StageContext):
-    """A stage context that keeps what the stage publishes and its events (no bus, no run)."""
-
-    def __init__(self, tmp_path) -> None:
-        super().__init__("camera_gap", "test", 3, WallClock(), logging.getLogger("test"), None)
-        self.run_dir = tmp_path
-        self.published: list[tuple[str, object]] = []
-        self.events: list[tuple[str, str, str]] = []
-
-    def publish(self, port, msg) -> None:
-        self.published.append((port, msg))
-
-    def event(self, level, code, message, **details) -> None:
-        self.events.append((level, code, message))
 
 
 def rendered(n: int, seed: int) -> list[Image]:
@@ -58,7 +40,7 @@ def rendered(n: int, seed: int) -> list[Image]:
 
 
 def run_stage(tmp_path, images: list[Image]) -> RecordingContext:
-    ctx = RecordingContext(tmp_path)
+    ctx = RecordingContext(tmp_path, "camera_gap")
     stage = CameraGap(ctx, CameraGap.Params(board=BOARD))
     for im in images:
         stage.on_message("image", im)
@@ -84,9 +66,7 @@ def test_the_stage_names_the_hidden_k3_in_rendered_images(tmp_path):
 
 def test_too_few_views_give_a_failed_result_not_an_exception(tmp_path):
     ctx = run_stage(tmp_path, rendered(3, seed=1))
-    ((_, msg),) = ctx.published
-    assert msg.verdict == "failed" and "at least 6" in msg.reasons[0]
-    assert any(code == "camera_gap_failed" for _, code, _ in ctx.events)
+    ctx.assert_failed("at least 6")
 
 
 def test_a_wrong_board_spec_is_refused_by_the_parameters():

@@ -6,39 +6,21 @@ are warned about and left out, too few captures give a ``failed`` result instead
 from __future__ import annotations
 
 import json
-import logging
 
 import jsonschema
 import numpy as np
 import pytest
+from gap_stage_helpers import RecordingContext
 
-from engine.clock import WallClock
 from engine.messages import CameraInfo, Image, PoseStamped
-from engine.stage import StageContext
 from plugins.model_gap.depth.report import schema
 from plugins.model_gap.stages.depth_gap import DepthGap
 from plugins.sim.model_gap.depth_captures import simulate_captures
 
 
-class RecordingContext(StageContext):
-    """A stage context that keeps what the stage publishes and its events (no bus, no run)."""
-
-    def __init__(self, tmp_path) -> None:
-        super().__init__("depth_gap", "test", 3, WallClock(), logging.getLogger("test"), None)
-        self.run_dir = tmp_path
-        self.published: list[tuple[str, object]] = []
-        self.events: list[tuple[str, str, str]] = []
-
-    def publish(self, port, msg) -> None:
-        self.published.append((port, msg))
-
-    def event(self, level, code, message, **details) -> None:
-        self.events.append((level, code, message))
-
-
 def run_stage(tmp_path, effect: str | None, n: int, **params) -> RecordingContext:
     caps = simulate_captures(effect, n=n, seed=6)
-    ctx = RecordingContext(tmp_path)
+    ctx = RecordingContext(tmp_path, "depth_gap")
     stage = DepthGap(ctx, DepthGap.Params(**params))
     w, h = caps.size
     stage.on_message("camera_info", CameraInfo(width=w, height=h, K=caps.K, frame_id="camera", stamp_ns=1))
@@ -67,9 +49,7 @@ def test_the_stage_names_a_hidden_pattern_and_publishes_the_report(tmp_path):
 
 def test_too_few_captures_give_a_failed_result_not_an_exception(tmp_path):
     ctx = run_stage(tmp_path, None, 4, target="known")
-    ((_, msg),) = ctx.published
-    assert msg.verdict == "failed" and "at least 6" in msg.reasons[0]
-    assert any(code == "depth_gap_failed" for _, code, _ in ctx.events)
+    ctx.assert_failed("at least 6")
 
 
 def test_the_parameters_are_checked_when_the_recipe_loads():
