@@ -35,6 +35,11 @@ class Counter(Stage):
         n: int = 10
         forever: bool = False
         rate_hz: float = 0.0
+        in_setup: int = 0  # Requests published in setup() first (args.i -in_setup .. -1)
+
+    def setup(self) -> None:
+        for i in range(-self.params.in_setup, 0):  # type: ignore[attr-defined]
+            self.ctx.publish("out", Request(command="count", args={"i": i}))
 
     def run(self) -> None:
         i = 0

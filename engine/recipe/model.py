@@ -53,6 +53,9 @@ class ZenohSettings(_Strict):
     connect: list[str] = Field(default_factory=list)
     multicast_scouting: bool = False
     shared_memory: bool = True  # large payloads to processes of this host through shared memory (engine.transport.shm)
+    # messages to the stages of other processes of this host over vgr's own unix sockets, not zenoh
+    # (engine.transport.local_link; never with a security: block, whose TLS and access control every message takes)
+    local_links: bool = True
 
     @field_validator("listen", "connect")
     @classmethod

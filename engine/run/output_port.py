@@ -2,7 +2,9 @@
 
 Consumers in this process are offer functions of their input queues (``local``, see
 engine.run.runtime.StageRuntime._offerer). Consumers in other vgr processes get the port's messages
-through ``wire`` (engine.transport.wire.WireSender, on the internal key ``vgr/<run>/_wire/<stage>/<port>``;
+through ``wire`` (engine.transport.wire.WireSender, over the unix-socket link of a consumer of this
+host that asked for one before the port's first message, :meth:`OutputPort.attach_link` and
+engine.transport.local_link, else on the internal key ``vgr/<run>/_wire/<stage>/<port>``;
 large payloads as read-only views of the port's own pool when every consumer process is on this
 host, engine.transport.shm_views, else from the bus's zenoh shared-memory pool, engine.transport.shm);
 the public key ``vgr/<run>/<stage>/<port>`` is put to, one message per sample, only while a foreign
@@ -20,11 +22,16 @@ import zenoh
 
 from engine.messages import codec
 from engine.transport.bus import data_key, wire_key
+from engine.transport.local_link import LinkSender
 from engine.transport.shm_views import VIEW_MIN_BYTES, ViewPool, consumer_order
 from engine.transport.wire import WireSender
 
 if TYPE_CHECKING:
     from engine.run.stage_host import PortOwner
+
+
+def _joined(head: bytes, bulk: Any) -> bytes:
+    return b"".join((head, bulk))
 
 
 class OutputPort:
@@ -48,6 +55,8 @@ class OutputPort:
             if graph.nodes[e.dst].spec.process != here
         ]
         self.remote_consumers = bool(remote)
+        self._remote = frozenset(remote)  # (process, stage, input) of each consumer in another process
+        self._linked: set[tuple[str, str, str]] = set()  # ... of those linked (engine.transport.local_link)
         self.publisher = host.bus.remote_publisher(data_key(host.run_id, rt.name, port))
         self.put = self.publisher.put
         shm = getattr(host.bus, "shm", None)  # large payloads through shared memory (engine.transport.shm)
@@ -66,6 +75,7 @@ class OutputPort:
         # the encoded message's two parts written straight into shared memory, when the wire is the
         # only taker of its bytes (see _update)
         self._wrap_parts = self._parts_into_shared_memory(shm) if shm is not None and self.wire is not None else None
+        self._name = f"{rt.name}.{port}"
         self.wrap_parts = None
         self.external = bool(self.publisher.matching_status.matching)
         self.observed = bool(host.observers)  # observers are fixed before a run starts
@@ -76,11 +86,28 @@ class OutputPort:
             zenoh.handlers.Callback(self._on_matching, indirect=False)
         )
 
+    def attach_link(self, consumer: tuple[str, str, str], sock: Any) -> bool:
+        """Take the link of *consumer* ((process, stage, input), one the graph names in another
+        process): the port's messages go to it over *sock* from now on. Only before the port's first
+        message, so none of them went to it through zenoh (engine.transport.local_link)."""
+        with self.lock:
+            if self.seq or self.closed or self.wire is None or consumer not in self._remote or consumer in self._linked:
+                return False
+            self._linked.add(consumer)
+            link = LinkSender(sock, f"{self._name} -> {consumer[1]}.{consumer[2]}")
+            self.wire.add_link(link, zenoh_too=len(self._linked) < len(self._remote))
+            if self._wrap_parts is not None:  # views still, but never a zenoh buffer: a link takes bytes
+                self._wrap_parts = self._parts_into_shared_memory(None)
+            self._update()
+            return True
+
     def _parts_into_shared_memory(self, shm: Any) -> Any:
         """``wrap_parts(head, bulk)``: into a block of the port's pool of views when its consumers
-        can map it, else into a zenoh shared-memory buffer (engine.transport.shm.ShmPool.wrap_parts)."""
-        place, zenoh_parts = self.views.place if self.views is not None else None, shm.wrap_parts
-        small = min(VIEW_MIN_BYTES, shm.min_bytes)  # below both pools' thresholds
+        can map it, else into a zenoh shared-memory buffer (engine.transport.shm.ShmPool.wrap_parts;
+        *shm* None: joined bytes instead)."""
+        place = self.views.place if self.views is not None else None
+        zenoh_parts = shm.wrap_parts if shm is not None else _joined
+        small = min(VIEW_MIN_BYTES, shm.min_bytes) if shm is not None else VIEW_MIN_BYTES  # below the pools' thresholds
 
         def wrap_parts(head: bytes, bulk: Any) -> Any:
             if len(head) + len(bulk) < small:  # (the common case: joined here, no further call)

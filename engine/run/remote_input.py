@@ -6,8 +6,14 @@ payload of a producer on this host may come as a descriptor of a block of the pr
 memory (envelope kind VIEW, engine.transport.shm_views), which the port turns into a read-only view
 of that block: the codec decodes the bulk array as a numpy view of it, no copy on receive.
 
-Where the stage gets the messages, decided per stage from what the engine knows of it
-(:func:`receive_thread_safe`), not by a user flag:
+A producer on this host sends them over a link instead (engine.transport.local_link, asked for by
+:meth:`RemoteInput.try_link` before the stages start): a thread of this input reads the link and
+hands each message to the stage itself while the stage is idle (one thread wake-up from the
+producer's send to the handler; the thread serves this input alone, so a handler may wait there
+for anything), else queues it for the port's pump; zenoh's samples of the port are ignored.
+
+Otherwise, where the stage gets the messages from zenoh is decided per stage from what the engine
+knows of it (:func:`receive_thread_safe`), not by a user flag:
 
 * **on zenoh's receive thread** (``Bus.subscribe_direct``: the callback runs there, no hand-over to
   another thread) when that cannot hold anything up: the stage calls no service (a handler waiting
@@ -45,6 +51,7 @@ from typing import TYPE_CHECKING, Any
 from engine.messages import Message, codec
 from engine.messages.codec import CodecError, Kind
 from engine.run.inbox import END, STOP, PortInbox
+from engine.transport.local_link import FrameReader, open_link
 from engine.transport.shm_views import ViewReader, consumer_order, data_envelope_of
 from engine.transport.wire import BATCH_ENVELOPE, iter_batch
 
@@ -106,6 +113,8 @@ class RemoteInput:
         self._quick = 0  # handlings in a row under RX_BUDGET_S
         self._host = rt.host  # (bound once for the receive thread's path)
         self._lock: Any = rt.lock  # (an RLock: acquired without waiting there)
+        self.link: FrameReader | None = None  # the producer sends this input's messages here (try_link)
+        self._linked = False  # ... and zenoh's samples are ignored
         if on_receive_thread:
             self.queue = PortInbox(port, None)  # unbounded: the receive thread never waits
             self.subscriber = bus.subscribe_direct(key, self._on_sample)
@@ -130,10 +139,73 @@ class RemoteInput:
         )
         return ViewReader(consumers.index((rt.node.spec.process, rt.name, self.port)))
 
+    def try_link(self, host: str) -> bool:
+        """Ask the producer, if it is a process of this host, to send this input's messages over a
+        link (engine.transport.local_link; *host*: this host's key; before the stages start: the
+        producer takes the link only while the port has published nothing). Taken: zenoh's copies
+        are ignored from now on (the producer may still put them for another consumer) and a
+        thread reads the link."""
+        rt = self.rt
+        graph, run = rt.host.graph, rt.host.run_id
+        src = next(e for e in graph.inputs_of(rt.name) if e.dst_port == self.port)
+        hello = {"v": 1, "run": run, "stage": src.src, "port": src.src_port, "host": host}
+        hello |= {"process": rt.node.spec.process, "consumer": rt.name, "input": self.port}
+        sock = open_link(run, graph.nodes[src.src].spec.process, hello)
+        if sock is None:
+            return False
+        self._linked = True  # (before the swap below: a zenoh sample in flight then sees it)
+        with contextlib.suppress(Exception):
+            self.subscriber.undeclare()
+        self.channel = None  # what zenoh had queued came after the link was taken: the link has it too
+        self.queue = PortInbox(self.port, None)  # unbounded: the link's reader never waits
+        self.link = FrameReader(sock)
+        rt.spawn_thread(f"{rt.name}.{self.port}.link", self._read_link, self.link)
+        return True
+
+    def _read_link(self, link: FrameReader) -> None:
+        """Thread body: the link's frames, in order, handed to the stage (:meth:`_offer_linked`)
+        until the producer ends the link."""
+        decode, offer = self._decode, self._offer_linked
+        try:
+            for raw_env, payload in link.frames():
+                items = iter_batch(payload) if raw_env == BATCH_ENVELOPE else iter(((raw_env, payload),))
+                try:
+                    for env, body in items:
+                        try:
+                            msg = decode(env, body)
+                        except CodecError as exc:
+                            self._undecodable(exc)
+                            continue
+                        if msg is not None:
+                            offer(msg)
+                except CodecError as exc:  # the batch itself is damaged: the rest of it is lost
+                    self._undecodable(exc)
+                msg = payload = items = None
+        except Exception:  # (the thread ends; the stage sees the producer's stream end or the stop)
+            log.exception("input %s.%s: its link failed", self.rt.name, self.port)
+
+    def _offer_linked(self, msg: Message | object) -> None:
+        """Hand *msg* to the stage on the link's own thread when the stage is idle, else queue it for
+        the pump. (This thread serves only this input: a handler may wait here for anything.)"""
+        queue = self.queue
+        if msg is not END and self._host.started and queue.claim_idle():  # type: ignore[union-attr]
+            lock = self._lock
+            if lock.acquire(False):
+                try:
+                    self.deliver(msg)
+                finally:
+                    lock.release()
+                    queue.release()  # type: ignore[union-attr]
+                return
+            queue.release()  # type: ignore[union-attr]
+        queue.put(msg, block=False)  # type: ignore[union-attr]
+
     def close(self) -> None:
         if self.closed:
             return
         self.closed = True
+        if self.link is not None:
+            self.link.close()  # its reader's next read ends
         if self.queue is not None:  # (the subscriber goes with the bus: never undeclared from its own callback)
             self.queue.close()
             return
@@ -233,6 +305,8 @@ class RemoteInput:
     def _offer(self, msg: Message | object) -> None:
         """Hand *msg* to the stage here when the stage is idle and quick, else queue it for the pump."""
         queue = self.queue
+        if self._linked:  # (read after the queue: try_link sets this before it swaps the queue)
+            return
         # (the END always goes to the pump: it runs the stage's finish(), which may take long)
         inline = self.on_receive_thread and msg is not END and self._host.started
         if inline and queue.claim_idle():  # type: ignore[union-attr]

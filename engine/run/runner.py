@@ -58,6 +58,7 @@ from engine.clock import Clock, make_clock
 from engine.graph import Graph
 from engine.messages import Event
 from engine.recipe.model import NAME_RE
+from engine.run.local_links import link_inputs, listen_for_links
 from engine.run.membership import Membership
 from engine.run.process_memory import keep_freed_memory
 from engine.run.runtime import StageRuntime, StageStats
@@ -68,6 +69,7 @@ from engine.run.summary import RunError, RunSummary
 from engine.stage import Stage
 from engine.transport import discovery
 from engine.transport.bus import Bus, CancelToken
+from engine.transport.local_link import LinkListener, links_allowed
 from engine.transport.session_config import plan_session
 
 __all__ = ["Observer", "RunError", "RunSummary", "Runner", "recipe_dir"]
@@ -181,6 +183,7 @@ class Runner:
         self.driven = _driven_stages(graph)
         self._own_bus = bus is None
         self._bus = bus
+        self._links: LinkListener | None = None  # where this process's ports take links (engine.run.local_links)
         # endpoints, TLS and access control of this process's session, refused here (before any
         # file or session exists) when the recipe's settings cannot make it
         self.session = (
@@ -402,10 +405,15 @@ class Runner:
             rt.declare_outputs()
         topics = discovery.graph_topics(self.graph, self.run_id, self.process)
         discovery.announce(self.bus, self.run_id, self.process, topics)  # what `vgr topics` and foreign tools read
+        links = self._own_bus and links_allowed(self.graph.recipe.zenoh_for(self.process), self.secured)
+        if links:  # (before joining: a process of this host that has joined has its listener)
+            self._links = listen_for_links(self.run_id, self.process, self.runtimes)
         for rt in self.runtimes.values():
             rt.declare_inputs(self.runtimes)
         self.members.join(local, drives=bool(self.driven & self.runtimes.keys()) or self.hold_open)
         self.members.await_stages()
+        if links:  # every process has joined: the producers of this host listen, and none has started
+            link_inputs(self.runtimes)
         for name in local:
             rt = self.runtimes[name]
             rt.stats.state = "running"
@@ -488,6 +496,8 @@ class Runner:
         self.stop_event.set()  # ends service pumps and idle readers; a failure only if stop_reason is set
         if self.stop_reason:
             self._halt_devices()  # motion stops first
+        if self._links is not None:
+            self._links.close()
         self._wake_all()
         self._join_stages()
         for name in reversed(self.graph.stages_in(self.process)):

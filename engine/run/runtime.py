@@ -318,6 +318,10 @@ class StageRuntime(StageContext):
         if self.node.cls.is_source():
             self._spawn(f"{self.name}.run", self._source_main)
 
+    def spawn_thread(self, name: str, target: Any, *args: Any) -> None:
+        """Run *target(*args)* on a thread of this stage (joined when the run ends)."""
+        self._spawn(name, target, *args)
+
     def _spawn(self, name: str, target: Any, *args: Any) -> None:
         def main() -> None:
             try:

@@ -124,3 +124,5 @@ class PortOwner(Protocol):
     def lock(self) -> AbstractContextManager[Any]: ...  # held while the stage handles a message
 
     def event(self, level: str, code: str, message: str, **details: Any) -> None: ...
+
+    def spawn_thread(self, name: str, target: Any, *args: Any) -> None: ...  # one of the stage's threads

@@ -29,6 +29,11 @@ read-only view of the port's own pool (engine.transport.shm_views.ViewPool: a de
 VIEW, while every consumer process maps this host's memory), or put from a zenoh shared-memory
 buffer when the sender has a pool (engine.transport.shm.ShmPool: the session has shared memory on;
 consumers on this host map it, others get the bytes through the network), or as bytes.
+
+A consumer in another process of this host that took a link (engine.transport.local_link) gets the
+same samples — single messages, batches, descriptors — as frames on its unix socket instead, written
+by the same thread with one ``sendmsg``; zenoh is then put to only while some consumer has no link,
+and a large payload goes as bytes, never from a zenoh buffer (a socket cannot carry one).
 """
 
 from __future__ import annotations
@@ -39,7 +44,10 @@ import time
 from collections.abc import Iterator
 from typing import Any
 
+import zenoh
+
 from engine.messages.codec import CodecError, Envelope, Kind, encode_envelope
+from engine.transport.local_link import LinkSender
 from engine.transport.shm import ShmPool
 from engine.transport.shm_views import ViewPayload, ViewPool, view_envelope
 
@@ -93,8 +101,16 @@ class WireSender:
     docstring). :meth:`send` is called in publication order (the port's lock held)."""
 
     def __init__(self, publisher: Any, name: str, shm: ShmPool | None = None, views: ViewPool | None = None) -> None:
-        self._put = publisher.put
-        self._wrap = shm.wrap if shm is not None else _as_is  # large payloads into shared memory
+        self._publisher = publisher
+        self._zput = publisher.put
+        self._shm_wrap = shm.wrap if shm is not None else _as_is
+        self._wrap = self._shm_wrap  # large payloads into zenoh's shared memory (none once linked)
+        # consumers of this host linked to the port (engine.transport.local_link)
+        self._links: tuple[LinkSender, ...] = ()
+        self._zenoh = True  # some consumer the graph names is not linked: zenoh gets every message too
+        self._matching = True  # ... or some subscriber of the key is there (a process that rejoined)
+        self._matching_listener: Any = None
+        self._put = self._zenoh_put
         self._place = views.place if views is not None else None  # ... or as views of the port's pool
         self._name = name
         self._pending: list[tuple[bytes, bytes]] = []
@@ -120,7 +136,7 @@ class WireSender:
             idle = not self._pending and not self._busy
             if self._closed or (idle and (not burst or len(payload) > SMALL_BYTES)):
                 if len(payload) <= SMALL_BYTES:  # idle port: no hand-over, no wait
-                    self._put(payload, attachment=envelope)
+                    self._put(payload, envelope)
                 else:
                     self._put_one(payload, envelope)
                 self.samples += 1
@@ -141,6 +157,48 @@ class WireSender:
             elif len(self._pending) == 1:
                 self._cv.notify_all()
 
+    def add_link(self, link: LinkSender, zenoh_too: bool) -> None:
+        """Send to *link* from now on (called before the port's first message); *zenoh_too*: some
+        consumer is not linked, so zenoh still gets every message."""
+        with self._lock:
+            self._links = (*self._links, link)
+            self._zenoh = zenoh_too
+            self._wrap = _as_is  # a large payload goes as bytes: to the links, and to zenoh for another host
+            self._put = self._fan_put
+            if not hasattr(self._publisher, "declare_matching_listener"):
+                self._matching = False  # (a publisher of the tests': what the graph says alone)
+            elif self._matching_listener is None:
+                # a linked consumer no longer subscribes: once none is left, nothing is put there
+                # (run on zenoh's thread: it only sets a flag)
+                self._matching_listener = self._publisher.declare_matching_listener(
+                    zenoh.handlers.Callback(self._on_matching, indirect=False)
+                )
+                self._matching = bool(self._publisher.matching_status.matching)
+
+    def _on_matching(self, status: Any) -> None:
+        self._matching = bool(status.matching)
+
+    def _zenoh_put(self, payload: Any, envelope: bytes) -> None:
+        self._zput(payload, attachment=envelope)
+
+    def _fan_put(self, payload: Any, envelope: bytes) -> None:
+        """To every live link, and through zenoh while a consumer the graph names is not linked or
+        something subscribes there (a process of the run started again takes its messages from
+        zenoh: its port is past its first message). A link that fails is dropped (its consumer is
+        gone or stuck, see engine.transport.local_link) and zenoh gets every message from then on,
+        this one included; zenoh's put raises."""
+        for link in self._links:
+            if not link.send(envelope, payload):
+                self._links = tuple(x for x in self._links if x is not link)
+                self._zenoh = True
+        if self._zenoh or self._matching:
+            self._zput(payload, attachment=envelope)
+
+    def _close_links(self) -> None:
+        links, self._links = self._links, ()
+        for link in links:
+            link.close()
+
     def _failure(self) -> RuntimeError:
         err = RuntimeError(f"sending {self._name} to other processes failed: {self._error}")
         err.__cause__ = self._error
@@ -154,6 +212,7 @@ class WireSender:
             thread = self._thread
         if thread is not None:
             thread.join(timeout_s)
+        self._close_links()  # (after what was queued: a consumer reads to the end, then the link ends)
 
     def _run(self) -> None:
         while True:
@@ -202,17 +261,19 @@ class WireSender:
         if type(payload) is not ViewPayload and self._place is not None and len(payload) > SMALL_BYTES:
             payload = self._place(payload) or payload
         if type(payload) is ViewPayload:
-            self._put(payload.descriptor, attachment=view_envelope(envelope))
+            self._put(payload.descriptor, view_envelope(envelope))
+        elif self._links:
+            self._put(payload, envelope)  # (bytes: a link cannot carry a zenoh buffer)
         else:
-            self._put(self._wrap(payload), attachment=envelope)
+            self._zput(self._wrap(payload), attachment=envelope)
 
     def _put_run(self, run: list[tuple[bytes, bytes]]) -> None:
         if not run:
             return
         if len(run) == 1:
             env, payload = run[0]
-            self._put(payload, attachment=env)
+            self._put(payload, env)
         else:
-            self._put(pack_batch(run), attachment=BATCH_ENVELOPE)
+            self._put(pack_batch(run), BATCH_ENVELOPE)
             self.batched += len(run)
         self.samples += 1

@@ -1,5 +1,6 @@
-"""Across OS processes: two processes of one recipe exchange messages over zenoh tcp on 127.0.0.1
-exactly as in one process; Ctrl-C stops a run cleanly with exit code 130."""
+"""Across OS processes: two processes of one recipe exchange messages exactly as in one process,
+over the links of one host (engine.transport.local_link) or, with ``local_links: false``, over zenoh
+tcp on 127.0.0.1 (the service calls always); Ctrl-C stops a run cleanly with exit code 130."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ RECIPE = """
 name: split
 plugins: [stage_fixtures]
 seed: 5
+{zenoh}
 processes:
   producer: {{listen: ["tcp/127.0.0.1:{port}"]}}
   consumer: {{connect: ["tcp/127.0.0.1:{port}"], listen: []}}
@@ -29,13 +31,17 @@ stages:
 """
 
 
-def test_two_processes_exchange_messages_like_one(tmp_path):
+@pytest.mark.parametrize("links", [True, False], ids=["links", "zenoh"])
+def test_two_processes_exchange_messages_like_one(tmp_path, links):
     port = free_port()
     split = tmp_path / "split.yaml"
-    split.write_text(RECIPE.format(port=port, p_src="producer", p_sink="consumer", out=tmp_path / "split.json"))
+    zenoh = "" if links else "zenoh: {local_links: false}"
+    split.write_text(
+        RECIPE.format(zenoh=zenoh, port=port, p_src="producer", p_sink="consumer", out=tmp_path / "split.json")
+    )
     single = tmp_path / "single.yaml"
     single.write_text(
-        RECIPE.format(port=port, p_src="main", p_sink="main", out=tmp_path / "single.json")
+        RECIPE.format(zenoh="", port=port, p_src="main", p_sink="main", out=tmp_path / "single.json")
         .replace("processes:", "unused:")
         .replace("unused:\n", "", 1)
     )
@@ -61,12 +67,14 @@ def test_two_processes_exchange_messages_like_one(tmp_path):
     rows_single = json.loads((tmp_path / "single.json").read_text())
     assert len(rows_split) == 300
     assert rows_split == rows_single  # same content, same order, same sequence numbers
+    log = next(tmp_path.glob("runs/*-split-consumer/run.log")).read_text()
+    assert ("call: input 'in' takes relay.out over a unix socket of this host" in log) == links, log
 
 
 def test_missing_process_is_reported_not_hung(tmp_path):
     port = free_port()
     split = tmp_path / "split.yaml"
-    split.write_text(RECIPE.format(port=port, p_src="producer", p_sink="consumer", out=tmp_path / "x.json"))
+    split.write_text(RECIPE.format(zenoh="", port=port, p_src="producer", p_sink="consumer", out=tmp_path / "x.json"))
     r = subprocess.run(
         vgr("run", str(split), "--process", "consumer", "--ready-timeout", "2", "--no-progress"),
         env=env(),

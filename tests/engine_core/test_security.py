@@ -180,14 +180,36 @@ def test_processes_of_one_host_meet_on_private_sockets_that_other_users_cannot_o
     while len(list(folder.glob("*.sock"))) < 2 and time.monotonic() < deadline:
         time.sleep(0.05)
     sockets = sorted(p.name for p in folder.glob("*.sock"))
+    while not (folder / "producer.links").exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert (folder / "producer.links").exists()
+    links = subprocess.run(  # the socket the producer takes links on (engine.transport.local_link), as nobody
+        [sys.executable, "-c", LINK_INTRUDER, str(folder / "producer.links"), "65534"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     seen = intrude(plain_peer([f"unixsock-stream/{folder / 'producer.sock'}"]), user=65534)  # user nobody
     finish(consumer, producer)
+    assert links.stdout.strip() == "refused", links.stdout + links.stderr
     assert sockets == ["consumer.sock", "producer.sock"]
     assert stat.S_IMODE(private_socket_dir().stat().st_mode) == 0o700
     assert stat.S_IMODE(folder.stat().st_mode) == 0o700
     assert seen == {"peers": 0, "samples": 0, "replies": 0, "tokens": [], "info": 0}
     rows = json.loads((tmp_path / "rows.json").read_text())
     assert len(rows) == 300 and all(r["args"]["served_by"] == "echo" for r in rows)
+
+
+LINK_INTRUDER = """
+import os, socket, sys
+os.setuid(int(sys.argv[2]))
+s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+try:
+    s.connect(sys.argv[1])
+    print("connected")
+except PermissionError:
+    print("refused")
+"""
 
 
 def secured_recipe(tmp_path: Path, observers: tuple[str, ...] = ("watcher",), n: int = 400) -> Path:
@@ -279,6 +301,8 @@ def test_a_secured_run_admits_only_its_certificates_and_observers_only_read(tmp_
     assert obs["replies"] == 0  # ...but neither call (nor answer) a service nor stop the run:
     rows = json.loads((tmp_path / "rows.json").read_text())
     assert len(rows) == 400 and all(r["command"] == "echo" and r["args"]["served_by"] == "echo" for r in rows)
+    log = next(tmp_path.glob("runs/*-split-consumer/run.log")).read_text()
+    assert "over a unix socket" not in log  # every message took TLS and the access-control list
 
 
 def test_validate_names_what_is_wrong_with_the_certificates(tmp_path):

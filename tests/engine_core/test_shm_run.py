@@ -1,5 +1,6 @@
 """A run split over two processes of one host sends its large messages through shared memory.
 
+Over the link of one host (engine.transport.local_link) or, with ``local_links: false``, zenoh.
 The producer publishes Blobs of 1.2 MB (bytes: written straight into a shared-memory buffer,
 engine.transport.shm.ShmPool.wrap_parts) and point clouds of 1.2 MB (an array: encoded, then put from the
 pool, ShmPool.wrap); the consumer writes the SHA-256 of every message it got. What arrives is what
@@ -50,12 +51,16 @@ def summary_json(output: str) -> dict:
 
 
 @pytest.mark.parametrize(
-    ("record", "shared_memory"), [(False, True), (True, True), (False, False)], ids=["direct", "recorded", "off"]
+    ("record", "shared_memory", "links"),
+    [(False, True, True), (True, True, True), (False, False, True), (False, True, False)],
+    ids=["direct", "recorded", "off", "zenoh"],
 )
-def test_large_messages_arrive_whole_and_in_order(tmp_path, record, shared_memory):
+def test_large_messages_arrive_whole_and_in_order(tmp_path, record, shared_memory, links):
     out = tmp_path / "digests.json"
     recipe = tmp_path / "r.yaml"
-    zenoh = "" if shared_memory else "zenoh: {shared_memory: false}"
+    settings = [] if shared_memory else ["shared_memory: false"]
+    settings += [] if links else ["local_links: false"]  # (zenoh's shared memory and views, no link)
+    zenoh = f"zenoh: {{{', '.join(settings)}}}" if settings else ""
     recipe.write_text(RECIPE.format(zenoh=zenoh, port=free_port(), n=N, size=SIZE, points=POINTS, out=out))
     extra = ["--json"] if record else ["--json", "--no-record"]
     consumer = start(recipe, "consumer", tmp_path, *extra)

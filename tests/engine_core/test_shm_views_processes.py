@@ -168,6 +168,8 @@ def test_across_two_hosts_the_same_recipe_sends_bytes_through_the_network(tmp_pa
     rows = json.loads((tmp_path / "views.json").read_text())["rows"]
     assert [r["seq"] for r in rows] == list(range(1, 7)) and [r["sha"] for r in rows] == expected(6)
     assert not any(r["view"] for r in rows)  # another host: no view of the sender's memory
+    log = next(tmp_path.glob("runs/*-views-consumer/run.log")).read_text()
+    assert "over a unix socket" not in log  # ... nor a link to it (engine.transport.local_link)
 
 
 # --------------------------------------------------------------------------- killed mid-stream
