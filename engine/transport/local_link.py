@@ -1,12 +1,16 @@
 """Stage-to-stage messages between vgr processes of one host over a unix socket vgr owns: the
 listener of a producing process, one consumer's link, the frames on it, the consumer's handshake.
 
-Why (``python benchmarks/local_link.py``, results/local_link.json: one-way p50 of 64 B messages
-between two processes, paced 1 ms, alternated runs on the shared 2-core VM): a zenoh put reaches
-a subscriber in another process through zenoh's transmit and receive tasks, two thread wake-ups
-on a vCPU that was idle, 170-250 us over tcp/127.0.0.1 or a unix socket; a Python thread blocked
-in ``recv`` on a unix stream socket, woken by the producer's own ``sendmsg``, is one wake-up,
-28-38 us. The figures of the last run are in that file and in docs/design.md.
+Why (``python benchmarks/local_link.py``, results/local_link.json: one-way p50 between two Python
+processes, paced 1 ms, five alternated runs on the shared 2-core VM, median [range]): a zenoh put
+reaches a subscriber's callback in another process through zenoh's transmit and receive tasks, two
+thread wake-ups on vCPUs that were idle: 64 B 173 us [153-181] over tcp/127.0.0.1, 169 [155-172]
+over a unix socket; iceoryx2 0.10 (a loaned sample, then an event that wakes the receiver's
+listener) 81 [65-94]; a thread blocked in ``recv`` on a unix stream socket, woken by the producer's
+own ``sendmsg`` (this module), one wake-up: 49 [40-57]. 4 KiB: 182, 170, 88 and 55 us. A socket
+also needs no new dependency, keeps the port's order with no extra step (one stream per consumer),
+and leaves nothing behind when a process is killed (iceoryx2 leaves files under ``/dev/shm`` and
+``/tmp/iceoryx2`` until a live node cleans up after a dead one).
 
 How it goes:
 
