@@ -187,18 +187,22 @@ class RemoteInput:
     def _offer_linked(self, msg: Message | object) -> None:
         """Hand *msg* to the stage on the link's own thread when the stage is idle, else queue it for
         the pump. (This thread serves only this input: a handler may wait here for anything.)"""
-        queue = self.queue
-        if msg is not END and self._host.started and queue.claim_idle():  # type: ignore[union-attr]
+        self._hand_over(self.queue, msg, msg is not END and self._host.started, self.deliver)  # type: ignore[arg-type]
+
+    def _hand_over(self, queue: PortInbox, msg: Message | object, inline: bool, deliver: Deliver) -> None:
+        """*deliver(msg)* on this thread when *inline* and the stage is idle (nothing queued or in
+        flight, its lock free), else queue *msg* for the port's pump."""
+        if inline and queue.claim_idle():
             lock = self._lock
             if lock.acquire(False):
                 try:
-                    self.deliver(msg)
+                    deliver(msg)
                 finally:
                     lock.release()
-                    queue.release()  # type: ignore[union-attr]
+                    queue.release()
                 return
-            queue.release()  # type: ignore[union-attr]
-        queue.put(msg, block=False)  # type: ignore[union-attr]
+            queue.release()
+        queue.put(msg, block=False)
 
     def close(self) -> None:
         if self.closed:
@@ -309,17 +313,7 @@ class RemoteInput:
             return
         # (the END always goes to the pump: it runs the stage's finish(), which may take long)
         inline = self.on_receive_thread and msg is not END and self._host.started
-        if inline and queue.claim_idle():  # type: ignore[union-attr]
-            lock = self._lock
-            if lock.acquire(False):
-                try:
-                    self._timed_deliver(msg)
-                finally:
-                    lock.release()
-                    queue.release()  # type: ignore[union-attr]
-                return
-            queue.release()  # type: ignore[union-attr]
-        queue.put(msg, block=False)  # type: ignore[union-attr]
+        self._hand_over(queue, msg, inline, self._timed_deliver)  # type: ignore[arg-type]
 
     def _timed_deliver(self, msg: Message | object) -> None:
         """Deliver *msg* (the stage's lock held) and keep score of the handler's time."""
