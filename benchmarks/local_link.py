@@ -20,6 +20,12 @@ measured messages. Routes:
 The routes alternate run by run (``--repeat``, default 5). Every process runs with the C
 allocator settings of a vgr run (engine.run.process_memory). Usage:
 ``python benchmarks/local_link.py [--repeat N] [--out FILE]``; writes results/local_link.json.
+
+``--leak N``: the leak check of a link over N messages (tests/engine_core/test_local_link.py runs it
+over 20 000): a ``LinkSender`` thread sends N frames (every 100th a 700 kB payload, larger than one
+read, the rest 64 B) through a unix socket pair to a ``FrameReader``, which checks each; then the
+open file descriptors, threads and resident memory before and after, and whether every frame came
+whole and in order; writes results/local_link_leak.json (``--out`` for another file).
 """
 
 from __future__ import annotations
@@ -199,11 +205,60 @@ def run(route: str, size: int) -> float:
     return statistics.median(res["lat_ns"]) / 1e3
 
 
+def resident_kb() -> int:
+    line = next(x for x in Path("/proc/self/status").read_text().splitlines() if x.startswith("VmRSS:"))
+    return int(line.split()[1])
+
+
+def leak_run(n: int) -> dict[str, Any]:
+    """The leak check over *n* messages (see the module docstring)."""
+    from engine.transport.local_link import FrameReader, LinkSender
+
+    small, large = bytes(range(64)), bytes(700_000)
+
+    def one_link(count: int) -> int:
+        a, b = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
+        link = LinkSender(a, "leak")
+
+        def send() -> None:
+            for k in range(count):
+                link.send(k.to_bytes(8, "little"), large if k % 100 == 99 else small)
+            link.close()
+
+        writer = threading.Thread(target=send)
+        writer.start()
+        good = 0
+        for k, (env, payload) in enumerate(FrameReader(b).frames()):
+            want = large if k % 100 == 99 else small
+            good += int.from_bytes(env, "little") == k and len(payload) == len(want) and payload[-1] == want[-1]
+        writer.join(60)
+        b.close()
+        return good
+
+    one_link(2000)  # warm: buffers and the allocator's pools exist
+    before = {"fds": len(os.listdir("/proc/self/fd")), "threads": threading.active_count(), "rss_kb": resident_kb()}
+    t0 = time.monotonic()
+    good = one_link(n)
+    took = time.monotonic() - t0
+    after = {"fds": len(os.listdir("/proc/self/fd")), "threads": threading.active_count(), "rss_kb": resident_kb()}
+    grown = after["rss_kb"] - before["rss_kb"]
+    return {
+        "messages": n,
+        "whole_and_in_order": good,
+        "before": before,
+        "after": after,
+        "rss_growth_kb": grown,
+        "us_per_message": round(took / n * 1e6, 2),
+        "leaked": good != n or after["fds"] != before["fds"] or after["threads"] != before["threads"] or grown > 8192,
+    }
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--out", type=Path, default=HERE / "results" / "local_link.json")
     ap.add_argument("--rx", nargs=4, help=argparse.SUPPRESS)
+    ap.add_argument("--leak", type=int, metavar="N", help="the leak check over N messages instead")
     args = ap.parse_args()
     sys.path[:0] = [str(HERE.parent)]
     from engine.run.process_memory import keep_freed_memory
@@ -211,6 +266,12 @@ def main() -> None:
     keep_freed_memory()
     if args.rx:
         receiver(args.rx[0], args.rx[1], args.rx[2], int(args.rx[3]))
+        return
+    if args.leak:
+        leak = leak_run(args.leak)
+        out = args.out if args.out != ap.get_default("out") else HERE / "results" / "local_link_leak.json"
+        out.write_text(json.dumps(leak, indent=2))
+        print(json.dumps(leak))
         return
     routes = ["zenoh_tcp", "zenoh_unix", "vgr_link"]
     try:

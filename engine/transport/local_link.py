@@ -38,6 +38,11 @@ consumer gets nothing more, as when zenoh closes a link. A killed consumer close
 producer's next send fails and drops the link); a killed producer ends the consumer's reads (a cut
 frame is dropped). With a ``security:`` block, or ``zenoh: {local_links: false}``, there are no
 links: every message goes through zenoh (its TLS and access control).
+
+Over a million messages through one link (``python benchmarks/local_link.py --leak 1000000``,
+results/local_link_leak.json: every 100th a 700 kB payload, the rest 64 B) every frame arrived whole
+and in order, with the same open file descriptors and threads before and after and 1.8 MB more
+resident memory (the allocator's pools); a link is one socket per consuming input, nothing per message.
 """
 
 from __future__ import annotations

@@ -11,6 +11,8 @@ import os
 import shutil
 import socket
 import struct
+import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -213,3 +215,16 @@ def test_a_port_whose_only_consumer_is_linked_puts_nothing_on_zenoh_until_the_li
     sender.send(b"three", b"env3")
     sender.close()
     assert zenoh_side.puts == [(b"two", b"env2"), (b"three", b"env3")]
+
+
+def test_nothing_leaks_over_many_messages(tmp_path):
+    """20 000 here; the same check over a million messages is ``python benchmarks/local_link.py --leak
+    1000000`` (results/local_link_leak.json)."""
+    out = tmp_path / "leak.json"
+    script = Path(__file__).resolve().parents[2] / "benchmarks" / "local_link.py"
+    done = subprocess.run(
+        [sys.executable, str(script), "--leak", "20000", "--out", str(out)], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    leak = json.loads(out.read_text())
+    assert leak["whole_and_in_order"] == 20_000 and not leak["leaked"], leak
