@@ -8,9 +8,10 @@ of that block: the codec decodes the bulk array as a numpy view of it, no copy o
 
 A producer on this host sends them over a link instead (engine.transport.local_link, asked for by
 :meth:`RemoteInput.try_link` before the stages start): a thread of this input reads the link and
-hands each message to the stage itself while the stage is idle (one thread wake-up from the
-producer's send to the handler; the thread serves this input alone, so a handler may wait there
-for anything), else queues it for the port's pump; zenoh's samples of the port are ignored.
+hands each message to the stage itself while the stage is idle and its handler quick (the rule of
+zenoh's receive thread below; one thread wake-up from the producer's send to the handler; the
+thread serves this input alone, so a handler may wait there for anything), else queues it for the
+port's pump and reads on; zenoh's samples of the port are ignored.
 
 Otherwise, where the stage gets the messages from zenoh is decided per stage from what the engine
 knows of it (:func:`receive_thread_safe`), not by a user flag:
@@ -185,9 +186,13 @@ class RemoteInput:
             log.exception("input %s.%s: its link failed", self.rt.name, self.port)
 
     def _offer_linked(self, msg: Message | object) -> None:
-        """Hand *msg* to the stage on the link's own thread when the stage is idle, else queue it for
-        the pump. (This thread serves only this input: a handler may wait here for anything.)"""
-        self._hand_over(self.queue, msg, msg is not END and self._host.started, self.deliver)  # type: ignore[arg-type]
+        """Hand *msg* to the stage on the link's own thread when the stage is idle and its handler
+        has been quick (as on zenoh's receive thread: :data:`RX_TRIAL` handlings under
+        :data:`RX_BUDGET_S`, one over it moves it back), else queue it for the pump: while a handler
+        runs here the link is not read, and a producer that fills the socket waits. (This thread
+        serves only this input: a handler may wait here for anything, a service's reply included.)"""
+        inline = self.on_receive_thread and msg is not END and self._host.started
+        self._hand_over(self.queue, msg, inline, self._timed_deliver)  # type: ignore[arg-type]
 
     def _hand_over(self, queue: PortInbox, msg: Message | object, inline: bool, deliver: Deliver) -> None:
         """*deliver(msg)* on this thread when *inline* and the stage is idle (nothing queued or in

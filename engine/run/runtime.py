@@ -535,9 +535,13 @@ class StageRuntime(StageContext):
         self.host.stage_failed(self.name)
 
     def wake(self) -> None:
-        """Unblock every pump thread of this stage (the run is stopping)."""
+        """Unblock every pump thread of this stage, and a publish waiting for a link's room (the run
+        is stopping, or its data is done everywhere)."""
         for box in self.inboxes.values():
             box.close()
+        for out in self.outputs.values():
+            if out.wire is not None:
+                out.wire.abort_links()
         for service in self.service_ports.values():
             service.wake()
 

@@ -32,9 +32,11 @@ How it goes:
   through zenoh as before, so one port may feed both.
 
 Nothing waits without bound: a producer's send waits at most :data:`SEND_TIMEOUT_S` for room (the
-consumer's reader never blocks, so only a process that stopped running leaves it full; zenoh's
-congestion control waits as long before it closes a link), after which the link is closed and the
-consumer gets nothing more, as when zenoh closes a link. A killed consumer closes its end (the
+consumer's reader runs a handler itself only while handlers are quick, and queues otherwise, so
+only one very long handler, or a process that stopped running, leaves the socket full), after which
+the link is closed with a warning and the consumer gets nothing more, as when zenoh's congestion
+control closes a link (after 5 s); a stop closes every link at once (:meth:`LinkSender.close`
+needs no lock), so a producer waiting for room wakes. A killed consumer closes its end (the
 producer's next send fails and drops the link); a killed producer ends the consumer's reads (a cut
 frame is dropped). With a ``security:`` block, or ``zenoh: {local_links: false}``, there are no
 links: every message goes through zenoh (its TLS and access control).
@@ -66,7 +68,7 @@ FRAME = struct.Struct("<II")  # envelope length, payload length (as a batch reco
 _HELLO_LEN = struct.Struct("<I")
 HELLO_MAX = 4096  # bytes of a consumer's hello
 HANDSHAKE_TIMEOUT_S = 2.0
-SEND_TIMEOUT_S = 5.0
+SEND_TIMEOUT_S = 30.0
 ACCEPTED, REFUSED = b"\x01", b"\x00"
 RECV_BYTES = 256 * 1024  # one read of a link's frames
 

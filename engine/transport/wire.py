@@ -194,6 +194,11 @@ class WireSender:
         if self._zenoh or self._matching:
             self._zput(payload, attachment=envelope)
 
+    def abort_links(self) -> None:
+        """Close the links now, a send waiting for room included (the run is stopping: no lock)."""
+        for link in self._links:
+            link.close()
+
     def _close_links(self) -> None:
         links, self._links = self._links, ()
         for link in links:
