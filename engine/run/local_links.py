@@ -45,14 +45,7 @@ def listen_for_links(run: str, process: str, runtimes: Mapping[str, StageRuntime
 def link_inputs(runtimes: Mapping[str, StageRuntime]) -> int:
     """Ask the producer of every input fed from another process for a link (each taken is a line of
     the run's log); how many were taken."""
-    host, taken = host_key(), 0
-    for rt in runtimes.values():
-        for port, box in rt.inboxes.items():
-            if isinstance(box, RemoteInput) and box.try_link(host):
-                taken += 1
-                src = next(e for e in rt.host.graph.inputs_of(rt.name) if e.dst_port == port)
-                # (the run folder's run.log says it; not an event of the stage: a replay, in one
-                # process, must record the same events)
-                said = "%s: input %r takes %s.%s over a unix socket of this host"
-                log.info(said, rt.name, port, src.src, src.src_port)
-    return taken
+    host = host_key()
+    return sum(
+        box.try_link(host) for rt in runtimes.values() for box in rt.inboxes.values() if isinstance(box, RemoteInput)
+    )

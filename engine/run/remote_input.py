@@ -114,8 +114,7 @@ class RemoteInput:
         self._quick = 0  # handlings in a row under RX_BUDGET_S
         self._host = rt.host  # (bound once for the receive thread's path)
         self._lock: Any = rt.lock  # (an RLock: acquired without waiting there)
-        self.link: FrameReader | None = None  # the producer sends this input's messages here (try_link)
-        self._linked = False  # ... and zenoh's samples are ignored
+        self.link: FrameReader | None = None  # the producer sends this input's messages here (try_link), not zenoh
         if on_receive_thread:
             self.queue = PortInbox(port, None)  # unbounded: the receive thread never waits
             self.subscriber = bus.subscribe_direct(key, self._on_sample)
@@ -154,13 +153,15 @@ class RemoteInput:
         sock = open_link(run, graph.nodes[src.src].spec.process, hello)
         if sock is None:
             return False
-        self._linked = True  # (before the swap below: a zenoh sample in flight then sees it)
+        self.link = FrameReader(sock)  # (before the swap below: a zenoh sample in flight then sees it)
         with contextlib.suppress(Exception):
             self.subscriber.undeclare()
         self.channel = None  # what zenoh had queued came after the link was taken: the link has it too
         self.queue = PortInbox(self.port, None)  # unbounded: the link's reader never waits
-        self.link = FrameReader(sock)
         rt.spawn_thread(f"{rt.name}.{self.port}.link", self._read_link, self.link)
+        # (the run folder's run.log says it; not an event of the stage: a replay, in one process,
+        # must record the same events)
+        log.info("%s: input %r takes %s.%s over a unix socket of this host", rt.name, self.port, src.src, src.src_port)
         return True
 
     def _read_link(self, link: FrameReader) -> None:
@@ -314,7 +315,7 @@ class RemoteInput:
     def _offer(self, msg: Message | object) -> None:
         """Hand *msg* to the stage here when the stage is idle and quick, else queue it for the pump."""
         queue = self.queue
-        if self._linked:  # (read after the queue: try_link sets this before it swaps the queue)
+        if self.link is not None:  # (read after the queue: try_link sets it before it swaps the queue)
             return
         # (the END always goes to the pump: it runs the stage's finish(), which may take long)
         inline = self.on_receive_thread and msg is not END and self._host.started

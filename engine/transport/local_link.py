@@ -209,14 +209,21 @@ def _answers(path: Path) -> bool:
         probe.close()
 
 
-def _recv_exactly(sock: socket.socket, n: int) -> bytes:
-    buf = bytearray(n)
-    view, got = memoryview(buf), 0
-    while got < n:
+def _fill(sock: socket.socket, view: memoryview, got: int = 0) -> int:
+    """Receive into *view* from byte *got* on until it is full or the link ends: the bytes it holds."""
+    while got < len(view):
         k = sock.recv_into(view[got:])
         if not k:
-            raise ConnectionError(f"closed after {got} of {n} bytes")
+            break
         got += k
+    return got
+
+
+def _recv_exactly(sock: socket.socket, n: int) -> bytes:
+    buf = bytearray(n)
+    got = _fill(sock, memoryview(buf))
+    if got < n:
+        raise ConnectionError(f"closed after {got} of {n} bytes")
     return bytes(buf)
 
 
@@ -284,14 +291,11 @@ class FrameReader:
         have = len(buf) - off
         frame[:have] = buf[off:]
         view = memoryview(frame)
-        while have < size:
-            try:
-                k = self.sock.recv_into(view[have:])
-            except OSError:
+        try:
+            if _fill(self.sock, view, have) < size:
                 return None
-            if not k:
-                return None
-            have += k
+        except OSError:
+            return None
         return view.toreadonly()  # (as a zenoh payload's bytes: a numpy view of it is read-only)
 
     def close(self) -> None:
@@ -302,6 +306,6 @@ class FrameReader:
 
 
 def links_allowed(settings: Any, secured: bool) -> bool:
-    """Whether a process with these zenoh *settings* links to processes of its host."""
-    unix = hasattr(socket, "AF_UNIX") and os.name == "posix"
-    return bool(getattr(settings, "local_links", True)) and not secured and unix
+    """Whether a process with these zenoh *settings* (engine.recipe.model.ZenohSettings) links to
+    processes of its host."""
+    return settings.local_links and not secured and os.name == "posix" and hasattr(socket, "AF_UNIX")

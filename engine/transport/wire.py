@@ -38,7 +38,6 @@ and a large payload goes as bytes, never from a zenoh buffer (a socket cannot ca
 
 from __future__ import annotations
 
-import struct
 import threading
 import time
 from collections.abc import Iterator
@@ -47,7 +46,7 @@ from typing import Any
 import zenoh
 
 from engine.messages.codec import CodecError, Envelope, Kind, encode_envelope
-from engine.transport.local_link import LinkSender
+from engine.transport.local_link import FRAME, LinkSender
 from engine.transport.shm import ShmPool
 from engine.transport.shm_views import ViewPayload, ViewPool, view_envelope
 
@@ -61,7 +60,7 @@ MAX_PENDING = 4096  # messages a port may have waiting for its sender thread
 # 4 KiB messages between two processes (2 vCPUs, 1 MiB L2 per core): 86k msg/s with only the count
 # bound, 118k with 128 KiB or 512 KiB of bytes; 64 B messages unchanged (the count bounds them).
 MAX_PENDING_BYTES = 256 * 1024
-_RECORD = struct.Struct("<II")
+_RECORD = FRAME  # a batch record and a link's frame: envelope length, payload length
 _monotonic_ns = time.monotonic_ns
 
 
@@ -103,14 +102,13 @@ class WireSender:
     def __init__(self, publisher: Any, name: str, shm: ShmPool | None = None, views: ViewPool | None = None) -> None:
         self._publisher = publisher
         self._zput = publisher.put
-        self._shm_wrap = shm.wrap if shm is not None else _as_is
-        self._wrap = self._shm_wrap  # large payloads into zenoh's shared memory (none once linked)
+        self._wrap = shm.wrap if shm is not None else _as_is  # large payloads into zenoh's shared memory
         # consumers of this host linked to the port (engine.transport.local_link)
         self._links: tuple[LinkSender, ...] = ()
         self._zenoh = True  # some consumer the graph names is not linked: zenoh gets every message too
         self._matching = True  # ... or some subscriber of the key is there (a process that rejoined)
         self._matching_listener: Any = None
-        self._put = self._zenoh_put
+        self._put = publisher.put  # (the port's puts: zenoh's own, until a consumer links)
         self._place = views.place if views is not None else None  # ... or as views of the port's pool
         self._name = name
         self._pending: list[tuple[bytes, bytes]] = []
@@ -136,7 +134,7 @@ class WireSender:
             idle = not self._pending and not self._busy
             if self._closed or (idle and (not burst or len(payload) > SMALL_BYTES)):
                 if len(payload) <= SMALL_BYTES:  # idle port: no hand-over, no wait
-                    self._put(payload, envelope)
+                    self._put(payload, attachment=envelope)
                 else:
                     self._put_one(payload, envelope)
                 self.samples += 1
@@ -165,9 +163,7 @@ class WireSender:
             self._zenoh = zenoh_too
             self._wrap = _as_is  # a large payload goes as bytes: to the links, and to zenoh for another host
             self._put = self._fan_put
-            if not hasattr(self._publisher, "declare_matching_listener"):
-                self._matching = False  # (a publisher of the tests': what the graph says alone)
-            elif self._matching_listener is None:
+            if self._matching_listener is None:
                 # a linked consumer no longer subscribes: once none is left, nothing is put there
                 # (run on zenoh's thread: it only sets a flag)
                 self._matching_listener = self._publisher.declare_matching_listener(
@@ -178,21 +174,18 @@ class WireSender:
     def _on_matching(self, status: Any) -> None:
         self._matching = bool(status.matching)
 
-    def _zenoh_put(self, payload: Any, envelope: bytes) -> None:
-        self._zput(payload, attachment=envelope)
-
-    def _fan_put(self, payload: Any, envelope: bytes) -> None:
+    def _fan_put(self, payload: Any, attachment: bytes) -> None:
         """To every live link, and through zenoh while a consumer the graph names is not linked or
         something subscribes there (a process of the run started again takes its messages from
         zenoh: its port is past its first message). A link that fails is dropped (its consumer is
         gone or stuck, see engine.transport.local_link) and zenoh gets every message from then on,
         this one included; zenoh's put raises."""
         for link in self._links:
-            if not link.send(envelope, payload):
+            if not link.send(attachment, payload):
                 self._links = tuple(x for x in self._links if x is not link)
                 self._zenoh = True
         if self._zenoh or self._matching:
-            self._zput(payload, attachment=envelope)
+            self._zput(payload, attachment=attachment)
 
     def abort_links(self) -> None:
         """Close the links now, a send waiting for room included (the run is stopping: no lock)."""
@@ -266,9 +259,9 @@ class WireSender:
         if type(payload) is not ViewPayload and self._place is not None and len(payload) > SMALL_BYTES:
             payload = self._place(payload) or payload
         if type(payload) is ViewPayload:
-            self._put(payload.descriptor, view_envelope(envelope))
+            self._put(payload.descriptor, attachment=view_envelope(envelope))
         elif self._links:
-            self._put(payload, envelope)  # (bytes: a link cannot carry a zenoh buffer)
+            self._put(payload, attachment=envelope)  # (bytes: a link cannot carry a zenoh buffer)
         else:
             self._zput(self._wrap(payload), attachment=envelope)
 
@@ -277,8 +270,8 @@ class WireSender:
             return
         if len(run) == 1:
             env, payload = run[0]
-            self._put(payload, env)
+            self._put(payload, attachment=env)
         else:
-            self._put(pack_batch(run), BATCH_ENVELOPE)
+            self._put(pack_batch(run), attachment=BATCH_ENVELOPE)
             self.batched += len(run)
         self.samples += 1

@@ -16,6 +16,7 @@ import sys
 import tempfile
 import threading
 import time
+import types
 from pathlib import Path
 
 import pytest
@@ -190,13 +191,18 @@ def test_a_stale_socket_is_taken_over_and_a_live_one_left_alone(run_folder):
 
 
 class Puts:
-    """A zenoh publisher's stand-in: what was put."""
+    """A zenoh publisher's stand-in: what was put; nothing subscribes to it."""
+
+    matching_status = types.SimpleNamespace(matching=False)
 
     def __init__(self) -> None:
         self.puts: list[tuple[bytes, bytes]] = []
 
     def put(self, payload: bytes, attachment: bytes) -> None:
         self.puts.append((bytes(payload), bytes(attachment)))
+
+    def declare_matching_listener(self, handler: object) -> object:
+        return handler
 
 
 def test_a_port_whose_only_consumer_is_linked_puts_nothing_on_zenoh_until_the_link_is_lost():
